@@ -1,0 +1,1 @@
+"""Assembly Agent application layer: command line, web server, pipeline worker, storage."""
