@@ -1,0 +1,152 @@
+"""Pydantic models of the HTTP API (requests and responses); together they are the OpenAPI contract.
+
+Teacher sentence tasks are validated with :class:`tracker.assembly.SentenceTask` (the task-file model of
+the assembly package), so the editor and the task files accept exactly the same sentences.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+
+from tracker.assembly import SentenceTask
+
+ModeName = Literal["guidance", "guess", "learning", "none"]
+
+
+class ErrorEntry(BaseModel):
+    time: float = Field(description="wall-clock time, seconds since the epoch")
+    where: str = Field(description="source, frame or pipeline")
+    message: str
+
+
+class WorkerStatus(BaseModel):
+    state: str = Field(description="starting | running | paused | error | finished | stopped")
+    paused: bool
+    frames_processed: int
+    frames_skipped: int
+    source_opens: int
+    frame_index: int | None
+    fps: float
+    errors: list[ErrorEntry]
+
+
+class Status(BaseModel):
+    """``GET /api/status``."""
+
+    version: str
+    source: str
+    mode: ModeName
+    task: str | None
+    parts: list[str]
+    viser_port: int | None = Field(description="port of the viser 3D scene on this host, or null when disabled")
+    session_id: int | None
+    worker: WorkerStatus
+    instruction: str
+
+
+class SourceInfo(BaseModel):
+    spec: str = Field(description="what to pass to --source, e.g. sim:guess-2")
+    kind: Literal["sim", "recording", "camera"]
+    description: str = ""
+
+
+class SourcesResponse(BaseModel):
+    """``GET /api/sources``: the current source and the ones this server can open."""
+
+    current: str
+    metadata: dict[str, Any]
+    available: list[SourceInfo]
+
+
+class SourceSelect(BaseModel):
+    source: str = Field(min_length=3, description="sim:<scenario> | recording:<dir> | camera:<n>")
+
+
+class TaskRef(BaseModel):
+    id: str = Field(description="preset id, or teacher:<n> for a teacher's sentence task")
+    title: str
+    mode: Literal["guidance", "guess", "learning"]
+    origin: Literal["preset", "teacher"]
+
+
+class ModesResponse(BaseModel):
+    """``GET /api/modes``."""
+
+    modes: list[str]
+    current: ModeName
+    task: str | None
+    tasks: list[TaskRef]
+
+
+class ModeSelect(BaseModel):
+    """``POST /api/modes``: switch the mode (and optionally its task; default: the mode's preset)."""
+
+    mode: ModeName
+    task: str | None = Field(None, description="preset id or teacher:<n>")
+
+
+class SessionAction(BaseModel):
+    action: Literal["start", "pause", "reset"]
+
+
+class SessionInfo(BaseModel):
+    id: int
+    started_at: float
+    ended_at: float | None
+    source: str
+    mode: str | None
+    task: str | None
+    frames: int
+
+
+class SessionsResponse(BaseModel):
+    current: int | None
+    sessions: list[SessionInfo]
+
+
+class BoxRequest(BaseModel):
+    """``POST /api/boxes``: a rectangle drawn on the colour image (pixels of the full-size image)."""
+
+    x: float = Field(ge=0)
+    y: float = Field(ge=0)
+    w: float = Field(gt=0)
+    h: float = Field(gt=0)
+    action: Literal["track", "calibrate"] = "track"
+    part: str | None = Field(None, description="part name; default: the part whose colour matches the rectangle")
+
+
+class BoxResponse(BaseModel):
+    part: str
+    action: Literal["track", "calibrate"]
+    rect: list[float] = Field(description="[x, y, w, h] pixels")
+    pose: dict[str, list[float]] | None = Field(None, description="camera-frame pose {t, q} of the new box")
+    frame_index: int | None
+
+
+class TaskRecord(BaseModel):
+    """A stored teacher task."""
+
+    id: int
+    ref: str = Field(description="what to pass as task to POST /api/modes, e.g. teacher:3")
+    task: SentenceTask
+    created_at: float
+    updated_at: float
+
+
+class TaskList(BaseModel):
+    tasks: list[TaskRecord]
+
+
+class PasswordBody(BaseModel):
+    password: str = Field(min_length=1)
+
+
+class AuthStatus(BaseModel):
+    configured: bool = Field(description="a teacher password exists")
+    logged_in: bool
+
+
+class Message(BaseModel):
+    detail: str

@@ -1,0 +1,103 @@
+"""The teacher password: stored only as a salted scrypt hash; checked in constant time.
+
+The password comes from the environment (``ASSEMBLY_AGENT_TEACHER_PASSWORD``) or is set once by the
+first teacher (``POST /api/auth/setup``). A successful login returns a random session token (also set
+as the ``teacher_token`` cookie); editing endpoints accept that token or the password itself in the
+``X-Teacher-Password`` header.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import secrets
+import threading
+import time
+
+from app.storage import Storage
+
+_SCRYPT = {"n": 2**14, "r": 8, "p": 1, "dklen": 32}
+SECRET_KEY = "teacher_password"
+TOKEN_TTL_S = 12 * 3600.0
+MIN_PASSWORD_LENGTH = 4
+
+
+def hash_password(password: str, salt: bytes | None = None) -> str:
+    """``scrypt$n$r$p$salt_hex$hash_hex`` for ``password`` (a fresh 16-byte salt when none is given)."""
+    salt = secrets.token_bytes(16) if salt is None else salt
+    digest = hashlib.scrypt(password.encode("utf-8"), salt=salt, **_SCRYPT)
+    return f"scrypt${_SCRYPT['n']}${_SCRYPT['r']}${_SCRYPT['p']}${salt.hex()}${digest.hex()}"
+
+
+def verify_password(password: str, stored: str) -> bool:
+    """Whether ``password`` matches a :func:`hash_password` string."""
+    try:
+        scheme, n, r, p, salt_hex, hash_hex = stored.split("$")
+        if scheme != "scrypt":
+            return False
+        digest = hashlib.scrypt(
+            password.encode("utf-8"),
+            salt=bytes.fromhex(salt_hex),
+            n=int(n),
+            r=int(r),
+            p=int(p),
+            dklen=len(hash_hex) // 2,
+        )
+    except (ValueError, TypeError):
+        return False
+    return hmac.compare_digest(digest.hex(), hash_hex)
+
+
+class TeacherAuth:
+    """Password hash in :class:`Storage`, session tokens in memory."""
+
+    def __init__(self, storage: Storage, env_password: str | None = None) -> None:
+        self.storage = storage
+        self._tokens: dict[str, float] = {}
+        self._lock = threading.Lock()
+        if env_password:
+            stored = storage.get_secret(SECRET_KEY)
+            if stored is None or not verify_password(env_password, stored):
+                storage.set_secret(SECRET_KEY, hash_password(env_password))
+
+    @property
+    def is_configured(self) -> bool:
+        return self.storage.get_secret(SECRET_KEY) is not None
+
+    def setup(self, password: str) -> None:
+        """Set the first password; refused once one exists."""
+        if len(password) < MIN_PASSWORD_LENGTH:
+            raise ValueError(f"password: use at least {MIN_PASSWORD_LENGTH} characters")
+        with self._lock:
+            if self.is_configured:
+                raise PermissionError("a teacher password is already set")
+            self.storage.set_secret(SECRET_KEY, hash_password(password))
+
+    def check_password(self, password: str | None) -> bool:
+        stored = self.storage.get_secret(SECRET_KEY)
+        return bool(password) and stored is not None and verify_password(password, stored)
+
+    def login(self, password: str) -> str | None:
+        """A new session token, or ``None`` for a wrong password."""
+        if not self.check_password(password):
+            return None
+        token = secrets.token_urlsafe(32)
+        with self._lock:
+            self._tokens[token] = time.time() + TOKEN_TTL_S
+        return token
+
+    def check_token(self, token: str | None) -> bool:
+        if not token:
+            return False
+        with self._lock:
+            expiry = self._tokens.get(token)
+            if expiry is None:
+                return False
+            if expiry < time.time():
+                del self._tokens[token]
+                return False
+        return True
+
+    def logout(self, token: str | None) -> None:
+        with self._lock:
+            self._tokens.pop(token or "", None)

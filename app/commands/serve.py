@@ -1,0 +1,72 @@
+"""``assembly-agent serve``: the web application (panel, teacher editor, 3D scene) on the chosen source."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from pydantic import ValidationError
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "serve",
+        help="serve the browser panel, 3D scene and teacher editor (default: simulated table, guidance mode)",
+        description="Start the web application on http://HOST:PORT. With no arguments it serves the simulated "
+        "table in guidance mode on http://127.0.0.1:8000. Settings may also come from environment variables "
+        "ASSEMBLY_AGENT_<NAME> (e.g. ASSEMBLY_AGENT_TEACHER_PASSWORD, ASSEMBLY_AGENT_DATABASE).",
+    )
+    p.add_argument("--source", help="sim:<scenario> | recording:<dir> | camera:<n> (default sim:guidance-demo)")
+    p.add_argument("--mode", choices=["guidance", "guess", "learning", "none"], help="assembly mode at start")
+    p.add_argument("--task", help="task preset id (e.g. guidance-5-cubes) or teacher:<id>; default: the mode's preset")
+    p.add_argument("--host", help="address to listen on (default 127.0.0.1; 0.0.0.0 for all interfaces)")
+    p.add_argument("--port", type=int, help="HTTP port (default 8000)")
+    p.add_argument("--viser-port", type=int, help="port of the viser 3D scene (default 8080; 0 disables it)")
+    p.add_argument("--database", help="SQLite file or sqlite:///path URL (default data/assembly-agent.sqlite3)")
+    p.add_argument("--tracker-config", help="tracker preset name or YAML/TOML settings file")
+    p.add_argument("--particles", type=int, dest="n_particles", help="override the tracker's particle count")
+    p.add_argument("--seed", type=int, help="random seed of tracker and modes")
+    p.add_argument(
+        "--no-realtime",
+        dest="realtime",
+        action="store_false",
+        default=None,
+        help="process simulated/recorded frames as fast as possible instead of at their frame rate",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from app.server import create_app
+    from app.settings import Settings
+
+    overrides = {
+        k: v
+        for k, v in {
+            "source": args.source,
+            "mode": args.mode,
+            "task": args.task,
+            "host": args.host,
+            "port": args.port,
+            "viser_port": args.viser_port,
+            "database": args.database,
+            "tracker_config": args.tracker_config,
+            "n_particles": args.n_particles,
+            "seed": args.seed,
+            "realtime": args.realtime,
+        }.items()
+        if v is not None
+    }
+    try:
+        settings = Settings(**overrides)
+    except ValidationError as exc:
+        msgs = "; ".join(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors())
+        raise ValueError(f"invalid settings: {msgs}") from exc
+    app = create_app(settings)
+    print(f"Assembly Agent: http://{settings.host}:{settings.port}/  (teacher editor: /teacher, API: /docs)")
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning")
+    return 0

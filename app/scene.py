@@ -1,0 +1,249 @@
+"""The viser 3D scene: table, depth point cloud, parts at their estimated poses, particle clouds, words, ghost.
+
+World frame = the table frame (y up along the table normal; see the README's conventions). Everything
+the camera measures lives under the node ``/camera`` whose pose is the camera in the table frame, so
+parts, particles and the depth cloud are set in camera coordinates as they come out of the pipeline.
+Handles are created once and updated in place; updates run on their own thread (latest snapshot only),
+so the pipeline worker never waits for the browser.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from tracker.frame import Frame
+from tracker.parts import PartSpec
+from tracker.pose import Pose
+from tracker.snapshot import Snapshot
+
+log = logging.getLogger(__name__)
+
+DEPTH_STRIDE = 8
+"""Keep every n-th depth pixel in each direction for the point cloud."""
+MAX_PARTICLES_SHOWN = 400
+"""Particles per part sent to the browser (a random but fixed subset)."""
+
+
+def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
+    q = np.asarray(q_xyzw, dtype=float)
+    return np.array([q[3], q[0], q[1], q[2]])
+
+
+def _pose_from_any(d: Any) -> Pose | None:
+    if isinstance(d, Pose):
+        return d
+    if isinstance(d, dict) and "t" in d and "q" in d:
+        try:
+            return Pose.from_dict(d)
+        except (ValueError, TypeError, KeyError):
+            return None
+    return None
+
+
+def word_labels(mode_state: dict[str, Any]) -> dict[str, str]:
+    """``{part: word}`` from a learning-mode state (keys ``words`` or ``assignment``)."""
+    for key in ("words", "assignment", "word_of_part"):
+        value = mode_state.get(key)
+        if isinstance(value, dict):
+            return {str(k): str(v) for k, v in value.items() if isinstance(v, str | int | float)}
+    return {}
+
+
+def ghost_target(mode_state: dict[str, Any]) -> tuple[str, Pose, str] | None:
+    """``(part, pose, frame)`` of the next step's target from a guidance-mode state, if any.
+
+    ``frame`` is ``"camera"`` or ``"table"``, read from the state's ``target`` entry
+    (``{"part", "pose" | "pose_camera" | "pose_table"}``).
+    """
+    target = mode_state.get("target") or mode_state.get("next_target")
+    if not isinstance(target, dict):
+        return None
+    part = target.get("part")
+    if not part:
+        return None
+    for key, frame in (("pose_camera", "camera"), ("pose", target.get("frame", "camera")), ("pose_table", "table")):
+        pose = _pose_from_any(target.get(key))
+        if pose is not None:
+            return str(part), pose, str(frame)
+    return None
+
+
+class Scene:
+    """A viser server showing the pipeline's snapshots."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 8080, parts: list[PartSpec] | None = None) -> None:
+        import viser
+
+        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.port = self.server.get_port()
+        sc = self.server.scene
+        sc.set_up_direction("+y")
+        sc.add_grid(
+            "/table",
+            width=1.0,
+            height=1.0,
+            plane="xz",
+            cell_size=0.05,
+            section_size=0.25,
+            plane_color=(225, 215, 195),
+            plane_opacity=0.6,
+        )
+        self.camera_node = sc.add_frame("/camera", show_axes=True, axes_length=0.05, axes_radius=0.003)
+        self.depth_cloud = sc.add_point_cloud(
+            "/camera/depth", np.zeros((1, 3), np.float32), (128, 128, 128), point_size=0.004
+        )
+        self.ghost = sc.add_box(
+            "/camera/ghost", color=(255, 255, 255), dimensions=(0.036,) * 3, opacity=0.35, visible=False
+        )
+        self.parts: list[PartSpec] = []
+        self.part_nodes: dict[str, Any] = {}
+        self.particle_nodes: dict[str, Any] = {}
+        self.label_nodes: dict[str, Any] = {}
+        self._particle_idx: dict[str, np.ndarray] = {}
+        self._rng = np.random.default_rng(0)
+        self._frames = 0
+        if parts:
+            self.set_parts(parts)
+
+    def set_parts(self, parts: list[PartSpec]) -> None:
+        """Create one box (or mesh), particle cloud and word label per part (replacing earlier ones)."""
+        if [p.name for p in parts] == [p.name for p in self.parts]:
+            return
+        for handles in (self.part_nodes, self.particle_nodes, self.label_nodes):
+            for h in handles.values():
+                h.remove()
+            handles.clear()
+        sc = self.server.scene
+        self.parts = list(parts)
+        for p in parts:
+            color = p.color or (180, 180, 180)
+            if p.box is not None:
+                node = sc.add_box(f"/camera/parts/{p.name}", color=color, dimensions=p.box, visible=False)
+            else:
+                mesh = p.load_mesh()
+                node = sc.add_mesh_simple(
+                    f"/camera/parts/{p.name}", mesh.vertices, mesh.faces, color=color, visible=False
+                )
+            self.part_nodes[p.name] = node
+            self.particle_nodes[p.name] = sc.add_point_cloud(
+                f"/camera/particles/{p.name}",
+                np.zeros((1, 3), np.float32),
+                color,
+                point_size=0.002,
+                precision="float32",
+                visible=False,
+            )
+            self.label_nodes[p.name] = sc.add_label(
+                f"/camera/parts/{p.name}/word", "", position=(0.0, -0.03, 0.0), visible=False
+            )
+
+    def update(self, snap: Snapshot, frame: Frame | None) -> None:
+        """Move every handle to the snapshot's state (one batched message)."""
+        self._frames += 1
+        with self.server.atomic():
+            if snap.table is not None:
+                cam_in_table = Pose.from_dict(snap.table["table_to_camera"]).inverse()
+                self.camera_node.wxyz = _wxyz(cam_in_table.q)
+                self.camera_node.position = cam_in_table.t
+            if frame is not None and frame.depth is not None and self._frames % 3 == 1:
+                d = frame.depth[::DEPTH_STRIDE, ::DEPTH_STRIDE]
+                v, u = np.mgrid[0 : frame.depth.shape[0] : DEPTH_STRIDE, 0 : frame.depth.shape[1] : DEPTH_STRIDE]
+                ok = np.isfinite(d)
+                if ok.any():
+                    pts = frame.intrinsics.backproject(u[ok], v[ok], d[ok])
+                    self.depth_cloud.points = pts.astype(np.float32)
+                    self.depth_cloud.colors = frame.color[::DEPTH_STRIDE, ::DEPTH_STRIDE][ok]
+            words = word_labels(snap.mode_state) if snap.mode == "learning" else {}
+            for name, node in self.part_nodes.items():
+                pose = snap.poses.get(name)
+                if pose is not None:
+                    node.wxyz = _wxyz(pose.q)
+                    node.position = pose.t
+                    node.visible = True
+                cloud = snap.particles.get(name)
+                pnode = self.particle_nodes[name]
+                if cloud is not None and len(cloud):
+                    idx = self._particle_idx.get(name)
+                    if idx is None or idx.max(initial=-1) >= len(cloud) or len(idx) > len(cloud):
+                        n = min(MAX_PARTICLES_SHOWN, len(cloud))
+                        idx = np.sort(self._rng.choice(len(cloud), n, replace=False))
+                        self._particle_idx[name] = idx
+                    pnode.points = np.ascontiguousarray(cloud[idx], dtype=np.float32)
+                    pnode.visible = True
+                label = self.label_nodes[name]
+                word = words.get(name)
+                if word:
+                    if label.text != word:
+                        label.text = word
+                    label.visible = True
+                elif label.visible:
+                    label.visible = False
+            ghost = ghost_target(snap.mode_state) if snap.mode == "guidance" else None
+            if ghost is not None:
+                part, pose, frame_name = ghost
+                if frame_name == "table" and snap.table is not None:
+                    pose = Pose.from_dict(snap.table["table_to_camera"]) @ pose
+                self.ghost.wxyz = _wxyz(pose.q)
+                self.ghost.position = pose.t
+                spec = next((p for p in self.parts if p.name == part), None)
+                if spec is not None and spec.color is not None:
+                    self.ghost.color = spec.color
+                self.ghost.visible = True
+            elif self.ghost.visible:
+                self.ghost.visible = False
+
+    def stop(self) -> None:
+        self.server.stop()
+
+
+class SceneUpdater:
+    """Feeds the newest snapshot of a worker to a :class:`Scene` from its own thread, at most ``max_hz``."""
+
+    def __init__(self, scene: Scene, worker, max_hz: float = 20.0) -> None:
+        self.scene = scene
+        self.worker = worker
+        self.max_hz = max_hz
+        self._event = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="viser-scene", daemon=True)
+        worker.add_listener(self._on_snapshot)
+
+    def _on_snapshot(self, _snap: Snapshot) -> None:
+        self._event.set()
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._event.set()
+        self.worker.remove_listener(self._on_snapshot)
+        self._thread.join(timeout=2.0)
+
+    def _run(self) -> None:
+        last_version = -1
+        while not self._stop.is_set():
+            self._event.wait(timeout=1.0)
+            self._event.clear()
+            snap, frame, version = self.worker.latest, self.worker.latest_frame, self.worker.version
+            if snap is None or version == last_version:
+                continue
+            if not self.scene.server.get_clients() and version - last_version < 30 and last_version >= 0:
+                continue  # nobody watching: refresh rarely
+            last_version = version
+            pipeline = self.worker.pipeline
+            t0 = time.perf_counter()
+            try:
+                if pipeline is not None:
+                    self.scene.set_parts(pipeline.parts)
+                self.scene.update(snap, frame)
+            except Exception as exc:  # noqa: BLE001 - the scene must not take the server down
+                log.warning("viser scene update failed: %s", exc)
+            rest = 1.0 / self.max_hz - (time.perf_counter() - t0)
+            if rest > 0:
+                self._stop.wait(rest)

@@ -1,0 +1,557 @@
+"""The FastAPI application: the panel (``/``), the teacher editor (``/teacher``), REST API and the ``/ws`` stream.
+
+``create_app(settings)`` wires storage (SQLite), teacher auth, the pipeline worker thread and the viser
+scene; the worker starts with the app (lifespan) and every endpoint only reads its latest snapshot or
+queues a command for it, so HTTP handling never waits for a frame to be processed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import threading
+from collections.abc import Callable
+from concurrent.futures import TimeoutError as FutureTimeout
+from importlib import metadata
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import Depends, FastAPI, Header, HTTPException, Request, Response, WebSocket, WebSocketDisconnect
+from fastapi.responses import FileResponse
+from fastapi.staticfiles import StaticFiles
+from pydantic import ValidationError
+
+from app import api_models as m
+from app.auth import TeacherAuth
+from app.settings import Settings
+from app.storage import Storage
+from app.worker import PipelineWorker
+from tracker.assembly import SentenceTask
+from tracker.parts import PartSpec
+from tracker.pipeline import AssemblyPipeline
+from tracker.sources.base import FrameSource
+
+log = logging.getLogger(__name__)
+
+WEB_DIR = Path(__file__).resolve().parents[1] / "web"
+DEFAULT_CAMERA_PARTS = ("red", "green", "blue", "yellow", "orange")
+"""Parts assumed for a live camera (no objects.json): the five seed cubes."""
+COMMAND_TIMEOUT_S = 20.0
+
+
+def _version() -> str:
+    try:
+        return metadata.version("assembly-agent")
+    except metadata.PackageNotFoundError:
+        return "0.0.0"
+
+
+def open_source_spec(spec: str, realtime: bool = True) -> FrameSource:
+    """Open ``sim:<scenario>``, ``recording:<dir>`` or ``camera:<n>`` (through the sources registry)."""
+    try:
+        from tracker.sources.registry import open_source
+    except ImportError:
+        open_source = None
+    if open_source is not None:
+        return open_source(spec, realtime=realtime)
+    kind, _, arg = spec.partition(":")
+    if kind == "sim":
+        from tracker.sources.simulator import SimulatedTable
+
+        return SimulatedTable(arg or "guidance-demo", realtime=realtime)
+    if kind == "recording":
+        from tracker.sources.recording import RecordingSource
+
+        return RecordingSource(arg, realtime=realtime)
+    raise ValueError(f"source {spec!r}: expected sim:<scenario>, recording:<dir> or camera:<n>")
+
+
+def available_sources() -> list[m.SourceInfo]:
+    out: list[m.SourceInfo] = []
+    try:
+        from tracker.sources.simulator import list_scenarios
+
+        for sc in list_scenarios():
+            name = sc if isinstance(sc, str) else getattr(sc, "name", str(sc))
+            desc = "" if isinstance(sc, str) else str(getattr(sc, "description", ""))
+            out.append(m.SourceInfo(spec=f"sim:{name}", kind="sim", description=desc))
+    except ImportError:
+        pass
+    out.append(m.SourceInfo(spec="camera:0", kind="camera", description="OpenCV capture device 0 (colour only)"))
+    return out
+
+
+class AppState:
+    """Everything the endpoints share: settings, storage, auth, worker, scene and the current selection."""
+
+    def __init__(self, settings: Settings, open_source: Callable[[str], FrameSource] | None = None) -> None:
+        self.settings = settings
+        self.storage = Storage(settings.database_path())
+        self.auth = TeacherAuth(self.storage, settings.teacher_password)
+        self.source_spec = settings.source
+        self.mode = settings.mode
+        self.task = settings.task
+        if self.task is not None:
+            self.resolve_task(self.mode, self.task)  # fail early on a bad --task
+        self._open = open_source or (lambda spec: open_source_spec(spec, realtime=settings.realtime))
+        self.worker = PipelineWorker(
+            self._open_current, self._make_pipeline, max_fps=settings.max_fps, loop=settings.loop
+        )
+        self.scene = None
+        self.scene_updater = None
+        self.session_id: int | None = None
+        self._session_frames0 = 0
+        self._lock = threading.Lock()
+
+    # -------------------------------------------------------------- source and pipeline
+    def _open_current(self) -> FrameSource:
+        return self._open(self.source_spec)
+
+    def resolve_task(self, mode: str, ref: str | None) -> Any:
+        """The task object for a reference: a preset id, or ``teacher:<n>`` (a stored sentence task)."""
+        if ref is None or mode == "none":
+            return None
+        if ref.startswith("teacher:"):
+            try:
+                task_id = int(ref.split(":", 1)[1])
+            except ValueError as exc:
+                raise ValueError(f"task {ref!r}: expected teacher:<number>") from exc
+            rec = self.storage.get_task(task_id)
+            if rec is None:
+                raise ValueError(f"task {ref!r}: no teacher task with id {task_id}")
+            if mode != "learning":
+                raise ValueError(f"task {ref!r} is a sentence task: select the learning mode for it")
+            return SentenceTask(**rec["data"])
+        from tracker.assembly import load_preset
+
+        task = load_preset(ref)
+        if task.mode != mode:
+            raise ValueError(f"task {ref!r} is a {task.mode} task, not a {mode} task")
+        return task
+
+    def _make_pipeline(self, src: FrameSource) -> AssemblyPipeline:
+        parts = getattr(src, "parts", None) or [PartSpec.cube(c, c) for c in DEFAULT_CAMERA_PARTS]
+        poses = getattr(src, "initial_poses", None) or {}
+        config = self.settings.tracker_config
+        if self.settings.n_particles is not None:
+            from tracker.tracker_config import TrackerConfig
+
+            base = (
+                TrackerConfig.preset(config or "default")
+                if not (config or "").endswith((".yaml", ".yml", ".toml"))
+                else TrackerConfig.load(config)
+            )
+            config = base.with_overrides(n_particles=self.settings.n_particles)
+        mode = None if self.mode == "none" else self.mode
+        return AssemblyPipeline(
+            list(parts),
+            src.intrinsics,
+            mode=mode,
+            task=self.resolve_task(self.mode, self.task),
+            config=config,
+            seed=self.settings.seed,
+            initial_poses=poses,
+            table_recheck_s=self.settings.table_recheck_s,
+            source_info={"spec": self.source_spec, **_safe_metadata(src)},
+        )
+
+    # -------------------------------------------------------------- sessions
+    def start_session(self) -> None:
+        with self._lock:
+            self.end_session()
+            self.session_id = self.storage.start_session(self.source_spec, self.mode, self.task)
+            self._session_frames0 = self.worker.frames_processed
+
+    def end_session(self) -> None:
+        if self.session_id is not None:
+            self.storage.end_session(self.session_id, self.worker.frames_processed - self._session_frames0)
+            self.session_id = None
+
+    def session_frames(self) -> int:
+        return self.worker.frames_processed - self._session_frames0
+
+    # -------------------------------------------------------------- life cycle
+    def startup(self) -> None:
+        s = self.settings
+        if s.viser_port:
+            try:
+                from app.scene import Scene, SceneUpdater
+
+                self.scene = Scene(host=s.host, port=s.viser_port)
+                self.scene_updater = SceneUpdater(self.scene, self.worker)
+                self.scene_updater.start()
+            except Exception as exc:  # noqa: BLE001 - the panel works without the 3D view
+                self.worker.report("scene", f"viser scene unavailable: {exc}")
+        if s.autostart:
+            self.worker.start()
+            self.start_session()
+
+    def shutdown(self) -> None:
+        self.end_session()
+        self.worker.stop()
+        if self.scene_updater is not None:
+            self.scene_updater.stop()
+        if self.scene is not None:
+            self.scene.stop()
+
+
+def _safe_metadata(src: FrameSource) -> dict[str, Any]:
+    try:
+        meta = src.metadata()
+    except Exception:  # noqa: BLE001
+        return {}
+    out = {}
+    for k, v in meta.items():
+        if isinstance(v, str | int | float | bool) or v is None:
+            out[k] = v
+        elif isinstance(v, dict | list):
+            out[k] = v
+    return out
+
+
+def _task_record(rec: dict[str, Any]) -> m.TaskRecord:
+    return m.TaskRecord(
+        id=rec["id"],
+        ref=f"teacher:{rec['id']}",
+        task=SentenceTask(**rec["data"]),
+        created_at=rec["created_at"],
+        updated_at=rec["updated_at"],
+    )
+
+
+def create_app(settings: Settings | None = None, open_source: Callable[[str], FrameSource] | None = None) -> FastAPI:
+    """The web application. ``open_source(spec)`` replaces the source registry (tests use it)."""
+    settings = settings or Settings()
+    state = AppState(settings, open_source)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(_app: FastAPI):
+        state.startup()
+        try:
+            yield
+        finally:
+            state.shutdown()
+
+    app = FastAPI(
+        title="Assembly Agent",
+        version=_version(),
+        description="Tracks coloured parts on a table and guides the user (guidance, guess and learning modes). "
+        "Live state streams on the /ws websocket (one JSON snapshot per processed frame).",
+        lifespan=lifespan,
+    )
+    app.state.assembly = state
+    app.mount("/static", StaticFiles(directory=WEB_DIR / "static"), name="static")
+
+    def teacher(
+        request: Request,
+        x_teacher_password: Annotated[str | None, Header()] = None,
+        authorization: Annotated[str | None, Header()] = None,
+    ) -> None:
+        """Editing requires the teacher password (header), a login token (cookie) or ``Bearer <token>``."""
+        if not state.auth.is_configured:
+            raise HTTPException(403, "no teacher password is set yet: set one on the /teacher page first")
+        token = request.cookies.get("teacher_token")
+        if authorization and authorization.lower().startswith("bearer "):
+            token = authorization[7:].strip()
+        if state.auth.check_token(token) or state.auth.check_password(x_teacher_password):
+            return
+        raise HTTPException(401, "wrong or missing teacher password")
+
+    needs_teacher = [Depends(teacher)]
+
+    # ---------------------------------------------------------------- pages
+    @app.get("/", include_in_schema=False)
+    def index() -> FileResponse:
+        return FileResponse(WEB_DIR / "templates" / "index.html")
+
+    @app.get("/teacher", include_in_schema=False)
+    def teacher_page() -> FileResponse:
+        return FileResponse(WEB_DIR / "templates" / "teacher.html")
+
+    # ---------------------------------------------------------------- status, sources, modes
+    @app.get("/api/status", response_model=m.Status, tags=["status"])
+    def status() -> m.Status:
+        pipeline = state.worker.pipeline
+        snap = state.worker.latest
+        return m.Status(
+            version=_version(),
+            source=state.source_spec,
+            mode=state.mode,
+            task=state.task,
+            parts=[p.name for p in pipeline.parts] if pipeline else [],
+            viser_port=state.scene.port if state.scene is not None else None,
+            session_id=state.session_id,
+            worker=m.WorkerStatus(**state.worker.status()),
+            instruction=snap.instruction if snap else "",
+        )
+
+    @app.get("/api/sources", response_model=m.SourcesResponse, tags=["sources"])
+    def sources() -> m.SourcesResponse:
+        src = state.worker.source
+        return m.SourcesResponse(
+            current=state.source_spec, metadata=_safe_metadata(src) if src else {}, available=available_sources()
+        )
+
+    @app.post("/api/sources", response_model=m.SourcesResponse, tags=["sources"])
+    def select_source(body: m.SourceSelect) -> m.SourcesResponse:
+        kind = body.source.split(":", 1)[0]
+        if kind not in ("sim", "recording", "camera"):
+            raise HTTPException(422, f"source {body.source!r}: expected sim:<scenario>, recording:<dir> or camera:<n>")
+        state.source_spec = body.source
+        state.worker.reset()
+        state.start_session()
+        return sources()
+
+    def _tasks() -> list[m.TaskRef]:
+        refs: list[m.TaskRef] = []
+        try:
+            from tracker.assembly import list_presets
+
+            for p in list_presets():
+                refs.append(m.TaskRef(id=p["id"], title=p["title"], mode=p["mode"], origin="preset"))
+        except Exception as exc:  # noqa: BLE001 - a broken preset must not hide the teacher tasks
+            log.warning("task presets: %s", exc)
+        for rec in state.storage.list_tasks():
+            data = rec["data"]
+            refs.append(
+                m.TaskRef(
+                    id=f"teacher:{rec['id']}",
+                    title=str(data.get("source_sentence", "")),
+                    mode="learning",
+                    origin="teacher",
+                )
+            )
+        return refs
+
+    @app.get("/api/modes", response_model=m.ModesResponse, tags=["modes"])
+    def modes() -> m.ModesResponse:
+        return m.ModesResponse(
+            modes=["guidance", "guess", "learning", "none"], current=state.mode, task=state.task, tasks=_tasks()
+        )
+
+    @app.post("/api/modes", response_model=m.ModesResponse, tags=["modes"], responses={422: {"model": m.Message}})
+    def select_mode(body: m.ModeSelect) -> m.ModesResponse:
+        try:
+            task_obj = state.resolve_task(body.mode, body.task)
+        except (ValueError, ValidationError) as exc:
+            raise HTTPException(422, str(exc)) from exc
+        mode = None if body.mode == "none" else body.mode
+
+        def apply(pipeline, _frame):
+            if pipeline is not None:
+                pipeline.set_mode(mode, task_obj)
+
+        try:
+            state.worker.submit(apply).result(timeout=COMMAND_TIMEOUT_S)
+        except FutureTimeout as exc:
+            raise HTTPException(503, "the pipeline is busy; try again") from exc
+        except Exception as exc:  # noqa: BLE001 - e.g. the task does not fit the source's parts
+            raise HTTPException(422, f"cannot switch to {body.mode}: {exc}") from exc
+        state.mode, state.task = body.mode, body.task
+        return modes()
+
+    # ---------------------------------------------------------------- sessions
+    def _sessions() -> m.SessionsResponse:
+        rows = state.storage.list_sessions()
+        for r in rows:
+            if r["id"] == state.session_id:
+                r["frames"] = state.session_frames()
+        return m.SessionsResponse(current=state.session_id, sessions=[m.SessionInfo(**r) for r in rows])
+
+    @app.get("/api/sessions", response_model=m.SessionsResponse, tags=["sessions"])
+    def sessions() -> m.SessionsResponse:
+        return _sessions()
+
+    @app.post("/api/sessions", response_model=m.SessionsResponse, tags=["sessions"])
+    def session_action(body: m.SessionAction) -> m.SessionsResponse:
+        w = state.worker
+        if body.action == "start":
+            w.start()
+            if state.session_id is None:
+                state.start_session()
+        elif body.action == "pause":
+            w.pause()
+        else:
+            w.reset()
+            w.start()
+            state.start_session()
+        return _sessions()
+
+    # ---------------------------------------------------------------- colour image and boxes
+    @app.get(
+        "/api/frame.jpg",
+        tags=["stream"],
+        response_class=Response,
+        responses={200: {"content": {"image/jpeg": {}}}, 503: {"model": m.Message}},
+    )
+    def frame_jpeg() -> Response:
+        got = state.worker.jpeg(settings.jpeg_quality)
+        if got is None:
+            raise HTTPException(503, "no frame yet")
+        index, data = got
+        return Response(
+            data, media_type="image/jpeg", headers={"Cache-Control": "no-store", "X-Frame-Index": str(index)}
+        )
+
+    @app.post(
+        "/api/boxes",
+        response_model=m.BoxResponse,
+        tags=["stream"],
+        responses={409: {"model": m.Message}, 422: {"model": m.Message}},
+    )
+    def draw_box(body: m.BoxRequest) -> m.BoxResponse:
+        rect = (body.x, body.y, body.w, body.h)
+
+        def apply(pipeline: AssemblyPipeline | None, frame):
+            if pipeline is None or frame is None:
+                raise LookupError("no frame processed yet")
+            name = body.part or pipeline.guess_part(frame.color, rect)
+            pipeline.part(name)
+            if body.action == "calibrate":
+                pipeline.calibrate_color(name, frame.color, rect)
+                return name, None, frame.index
+            pose = pipeline.pose_from_rect(name, rect, frame.depth)
+            pipeline.set_part_pose(name, pose)
+            return name, pose, frame.index
+
+        try:
+            name, pose, index = state.worker.submit(apply).result(timeout=COMMAND_TIMEOUT_S)
+        except FutureTimeout as exc:
+            raise HTTPException(503, "the pipeline is busy; try again") from exc
+        except LookupError as exc:
+            raise HTTPException(409, str(exc)) from exc
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from exc
+        return m.BoxResponse(
+            part=name,
+            action=body.action,
+            rect=list(rect),
+            pose=None if pose is None else pose.to_dict(),
+            frame_index=index,
+        )
+
+    # ---------------------------------------------------------------- teacher auth
+    @app.get("/api/auth", response_model=m.AuthStatus, tags=["teacher"])
+    def auth_status(request: Request) -> m.AuthStatus:
+        return m.AuthStatus(
+            configured=state.auth.is_configured, logged_in=state.auth.check_token(request.cookies.get("teacher_token"))
+        )
+
+    @app.post(
+        "/api/auth/setup",
+        response_model=m.AuthStatus,
+        tags=["teacher"],
+        responses={403: {"model": m.Message}, 422: {"model": m.Message}},
+    )
+    def auth_setup(body: m.PasswordBody, response: Response) -> m.AuthStatus:
+        try:
+            state.auth.setup(body.password)
+        except PermissionError as exc:
+            raise HTTPException(403, str(exc)) from exc
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from exc
+        token = state.auth.login(body.password)
+        response.set_cookie("teacher_token", token or "", httponly=True, samesite="strict")
+        return m.AuthStatus(configured=True, logged_in=True)
+
+    @app.post(
+        "/api/auth/login",
+        response_model=m.AuthStatus,
+        tags=["teacher"],
+        responses={401: {"model": m.Message}, 403: {"model": m.Message}},
+    )
+    def auth_login(body: m.PasswordBody, response: Response) -> m.AuthStatus:
+        if not state.auth.is_configured:
+            raise HTTPException(403, "no teacher password is set yet")
+        token = state.auth.login(body.password)
+        if token is None:
+            raise HTTPException(401, "wrong teacher password")
+        response.set_cookie("teacher_token", token, httponly=True, samesite="strict")
+        return m.AuthStatus(configured=True, logged_in=True)
+
+    @app.post("/api/auth/logout", response_model=m.AuthStatus, tags=["teacher"])
+    def auth_logout(request: Request, response: Response) -> m.AuthStatus:
+        state.auth.logout(request.cookies.get("teacher_token"))
+        response.delete_cookie("teacher_token")
+        return m.AuthStatus(configured=state.auth.is_configured, logged_in=False)
+
+    # ---------------------------------------------------------------- sentence tasks
+    @app.get("/api/tasks", response_model=m.TaskList, tags=["tasks"])
+    def list_tasks() -> m.TaskList:
+        return m.TaskList(tasks=[_task_record(r) for r in state.storage.list_tasks()])
+
+    @app.post(
+        "/api/tasks",
+        response_model=m.TaskRecord,
+        status_code=201,
+        tags=["tasks"],
+        dependencies=needs_teacher,
+        responses={401: {"model": m.Message}, 403: {"model": m.Message}},
+    )
+    def create_task(body: SentenceTask) -> m.TaskRecord:
+        return _task_record(state.storage.create_task(body.model_dump(mode="json")))
+
+    @app.get("/api/tasks/{task_id}", response_model=m.TaskRecord, tags=["tasks"], responses={404: {"model": m.Message}})
+    def get_task(task_id: int) -> m.TaskRecord:
+        rec = state.storage.get_task(task_id)
+        if rec is None:
+            raise HTTPException(404, f"no task with id {task_id}")
+        return _task_record(rec)
+
+    @app.put(
+        "/api/tasks/{task_id}",
+        response_model=m.TaskRecord,
+        tags=["tasks"],
+        dependencies=needs_teacher,
+        responses={401: {"model": m.Message}, 403: {"model": m.Message}, 404: {"model": m.Message}},
+    )
+    def update_task(task_id: int, body: SentenceTask) -> m.TaskRecord:
+        rec = state.storage.update_task(task_id, body.model_dump(mode="json"))
+        if rec is None:
+            raise HTTPException(404, f"no task with id {task_id}")
+        return _task_record(rec)
+
+    @app.delete(
+        "/api/tasks/{task_id}",
+        response_model=m.Message,
+        tags=["tasks"],
+        dependencies=needs_teacher,
+        responses={401: {"model": m.Message}, 403: {"model": m.Message}, 404: {"model": m.Message}},
+    )
+    def delete_task(task_id: int) -> m.Message:
+        if not state.storage.delete_task(task_id):
+            raise HTTPException(404, f"no task with id {task_id}")
+        return m.Message(detail=f"task {task_id} deleted")
+
+    # ---------------------------------------------------------------- websocket
+    @app.websocket("/ws")
+    async def ws(websocket: WebSocket) -> None:
+        """One JSON snapshot per processed frame; a slow client skips to the newest one."""
+        await websocket.accept()
+        loop = asyncio.get_running_loop()
+        event = asyncio.Event()
+
+        def on_snapshot(_snap) -> None:
+            loop.call_soon_threadsafe(event.set)
+
+        state.worker.add_listener(on_snapshot)
+        sent = -1
+        try:
+            while True:
+                snap, version = state.worker.latest, state.worker.version
+                if snap is not None and version != sent:
+                    sent = version
+                    payload = snap.to_dict()
+                    payload["worker"] = {"state": state.worker.state, "paused": state.worker.paused}
+                    await websocket.send_json(payload)
+                    continue
+                with contextlib.suppress(asyncio.TimeoutError):
+                    await asyncio.wait_for(event.wait(), timeout=1.0)
+                event.clear()
+        except (WebSocketDisconnect, RuntimeError):
+            pass
+        finally:
+            state.worker.remove_listener(on_snapshot)
+
+    return app

@@ -1,0 +1,56 @@
+"""Server settings (pydantic-settings): command-line flags override environment variables ``ASSEMBLY_AGENT_*``.
+
+* ``host``/``port``: where the HTTP server listens; ``viser_port``: the 3D scene's server (0 = off).
+* ``database``: SQLite file path or ``sqlite:///path`` URL where teacher tasks and sessions live.
+* ``teacher_password``: when set (env ``ASSEMBLY_AGENT_TEACHER_PASSWORD``), the teacher password; otherwise
+  the first teacher to open ``/teacher`` sets it. It is only ever stored hashed.
+* ``source``: ``sim:<scenario>`` | ``recording:<dir>`` | ``camera:<n>``; ``mode``/``task``: the assembly mode
+  at start and its task (preset id or ``teacher:<id>``).
+* ``realtime``: pace recordings and the simulator at their frame rate; ``loop``: restart a finished source.
+* ``tracker_config``: tracker preset name or YAML/TOML path; ``seed``: random seed of tracker and modes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """All knobs of ``assembly-agent serve``."""
+
+    model_config = SettingsConfigDict(env_prefix="ASSEMBLY_AGENT_", extra="ignore")
+
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+    viser_port: int = Field(8080, ge=0, le=65535, description="port of the viser 3D scene; 0 disables it")
+    database: str = "data/assembly-agent.sqlite3"
+    teacher_password: str | None = None
+    source: str = "sim:guidance-demo"
+    mode: Literal["guidance", "guess", "learning", "none"] = "guidance"
+    task: str | None = None
+    seed: int = 0
+    realtime: bool = True
+    loop: bool = True
+    tracker_config: str | None = None
+    n_particles: int | None = Field(None, ge=1, description="override the tracker's particle count")
+    table_recheck_s: float = Field(3.0, gt=0)
+    max_fps: float = Field(30.0, gt=0, description="upper bound on processed frames per second")
+    jpeg_quality: int = Field(75, ge=10, le=100)
+    autostart: bool = True
+
+    def database_path(self) -> Path:
+        """The SQLite file behind ``database`` (a path or a ``sqlite:///`` URL)."""
+        db = self.database
+        if "://" in db:
+            if not db.startswith("sqlite:///"):
+                scheme = db.split("://", 1)[0]
+                raise ValueError(
+                    f"database: only SQLite is supported by this build (got a {scheme!r} URL); "
+                    "use a file path or sqlite:///path"
+                )
+            db = db[len("sqlite:///") :]
+        return Path(db)

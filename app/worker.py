@@ -1,0 +1,310 @@
+"""The pipeline worker: one thread pulls frames from the source, runs the pipeline and keeps the latest Snapshot.
+
+The web server never waits on it: readers take :attr:`PipelineWorker.latest` (only the newest snapshot
+is kept, so a slow reader skips frames rather than queueing them) or register a listener that is told
+when a new snapshot exists. Commands that touch the pipeline (a drawn box, a new mode) are queued with
+:meth:`PipelineWorker.submit` and run on the worker thread between frames.
+
+Errors: a frame that fails (a corrupt frame from the source, or a pipeline exception) is skipped and
+reported in :attr:`errors`; after repeated source failures, or when the source ends (with ``loop``) or
+dies, it is closed and reopened with a growing delay. Opening failures are reported and retried.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+
+from tracker.frame import Frame, FrameError
+from tracker.pipeline import AssemblyPipeline
+from tracker.snapshot import Snapshot
+from tracker.sources.base import FrameSource
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class WorkerError:
+    """A reported problem: wall-clock ``time``, ``where`` (source, frame, pipeline) and the message."""
+
+    time: float
+    where: str
+    message: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "where": self.where, "message": self.message}
+
+
+class PipelineWorker:
+    """Runs ``make_pipeline(source)`` on frames of ``open_source()`` in a background thread.
+
+    * ``open_source``: returns a fresh :class:`FrameSource` (called again to reopen).
+    * ``make_pipeline``: builds the :class:`AssemblyPipeline` for a freshly opened source.
+    * ``max_fps``: upper bound on processed frames per second (the worker sleeps the rest).
+    * ``loop``: reopen the source when it ends (recordings and the simulator run forever).
+    * ``max_consecutive_errors``: source failures in a row before the source is reopened.
+    """
+
+    def __init__(
+        self,
+        open_source: Callable[[], FrameSource],
+        make_pipeline: Callable[[FrameSource], AssemblyPipeline],
+        max_fps: float | None = 30.0,
+        loop: bool = True,
+        max_consecutive_errors: int = 5,
+        reopen_delay_s: float = 0.5,
+    ) -> None:
+        self._open_source = open_source
+        self._make_pipeline = make_pipeline
+        self.max_fps = max_fps
+        self.loop = loop
+        self.max_consecutive_errors = int(max_consecutive_errors)
+        self.reopen_delay_s = float(reopen_delay_s)
+
+        self.source: FrameSource | None = None
+        self.pipeline: AssemblyPipeline | None = None
+        self.latest: Snapshot | None = None
+        self.latest_frame: Frame | None = None
+        self.version = 0
+        self.frames_processed = 0
+        self.frames_skipped = 0
+        self.source_opens = 0
+        self.state = "stopped"
+        self.errors: collections.deque[WorkerError] = collections.deque(maxlen=100)
+
+        self._iter = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._running = threading.Event()
+        self._wake = threading.Event()
+        self._reset_requested = False
+        self._commands: queue.Queue[tuple[Callable[[AssemblyPipeline | None, Frame | None], Any], Future]] = (
+            queue.Queue()
+        )
+        self._listeners: list[Callable[[Snapshot], None]] = []
+        self._lock = threading.Lock()
+        self._jpeg_cache: tuple[int, int, bytes] | None = None
+
+    # ------------------------------------------------------------------ control (any thread)
+    def start(self) -> None:
+        """Start (or resume) processing; starts the thread on first call."""
+        self._running.set()
+        self._wake.set()
+        if self._thread is None or not self._thread.is_alive():
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name="pipeline-worker", daemon=True)
+            self._thread.start()
+
+    def pause(self) -> None:
+        self._running.clear()
+        self._wake.set()
+
+    def reset(self) -> None:
+        """Reopen the source and rebuild the pipeline (on the worker thread, before the next frame)."""
+        self._reset_requested = True
+        self._wake.set()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop the thread and close the source."""
+        self._stop.set()
+        self._running.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        self._close_source()
+        self.state = "stopped"
+
+    @property
+    def paused(self) -> bool:
+        return not self._running.is_set()
+
+    def submit(self, fn: Callable[[AssemblyPipeline | None, Frame | None], Any]) -> Future:
+        """Run ``fn(pipeline, latest_frame)`` on the worker thread between frames; returns its Future."""
+        fut: Future = Future()
+        if self._thread is None or not self._thread.is_alive():
+            try:
+                fut.set_result(fn(self.pipeline, self.latest_frame))
+            except Exception as exc:  # noqa: BLE001 - handed to the caller through the future
+                fut.set_exception(exc)
+            return fut
+        self._commands.put((fn, fut))
+        self._wake.set()
+        return fut
+
+    def add_listener(self, callback: Callable[[Snapshot], None]) -> None:
+        """``callback(snapshot)`` runs on the worker thread after each frame: it must return at once."""
+        with self._lock:
+            self._listeners.append(callback)
+
+    def remove_listener(self, callback: Callable[[Snapshot], None]) -> None:
+        with self._lock:
+            if callback in self._listeners:
+                self._listeners.remove(callback)
+
+    def report(self, where: str, message: str) -> None:
+        log.warning("%s: %s", where, message)
+        self.errors.append(WorkerError(time.time(), where, message))
+
+    def status(self) -> dict[str, Any]:
+        snap = self.latest
+        return {
+            "state": self.state,
+            "paused": self.paused,
+            "frames_processed": self.frames_processed,
+            "frames_skipped": self.frames_skipped,
+            "source_opens": self.source_opens,
+            "frame_index": None if snap is None else snap.frame_index,
+            "fps": 0.0 if snap is None else round(snap.fps, 2),
+            "errors": [e.to_dict() for e in list(self.errors)[-10:]],
+        }
+
+    def jpeg(self, quality: int = 75) -> tuple[int, bytes] | None:
+        """The latest colour image as JPEG ``(frame_index, bytes)``, encoded once per frame."""
+        frame = self.latest_frame
+        if frame is None:
+            return None
+        cache = self._jpeg_cache
+        if cache is not None and cache[0] == frame.index and cache[1] == self.version:
+            return cache[0], cache[2]
+        ok, buf = cv2.imencode(
+            ".jpg", cv2.cvtColor(frame.color, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality]
+        )
+        if not ok:
+            return None
+        data = buf.tobytes()
+        self._jpeg_cache = (frame.index, self.version, data)
+        return frame.index, data
+
+    # ------------------------------------------------------------------ the worker thread
+    def _close_source(self) -> None:
+        src, self.source, self._iter = self.source, None, None
+        if src is not None:
+            try:
+                src.close()
+            except Exception as exc:  # noqa: BLE001
+                self.report("source", f"closing failed: {exc}")
+
+    def _open(self) -> bool:
+        self._close_source()
+        self.state = "starting"
+        try:
+            src = self._open_source()
+        except Exception as exc:  # noqa: BLE001 - reported, retried
+            self.report("source", f"cannot open: {exc}")
+            return False
+        try:
+            pipeline = self._make_pipeline(src)
+        except Exception as exc:  # noqa: BLE001
+            self.report("pipeline", f"cannot build: {type(exc).__name__}: {exc}")
+            try:
+                src.close()
+            except Exception:  # noqa: BLE001, S110
+                pass
+            return False
+        self.source, self.pipeline = src, pipeline
+        self._iter = iter(src)
+        self.source_opens += 1
+        self.state = "running"
+        return True
+
+    def _run_commands(self) -> None:
+        while True:
+            try:
+                fn, fut = self._commands.get_nowait()
+            except queue.Empty:
+                return
+            if not fut.set_running_or_notify_cancel():
+                continue
+            try:
+                fut.set_result(fn(self.pipeline, self.latest_frame))
+            except Exception as exc:  # noqa: BLE001 - handed to the caller
+                fut.set_exception(exc)
+
+    def _sleep(self, seconds: float) -> None:
+        self._wake.wait(timeout=max(0.0, seconds))
+        self._wake.clear()
+
+    def _publish(self, snap: Snapshot, frame: Frame) -> None:
+        self.latest_frame = frame
+        self.latest = snap
+        self.version += 1
+        with self._lock:
+            listeners = list(self._listeners)
+        for cb in listeners:
+            try:
+                cb(snap)
+            except Exception as exc:  # noqa: BLE001
+                log.warning("snapshot listener failed: %s", exc)
+
+    def _run(self) -> None:
+        delay = self.reopen_delay_s
+        consecutive = 0
+        while not self._stop.is_set():
+            self._run_commands()
+            if self._reset_requested:
+                self._reset_requested = False
+                self._close_source()
+            if not self._running.is_set():
+                if self.state == "running":
+                    self.state = "paused"
+                self._sleep(0.2)
+                continue
+            if self._iter is None:
+                if not self._open():
+                    self.state = "error"
+                    self._sleep(delay)
+                    delay = min(delay * 2, 5.0)
+                    continue
+                delay = self.reopen_delay_s
+                consecutive = 0
+            self.state = "running"
+            t_start = time.perf_counter()
+            try:
+                frame = next(self._iter)
+            except StopIteration:
+                if consecutive:
+                    self.report("source", "source stopped after an error; reopening")
+                elif self.loop:
+                    log.info("source ended; reopening (loop)")
+                else:
+                    self.state = "finished"
+                    self._running.clear()
+                    continue
+                self._close_source()
+                continue
+            except Exception as exc:  # noqa: BLE001 - a corrupt frame or a failing device
+                consecutive += 1
+                self.frames_skipped += 1
+                self.report("source", f"frame skipped: {type(exc).__name__}: {exc}")
+                if consecutive >= self.max_consecutive_errors:
+                    self.report("source", f"{consecutive} failures in a row; reopening the source")
+                    self._close_source()
+                    self._sleep(delay)
+                continue
+            consecutive = 0
+            wall = time.time()
+            try:
+                if not isinstance(frame, Frame):
+                    raise FrameError(f"source yielded {type(frame).__name__}, not a Frame")
+                frame.validate()
+                snap = self.pipeline.process(frame, wall_time=wall)
+            except Exception as exc:  # noqa: BLE001 - the frame is skipped, the worker goes on
+                self.frames_skipped += 1
+                self.report("frame", f"frame {getattr(frame, 'index', '?')} skipped: {type(exc).__name__}: {exc}")
+                continue
+            self.frames_processed += 1
+            self._publish(snap, frame)
+            if self.max_fps:
+                rest = 1.0 / self.max_fps - (time.perf_counter() - t_start)
+                if rest > 0:
+                    self._stop.wait(rest)
+        self.state = "stopped"

@@ -1,0 +1,185 @@
+"""HTTP API and websocket of the web app, on the synthetic test table (FastAPI TestClient)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from fastapi.testclient import TestClient
+from test_worker import SyntheticTable
+
+from app.server import create_app
+from app.settings import Settings
+
+PASSWORD = "profesora-1"
+TASK = {"source_sentence": "Μου αρέσει ο καφές", "words": ["Me", "gusta", "el", "café"], "distractors": ["leche"]}
+
+
+@pytest.fixture()
+def client(tmp_path):
+    settings = Settings(
+        database=str(tmp_path / "agent.sqlite3"),
+        viser_port=0,
+        mode="none",
+        source="synthetic:",
+        max_fps=100,
+        n_particles=20,
+    )
+    app = create_app(settings, open_source=lambda spec: SyntheticTable())
+    with TestClient(app) as c:
+        yield c
+
+
+def wait_frames(client, n=3, timeout=20.0):
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        st = client.get("/api/status").json()
+        if (st["worker"]["frame_index"] or 0) >= n:
+            return st
+        time.sleep(0.05)
+    raise AssertionError(f"no frames: {client.get('/api/status').json()}")
+
+
+def test_status_and_sources(client):
+    st = wait_frames(client)
+    assert st["worker"]["state"] == "running"
+    assert st["parts"] == ["red", "green"]
+    assert st["viser_port"] is None
+    src = client.get("/api/sources").json()
+    assert src["current"] == "synthetic:"
+    assert src["metadata"]["name"] == "synthetic"
+    assert any(s["kind"] == "camera" for s in src["available"])
+
+
+def test_openapi_is_complete(client):
+    schema = client.get("/openapi.json").json()
+    paths = schema["paths"]
+    for path in (
+        "/api/status",
+        "/api/sources",
+        "/api/modes",
+        "/api/sessions",
+        "/api/tasks",
+        "/api/tasks/{task_id}",
+        "/api/boxes",
+        "/api/frame.jpg",
+        "/api/auth/login",
+    ):
+        assert path in paths, path
+    for verb in ("get", "put", "delete"):
+        assert verb in paths["/api/tasks/{task_id}"]
+    # every JSON endpoint documents its 200/201 response body with a schema
+    for path, ops in paths.items():
+        for verb, op in ops.items():
+            ok = op["responses"].get("200") or op["responses"].get("201")
+            assert ok is not None, (verb, path)
+            if path != "/api/frame.jpg":
+                assert "$ref" in str(ok["content"]["application/json"]["schema"]), (verb, path)
+    assert "SentenceTask" in schema["components"]["schemas"]
+
+
+def test_websocket_streams_increasing_frames(client):
+    wait_frames(client, 1)
+    with client.websocket_connect("/ws") as ws:
+        msgs = [ws.receive_json() for _ in range(4)]
+    idx = [m["frame_index"] for m in msgs]
+    assert idx == sorted(idx) and len(set(idx)) == 4
+    m = msgs[-1]
+    for key in ("time", "poses", "connections", "mode_state", "instruction", "fps", "detections", "boxes"):
+        assert key in m
+    assert set(m["poses"]) == {"red", "green"}
+    assert len(m["poses"]["red"]["q"]) == 4
+    assert m["detections"]["red"]["bbox"] is not None
+
+
+def test_frame_jpeg(client):
+    wait_frames(client, 1)
+    r = client.get("/api/frame.jpg")
+    assert r.status_code == 200 and r.headers["content-type"] == "image/jpeg"
+    assert r.content[:2] == b"\xff\xd8"
+    assert int(r.headers["x-frame-index"]) >= 1
+
+
+def test_drawn_box_places_part_on_table(client):
+    wait_frames(client, 2)
+    # the red square of the synthetic table is at (40..49, 60..69) in the 160x120 image
+    r = client.post("/api/boxes", json={"x": 38, "y": 58, "w": 14, "h": 14})
+    assert r.status_code == 200, r.text
+    box = r.json()
+    assert box["part"] == "red"  # chosen by colour
+    t = box["pose"]["t"]
+    assert 0.5 < t[2] < 1.2  # on the table, in front of the camera
+    r = client.post("/api/boxes", json={"x": 78, "y": 58, "w": 14, "h": 14, "part": "green", "action": "calibrate"})
+    assert r.status_code == 200 and r.json()["part"] == "green" and r.json()["pose"] is None
+    r = client.post("/api/boxes", json={"x": 10, "y": 10, "w": 5, "h": 5, "part": "violet"})
+    assert r.status_code == 422 and "unknown part" in r.json()["detail"]
+    r = client.post("/api/boxes", json={"x": 10, "y": 10, "w": 0, "h": 5})
+    assert r.status_code == 422
+
+
+def test_sessions_pause_start_reset(client):
+    wait_frames(client, 1)
+    r = client.post("/api/sessions", json={"action": "pause"})
+    assert r.status_code == 200
+    first = r.json()["current"]
+    t0 = time.time()
+    while client.get("/api/status").json()["worker"]["state"] != "paused" and time.time() - t0 < 10:
+        time.sleep(0.05)
+    assert client.get("/api/status").json()["worker"]["paused"] is True
+    client.post("/api/sessions", json={"action": "start"})
+    r = client.post("/api/sessions", json={"action": "reset"}).json()
+    assert r["current"] != first
+    assert [s["id"] for s in r["sessions"]][:2] == [r["current"], first]
+    assert client.post("/api/sessions", json={"action": "explode"}).status_code == 422
+
+
+def test_modes_reject_unknown_task(client):
+    r = client.get("/api/modes").json()
+    assert r["current"] == "none" and "learning" in r["modes"]
+    bad = client.post("/api/modes", json={"mode": "guidance", "task": "no-such-task"})
+    assert bad.status_code == 422 and "no-such-task" in bad.json()["detail"]
+    bad = client.post("/api/modes", json={"mode": "dancing"})
+    assert bad.status_code == 422
+
+
+def test_teacher_tasks_need_password(client):
+    assert client.post("/api/tasks", json=TASK).status_code == 403  # no password set yet
+    assert client.get("/api/auth").json() == {"configured": False, "logged_in": False}
+    assert client.post("/api/auth/setup", json={"password": PASSWORD}).status_code == 200
+    client.cookies.clear()
+    assert client.post("/api/auth/setup", json={"password": "takeover"}).status_code == 403
+    r = client.post("/api/tasks", json=TASK, headers={"X-Teacher-Password": "wrong"})
+    assert r.status_code == 401
+    assert client.post("/api/auth/login", json={"password": "wrong"}).status_code == 401
+    r = client.post("/api/tasks", json=TASK, headers={"X-Teacher-Password": PASSWORD})
+    assert r.status_code == 201, r.text
+    rec = r.json()
+    assert rec["ref"] == f"teacher:{rec['id']}" and rec["task"]["words"] == TASK["words"]
+    # learners read without a password
+    assert client.get("/api/tasks").json()["tasks"][0]["task"]["source_sentence"] == TASK["source_sentence"]
+    assert client.get(f"/api/tasks/{rec['id']}").status_code == 200
+    assert client.get("/api/tasks/999").status_code == 404
+    assert client.delete(f"/api/tasks/{rec['id']}").status_code == 401
+    # login → cookie → edit and delete
+    assert client.post("/api/auth/login", json={"password": PASSWORD}).json()["logged_in"] is True
+    html = {**TASK, "words": ["<script>alert(1)</script>", "gusta", "el", "café"]}
+    r = client.put(f"/api/tasks/{rec['id']}", json=html)
+    assert r.status_code == 200 and r.json()["task"]["words"][0] == "<script>alert(1)</script>"
+    modes = client.get("/api/modes").json()
+    assert any(t["id"] == rec["ref"] and t["mode"] == "learning" for t in modes["tasks"])
+    assert client.delete(f"/api/tasks/{rec['id']}").status_code == 200
+    assert client.get("/api/tasks").json()["tasks"] == []
+
+
+def test_task_validation_messages(client):
+    client.post("/api/auth/setup", json={"password": PASSWORD})
+    r = client.post("/api/tasks", json={**TASK, "words": ["Me", "  "]})
+    assert r.status_code == 422
+    errs = r.json()["detail"]
+    assert any(e["loc"][:2] == ["body", "words"] and "word 2 is empty" in e["msg"] for e in errs)
+    r = client.post("/api/tasks", json={**TASK, "source_sentence": ""})
+    assert any(e["loc"][1] == "source_sentence" for e in r.json()["detail"])
+    r = client.post("/api/tasks", json={**TASK, "alternatives": [["Me", "gusta", "café"]]})
+    assert r.status_code == 422 and "alternatives[0]" in str(r.json()["detail"])
+    r = client.post("/api/tasks", json={**TASK, "colour": "red"})
+    assert r.status_code == 422  # unknown fields are refused

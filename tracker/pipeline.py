@@ -1,0 +1,399 @@
+"""The per-frame glue: frame → perception → tracker → assembly mode → :class:`~tracker.snapshot.Snapshot`.
+
+Plain Python, no HTTP: the web worker, scripts and benchmarks drive it the same way::
+
+    pipeline = AssemblyPipeline(src.parts, src.intrinsics, mode="guidance", task="guidance-demo",
+                                initial_poses=src.initial_poses)
+    for frame in src:
+        snap = pipeline.process(frame)
+
+Per frame: the table plane is found on the first frame with depth and re-checked every
+``table_recheck_s`` seconds (perception); colour detections of every coloured part; one step of the
+multi-object particle filter (with the mode's connection hints); the mode's update (instruction,
+connections, verdicts). A stage that fails on a frame is reported in ``Snapshot.errors`` and the
+rest of the frame still runs. Poses are camera-frame (metres, quaternions ``[x, y, z, w]``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from tracker.camera import Intrinsics
+from tracker.frame import Frame
+from tracker.parts import PartSpec
+from tracker.pose import Pose
+from tracker.snapshot import Snapshot
+
+log = logging.getLogger(__name__)
+
+MODE_NAMES = ("guidance", "guess", "learning")
+"""The assembly modes (engineer 5's ``build_mode`` names); ``None`` runs tracking only."""
+
+DEFAULT_TASKS = {"guidance": "guidance-5-cubes", "guess": "guess-structures", "learning": "learning-4-words"}
+"""Task used for a mode when none is named (preset ids of ``tracker.assembly``)."""
+
+
+def _pose_to_dict(pose: Pose) -> dict[str, list[float]]:
+    return {"t": [float(x) for x in pose.t], "q": [float(x) for x in pose.q]}
+
+
+def _json_safe(value: Any) -> Any:
+    """Turn numpy scalars/arrays and Poses inside a mode-state dict into JSON-able values."""
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _json_safe(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Pose):
+        return _pose_to_dict(value)
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def resolve_task(task: Any) -> Any:
+    """A task object from a preset id or a task-file path; objects (TaskModel, SentenceTask) pass through."""
+    if not isinstance(task, str):
+        return task
+    from pathlib import Path
+
+    from tracker.assembly import load_preset, load_task
+
+    if task.endswith((".yaml", ".yml")) and Path(task).is_file():
+        return load_task(task)
+    return load_preset(task)
+
+
+class AssemblyPipeline:
+    """Runs perception, the tracker and an assembly mode on each frame and returns a Snapshot.
+
+    * ``parts``: the parts to track; ``intrinsics``: of the colour/depth images.
+    * ``mode``: ``"guidance"``, ``"guess"``, ``"learning"`` or ``None`` (tracking only).
+    * ``task``: what ``tracker.assembly.build_mode`` accepts (a preset id, a task object or a path);
+      ``None`` uses :data:`DEFAULT_TASKS`.
+    * ``config``: a ``TrackerConfig`` (or preset name) for the particle filter.
+    * ``initial_poses``: camera-frame poses to initialise the tracker with (simulator, objects.json);
+      parts without one wait for :meth:`set_part_pose` (a box drawn by the user).
+    * ``table_recheck_s``: seconds between table-plane re-detections.
+    * ``source_info``: the source's metadata, copied into every snapshot.
+    """
+
+    def __init__(
+        self,
+        parts: list[PartSpec],
+        intrinsics: Intrinsics,
+        mode: str | None = "guidance",
+        task: Any = None,
+        config: Any = None,
+        seed: int = 0,
+        initial_poses: Mapping[str, Pose] | None = None,
+        table_recheck_s: float = 3.0,
+        source_info: dict[str, Any] | None = None,
+    ) -> None:
+        if not parts:
+            raise ValueError("pipeline: no parts to track")
+        names = [p.name for p in parts]
+        if len(set(names)) != len(names):
+            raise ValueError(f"pipeline: part names must be unique, got {names}")
+        if mode is not None and mode not in MODE_NAMES:
+            raise ValueError(f"pipeline: unknown mode {mode!r}; choose one of {', '.join(MODE_NAMES)}")
+        self.parts = list(parts)
+        self.intrinsics = intrinsics
+        self.config = config
+        self.seed = int(seed)
+        self.table_recheck_s = float(table_recheck_s)
+        self.source_info = dict(source_info or {})
+        self._initial_poses = {k: v for k, v in (initial_poses or {}).items() if k in names}
+        self.poses: dict[str, Pose] = dict(self._initial_poses)
+        self.table = None
+        self._table_time: float | None = None
+        self._fps = 0.0
+        self._last_wall: float | None = None
+        self._setup_errors: list[str] = []
+        self.detector = self._make_detector()
+        self.tracker = self._make_tracker()
+        if self.tracker is not None and self.poses:
+            self._initialize_tracker()
+        self.mode_name: str | None = None
+        self.task: Any = None
+        self.mode = None
+        self.set_mode(mode, task)
+
+    # ----------------------------------------------------------------- construction of the stages
+    def _make_detector(self):
+        try:
+            from tracker.color_detection import ColorDetector
+        except ImportError as exc:
+            self._setup_errors.append(f"colour detection unavailable: {exc}")
+            return None
+        coloured = [p for p in self.parts if p.color is not None]
+        return ColorDetector.from_parts(coloured) if coloured else None
+
+    def _make_tracker(self):
+        try:
+            from tracker.particle_filter import MultiObjectTracker
+        except ImportError as exc:
+            self._setup_errors.append(f"depth tracker unavailable: {exc}")
+            return None
+        config = self.config
+        if isinstance(config, str):
+            from tracker.tracker_config import TrackerConfig
+
+            is_file = config.endswith((".yaml", ".yml", ".toml"))
+            config = TrackerConfig.load(config) if is_file else TrackerConfig.preset(config)
+        return MultiObjectTracker(self.parts, self.intrinsics, config, seed=self.seed)
+
+    def _initialize_tracker(self) -> None:
+        self.tracker.initialize(dict(self.poses))
+
+    def set_mode(self, mode: str | None, task: Any = None) -> None:
+        """Switch the assembly mode (``None``: tracking only); ``task`` as for the constructor."""
+        if mode is not None and mode not in MODE_NAMES:
+            raise ValueError(f"unknown mode {mode!r}; choose one of {', '.join(MODE_NAMES)}")
+        if mode is None:
+            self.mode_name, self.task, self.mode = None, None, None
+            return
+        if task is None:
+            task = DEFAULT_TASKS[mode]
+        from tracker.assembly import build_mode
+
+        built = build_mode(resolve_task(task), mode, self.parts, self.seed)
+        self.mode_name, self.task, self.mode = mode, task, built
+        if self.tracker is not None:
+            self.tracker.set_connection_hints([])
+
+    # ----------------------------------------------------------------- user interaction
+    def set_part_pose(self, name: str, pose: Pose) -> None:
+        """(Re-)start tracking ``name`` at a camera-frame pose (e.g. from a box drawn on the image)."""
+        if name not in {p.name for p in self.parts}:
+            raise ValueError(f"unknown part {name!r}; parts are {', '.join(p.name for p in self.parts)}")
+        self.poses[name] = pose
+        if self.tracker is not None:
+            self._initialize_tracker()
+
+    def part(self, name: str) -> PartSpec:
+        for p in self.parts:
+            if p.name == name:
+                return p
+        raise ValueError(f"unknown part {name!r}; parts are {', '.join(p.name for p in self.parts)}")
+
+    def pose_from_rect(self, name: str, rect: tuple[float, float, float, float], depth: np.ndarray | None) -> Pose:
+        """Camera-frame pose of part ``name`` resting on the table under the pixel rectangle ``(x, y, w, h)``.
+
+        The rectangle centre's viewing ray is intersected with the table plane and the part is lifted by
+        half its height along the table normal, in the table's fundamental orientation (body y up). Without
+        a table plane, the median depth inside the rectangle (plus half the part's size) is used.
+        """
+        x, y, w, h = (float(v) for v in rect)
+        if w <= 0 or h <= 0:
+            raise ValueError(f"rectangle must have a positive width and height, got w={w}, h={h}")
+        u, v = x + w / 2.0, y + h / 2.0
+        part = self.part(name)
+        half = (part.box[1] if part.box is not None else part.bounding_radius()) / 2.0
+        ray = np.array(
+            [(u - self.intrinsics.cx) / self.intrinsics.fx, (v - self.intrinsics.cy) / self.intrinsics.fy, 1.0]
+        )
+        if self.table is not None:
+            n = np.asarray(self.table.normal, float)
+            denom = float(n @ ray)
+            if abs(denom) > 1e-9:
+                s = -float(self.table.offset) / denom
+                if s > 0:
+                    t2c = self.table.table_to_camera()
+                    centre = ray * s + n * half
+                    return Pose(centre, t2c.q)
+        if depth is None:
+            raise ValueError("cannot place a part: no table plane found yet and the frame has no depth")
+        x0, y0 = max(0, int(x)), max(0, int(y))
+        patch = depth[y0 : int(y + h) + 1, x0 : int(x + w) + 1]
+        vals = patch[np.isfinite(patch)]
+        if vals.size == 0:
+            raise ValueError("cannot place a part: no depth inside the rectangle")
+        z = float(np.median(vals)) + half
+        return Pose(ray * z, np.array([0.0, 0.0, 0.0, 1.0]))
+
+    def guess_part(self, rgb: np.ndarray, rect: tuple[float, float, float, float]) -> str:
+        """The coloured part whose nominal colour is nearest (in hue) to the rectangle's median colour."""
+        import cv2
+
+        x, y, w, h = (int(round(v)) for v in rect)
+        patch = rgb[max(0, y) : y + h, max(0, x) : x + w]
+        coloured = [p for p in self.parts if p.color is not None]
+        if patch.size == 0 or not coloured:
+            raise ValueError("name the part: the rectangle is empty or no part has a colour")
+        hsv = cv2.cvtColor(patch.reshape(-1, 1, 3), cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(float)
+        sat = hsv[:, 1] > 60
+        if sat.any():
+            hsv = hsv[sat]
+        # circular hue mean (OpenCV hue is 0..180)
+        ang = hsv[:, 0] * (2 * np.pi / 180.0)
+        hue = (np.arctan2(np.sin(ang).mean(), np.cos(ang).mean()) % (2 * np.pi)) * 180.0 / (2 * np.pi)
+
+        def hue_of(c):
+            return float(cv2.cvtColor(np.uint8([[c]]), cv2.COLOR_RGB2HSV)[0, 0, 0])
+
+        def dist(p):
+            d = abs(hue_of(p.color) - hue)
+            return min(d, 180.0 - d)
+
+        return min(coloured, key=dist).name
+
+    def calibrate_color(self, name: str, rgb: np.ndarray, rect: tuple[float, float, float, float]):
+        """Re-learn part ``name``'s colour range from the pixels inside ``rect`` (perception's calibration)."""
+        from tracker.color_detection import ColorDetector, calibrate_range
+
+        self.part(name)
+        rng = calibrate_range(rgb, rect=tuple(int(round(v)) for v in rect))
+        ranges = dict(getattr(self.detector, "ranges", {}) or {})
+        ranges[name] = rng
+        self.detector = ColorDetector(ranges)
+        return rng
+
+    def reset(self) -> None:
+        """Back to the initial poses, a fresh mode and a table to be found again."""
+        self.poses = dict(self._initial_poses)
+        self.table, self._table_time = None, None
+        self._fps, self._last_wall = 0.0, None
+        self.tracker = self._make_tracker()
+        if self.tracker is not None and self.poses:
+            self._initialize_tracker()
+        self.set_mode(self.mode_name, self.task)
+
+    # ----------------------------------------------------------------- the per-frame cycle
+    def _update_table(self, frame: Frame, errors: list[str]) -> None:
+        if frame.depth is None:
+            return
+        due = self._table_time is None or frame.timestamp - self._table_time >= self.table_recheck_s
+        if not due:
+            return
+        from tracker.table_plane import detect_table
+
+        self._table_time = frame.timestamp
+        try:
+            self.table = detect_table(frame.depth, frame.intrinsics)
+        except ValueError as exc:  # TableNotFoundError is a ValueError
+            errors.append(f"table: {exc}")
+
+    def _boxes(self) -> dict[str, list[float]]:
+        out: dict[str, list[float]] = {}
+        for part in self.parts:
+            pose = self.poses.get(part.name)
+            if pose is None or part.box is None:
+                continue
+            pts = pose.transform_points(part.vertices())
+            if np.any(pts[:, 2] <= 1e-3):
+                continue
+            uv = self.intrinsics.project(pts)
+            out[part.name] = [
+                float(uv[:, 0].min()),
+                float(uv[:, 1].min()),
+                float(uv[:, 0].max()),
+                float(uv[:, 1].max()),
+            ]
+        return out
+
+    def process(self, frame: Frame, wall_time: float | None = None) -> Snapshot:
+        """Run every stage on ``frame``; ``wall_time`` is when it arrived (default: now)."""
+        wall = time.time() if wall_time is None else float(wall_time)
+        errors: list[str] = list(self._setup_errors)
+        timings: dict[str, float] = {}
+
+        t0 = time.perf_counter()
+        try:
+            self._update_table(frame, errors)
+        except Exception as exc:  # noqa: BLE001 - a failing stage is reported, the frame goes on
+            errors.append(f"table: {type(exc).__name__}: {exc}")
+        timings["table"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        detections: dict = {}
+        if self.detector is not None:
+            try:
+                detections = self.detector.detect(frame.color)
+            except Exception as exc:  # noqa: BLE001
+                errors.append(f"colour detection: {type(exc).__name__}: {exc}")
+        timings["detection"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        particles: dict[str, np.ndarray] = {}
+        if self.tracker is not None and self.poses:
+            try:
+                if self.mode is not None:
+                    self.tracker.set_connection_hints(self.mode.connection_hints())
+                state = self.tracker.step(frame, detections or None, self.table)
+                self.poses.update(state.poses)
+                particles = {k: np.asarray(v, np.float32) for k, v in state.particles.items()}
+                for k, v in (getattr(state, "timings", None) or {}).items():
+                    timings[f"tracker.{k}"] = float(v)
+            except Exception as exc:  # noqa: BLE001
+                log.exception("tracker failed on frame %s", frame.index)
+                errors.append(f"tracker: {type(exc).__name__}: {exc}")
+        timings["tracker"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        mode_state: dict[str, Any] = {}
+        if self.mode is not None:
+            t2c = self.table.table_to_camera() if self.table is not None else None
+            if t2c is None:
+                errors.append("mode: waiting for the table plane")
+            else:
+                try:
+                    mode_state = _json_safe(self.mode.update(frame.timestamp, dict(self.poses), t2c).to_dict())
+                except Exception as exc:  # noqa: BLE001
+                    log.exception("mode failed on frame %s", frame.index)
+                    errors.append(f"mode: {type(exc).__name__}: {exc}")
+        timings["mode"] = time.perf_counter() - t0
+
+        if self._last_wall is not None:
+            dt = wall - self._last_wall
+            if dt > 0:
+                inst = 1.0 / dt
+                self._fps = inst if self._fps == 0.0 else 0.9 * self._fps + 0.1 * inst
+        self._last_wall = wall
+
+        table = None
+        if self.table is not None:
+            table = {
+                "normal": [float(x) for x in self.table.normal],
+                "offset": float(self.table.offset),
+                "table_to_camera": _pose_to_dict(self.table.table_to_camera()),
+            }
+        det_json = {}
+        for name, d in detections.items():
+            det_json[name] = {
+                "center": None if d.center is None else [float(d.center[0]), float(d.center[1])],
+                "bbox": None if d.bbox is None else [float(v) for v in d.bbox],
+                "score": float(d.score),
+                "area": float(d.area),
+            }
+        instruction = str(mode_state.get("instruction", "") or "")
+        connections = mode_state.get("connections", [])
+        if not isinstance(connections, list):
+            connections = []
+        return Snapshot(
+            frame_index=frame.index,
+            time=frame.timestamp,
+            wall_time=wall,
+            poses=dict(self.poses),
+            particles=particles,
+            boxes=self._boxes(),
+            detections=det_json,
+            connections=connections,
+            mode=self.mode_name,
+            mode_state=mode_state,
+            instruction=instruction,
+            table=table,
+            fps=self._fps,
+            timings=timings,
+            source=self.source_info,
+            errors=errors,
+            image_size=(frame.intrinsics.width, frame.intrinsics.height),
+        )

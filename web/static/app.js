@@ -1,0 +1,301 @@
+// Assembly Agent panel: websocket snapshots, colour image with overlays, drag-a-box, mode selection.
+// All user-visible text goes through textContent (never innerHTML), so task words are shown, not run.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const state = { snap: null, imageSize: [640, 480], parts: [], drag: null, lastBox: null, imgBusy: false, lastImg: 0 };
+
+function el(tag, text, cls) {
+  const e = document.createElement(tag);
+  if (text !== undefined && text !== null) e.textContent = String(text);
+  if (cls) e.className = cls;
+  return e;
+}
+
+function setList(list, items, empty) {
+  list.replaceChildren(...(items.length ? items : [el("li", empty, "muted")]));
+}
+
+async function api(path, options = {}) {
+  const opts = Object.assign({ headers: { "Content-Type": "application/json" } }, options);
+  const res = await fetch(path, opts);
+  let body = null;
+  try { body = await res.json(); } catch (_e) { body = null; }
+  if (!res.ok) {
+    const detail = body && body.detail;
+    let msg = typeof detail === "string" ? detail : res.statusText;
+    if (Array.isArray(detail)) msg = detail.map((d) => `${(d.loc || []).slice(1).join(".")}: ${d.msg}`).join("; ");
+    throw new Error(msg);
+  }
+  return body;
+}
+
+function showMessage(id, text, isError) {
+  const m = $(id);
+  m.textContent = text;
+  m.classList.toggle("error", !!isError);
+}
+
+// ------------------------------------------------------------------ status, modes, tasks
+async function refreshStatus() {
+  try {
+    const s = await api("/api/status");
+    $("source-name").textContent = s.source;
+    $("worker-state").textContent = s.worker.state;
+    state.parts = s.parts;
+    const sel = $("box-part");
+    const current = sel.value;
+    const opts = [el("option", "by colour")];
+    opts[0].value = "";
+    for (const p of s.parts) { const o = el("option", p); o.value = p; opts.push(o); }
+    sel.replaceChildren(...opts);
+    sel.value = s.parts.includes(current) ? current : "";
+    const frame = $("viser-frame");
+    if (s.viser_port && frame.dataset.port !== String(s.viser_port)) {
+      frame.dataset.port = String(s.viser_port);
+      frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/`;
+    } else if (!s.viser_port) {
+      $("viser-message").textContent = "3D scene disabled (--viser-port 0)";
+    }
+    const errs = s.worker.errors.slice(-5).reverse().map((e) => el("li", `${e.where}: ${e.message}`));
+    setList($("error-list"), errs, "none");
+  } catch (e) {
+    $("worker-state").textContent = "offline";
+  }
+}
+
+async function refreshModes() {
+  const m = await api("/api/modes");
+  $("mode-select").value = m.current;
+  fillTasks(m, m.current, m.task);
+  state.modes = m;
+}
+
+function fillTasks(m, mode, selected) {
+  const sel = $("task-select");
+  const opts = [];
+  const def = el("option", "default for the mode");
+  def.value = "";
+  opts.push(def);
+  for (const t of m.tasks) {
+    if (t.mode !== mode) continue;
+    const o = el("option", `${t.origin === "teacher" ? "teacher: " : ""}${t.title}`);
+    o.value = t.id;
+    opts.push(o);
+  }
+  sel.replaceChildren(...opts);
+  sel.value = selected && opts.some((o) => o.value === selected) ? selected : "";
+}
+
+$("mode-select").addEventListener("change", () => {
+  if (state.modes) fillTasks(state.modes, $("mode-select").value, null);
+});
+
+$("btn-apply-mode").addEventListener("click", async () => {
+  const body = { mode: $("mode-select").value, task: $("task-select").value || null };
+  showMessage("mode-message", "switching…");
+  try {
+    const m = await api("/api/modes", { method: "POST", body: JSON.stringify(body) });
+    state.modes = m;
+    showMessage("mode-message", `mode ${m.current}${m.task ? " · " + m.task : ""}`);
+  } catch (e) {
+    showMessage("mode-message", e.message, true);
+  }
+});
+
+for (const action of ["start", "pause", "reset"]) {
+  $(`btn-${action}`).addEventListener("click", async () => {
+    await api("/api/sessions", { method: "POST", body: JSON.stringify({ action }) });
+    refreshStatus();
+  });
+}
+
+// ------------------------------------------------------------------ snapshot rendering
+function progressOf(ms) {
+  const p = ms.progress;
+  if (typeof p === "number") return p > 1 ? p / 100 : p;
+  if (p && typeof p === "object") {
+    const done = p.done ?? p.completed ?? p.established;
+    const total = p.total ?? p.steps;
+    if (typeof done === "number" && total) return done / total;
+    if (typeof p.fraction === "number") return p.fraction;
+  }
+  return null;
+}
+
+function renderSnapshot(s) {
+  state.snap = s;
+  state.imageSize = s.image_size && s.image_size[0] ? s.image_size : state.imageSize;
+  $("frame-index").textContent = s.frame_index;
+  $("fps").textContent = (s.fps || 0).toFixed(1);
+  if (s.worker) $("worker-state").textContent = s.worker.state;
+  const ms = s.mode_state || {};
+  const instr = $("instruction");
+  instr.textContent = s.instruction || ms.verdict || (s.mode ? "…" : "Tracking only (no assembly mode)");
+  const verdict = String(ms.verdict || ms.status || "").toLowerCase();
+  instr.classList.toggle("ok", /correct|done|complete|success/.test(verdict));
+  instr.classList.toggle("bad", /wrong|incorrect|error/.test(verdict));
+  const frac = progressOf(ms);
+  $("progress-bar").style.width = frac === null ? "0" : `${Math.round(Math.max(0, Math.min(1, frac)) * 100)}%`;
+  $("progress-text").textContent = frac === null ? "" : `progress ${Math.round(frac * 100)} %`;
+
+  const conns = (s.connections || []).map((c) => {
+    const st = String(c.state || c.status || "");
+    const li = el("li", `${c.first} → ${c.second}: ${st}`);
+    li.className = `state-${st.toLowerCase()}`;
+    return li;
+  });
+  setList($("connection-list"), conns, "none yet");
+
+  const ranking = Array.isArray(ms.ranking) ? ms.ranking : [];
+  $("ranking-box").classList.toggle("hidden", s.mode !== "guess" || ranking.length === 0);
+  const rItems = ranking.map((r) => {
+    const name = r.title || r.name || r.structure || "?";
+    const score = Number(r.probability ?? r.score ?? r.progress ?? 0);
+    const li = el("li", `${name} — ${Math.round(score * 100)} %`);
+    const bar = el("span", null, "bar");
+    bar.style.width = `${Math.round(score * 80)}px`;
+    li.appendChild(bar);
+    return li;
+  });
+  setList($("ranking-list"), rItems, "");
+
+  const isLearning = s.mode === "learning";
+  $("learning-box").classList.toggle("hidden", !isLearning);
+  if (isLearning) {
+    $("source-sentence").textContent = ms.source_sentence || ms.sentence || "";
+    const verdicts = Array.isArray(ms.word_verdicts) ? ms.word_verdicts : Array.isArray(ms.verdicts) ? ms.verdicts : [];
+    let items;
+    if (verdicts.length) {
+      items = verdicts.map((v) => {
+        const word = typeof v === "string" ? v : v.word;
+        const ok = typeof v === "object" ? (v.correct ?? v.verdict) : null;
+        const cls = ok === true || ok === "correct" ? "correct" : ok === false || ok === "wrong" ? "wrong" : "";
+        return el("li", word, cls);
+      });
+    } else {
+      const words = ms.words && typeof ms.words === "object" ? Object.values(ms.words) : [];
+      items = words.map((w) => el("li", w));
+    }
+    $("word-list").replaceChildren(...items);
+  }
+  const errs = (s.errors || []).map((e) => el("li", e));
+  if (errs.length) setList($("error-list"), errs, "none");
+  drawOverlay();
+}
+
+// ------------------------------------------------------------------ colour image and overlay
+const PART_COLORS = {
+  red: "#d21e23", green: "#28aa3c", blue: "#2346c8", yellow: "#ebcd1e", orange: "#f07814",
+  purple: "#8232aa", cyan: "#1eb4c8", pink: "#eb6eaa",
+};
+
+function drawOverlay() {
+  const canvas = $("overlay");
+  const img = $("color-image");
+  const w = img.clientWidth, h = img.clientHeight;
+  if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, w, h);
+  const [iw, ih] = state.imageSize;
+  const sx = w / iw, sy = h / ih;
+  const s = state.snap;
+  if (s) {
+    if ($("show-detections").checked) {
+      for (const [name, d] of Object.entries(s.detections || {})) {
+        if (!d.bbox) continue;
+        ctx.setLineDash([4, 3]);
+        ctx.strokeStyle = PART_COLORS[name] || "#fff";
+        ctx.lineWidth = 1.5;
+        ctx.strokeRect(d.bbox[0] * sx, d.bbox[1] * sy, d.bbox[2] * sx, d.bbox[3] * sy);
+        if (d.center) { ctx.beginPath(); ctx.arc(d.center[0] * sx, d.center[1] * sy, 3, 0, 2 * Math.PI); ctx.stroke(); }
+      }
+    }
+    if ($("show-boxes").checked) {
+      ctx.setLineDash([]);
+      ctx.font = "12px sans-serif";
+      for (const [name, b] of Object.entries(s.boxes || {})) {
+        if (b.some((v) => v === null)) continue;
+        ctx.strokeStyle = "#fff";
+        ctx.lineWidth = 2;
+        ctx.strokeRect(b[0] * sx, b[1] * sy, (b[2] - b[0]) * sx, (b[3] - b[1]) * sy);
+        ctx.fillStyle = "#fff";
+        ctx.fillText(name, b[0] * sx, b[1] * sy - 3);
+      }
+    }
+  }
+  const r = state.drag || state.lastBox;
+  if (r) {
+    ctx.setLineDash(state.drag ? [6, 4] : []);
+    ctx.strokeStyle = "#00e5ff";
+    ctx.lineWidth = 2;
+    ctx.strokeRect(r.x * sx, r.y * sy, r.w * sx, r.h * sy);
+  }
+}
+
+function refreshImage() {
+  const now = performance.now();
+  if (state.imgBusy || now - state.lastImg < 66 || !state.snap) return;
+  state.imgBusy = true;
+  state.lastImg = now;
+  const img = $("color-image");
+  const next = new Image();
+  next.onload = () => { img.src = next.src; state.imgBusy = false; drawOverlay(); };
+  next.onerror = () => { state.imgBusy = false; };
+  next.src = `/api/frame.jpg?f=${state.snap.frame_index}`;
+}
+setInterval(refreshImage, 33);
+
+function imageCoords(ev) {
+  const canvas = $("overlay");
+  const rect = canvas.getBoundingClientRect();
+  const [iw, ih] = state.imageSize;
+  return [((ev.clientX - rect.left) / rect.width) * iw, ((ev.clientY - rect.top) / rect.height) * ih];
+}
+
+$("overlay").addEventListener("mousedown", (ev) => {
+  const [x, y] = imageCoords(ev);
+  state.drag = { x0: x, y0: y, x, y, w: 0, h: 0 };
+});
+window.addEventListener("mousemove", (ev) => {
+  if (!state.drag) return;
+  const [x, y] = imageCoords(ev);
+  const d = state.drag;
+  d.x = Math.max(0, Math.min(x, d.x0));
+  d.y = Math.max(0, Math.min(y, d.y0));
+  d.w = Math.abs(x - d.x0);
+  d.h = Math.abs(y - d.y0);
+  drawOverlay();
+});
+window.addEventListener("mouseup", async () => {
+  const d = state.drag;
+  state.drag = null;
+  if (!d) return;
+  if (d.w < 4 || d.h < 4) { drawOverlay(); return; }
+  const body = {
+    x: d.x, y: d.y, w: d.w, h: d.h, action: $("box-action").value, part: $("box-part").value || null,
+  };
+  state.lastBox = { x: d.x, y: d.y, w: d.w, h: d.h };
+  drawOverlay();
+  showMessage("box-message", "sending box…");
+  try {
+    const r = await api("/api/boxes", { method: "POST", body: JSON.stringify(body) });
+    const what = r.action === "track" ? "tracking" : "colour calibrated for";
+    showMessage("box-message", `${what} ${r.part} (frame ${r.frame_index})`);
+  } catch (e) {
+    showMessage("box-message", e.message, true);
+  }
+});
+
+// ------------------------------------------------------------------ websocket
+function connect() {
+  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  ws.onmessage = (ev) => renderSnapshot(JSON.parse(ev.data));
+  ws.onclose = () => { $("worker-state").textContent = "reconnecting"; setTimeout(connect, 1000); };
+}
+
+window.addEventListener("resize", drawOverlay);
+refreshStatus();
+refreshModes().catch((e) => showMessage("mode-message", e.message, true));
+setInterval(refreshStatus, 2000);
+connect();
