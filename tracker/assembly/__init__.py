@@ -17,3 +17,13 @@ __all__ = [
     "parse_task",
     "preset_path",
 ]
+
+
+def build_mode(*args, **kwargs):
+    """See :func:`tracker.assembly.modes.build_mode` (imported lazily)."""
+    from tracker.assembly.modes import build_mode as _build
+
+    return _build(*args, **kwargs)
+
+
+__all__ += ["build_mode"]

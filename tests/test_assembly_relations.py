@@ -1,0 +1,201 @@
+"""Relations, connection score, cube symmetry (the four cases), N_checks and breaking."""
+
+import numpy as np
+import pytest
+
+from tracker.assembly.connection_monitor import AssemblyParams, ConnectionMonitor, ConnectionSpec
+from tracker.assembly.connection_score import allocate_particles, connection_score, score_distance
+from tracker.assembly.cube_symmetry import SymmetryState, case1_first_rotations
+from tracker.assembly.relations import (
+    m_q_from_angle,
+    position_within,
+    relative_pose,
+    relative_position_table,
+    rotation_within,
+    table_rotation,
+    table_rotation_from_normal,
+    table_to_camera_from_plane,
+)
+from tracker.assembly.synthetic import default_table_to_camera
+from tracker.parts import CUBE_EDGE, PartSpec
+from tracker.pose import Pose
+from tracker.symmetry import cube_group
+
+A = CUBE_EDGE
+
+
+def rz(deg):
+    return Pose.from_rotvec(np.array([0, 0, np.radians(deg)]), np.zeros(3)).R
+
+
+def test_relative_pose_hand_computed():
+    pa = Pose.from_rt(rz(90), np.array([0.0, 0.0, 1.0]))
+    pb = Pose.from_rt(np.eye(3), np.array([0.0, A, 1.0]))
+    p_ab, R_ab = relative_pose(pa, pb)
+    # R_aᵀ (0, a, 0) with R_a = 90° about z: (a, 0, 0); relative rotation −90° about z.
+    np.testing.assert_allclose(p_ab, [A, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(R_ab, rz(-90), atol=1e-12)
+
+
+def test_table_relative_position_eq_5_8_corrected():
+    R_ot = table_rotation_from_normal(np.array([0.0, -1.0, 0.0]))  # level camera: up = −y_camera
+    np.testing.assert_allclose(R_ot, [[1, 0, 0], [0, -1, 0], [0, 0, -1]], atol=1e-12)
+    d = relative_position_table(np.array([0, 0, 1.0]), np.array([0.1, -0.05, 1.0]), R_ot)
+    np.testing.assert_allclose(d, [0.1, 0.05, 0.0], atol=1e-12)  # y component = N·Δp (up is positive)
+    T = table_to_camera_from_plane(np.array([0.0, -0.6, -0.8]), 0.4)
+    np.testing.assert_allclose(table_rotation(T)[1], [0.0, -0.6, -0.8], atol=1e-12)
+    np.testing.assert_allclose(T.t, [0, 0, 0.5], atol=1e-12)  # optical axis meets the plane at z = 0.4 / 0.8
+
+
+def test_equality_tests():
+    assert position_within([A, 0, 0], [A + 0.009, -0.009, 0.009], 0.01)
+    assert not position_within([A, 0, 0], [A + 0.011, 0, 0], 0.01)
+    assert not position_within([A, 0, 0], [A, 0, 0.011], (0.02, 0.02, 0.01))
+    m_q = m_q_from_angle(np.radians(20))
+    assert m_q == pytest.approx(1 - np.cos(np.radians(10)))
+    assert rotation_within(np.eye(3), rz(19), m_q)
+    assert not rotation_within(np.eye(3), rz(21), m_q)
+
+
+def test_connection_score_and_allocation():
+    p = np.array([A, 0, 0])
+    assert connection_score(p, np.eye(3), p, np.eye(3), 0.01, 3) == pytest.approx(1.0)
+    # inside the margins on every axis: still 1 (sum of squares ≤ 3)
+    assert connection_score(p, np.eye(3), p + 0.009, np.eye(3), 0.01, 3) == pytest.approx(1.0)
+    far = p + np.array([0.05, 0, 0])
+    e2 = 25.0
+    assert score_distance(p, far, 0.01, 3) == pytest.approx(np.sqrt(3 * (e2 - 3) + 1))
+    s3 = connection_score(p, np.eye(3), far, np.eye(3), 0.01, 3)
+    s7 = connection_score(p, np.eye(3), far, np.eye(3), 0.01, 7)
+    assert s3 == pytest.approx(1 / np.sqrt(67)) and s7 < s3  # larger K drops faster
+    assert allocate_particles(1.0, 9) == 9 and allocate_particles(0.5, 9) == 5 and allocate_particles(0.05, 9) == 0
+
+
+def _check(state, a, b, pa, pb, p_des):
+    p_ab, R_ab = relative_pose(pa, pb)
+    p_des = np.asarray(p_des, float)
+    return state.resolve(a, b, p_ab, R_ab, pa.R, p_des, np.eye(3), np.array([0, -1.0, 0]),
+                         lambda p, R: float(np.sum((p - p_des) ** 2)))
+
+
+G = cube_group()
+UP = np.array([0, -1.0, 0])  # table normal in a level camera's frame
+R_FUND = np.diag([1.0, -1.0, -1.0])  # fundamental orientation: body y = table up = camera −y
+
+
+def test_symmetry_case1_any_cubic_rotation_and_vertical_axis_fixed():
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        Sa, Sb = G[rng.integers(24)], G[rng.integers(24)]
+        pa = Pose.from_rt(R_FUND @ Sa, [0, 0, 0.6])
+        pb = Pose.from_rt(R_FUND @ Sb, [A, 0, 0.6])  # b to the right of a on the table
+        st = SymmetryState({"a": True, "b": True})
+        res = _check(st, "a", "b", pa, pb, [A, 0, 0])
+        assert res.case == 1
+        np.testing.assert_allclose(res.best.p, [A, 0, 0], atol=1e-9)
+        np.testing.assert_allclose(res.best.R, np.eye(3), atol=1e-9)
+        # the corrected y axis of a points up
+        np.testing.assert_allclose(pa.R @ res.best.Q_a.T @ [0, 1, 0], UP, atol=1e-9)
+        # a side neighbour never satisfies an "on top" connection
+        res_v = _check(st, "a", "b", pa, pb, [0, A, 0])
+        assert np.linalg.norm(res_v.best.p - [0, A, 0]) > A
+    # vertical first connection: four headings tie and are all kept
+    pa = Pose.from_rt(R_FUND, [0, 0, 0.6])
+    pb = Pose.from_rt(R_FUND, [0, -A, 0.6])
+    assert len(case1_first_rotations(*relative_pose(pa, pb)[:1], np.array([0, A, 0]), pa.R, UP)) == 4
+
+
+def test_symmetry_cases_2_3_4_use_stored_priors():
+    rng = np.random.default_rng(1)
+    S = [G[rng.integers(24)] for _ in range(3)]
+    pa = Pose.from_rt(R_FUND @ S[0], [0, 0, 0.6])
+    pb = Pose.from_rt(R_FUND @ S[1], [A, 0, 0.6])
+    pc = Pose.from_rt(R_FUND @ S[2], [2 * A, 0, 0.6])
+    st = SymmetryState({"a": True, "b": True, "c": True})
+    res = _check(st, "a", "b", pa, pb, [A, 0, 0])
+    st.establish("a", "b", res, lambda o: True)
+    np.testing.assert_allclose(st.prior_rotation("a"), res.best.Q_a.T)
+    # case 2: a (first) has a prior; c is free (checked as "a→c" two edges away)
+    r2 = _check(st, "a", "c", pa, pc, [2 * A, 0, 0])
+    assert r2.case == 2
+    np.testing.assert_allclose(r2.best.Q_a, res.best.Q_a)
+    np.testing.assert_allclose(r2.best.p, [2 * A, 0, 0], atol=1e-9)
+    # with a's stored prior, c placed on the far side in a's fundamental frame fails
+    pc_left = Pose.from_rt(R_FUND @ S[2], [-A, 0, 0.6])
+    assert np.linalg.norm(_check(st, "a", "c", pa, pc_left, [2 * A, 0, 0]).best.p - [2 * A, 0, 0]) > A
+    # case 3: the second part (b) has a prior, the first (c) is free: c is at +x of b, so b is at −x of c
+    r3 = _check(st, "c", "b", pc, pb, [-A, 0, 0])
+    assert r3.case == 3
+    np.testing.assert_allclose(r3.best.Q_b, res.best.Q_b)
+    np.testing.assert_allclose(r3.best.p, [-A, 0, 0], atol=1e-9)
+    # case 4: both have priors
+    st.establish("b", "c", _check(st, "b", "c", pb, pc, [A, 0, 0]), lambda o: True)
+    r4 = _check(st, "a", "c", pa, pc, [2 * A, 0, 0])
+    assert r4.case == 4
+    np.testing.assert_allclose(r4.best.p, [2 * A, 0, 0], atol=1e-9)
+    # breaking b–c drops c's prior
+    st.rebuild([("a", "b")])
+    assert st.has_prior("a") and not st.has_prior("c")
+
+
+def _monitor(n_checks=3, n_break=2):
+    parts = [PartSpec.cube("a", "red"), PartSpec.cube("b", "green")]
+    spec = ConnectionSpec("a", "b", np.array([A, 0, 0]), np.eye(3))
+    prm = AssemblyParams(m_p=0.01, N_checks=n_checks, N_break=n_break)
+    return ConnectionMonitor(parts, [spec], prm)
+
+
+def test_n_checks_consecutive_frames_and_breaking_hysteresis():
+    T = default_table_to_camera()
+    base = T @ Pose(np.array([0, A / 2, 0]))
+    near = {"a": base, "b": base @ Pose(np.array([A + 0.003, 0, 0]))}
+    off = {"a": base, "b": base @ Pose(np.array([A + 0.03, 0, 0]))}
+    slightly_off = {"a": base, "b": base @ Pose(np.array([A + 0.012, 0, 0]))}  # > m_p, < 1.5 m_p
+    m = _monitor(n_checks=3, n_break=2)
+    seq = [near, near, off, near, near]
+    for i, poses in enumerate(seq):
+        m.update(i * 0.1, poses, T)
+        assert m.status[0].state != "connected"  # never 3 consecutive
+    m.update(0.5, near, T)
+    assert m.status[0].state == "connected" and m.events[-1].t == pytest.approx(0.5)
+    assert m.status[0].state == "connected"
+    m.update(0.6, slightly_off, T)
+    m.update(0.7, slightly_off, T)
+    assert m.status[0].state == "connected"  # within the relaxed break margin
+    m.update(0.8, off, T)
+    assert m.status[0].state == "connected"  # one failing frame < N_break
+    m.update(0.9, off, T)
+    assert m.status[0].state == "open" and m.events[-1].type == "disconnected"
+    hints = m.connection_hints()
+    assert all(not h.locked for h in hints)
+
+
+def test_hint_relative_pose_in_tracker_frames():
+    T = default_table_to_camera()
+    rng = np.random.default_rng(3)
+    m = _monitor(n_checks=1)
+    base = T @ Pose(np.array([0, A / 2, 0]))
+    Sa, Sb = G[rng.integers(24)], G[rng.integers(24)]
+    pa = Pose.from_rt(base.R @ Sa, base.t)
+    pb_fund = base @ Pose(np.array([A, 0, 0]))
+    pb = Pose.from_rt(pb_fund.R @ Sb, pb_fund.t)
+    m.update(0.0, {"a": pa, "b": pb}, T)
+    (h,) = m.connection_hints()
+    assert h.locked and h.n_particles == m.params.N_max
+    # the hint's relative pose is b's actual pose in a's actual (tracker) frame
+    p_ab, R_ab = relative_pose(pa, pb)
+    np.testing.assert_allclose(h.relative.t, p_ab, atol=1e-9)
+    np.testing.assert_allclose(h.relative.R, R_ab, atol=1e-9)
+
+
+def test_unexpected_connection_reported():
+    T = default_table_to_camera()
+    m = _monitor(n_checks=1)
+    parts = [PartSpec.cube("a", "red"), PartSpec.cube("b", "green"), PartSpec.cube("c", "blue")]
+    m = ConnectionMonitor(parts, m.connections, AssemblyParams(N_checks=1))
+    base = T @ Pose(np.array([0, A / 2, 0]))
+    poses = {"a": base, "b": base @ Pose(np.array([0.2, 0, 0])), "c": base @ Pose(np.array([0, 0, A]))}
+    m.update(0.0, poses, T)
+    un = m.unexpected()
+    assert [(u.first, u.second) for u in un] == [("a", "c")]
+    assert any(not e.expected and e.type == "connected" for e in m.events)

@@ -1,0 +1,235 @@
+"""Cube symmetry with stored prior rotations (spec sections 8.3–8.4, the four cases).
+
+A cube's observed orientation ``R`` is only known up to the 24 cube rotations ``G``. For each connection
+(first part ``a``, second part ``b``) we choose ``Q_a, Q_b ∈ G`` so that the corrected orientations
+``R_a Q_aᵀ`` and ``R_b Q_bᵀ`` are the parts' fundamental orientations; the corrected relative pose is
+``p' = Q_a p_ab``, ``R' = Q_a R_ab Q_bᵀ`` and is compared with the desired one (section 7).
+
+Cases (a part "has a prior" when it belongs to an established connection):
+
+1. neither part has a prior: ``Q_a`` maximises ``(S p_ab)·p_des``; ``Q_b`` = nearest element of G to
+   ``R_desᵀ Q_a R_ab``;
+2. only ``a`` has a prior: ``Q_a`` stored, ``Q_b`` as in case 1;
+3. only ``b`` has a prior: ``Q_b`` stored, ``Q_a`` = nearest element to ``R_des Q_b R_abᵀ``;
+4. both have priors: both stored.
+
+Choices documented here (the thesis leaves them open):
+
+* Case 1 first keeps the rotations that make the first cube's corrected y axis point up along the table
+  normal (best ``N·(R_a Sᵀ ŷ)``, ties within 1e-3), and only then maximises the dot product (ties within
+  1e-6 relative). This keeps the vertical axis fixed and the horizontal axes free (Fig. 5.5, eq. 5.8), so a
+  cube beside another never satisfies an "on top of" connection. (Spec 8.4 orders the two criteria the
+  other way round; with that order a vertical connection would accept any face neighbour.)
+* Priors are stored when a connection becomes established, as *hypotheses per connected component*: a
+  vertical first connection leaves the structure's heading undetermined (four rotations about the normal
+  tie), so all tied choices are kept and later horizontal connections pick the one that fits. A component's
+  hypotheses are narrowed to those that pass the test when a new connection joins it, and projected onto
+  the remaining parts when a connection breaks.
+* Parts that are not cubes have no symmetry: their ``Q`` is always the identity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tracker.symmetry import cube_group, nearest_in_group
+
+UP_TIE_TOL = 1e-3
+DOT_TIE_TOL = 1e-6
+MAX_HYPOTHESES = 24
+
+_I = np.eye(3)
+
+
+def case1_first_rotations(p_ab: np.ndarray, p_des: np.ndarray, R_a: np.ndarray, normal: np.ndarray) -> list[int]:
+    """Indices into :func:`cube_group` of the case-1 choices for ``Q_a`` (all tied options, best first)."""
+    G = cube_group()
+    n = np.asarray(normal, float)
+    # Corrected y axis of the first cube in the camera frame: R_a Sᵀ ŷ = R_a · (row 1 of S).
+    up = np.einsum("ij,nj->ni", R_a, G[:, 1, :]) @ n if R_a is not None else None
+    cand = np.arange(len(G))
+    if up is not None:
+        cand = cand[up >= up.max() - UP_TIE_TOL]
+    dots = np.einsum("nij,j->ni", G[cand], p_ab) @ np.asarray(p_des, float)
+    tol = DOT_TIE_TOL * (np.linalg.norm(p_ab) * np.linalg.norm(p_des) + 1e-12)
+    best = cand[dots >= dots.max() - tol]
+    return [int(i) for i in best]
+
+
+def snap_to_group(M: np.ndarray) -> np.ndarray:
+    """Nearest cube rotation to ``M`` (argmax over G of |q_S · q_M|, i.e. smallest angle)."""
+    return nearest_in_group(M)[1]
+
+
+@dataclass
+class Option:
+    """One symmetry choice for a connection check: rotations, corrected relative pose and its error."""
+
+    Q_a: np.ndarray
+    Q_b: np.ndarray
+    p: np.ndarray
+    R: np.ndarray
+    error: float
+    hyp_a: int | None = None
+    hyp_b: int | None = None
+
+
+@dataclass
+class Resolution:
+    """Result of :meth:`SymmetryState.resolve`: the case (1–4) and the options, best first."""
+
+    case: int
+    options: list[Option] = field(default_factory=list)
+
+    @property
+    def best(self) -> Option:
+        return self.options[0]
+
+
+class SymmetryState:
+    """Stored prior rotations of symmetric parts, as hypotheses per connected component."""
+
+    def __init__(self, symmetric: dict[str, bool]):
+        self.symmetric = dict(symmetric)
+        self.reset()
+
+    def reset(self) -> None:
+        self._component: dict[str, int] = {}
+        self._hyps: dict[int, list[dict[str, np.ndarray]]] = {}
+        self._next_id = 0
+
+    # ------------------------------------------------------------------ queries
+    def has_prior(self, part: str) -> bool:
+        return part in self._component
+
+    def hypotheses(self, part: str) -> list[dict[str, np.ndarray]]:
+        cid = self._component.get(part)
+        return self._hyps[cid] if cid is not None else []
+
+    def prior_rotation(self, part: str) -> np.ndarray | None:
+        """The stored prior ``P = Qᵀ`` of a part (its first hypothesis), or ``None``."""
+        h = self.hypotheses(part)
+        return h[0][part].T if h else None
+
+    # ------------------------------------------------------------------ checking
+    def resolve(
+        self,
+        a: str,
+        b: str,
+        p_ab: np.ndarray,
+        R_ab: np.ndarray,
+        R_a: np.ndarray,
+        p_des: np.ndarray,
+        R_des: np.ndarray,
+        normal: np.ndarray,
+        error_fn,
+    ) -> Resolution:
+        """All symmetry options for checking connection (a, b), best (smallest ``error_fn(p, R)``) first."""
+        sym_a, sym_b = self.symmetric.get(a, False), self.symmetric.get(b, False)
+        G = cube_group()
+        ha = self.hypotheses(a)
+        hb = self.hypotheses(b)
+        same_component = bool(ha) and bool(hb) and self._component[a] == self._component[b]
+
+        def q_b_free(Q_a):
+            return snap_to_group(R_des.T @ Q_a @ R_ab) if sym_b else _I
+
+        def q_a_free(Q_b):
+            return snap_to_group(R_des @ Q_b @ R_ab.T) if sym_a else _I
+
+        pairs: list[tuple[np.ndarray, np.ndarray, int | None, int | None]] = []
+        if ha and hb:
+            case = 4
+            if same_component:
+                pairs = [(h[a], h[b], i, i) for i, h in enumerate(ha)]
+            else:
+                pairs = [(x[a], y[b], i, j) for i, x in enumerate(ha) for j, y in enumerate(hb)]
+        elif ha:
+            case = 2
+            pairs = [(h[a], q_b_free(h[a]), i, None) for i, h in enumerate(ha)]
+        elif hb:
+            case = 3
+            pairs = [(q_a_free(h[b]), h[b], None, j) for j, h in enumerate(hb)]
+        else:
+            case = 1
+            if sym_a:
+                firsts = [G[i] for i in case1_first_rotations(p_ab, p_des, R_a, normal)]
+            else:
+                firsts = [_I]
+            pairs = [(Q_a, q_b_free(Q_a), None, None) for Q_a in firsts]
+        options = []
+        for Q_a, Q_b, i, j in pairs:
+            p = Q_a @ p_ab
+            R = Q_a @ R_ab @ Q_b.T
+            options.append(Option(Q_a, Q_b, p, R, float(error_fn(p, R)), i, j))
+        options.sort(key=lambda o: o.error)
+        return Resolution(case, options)
+
+    # ------------------------------------------------------------------ updates
+    def establish(self, a: str, b: str, resolution: Resolution, passing) -> None:
+        """Store priors for the established connection (a, b): keep the options for which ``passing(option)``."""
+        keep = [o for o in resolution.options if passing(o)] or resolution.options[:1]
+        ca, cb = self._component.get(a), self._component.get(b)
+        ha = self._hyps.get(ca, [{}]) if ca is not None else [{}]
+        hb = self._hyps.get(cb, [{}]) if cb is not None else [{}]
+        new: list[dict[str, np.ndarray]] = []
+        for o in keep:
+            if ca is not None and ca == cb:
+                base = dict(ha[o.hyp_a])
+            else:
+                base = dict(ha[o.hyp_a] if o.hyp_a is not None else {})
+                base.update(hb[o.hyp_b] if o.hyp_b is not None else {})
+            base[a] = o.Q_a
+            base[b] = o.Q_b
+            if not any(_same_hyp(base, h) for h in new):
+                new.append(base)
+        new = new[:MAX_HYPOTHESES]
+        cid = self._next_id
+        self._next_id += 1
+        members = {a, b}
+        for old in (ca, cb):
+            if old is not None:
+                members |= {p for p, c in self._component.items() if c == old}
+                self._hyps.pop(old, None)
+        for p in members:
+            self._component[p] = cid
+        self._hyps[cid] = new
+
+    def rebuild(self, established: list[tuple[str, str]]) -> None:
+        """Recompute components after connections broke; ``established`` = the pairs still connected."""
+        adj: dict[str, set[str]] = {}
+        for a, b in established:
+            adj.setdefault(a, set()).add(b)
+            adj.setdefault(b, set()).add(a)
+        old_component, old_hyps = self._component, self._hyps
+        self.reset()
+        seen: set[str] = set()
+        for start in adj:
+            if start in seen:
+                continue
+            comp, stack = set(), [start]
+            while stack:
+                p = stack.pop()
+                if p in comp:
+                    continue
+                comp.add(p)
+                stack.extend(adj[p] - comp)
+            seen |= comp
+            src = {old_component[p] for p in comp if p in old_component}
+            hyps: list[dict[str, np.ndarray]] = []
+            for c in src:
+                for h in old_hyps.get(c, []):
+                    proj = {p: h[p] for p in comp if p in h}
+                    if proj and not any(_same_hyp(proj, x) for x in hyps):
+                        hyps.append(proj)
+            cid = self._next_id
+            self._next_id += 1
+            for p in comp:
+                self._component[p] = cid
+            self._hyps[cid] = hyps or [{p: _I for p in comp}]
+
+
+def _same_hyp(x: dict[str, np.ndarray], y: dict[str, np.ndarray]) -> bool:
+    return x.keys() == y.keys() and all(np.allclose(x[k], y[k]) for k in x)
