@@ -261,3 +261,14 @@ def test_objects_errors(tmp_path, objects, message):
     with pytest.raises(SourceError, match=message) as exc:
         RecordingSource(tmp_path)
     assert "objects.json" in str(exc.value)
+
+
+def test_overwrite_replaces_old_frames(tmp_path):
+    rng = np.random.default_rng(4)
+    with RecordingWriter(tmp_path, SMALL) as w:
+        for i in range(3):
+            w.write(synthetic_frame(i, rng))
+    with RecordingWriter(tmp_path, SMALL, overwrite=True) as w:
+        w.write(synthetic_frame(0, rng))
+    assert sorted(p.name for p in (tmp_path / "color").iterdir()) == ["000000.png"]
+    assert len(RecordingSource(tmp_path)) == 1

@@ -568,6 +568,11 @@ class RecordingWriter:
         self._closed = False
         (self.root / "color").mkdir(parents=True, exist_ok=True)
         (self.root / "depth").mkdir(parents=True, exist_ok=True)
+        if overwrite:  # drop the frames of the recording being replaced
+            for sub in ("color", "depth"):
+                for old in (self.root / sub).glob("[0-9][0-9][0-9][0-9][0-9][0-9].*"):
+                    if old.suffix in (".png", ".jpg"):
+                        old.unlink()
         cam = intrinsics.to_dict()
         cam["depth_scale"] = self.depth_scale
         (self.root / "camera.json").write_text(json.dumps(cam, indent=2) + "\n")

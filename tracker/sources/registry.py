@@ -65,7 +65,7 @@ def open_source(spec: str, **options: Any) -> FrameSource:
     if kind == "recording":
         from tracker.sources.recording import RecordingSource
 
-        return RecordingSource(arg, **{k: v for k, v in given.items() if k in RECORDING_OPTIONS})
+        return RecordingSource(Path(arg).expanduser(), **{k: v for k, v in given.items() if k in RECORDING_OPTIONS})
     from tracker.sources.camera import CameraSource
 
     return CameraSource(arg, **{k: v for k, v in given.items() if k in CAMERA_OPTIONS})
