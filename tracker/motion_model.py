@@ -1,0 +1,120 @@
+"""Dynamic model of each part (spec sections 4.6, 4.7, 4.11) and the pose estimate (4.13).
+
+State per part and particle: a pose change δr = (δp, δθ) relative to a reference pose that is renewed every
+frame (the particle's pose of the previous frame, as in the reference code), and the velocity
+(v, ω) in the camera frame. Per frame (eq. 4.26, with the same noise sample in both rows):
+
+    v_t  = k_v v_t−1 + b u_t + w_t,      w_t ~ N(0, diag(σ_v² I3, σ_ω² I3))
+    δr_t = v_t,   p_t = p_ref + δp_t,   R_t = exp([δθ_t]×) R_ref      (delta applied in the camera frame)
+
+u_t = (u_x, u_y, u_z, 0, 0, 0) is the colour control input (4.38–4.40) scaled by the detection's reliability
+score, zero when the part is not detected. The estimate is the weighted mean position and the proper
+rotation mean (principal eigenvector of Σ w q qᵀ over sign-aligned quaternions).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker.camera import Intrinsics
+from tracker.pose import Pose, matrix_to_quat, quat_to_matrix
+
+
+def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
+    """Rotation matrices (M, 3, 3) of rotation vectors (M, 3) (Rodrigues, exact for small angles)."""
+    w = np.asarray(w, np.float64).reshape(-1, 3)
+    th = np.linalg.norm(w, axis=1)
+    small = th < 1e-9
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    K = np.zeros((w.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2] = -w[:, 2], w[:, 1]
+    K[:, 1, 0], K[:, 1, 2] = w[:, 2], -w[:, 0]
+    K[:, 2, 0], K[:, 2, 1] = -w[:, 1], w[:, 0]
+    return np.eye(3)[None] + a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
+def propagate(
+    p_ref: np.ndarray, R_ref: np.ndarray, v_prev: np.ndarray, u: np.ndarray, noise: np.ndarray, k_v: float, b: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One step of (4.26) for M particles of one part.
+
+    ``p_ref`` (M, 3), ``R_ref`` (M, 3, 3): reference (previous) poses; ``v_prev`` (M, 6) = (v, ω);
+    ``u`` (3,) control input (metres); ``noise`` (M, 6) samples of w. Returns (p, R, v).
+    """
+    v = k_v * v_prev + noise
+    v[:, :3] += b * np.asarray(u, np.float64)[None, :]
+    p = p_ref + v[:, :3]
+    R = rotvec_to_matrix(v[:, 3:]) @ R_ref
+    return p, R, v
+
+
+def sample_noise(rng: np.random.Generator, m: int, sigma_v: float, sigma_w: float) -> np.ndarray:
+    """Noise samples (m, 6): N(0, σ_v²) on the 3 linear and N(0, σ_ω²) on the 3 angular components."""
+    w = rng.standard_normal((m, 6))
+    w[:, :3] *= sigma_v
+    w[:, 3:] *= sigma_w
+    return w
+
+
+def color_input(
+    center: tuple[float, float] | None,
+    score: float,
+    estimate: Pose,
+    depth: np.ndarray | None,
+    intrinsics: Intrinsics,
+    lambda_z: float,
+    radius_px: float,
+    surface_offset: float,
+    max_z_jump: float = 0.1,
+) -> np.ndarray:
+    """Colour control input (u_x, u_y, u_z) of eqs 4.38–4.40, metres.
+
+    * ``center``: colour-tracker pixel (u, v) or ``None`` (→ zero input); ``score`` its reliability s in 0..1.
+    * ``estimate``: the part's estimated pose of the previous frame (r = its position).
+    * u_z: z is the mean valid depth within ``radius_px`` of the pixel (full resolution). The measured depth is
+      of the visible surface, so ``surface_offset`` (distance from that surface to the part centre along z,
+      from rendering the estimate) is added before comparing with r_z. When no depth is valid there or the
+      correction is larger than ``max_z_jump`` metres (a hand in front, a wrong blob), u_z = 0.
+    """
+    if center is None or score <= 0.0:
+        return np.zeros(3)
+    px, py = float(center[0]), float(center[1])
+    if not (np.isfinite(px) and np.isfinite(py)):
+        return np.zeros(3)
+    r = estimate.t
+    ux = ((px - intrinsics.cx) * r[2] / intrinsics.fx - r[0]) * score
+    uy = ((py - intrinsics.cy) * r[2] / intrinsics.fy - r[1]) * score
+    uz = 0.0
+    if depth is not None and lambda_z > 0.0:
+        h, w = depth.shape
+        rad = max(0, int(np.ceil(radius_px)))
+        u0, u1 = max(0, int(round(px)) - rad), min(w, int(round(px)) + rad + 1)
+        v0, v1 = max(0, int(round(py)) - rad), min(h, int(round(py)) + rad + 1)
+        if u0 < u1 and v0 < v1:
+            patch = depth[v0:v1, u0:u1]
+            vv, uu = np.mgrid[v0:v1, u0:u1]
+            inside = (uu - px) ** 2 + (vv - py) ** 2 <= max(radius_px, 0.5) ** 2
+            vals = patch[inside & np.isfinite(patch) & (patch > 0)]
+            if vals.size:
+                dz = float(vals.mean()) + surface_offset - r[2]
+                if abs(dz) <= max_z_jump:
+                    uz = dz * lambda_z * score
+    return np.array([ux, uy, uz])
+
+
+def mean_rotation(R: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weighted rotation mean (3, 3): principal eigenvector of Σ w q qᵀ (quaternion sign ambiguity removed)."""
+    q = matrix_to_quat(np.asarray(R, np.float64).reshape(-1, 3, 3))
+    w = np.asarray(weights, np.float64).reshape(-1)
+    M = (q * w[:, None]).T @ q
+    vals, vecs = np.linalg.eigh(M)
+    return quat_to_matrix(vecs[:, -1])
+
+
+def mean_pose(p: np.ndarray, R: np.ndarray, weights: np.ndarray) -> Pose:
+    """Weighted mean position and rotation mean of particle poses ``p`` (N, 3), ``R`` (N, 3, 3)."""
+    w = np.asarray(weights, np.float64)
+    w = w / w.sum()
+    return Pose.from_rt(mean_rotation(R, w), (w[:, None] * p).sum(axis=0))

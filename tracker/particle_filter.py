@@ -1,0 +1,471 @@
+"""Multi-object 6-DoF depth tracker: the coordinate particle filter of Algorithm 5 (spec sections 4 and 9).
+
+Per frame (camera frame, metres, seconds):
+
+1. colour control input u per part (4.38–4.40) from the colour detections (optional);
+2. deterministic prediction of every part (noise 0) and the evaluated pixel set: the valid pixels of the
+   depth image subsampled by ``downsample`` inside the parts' projected bounding rectangles (all particles,
+   plus a noise margin); predicted occlusion probabilities ô per particle and pixel (4.8, Δt rate form);
+3. for each part k in turn (Algorithm 5): sample its noise, propagate it (4.26), force connection particles
+   (Algorithm 6), re-render what changed (exact box slab test or mesh rasterisation, z-buffer over all parts),
+   update the per-particle log-likelihood ℓ (relative to the no-object hypothesis) plus the log penalties
+   (intersection, table sinking), multiply the carried weights by exp(ℓ_k − ℓ_k−1) (ℓ_0 = 0 each frame), and
+   resample (systematic) when D_KL(w‖U) > D_KL,max — copying poses, velocities, previous poses, rendered depths,
+   cached pixel terms, ô and the occlusion posteriors with the particles;
+4. occlusion posterior update (4.45) and the estimate (weighted mean position, rotation mean).
+
+All-NaN depth (or no evaluated pixel): the update is skipped, the prediction kept, and the returned state says
+so (``depth_used`` False, ``message``). Use :class:`MultiObjectTracker` as::
+
+    tracker = MultiObjectTracker(parts, intrinsics, TrackerConfig.preset("default"), seed=0)
+    tracker.initialize(first_poses)
+    state = tracker.step(frame, detections, table)
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tracker.box_renderer import pixel_rays, render_boxes_at_pixels
+from tracker.camera import Intrinsics
+from tracker.connection_particles import ResolvedConnection, apply_connections, resolve_hints
+from tracker.depth_likelihood import (
+    LikelihoodParams,
+    occlusion_posterior,
+    pixel_constants,
+    predict_occlusion,
+    update_log_likelihood,
+)
+from tracker.frame import Frame
+from tracker.mesh_renderer import MeshModel, render_mesh_at_pixels
+from tracker.motion_model import color_input, mean_pose, propagate, sample_noise
+from tracker.parts import PartSpec
+from tracker.penalties import intersection_log_penalty, lowest_heights, table_log_penalty
+from tracker.pose import Pose
+from tracker.resampling import kl_from_uniform, normalize_log_weights, systematic_resample
+from tracker.tracker_config import TrackerConfig
+
+
+@dataclass
+class TrackerState:
+    """Result of one :meth:`MultiObjectTracker.step`.
+
+    * ``poses``: estimated pose of every part (camera frame).
+    * ``particles``: per part, (N, 3) float32 particle positions (camera frame, metres).
+    * ``weights``: (N,) normalised particle weights.
+    * ``timings``: milliseconds per stage (``total``, ``predict``, ``render``, ``likelihood``, ``resample``…).
+    * ``depth_used``: False when the update was skipped (no valid depth near the parts); ``message`` says why.
+    * ``resampled``: how many of the N_obj passes resampled.
+    """
+
+    index: int
+    timestamp: float
+    poses: dict[str, Pose]
+    particles: dict[str, np.ndarray]
+    weights: np.ndarray
+    timings: dict[str, float] = field(default_factory=dict)
+    depth_used: bool = True
+    message: str = ""
+    resampled: int = 0
+
+    @property
+    def particle_weights(self) -> np.ndarray:
+        """Alias of ``weights``."""
+        return self.weights
+
+
+def _table_normal_offset(table) -> tuple[np.ndarray, float] | None:
+    """(normal, offset) of a TablePlane-like object or a ``(normal, offset)`` tuple; None when absent."""
+    if table is None:
+        return None
+    if hasattr(table, "normal") and hasattr(table, "offset"):
+        n, off = table.normal, table.offset
+    else:
+        n, off = table
+    n = np.asarray(n, np.float64).reshape(3)
+    norm = np.linalg.norm(n)
+    if not np.isfinite(norm) or norm < 1e-9:
+        raise ValueError("table plane normal must be a non-zero finite vector")
+    return n / norm, float(off) / norm
+
+
+class MultiObjectTracker:
+    """Coordinate particle filter over the joint pose of several rigid parts (see module docstring)."""
+
+    def __init__(
+        self,
+        parts: list[PartSpec],
+        intrinsics: Intrinsics,
+        config: TrackerConfig | None = None,
+        seed: int = 0,
+    ) -> None:
+        parts = list(parts)
+        if not parts:
+            raise ValueError("MultiObjectTracker needs at least one part (the object list is empty)")
+        names = [p.name for p in parts]
+        if len(set(names)) != len(names):
+            raise ValueError(f"part names must be unique, got {names}")
+        self.parts = parts
+        self.names = names
+        self.intrinsics = intrinsics
+        self.config = config or TrackerConfig.preset("default")
+        self.rng = np.random.default_rng(seed)
+        self.likelihood = LikelihoodParams.from_config(self.config)
+        k = len(parts)
+        self.center = np.zeros((k, 3))
+        self.half = np.zeros((k, 3))
+        self.meshes: list[MeshModel | None] = []
+        self.hulls: list[np.ndarray] = []
+        self.corners: list[np.ndarray] = []
+        for i, part in enumerate(parts):
+            if part.box is not None:
+                self.half[i] = np.asarray(part.box, np.float64) / 2.0
+                self.meshes.append(None)
+                self.hulls.append(part.vertices())
+            else:
+                model = MeshModel.from_part(part)
+                self.meshes.append(model)
+                self.center[i], self.half[i] = model.bounds()
+                try:
+                    import trimesh
+
+                    hull = trimesh.Trimesh(model.vertices, model.faces).convex_hull.vertices
+                except Exception:
+                    hull = model.vertices
+                self.hulls.append(np.asarray(hull, np.float64))
+            signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+            self.corners.append(self.center[i] + signs * self.half[i])
+        self.pairs = np.array([(a, b) for a in range(k) for b in range(a + 1, k)], np.int64).reshape(-1, 2)
+        # downsampled pixel grid (full-resolution coordinates of the sampled pixels)
+        f = self.config.downsample
+        self._off = (f - 1) // 2
+        self._us = np.arange(self._off, intrinsics.width, f)
+        self._vs = np.arange(self._off, intrinsics.height, f)
+        gj, gi = np.meshgrid(np.arange(self._vs.size), np.arange(self._us.size), indexing="ij")
+        self._gi = gi.ravel().astype(np.int64)
+        self._gj = gj.ravel().astype(np.int64)
+        self._pu = self._us[self._gi].astype(np.float64)
+        self._pv = self._vs[self._gj].astype(np.float64)
+        self._rays = pixel_rays(intrinsics, self._pu, self._pv)
+        self._hints: list[ResolvedConnection] = []
+        self._initialized = False
+        self.estimates: dict[str, Pose] = {}
+        self._warm_up()
+
+    # ------------------------------------------------------------------ public API
+    def initialize(self, poses: dict[str, Pose]) -> None:
+        """Start every particle at the given camera-frame poses (all parts must be present), zero velocity."""
+        missing = [n for n in self.names if n not in poses]
+        if missing:
+            raise ValueError(f"initial poses missing for part(s) {missing}")
+        n, k = self.config.n_particles, len(self.parts)
+        self.p = np.empty((n, k, 3))
+        self.R = np.empty((n, k, 3, 3))
+        for i, name in enumerate(self.names):
+            pose = poses[name]
+            self.p[:, i] = pose.t
+            self.R[:, i] = pose.R
+        self.v = np.zeros((n, k, 6))
+        self.log_w = np.full(n, -np.log(n))
+        self.occ = np.full((n, self._pu.size), self.config.initial_occlusion, np.float32)
+        self.occ_time = np.full(self._pu.size, np.nan)
+        self.estimates = {name: poses[name] for name in self.names}
+        self._last_time: float | None = None
+        self._initialized = True
+
+    def set_connection_hints(self, hints: list) -> None:
+        """Connections for Algorithm 6 (:class:`~tracker.connection_hint.ConnectionHint`); [] clears them."""
+        self._hints = resolve_hints(list(hints or []), self.names, self.config.n_particles,
+                                    self.config.max_connection_fraction)
+
+    def step(self, frame: Frame, detections: dict | None = None, table=None) -> TrackerState:
+        """Process one frame; see the module docstring. ``detections``: name → object with ``.center``/``.score``;
+        ``table``: object with ``.normal``/``.offset`` (or a ``(normal, offset)`` tuple) or None."""
+        if not self._initialized:
+            raise RuntimeError("MultiObjectTracker.step called before initialize(poses)")
+        t0 = time.perf_counter()
+        cfg = self.config
+        intr = self.intrinsics
+        if (frame.intrinsics.width, frame.intrinsics.height) != (intr.width, intr.height):
+            raise ValueError(
+                f"frame {frame.index}: image is {frame.intrinsics.width}x{frame.intrinsics.height} but the tracker "
+                f"was built for {intr.width}x{intr.height}"
+            )
+        now = float(frame.timestamp)
+        self._last_time = now
+        plane = _table_normal_offset(table) if cfg.use_table_penalty else None
+        timings: dict[str, float] = {}
+        n, k = cfg.n_particles, len(self.parts)
+
+        # 1. colour input
+        depth = frame.depth
+        u = np.zeros((k, 3))
+        if cfg.use_color_input and detections:
+            for i, name in enumerate(self.names):
+                det = detections.get(name)
+                if det is None:
+                    continue
+                score = float(getattr(det, "score", 0.0) or 0.0)
+                center = getattr(det, "center", None)
+                if center is None or score < cfg.min_detection_score:
+                    continue
+                u[i] = color_input(center, min(score, 1.0), self.estimates[name], depth, intr, cfg.lambda_z,
+                                   cfg.depth_radius_px, self._surface_offset(i, center))
+
+        # 2. deterministic prediction and evaluated pixels
+        p_prev, R_prev, v_prev = self.p, self.R, self.v
+        p_cur = np.empty_like(p_prev)
+        R_cur = np.empty_like(R_prev)
+        v_cur = np.empty_like(v_prev)
+        zero = np.zeros((n, 6))
+        for i in range(k):
+            p_cur[:, i], R_cur[:, i], v_cur[:, i] = propagate(p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i], zero,
+                                                              cfg.k_v, cfg.b)
+        pix = self._evaluated_pixels(depth, p_prev, R_prev, p_cur, R_cur)
+        timings["predict"] = (time.perf_counter() - t0) * 1e3
+        if pix is None:
+            return self._predict_only(frame, p_prev, R_prev, v_prev, u, t0, timings,
+                                      "no valid depth near the parts: update skipped, prediction kept")
+        z = depth.reshape(-1)[self._vs[self._gj[pix]] * intr.width + self._us[self._gi[pix]]].astype(np.float64)
+        s, e, log_po_inf = pixel_constants(z, self.likelihood)
+        rays, pu, pv = self._rays[pix], self._pu[pix], self._pv[pix]
+        gi, gj = self._gi[pix], self._gj[pix]
+        npix = pix.size
+        if cfg.use_occlusion_model:
+            last = self.occ_time[pix]
+            dtp = np.where(np.isfinite(last), now - last, 0.0)
+            o_hat = predict_occlusion(self.occ[:, pix], dtp[None, :], cfg.p_occ_given_vis,
+                                      cfg.p_occ_given_occ).astype(np.float64)
+        else:
+            o_hat = np.zeros((n, npix))
+
+        # full render + likelihood at the deterministic prediction
+        t1 = time.perf_counter()
+        D = np.full((n, k, npix), np.inf, np.float32)
+        dirty = np.zeros((n, npix), np.uint8)
+        all_particles = np.arange(n, dtype=np.int64)
+        all_pix = np.arange(npix, dtype=np.int64)
+        for i in range(k):
+            self._render(i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, all_pix, D, dirty)
+        t2 = time.perf_counter()
+        C = np.zeros((n, npix))
+        ell = np.zeros(n)
+        prm = self.likelihood
+        beta, lam, tail = prm.tail_weight, prm.occluder_rate, prm.tail_weight / prm.max_depth
+        use_occ = bool(cfg.use_occlusion_model)
+        update_log_likelihood(D, all_pix, z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail, use_occ, dirty)
+        t_render = t2 - t1
+        t_lik = time.perf_counter() - t2
+        t_res = 0.0
+        t_pen = 0.0
+        ell_prev = np.zeros(n)  # ℓ_0 = 0 at the start of each frame
+        log_w = self.log_w.copy()
+        anc = np.arange(n)
+        n_resampled = 0
+
+        # 3. coordinate passes (Algorithm 5)
+        for i in range(k):
+            old_p, old_R = p_cur[:, i].copy(), R_cur[:, i].copy()
+            noise = sample_noise(self.rng, n, cfg.sigma_v, cfg.sigma_w)
+            p_cur[:, i], R_cur[:, i], v_cur[:, i] = propagate(p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i], noise,
+                                                              cfg.k_v, cfg.b)
+            changed_objs = {i}
+            forced = None
+            if self._hints and cfg.use_connection_particles:
+                before_p = p_cur.copy()
+                before_R = R_cur.copy()
+                forced = apply_connections(p_cur, R_cur, self._hints)
+                forced[:, i] = False
+                for o in range(k):
+                    if forced[:, o].any():
+                        changed_objs.add(o)
+            # pixels whose depth may change: old and new projections of every changed part
+            rect = self._bbox(i, old_p, old_R)
+            rect = _union(rect, self._bbox(i, p_cur[:, i], R_cur[:, i]))
+            for o in changed_objs - {i}:
+                sel = forced[:, o]
+                rect = _union(rect, self._bbox(o, before_p[sel, o], before_R[sel, o]))
+                rect = _union(rect, self._bbox(o, p_cur[sel, o], R_cur[sel, o]))
+            subset = np.nonzero((pu >= rect[0]) & (pu <= rect[1]) & (pv >= rect[2]) & (pv <= rect[3]))[0]
+            ta = time.perf_counter()
+            self._render(i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, subset, D, dirty)
+            for o in changed_objs - {i}:
+                self._render(o, p_cur, R_cur, np.nonzero(forced[:, o])[0].astype(np.int64), rays, pu, pv, gi, gj,
+                             subset, D, dirty)
+            tb = time.perf_counter()
+            update_log_likelihood(D, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail,
+                                  use_occ, dirty)
+            tc = time.perf_counter()
+            ell_tot = ell + self._log_penalties(p_cur, R_cur, plane)
+            td = time.perf_counter()
+            log_w += ell_tot - ell_prev
+            ell_prev = ell_tot
+            w = normalize_log_weights(log_w)
+            log_w = np.log(np.maximum(w, 1e-300))
+            if kl_from_uniform(w) > cfg.kl_max:
+                idx = systematic_resample(w, self.rng)
+                p_prev, R_prev, v_prev = p_prev[idx], R_prev[idx], v_prev[idx]
+                p_cur, R_cur, v_cur = p_cur[idx], R_cur[idx], v_cur[idx]
+                D, C, o_hat, dirty = D[idx], C[idx], o_hat[idx], dirty[idx]
+                ell, ell_prev, anc = ell[idx], ell_prev[idx], anc[idx]
+                log_w = np.full(n, -np.log(n))
+                n_resampled += 1
+            te = time.perf_counter()
+            t_render += tb - ta
+            t_lik += tc - tb
+            t_pen += td - tc
+            t_res += te - td
+
+        # 4. occlusion posterior and estimate
+        tf = time.perf_counter()
+        if use_occ:
+            post = occlusion_posterior(D, z, s, e, o_hat, beta, lam, tail, use_occ)
+            if not np.array_equal(anc, np.arange(n)):
+                self.occ = self.occ[anc]
+            self.occ[:, pix] = post
+            self.occ_time[pix] = now
+        t_occ = time.perf_counter() - tf
+        self.p, self.R, self.v, self.log_w = p_cur, R_cur, v_cur, log_w
+        self.last_log_likelihood = ell_prev  # penalised ℓ per particle of the last pass (diagnostics, tests)
+        state = self._make_state(frame, t0, timings)
+        state.resampled = n_resampled
+        timings.update(render=t_render * 1e3, likelihood=t_lik * 1e3, penalties=t_pen * 1e3,
+                       resample=t_res * 1e3, occlusion=t_occ * 1e3)
+        timings["total"] = (time.perf_counter() - t0) * 1e3
+        state.timings = timings
+        return state
+
+    # ------------------------------------------------------------------ internals
+    def _predict_only(self, frame, p_prev, R_prev, v_prev, u, t0, timings, message) -> TrackerState:
+        cfg = self.config
+        n, k = cfg.n_particles, len(self.parts)
+        p = np.empty_like(p_prev)
+        R = np.empty_like(R_prev)
+        v = np.empty_like(v_prev)
+        for i in range(k):
+            noise = sample_noise(self.rng, n, cfg.sigma_v, cfg.sigma_w)
+            p[:, i], R[:, i], v[:, i] = propagate(p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i], noise, cfg.k_v, cfg.b)
+        self.p, self.R, self.v = p, R, v
+        state = self._make_state(frame, t0, timings)
+        state.depth_used = False
+        state.message = message
+        timings["total"] = (time.perf_counter() - t0) * 1e3
+        state.timings = timings
+        return state
+
+    def _make_state(self, frame, t0, timings) -> TrackerState:
+        w = normalize_log_weights(self.log_w)
+        poses = {}
+        particles = {}
+        for i, name in enumerate(self.names):
+            poses[name] = mean_pose(self.p[:, i], self.R[:, i], w)
+            particles[name] = self.p[:, i].astype(np.float32)
+        self.estimates = poses
+        return TrackerState(frame.index, float(frame.timestamp), poses, particles, w, timings)
+
+    def _render(self, obj, p, R, particles, rays, pu, pv, gi, gj, subset, D, dirty) -> None:
+        if particles.size == 0 or subset.size == 0:
+            return
+        intr = self.intrinsics
+        mesh = self.meshes[obj]
+        if mesh is None:
+            render_boxes_at_pixels(R, p, self.center, self.half, obj, particles, rays, pu, pv, subset,
+                                   intr.fx, intr.fy, intr.cx, intr.cy, D, dirty)
+        else:
+            render_mesh_at_pixels(R, p, mesh.vertices, mesh.faces, obj, particles, gi, gj, subset,
+                                  float(self.config.downsample), float(self._off), intr.fx, intr.fy, intr.cx,
+                                  intr.cy, D, dirty)
+
+    def _log_penalties(self, p, R, plane) -> np.ndarray:
+        cfg = self.config
+        out = np.zeros(p.shape[0])
+        if cfg.use_intersection_penalty and len(self.pairs):
+            out += intersection_log_penalty(R, p, self.center, self.half, self.pairs, cfg.contact_tolerance,
+                                            cfg.lambda_i)
+        if plane is not None and cfg.lambda_h > 0:
+            hmin = lowest_heights(R, p, self.hulls, plane[0], plane[1])
+            out += table_log_penalty(hmin, cfg.lambda_h, cfg.table_tolerance)
+        return out
+
+    def _bbox(self, obj, p, R) -> tuple[float, float, float, float]:
+        """Full-resolution pixel rectangle (umin, umax, vmin, vmax) covering part ``obj`` for all given poses."""
+        if p.shape[0] == 0:
+            return (np.inf, -np.inf, np.inf, -np.inf)
+        pts = np.einsum("nij,cj->nci", R, self.corners[obj]) + p[:, None, :]
+        zc = pts[..., 2]
+        if np.any(zc < 0.01):
+            return (-np.inf, np.inf, -np.inf, np.inf)
+        intr = self.intrinsics
+        u = intr.fx * pts[..., 0] / zc + intr.cx
+        v = intr.fy * pts[..., 1] / zc + intr.cy
+        m = 1.0
+        return (u.min() - m, u.max() + m, v.min() - m, v.max() + m)
+
+    def _evaluated_pixels(self, depth, p_prev, R_prev, p_det, R_det) -> np.ndarray | None:
+        """Indices into the downsampled grid of the valid pixels near the parts, or None when there are none."""
+        if depth is None:
+            return None
+        cfg = self.config
+        intr = self.intrinsics
+        z = depth[np.ix_(self._vs, self._us)].reshape(-1)
+        valid = np.isfinite(z) & (z > 0) & (z < cfg.max_depth)
+        if not valid.any():
+            return None
+        mask = np.zeros(z.size, bool)
+        for i in range(len(self.parts)):
+            rect = _union(self._bbox(i, p_prev[:, i], R_prev[:, i]), self._bbox(i, p_det[:, i], R_det[:, i]))
+            zc = max(float(np.median(p_det[:, i, 2])), 0.05)
+            radius = float(np.linalg.norm(self.half[i]) + np.linalg.norm(self.center[i]))
+            margin = cfg.roi_margin_px * cfg.downsample + 3.0 * (cfg.sigma_v + cfg.sigma_w * radius) * intr.fx / zc
+            mask |= ((self._pu >= rect[0] - margin) & (self._pu <= rect[1] + margin)
+                     & (self._pv >= rect[2] - margin) & (self._pv <= rect[3] + margin))
+        pix = np.nonzero(mask & valid)[0].astype(np.int64)
+        return pix if pix.size else None
+
+    def _surface_offset(self, obj: int, center) -> float:
+        """Distance along z from the estimate's visible surface at pixel ``center`` to the part's centre."""
+        est = self.estimates[self.names[obj]]
+        fallback = float(self.half[obj].min())
+        if self.meshes[obj] is not None:
+            return fallback
+        ray = pixel_rays(self.intrinsics, np.array([center[0]]), np.array([center[1]]))
+        out = np.full((1, 1, 1), np.inf, np.float32)
+        render_boxes_at_pixels(est.R[None, None], est.t[None, None], self.center[obj:obj + 1],
+                               self.half[obj:obj + 1], 0, np.zeros(1, np.int64), ray,
+                               np.array([float(center[0])]), np.array([float(center[1])]), np.zeros(1, np.int64),
+                               self.intrinsics.fx, self.intrinsics.fy, self.intrinsics.cx, self.intrinsics.cy, out,
+                               np.zeros((1, 1), np.uint8))
+        d = float(out[0, 0, 0])
+        if not np.isfinite(d):
+            return fallback
+        return float(est.t[2] - d)
+
+    def _warm_up(self) -> None:
+        """Compile (or load from cache) the numba kernels on tiny inputs."""
+        n, k, p = 2, len(self.parts), 4
+        R = np.tile(np.eye(3), (n, k, 1, 1))
+        t = np.zeros((n, k, 3))
+        t[..., 2] = 0.5
+        rays = self._rays[:p]
+        D = np.full((n, k, p), np.inf, np.float32)
+        dirty = np.zeros((n, p), np.uint8)
+        idx = np.arange(n, dtype=np.int64)
+        sub = np.arange(p, dtype=np.int64)
+        for i in range(k):
+            self._render(i, t, R, idx, rays, self._pu[:p], self._pv[:p], self._gi[:p], self._gj[:p], sub, D, dirty)
+        z = np.full(p, 0.5)
+        s, e, lp = pixel_constants(z, self.likelihood)
+        oh = np.zeros((n, p))
+        C = np.zeros((n, p))
+        ell = np.zeros(n)
+        update_log_likelihood(D, sub, z, s, e, lp, oh, C, ell, 0.01, 0.69, 0.001, True, dirty)
+        occlusion_posterior(D, z, s, e, oh, 0.01, 0.69, 0.001, True)
+        if len(self.pairs):
+            intersection_log_penalty(R, t, self.center, self.half, self.pairs, 0.001, 0.01)
+
+
+def _union(a, b):
+    return (min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3]))

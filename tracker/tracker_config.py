@@ -1,0 +1,192 @@
+"""Settings of the multi-object depth tracker (spec sections 4, 9, 10 and 15).
+
+Every parameter the spec names is a field here with its unit and source. Presets:
+
+* ``"seed-exp1"``  — the thesis's Experiment 1 values (spec section 15, "Experiment 1").
+* ``"seed-exp23"`` — the thesis's Experiments 2/3 values.
+* ``"default"``    — the values tuned for this product (see benchmarks/results/tracker.md).
+
+Both seed presets use the reference-code defaults (dbot / dbot_ros) for what the thesis leaves open, and the
+reference likelihood resolution (depth downsampled by 8). Override any field from a YAML or TOML file with
+:meth:`TrackerConfig.load` (keys are field names; an optional ``preset`` key selects the base preset).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+
+class TrackerConfig(BaseModel):
+    """All tracker settings. Units: metres, seconds, radians; "per step" = per processed frame."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+    # --- particle filter (spec 4.3, 4.4, 4.12, 4.16)
+    n_particles: int = Field(225, ge=1, description="N, total number of particles (thesis: 225 for real time).")
+    kl_max: float = Field(1.0, ge=0.0, description="D_KL,max resampling threshold, natural log (thesis 0.5 / 1).")
+
+    # --- dynamic model (spec 4.7)
+    b: float = Field(0.3, description="Input coefficient b of the colour control input (4.24-4.26).")
+    k_v: float = Field(0.2, description="Velocity coefficient k_v (4.24-4.26).")
+    sigma_v: float = Field(0.005, ge=0.0, description="Linear noise std sigma_v, metres per step.")
+    sigma_w: float = Field(0.05, ge=0.0, description="Angular noise std sigma_omega, radians per step.")
+
+    # --- colour input (spec 4.11)
+    lambda_z: float = Field(1.0, ge=0.0, le=1.0, description="Damping lambda_z of the depth component u_z.")
+    depth_radius_px: float = Field(
+        4.0, ge=0.0, description="R: radius (full-resolution pixels) of the depth average around the colour pixel."
+    )
+    min_detection_score: float = Field(
+        0.05, ge=0.0, le=1.0, description="Detections with a lower score count as 'not detected' (u = 0)."
+    )
+
+    # --- occlusion dynamics (spec 4.8)
+    p_occ_given_vis: float = Field(
+        0.1, ge=0.0, le=1.0, description="p(o=1|o=0) as a rate per second (reference default 0.1)."
+    )
+    p_occ_given_occ: float = Field(
+        0.7, ge=0.0, le=1.0, description="p(o=1|o=1) as a rate per second (reference default 0.7)."
+    )
+    initial_occlusion: float = Field(0.1, ge=0.0, le=1.0, description="o_0, initial occlusion probability.")
+    use_occlusion_model: bool = Field(
+        True, description="Ablation switch: False = every pixel visible (o = 0), no occlusion posterior."
+    )
+
+    # --- depth observation model (spec 4.9, 4.10)
+    tail_weight: float = Field(0.01, ge=0.0, lt=1.0, description="beta, weight of the uniform heavy tail.")
+    sigma_model: float = Field(0.003, ge=0.0, description="Constant term of sigma(z) = sigma_model + factor z^2, m.")
+    sigma_factor: float = Field(0.00142478, ge=0.0, description="Quadratic term of sigma(z), 1/m.")
+    half_life_depth: float = Field(1.0, gt=0.0, description="Occluder depth half life, m; lambda = ln2 / this.")
+    max_depth: float = Field(6.0, gt=0.0, description="m, maximum sensor depth, metres.")
+    downsample: int = Field(8, ge=1, le=16, description="Likelihood resolution: depth image subsampled by this.")
+    roi_margin_px: int = Field(
+        2, ge=0, description="Margin (downsampled pixels) around the parts' projections that is evaluated."
+    )
+
+    # --- penalties (spec 4.13-4.15)
+    lambda_i: float = Field(0.01, gt=0.0, le=1.0, description="Intersection penalty factor lambda_i (not 0).")
+    contact_tolerance: float = Field(
+        0.002, ge=0.0, description="Penetration depth (m) two parts may have before they count as intersecting."
+    )
+    lambda_h: float = Field(1000.0, ge=0.0, description="Table-sinking penalty rate lambda_h, 1/m.")
+    table_tolerance: float = Field(
+        0.0, ge=0.0, description="Depth (m) below the table plane a vertex may reach without penalty."
+    )
+    use_intersection_penalty: bool = Field(True, description="Ablation switch for the intersection penalty.")
+    use_table_penalty: bool = Field(True, description="Ablation switch for the table-sinking penalty.")
+    use_color_input: bool = Field(True, description="Ablation switch for the colour control input u.")
+
+    # --- connection particles (spec 9, 10); m_p, K, N_max, N_checks are used by the assembly monitor
+    use_connection_particles: bool = Field(True, description="Ablation switch for Algorithm 6.")
+    max_connection_fraction: float = Field(
+        0.5, ge=0.0, le=1.0, description="Overflow rule: N_k is clipped to this fraction of N (rest stay free)."
+    )
+    m_p: float = Field(0.01, gt=0.0, description="Position margin m_p of the connection score (5.16), metres.")
+    score_k: float = Field(3.0, ge=0.0, description="Score sensitivity K of (5.16).")
+    n_max: int = Field(9, ge=0, description="N_max, maximum particles per connection (5.19).")
+    n_checks: int = Field(2, ge=1, description="N_checks, consecutive frames for a connection.")
+
+    # --- misc
+    frame_dt: float = Field(1.0 / 30.0, gt=0.0, description="Frame interval (s) assumed when timestamps are absent.")
+
+    @property
+    def occluder_rate(self) -> float:
+        """lambda = ln 2 / half_life_depth, 1/m."""
+        return math.log(2.0) / self.half_life_depth
+
+    # ------------------------------------------------------------------ presets and files
+    @staticmethod
+    def preset(name: str) -> TrackerConfig:
+        """A named preset: ``"seed-exp1"``, ``"seed-exp23"`` or ``"default"``."""
+        if name not in PRESETS:
+            raise ValueError(f"unknown tracker preset {name!r}; choose one of {sorted(PRESETS)}")
+        return TrackerConfig(**PRESETS[name])
+
+    def with_overrides(self, **overrides: Any) -> TrackerConfig:
+        """A copy with some fields replaced (validated)."""
+        data = self.model_dump()
+        data.update(overrides)
+        try:
+            return TrackerConfig(**data)
+        except ValidationError as exc:
+            raise ValueError(f"invalid tracker setting: {exc}") from exc
+
+    @staticmethod
+    def load(path: str | Path, preset: str | None = None) -> TrackerConfig:
+        """Settings from a YAML (``.yaml``/``.yml``) or TOML (``.toml``) file over a preset.
+
+        The file holds ``field: value`` pairs (optionally under a top-level ``tracker`` key) and may name its
+        base preset with ``preset: NAME``; the ``preset`` argument wins over the file's key.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"tracker config file not found: {path}")
+        text = path.read_text()
+        try:
+            if path.suffix.lower() == ".toml":
+                data = tomllib.loads(text)
+            elif path.suffix.lower() in (".yaml", ".yml"):
+                data = yaml.safe_load(text) or {}
+            else:
+                raise ValueError(f"tracker config {path}: use a .yaml, .yml or .toml file")
+        except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
+            raise ValueError(f"tracker config {path}: cannot parse: {exc}") from exc
+        if not isinstance(data, dict):
+            raise ValueError(f"tracker config {path}: expected a mapping of settings")
+        if isinstance(data.get("tracker"), dict):
+            data = data["tracker"]
+        data = dict(data)
+        base = preset or data.pop("preset", None) or "default"
+        data.pop("preset", None)
+        unknown = sorted(set(data) - set(TrackerConfig.model_fields))
+        if unknown:
+            raise ValueError(f"tracker config {path}: unknown setting(s) {unknown}")
+        try:
+            return TrackerConfig.preset(base).with_overrides(**data)
+        except ValueError as exc:
+            raise ValueError(f"tracker config {path}: {exc}") from exc
+
+
+_SEED_COMMON: dict[str, Any] = {
+    "n_particles": 225,
+    "lambda_i": 0.01,
+    "lambda_h": 1000.0,
+    "lambda_z": 1.0,
+    "downsample": 8,
+    "table_tolerance": 0.0,
+}
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "seed-exp1": {
+        **_SEED_COMMON,
+        "b": 0.5,
+        "k_v": 0.3,
+        "sigma_v": 0.01,
+        "sigma_w": 0.1,
+        "m_p": 0.04,
+        "kl_max": 0.5,
+        "score_k": 7.0,
+        "n_max": 12,
+        "n_checks": 4,
+    },
+    "seed-exp23": {
+        **_SEED_COMMON,
+        "b": 0.3,
+        "k_v": 0.2,
+        "sigma_v": 0.005,
+        "sigma_w": 0.05,
+        "m_p": 0.01,
+        "kl_max": 1.0,
+        "score_k": 3.0,
+        "n_max": 9,
+        "n_checks": 2,
+    },
+}
+PRESETS["default"] = {**PRESETS["seed-exp23"]}
+"""Preset name -> field values. "default" is tuned in benchmarks/bench_tracker.py (updated there)."""
