@@ -54,23 +54,13 @@ def word_labels(mode_state: dict[str, Any]) -> dict[str, str]:
     return {}
 
 
-def ghost_target(mode_state: dict[str, Any]) -> tuple[str, Pose, str] | None:
-    """``(part, pose, frame)`` of the next step's target from a guidance-mode state, if any.
-
-    ``frame`` is ``"camera"`` or ``"table"``, read from the state's ``target`` entry
-    (``{"part", "pose" | "pose_camera" | "pose_table"}``).
-    """
-    target = mode_state.get("target") or mode_state.get("next_target")
-    if not isinstance(target, dict):
+def ghost_target(mode_state: dict[str, Any]) -> tuple[str, Pose] | None:
+    """``(part, camera-frame pose)`` of the next step's target in a guidance-mode state, if any."""
+    step = mode_state.get("next_step")
+    if not isinstance(step, dict) or not step.get("part"):
         return None
-    part = target.get("part")
-    if not part:
-        return None
-    for key, frame in (("pose_camera", "camera"), ("pose", target.get("frame", "camera")), ("pose_table", "table")):
-        pose = _pose_from_any(target.get(key))
-        if pose is not None:
-            return str(part), pose, str(frame)
-    return None
+    pose = _pose_from_any(step.get("target_pose"))
+    return None if pose is None else (str(step["part"]), pose)
 
 
 class Scene:
@@ -81,6 +71,12 @@ class Scene:
 
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.port = self.server.get_port()
+        self.server.gui.configure_theme(
+            control_layout="collapsible", control_width="small", show_logo=False, show_share_button=False
+        )
+        self.server.initial_camera.position = (0.0, 0.45, 0.55)  # above and in front of the table (user side)
+        self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
+        self.server.initial_camera.up = (0.0, 1.0, 0.0)
         sc = self.server.scene
         sc.set_up_direction("+y")
         sc.add_grid(
@@ -185,9 +181,7 @@ class Scene:
                     label.visible = False
             ghost = ghost_target(snap.mode_state) if snap.mode == "guidance" else None
             if ghost is not None:
-                part, pose, frame_name = ghost
-                if frame_name == "table" and snap.table is not None:
-                    pose = Pose.from_dict(snap.table["table_to_camera"]) @ pose
+                part, pose = ghost
                 self.ghost.wxyz = _wxyz(pose.q)
                 self.ghost.position = pose.t
                 spec = next((p for p in self.parts if p.name == part), None)

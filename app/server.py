@@ -47,24 +47,11 @@ def _version() -> str:
         return "0.0.0"
 
 
-def open_source_spec(spec: str, realtime: bool = True) -> FrameSource:
-    """Open ``sim:<scenario>``, ``recording:<dir>`` or ``camera:<n>`` (through the sources registry)."""
-    try:
-        from tracker.sources.registry import open_source
-    except ImportError:
-        open_source = None
-    if open_source is not None:
-        return open_source(spec, realtime=realtime)
-    kind, _, arg = spec.partition(":")
-    if kind == "sim":
-        from tracker.sources.simulator import SimulatedTable
+def open_source_spec(spec: str, realtime: bool = True, seed: int = 0) -> FrameSource:
+    """Open ``sim:<scenario>``, ``recording:<dir>`` or ``camera:<n>`` through the sources registry."""
+    from tracker.sources.registry import open_source
 
-        return SimulatedTable(arg or "guidance-demo", realtime=realtime)
-    if kind == "recording":
-        from tracker.sources.recording import RecordingSource
-
-        return RecordingSource(arg, realtime=realtime)
-    raise ValueError(f"source {spec!r}: expected sim:<scenario>, recording:<dir> or camera:<n>")
+    return open_source(spec, realtime=realtime, seed=seed, loop=False)
 
 
 def available_sources() -> list[m.SourceInfo]:
@@ -89,12 +76,12 @@ class AppState:
         self.settings = settings
         self.storage = Storage(settings.database_path())
         self.auth = TeacherAuth(self.storage, settings.teacher_password)
-        self.source_spec = settings.source
+        self.source_spec = settings.source_spec()
         self.mode = settings.mode
         self.task = settings.task
         if self.task is not None:
             self.resolve_task(self.mode, self.task)  # fail early on a bad --task
-        self._open = open_source or (lambda spec: open_source_spec(spec, realtime=settings.realtime))
+        self._open = open_source or (lambda spec: open_source_spec(spec, settings.realtime, settings.seed))
         self.worker = PipelineWorker(
             self._open_current, self._make_pipeline, max_fps=settings.max_fps, loop=settings.loop
         )
@@ -143,18 +130,29 @@ class AppState:
                 else TrackerConfig.load(config)
             )
             config = base.with_overrides(n_particles=self.settings.n_particles)
-        mode = None if self.mode == "none" else self.mode
-        return AssemblyPipeline(
-            list(parts),
-            src.intrinsics,
-            mode=mode,
-            task=self.resolve_task(self.mode, self.task),
-            config=config,
-            seed=self.settings.seed,
-            initial_poses=poses,
-            table_recheck_s=self.settings.table_recheck_s,
-            source_info={"spec": self.source_spec, **_safe_metadata(src)},
-        )
+
+        def build(mode: str, task: str | None) -> AssemblyPipeline:
+            return AssemblyPipeline(
+                list(parts),
+                src.intrinsics,
+                mode=None if mode == "none" else mode,
+                task=self.resolve_task(mode, task),
+                config=config,
+                seed=self.settings.seed,
+                initial_poses=poses,
+                table_recheck_s=self.settings.table_recheck_s,
+                source_info={"spec": self.source_spec, **_safe_metadata(src)},
+            )
+
+        try:
+            return build(self.mode, self.task)
+        except ValueError as exc:
+            if self.mode == "none":
+                raise
+            # e.g. the task needs parts this source lacks: keep tracking and say why the mode is off
+            self.worker.report("mode", f"{self.mode} mode unavailable on {self.source_spec}: {exc}")
+            self.mode, self.task = "none", None
+            return build("none", None)
 
     # -------------------------------------------------------------- sessions
     def start_session(self) -> None:

@@ -4,8 +4,8 @@
 * ``database``: SQLite file path or ``sqlite:///path`` URL where teacher tasks and sessions live.
 * ``teacher_password``: when set (env ``ASSEMBLY_AGENT_TEACHER_PASSWORD``), the teacher password; otherwise
   the first teacher to open ``/teacher`` sets it. It is only ever stored hashed.
-* ``source``: ``sim:<scenario>`` | ``recording:<dir>`` | ``camera:<n>``; ``mode``/``task``: the assembly mode
-  at start and its task (preset id or ``teacher:<id>``).
+* ``source``: ``sim:<scenario>`` | ``recording:<dir>`` | ``camera:<n>`` (default: the simulated scenario of
+  the mode); ``mode``/``task``: the assembly mode at start and its task (preset id or ``teacher:<id>``).
 * ``realtime``: pace recordings and the simulator at their frame rate; ``loop``: restart a finished source.
 * ``tracker_config``: tracker preset name or YAML/TOML path; ``seed``: random seed of tracker and modes.
 """
@@ -29,7 +29,7 @@ class Settings(BaseSettings):
     viser_port: int = Field(8080, ge=0, le=65535, description="port of the viser 3D scene; 0 disables it")
     database: str = "data/assembly-agent.sqlite3"
     teacher_password: str | None = None
-    source: str = "sim:guidance-demo"
+    source: str | None = Field(None, description="default: the simulated scenario matching the mode")
     mode: Literal["guidance", "guess", "learning", "none"] = "guidance"
     task: str | None = None
     seed: int = 0
@@ -41,6 +41,12 @@ class Settings(BaseSettings):
     max_fps: float = Field(30.0, gt=0, description="upper bound on processed frames per second")
     jpeg_quality: int = Field(75, ge=10, le=100)
     autostart: bool = True
+
+    def source_spec(self) -> str:
+        """``source``, or the simulated scenario that suits ``mode`` (guidance-demo, guess-1, learning-4)."""
+        if self.source:
+            return self.source
+        return {"guess": "sim:guess-1", "learning": "sim:learning-4"}.get(self.mode, "sim:guidance-demo")
 
     def database_path(self) -> Path:
         """The SQLite file behind ``database`` (a path or a ``sqlite:///`` URL)."""

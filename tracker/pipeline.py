@@ -163,12 +163,30 @@ class AssemblyPipeline:
             return
         if task is None:
             task = DEFAULT_TASKS[mode]
-        from tracker.assembly import build_mode
+        from tracker.assembly import SentenceTask, build_mode
 
-        built = build_mode(resolve_task(task), mode, self.parts, self.seed)
+        if isinstance(task, SentenceTask):
+            if mode != "learning":
+                raise ValueError("a sentence task needs the learning mode")
+            built = build_mode(self._sentence_task_model(task), mode, self.parts, self.seed, sentence=task)
+        else:
+            built = build_mode(resolve_task(task), mode, self.parts, self.seed)
         self.mode_name, self.task, self.mode = mode, task, built
         if self.tracker is not None:
             self.tracker.set_connection_hints([])
+
+    def _sentence_task_model(self, sentence):
+        """A learning task around one sentence (e.g. a teacher's) using every part of this pipeline as a cube."""
+        from tracker.assembly import TaskModel
+
+        parts = [
+            {"name": p.name, "shape": "box", "size": list(p.box), "colour": None if p.color is None else list(p.color)}
+            for p in self.parts
+            if p.box is not None
+        ]
+        return TaskModel(
+            id=f"sentence-{sentence.id or 'custom'}", mode="learning", units="m", parts=parts, sentences=[sentence]
+        )
 
     # ----------------------------------------------------------------- user interaction
     def set_part_pose(self, name: str, pose: Pose) -> None:

@@ -18,7 +18,11 @@ def register(subparsers) -> None:
         "table in guidance mode on http://127.0.0.1:8000. Settings may also come from environment variables "
         "ASSEMBLY_AGENT_<NAME> (e.g. ASSEMBLY_AGENT_TEACHER_PASSWORD, ASSEMBLY_AGENT_DATABASE).",
     )
-    p.add_argument("--source", help="sim:<scenario> | recording:<dir> | camera:<n> (default sim:guidance-demo)")
+    p.add_argument(
+        "--source",
+        help="sim:<scenario> | recording:<dir> | camera:<n> (default: sim:guidance-demo, sim:guess-1 or "
+        "sim:learning-4 to suit --mode)",
+    )
     p.add_argument("--mode", choices=["guidance", "guess", "learning", "none"], help="assembly mode at start")
     p.add_argument("--task", help="task preset id (e.g. guidance-5-cubes) or teacher:<id>; default: the mode's preset")
     p.add_argument("--host", help="address to listen on (default 127.0.0.1; 0.0.0.0 for all interfaces)")

@@ -131,53 +131,55 @@ function renderSnapshot(s) {
   if (s.worker) $("worker-state").textContent = s.worker.state;
   const ms = s.mode_state || {};
   const instr = $("instruction");
-  instr.textContent = s.instruction || ms.verdict || (s.mode ? "…" : "Tracking only (no assembly mode)");
-  const verdict = String(ms.verdict || ms.status || "").toLowerCase();
-  instr.classList.toggle("ok", /correct|done|complete|success/.test(verdict));
-  instr.classList.toggle("bad", /wrong|incorrect|error/.test(verdict));
+  instr.textContent = s.instruction || (s.mode ? "…" : "Tracking only (no assembly mode)");
+  instr.classList.toggle("ok", ms.complete === true);
+  instr.classList.toggle("bad", !!ms.warning);
   const frac = progressOf(ms);
   $("progress-bar").style.width = frac === null ? "0" : `${Math.round(Math.max(0, Math.min(1, frac)) * 100)}%`;
-  $("progress-text").textContent = frac === null ? "" : `progress ${Math.round(frac * 100)} %`;
+  const p = ms.progress || {};
+  $("progress-text").textContent = frac === null ? "" : `${p.done ?? ""} of ${p.total ?? ""} connections done`;
 
   const conns = (s.connections || []).map((c) => {
     const st = String(c.state || c.status || "");
-    const li = el("li", `${c.first} → ${c.second}: ${st}`);
+    const score = typeof c.score === "number" ? ` (${c.score.toFixed(2)})` : "";
+    const li = el("li", `${c.first} → ${c.second}: ${st}${score}`);
     li.className = `state-${st.toLowerCase()}`;
     return li;
   });
   setList($("connection-list"), conns, "none yet");
 
+  $("warning").textContent = ms.warning || "";
+
   const ranking = Array.isArray(ms.ranking) ? ms.ranking : [];
   $("ranking-box").classList.toggle("hidden", s.mode !== "guess" || ranking.length === 0);
   const rItems = ranking.map((r) => {
-    const name = r.title || r.name || r.structure || "?";
-    const score = Number(r.probability ?? r.score ?? r.progress ?? 0);
-    const li = el("li", `${name} — ${Math.round(score * 100)} %`);
+    const name = r.title || r.structure || "?";
+    const frac = Number(r.fraction ?? 0);
+    const li = el("li", `${name}: ${r.completed ?? 0}/${r.total ?? "?"} connections`);
+    if (r.structure === ms.guess) li.classList.add("guess");
     const bar = el("span", null, "bar");
-    bar.style.width = `${Math.round(score * 80)}px`;
+    bar.style.width = `${Math.round(frac * 80)}px`;
     li.appendChild(bar);
     return li;
   });
   setList($("ranking-list"), rItems, "");
+  $("guess-text").textContent = ms.guess ? `best guess: ${ms.guess} (confidence ${Math.round((ms.confidence || 0) * 100)} %)` : "";
 
   const isLearning = s.mode === "learning";
   $("learning-box").classList.toggle("hidden", !isLearning);
   if (isLearning) {
-    $("source-sentence").textContent = ms.source_sentence || ms.sentence || "";
-    const verdicts = Array.isArray(ms.word_verdicts) ? ms.word_verdicts : Array.isArray(ms.verdicts) ? ms.verdicts : [];
-    let items;
-    if (verdicts.length) {
-      items = verdicts.map((v) => {
-        const word = typeof v === "string" ? v : v.word;
-        const ok = typeof v === "object" ? (v.correct ?? v.verdict) : null;
-        const cls = ok === true || ok === "correct" ? "correct" : ok === false || ok === "wrong" ? "wrong" : "";
-        return el("li", word, cls);
-      });
-    } else {
-      const words = ms.words && typeof ms.words === "object" ? Object.values(ms.words) : [];
-      items = words.map((w) => el("li", w));
-    }
-    $("word-list").replaceChildren(...items);
+    $("source-sentence").textContent = ms.sentence || "";
+    const verdicts = Array.isArray(ms.verdicts) ? ms.verdicts : [];
+    const vItems = verdicts.map((v) => {
+      const cls = v.correct === true ? "correct" : v.correct === false ? "wrong" : "";
+      const li = el("li", v.placed ?? "·", cls);
+      li.title = `position ${v.position}`;
+      return li;
+    });
+    $("word-list").replaceChildren(...vItems);
+    const words = Array.isArray(ms.words) ? ms.words : [];
+    const wItems = words.map((w) => el("li", `${w.cube}: ${w.word}${w.is_distractor ? " (distractor)" : ""}`));
+    setList($("cube-words"), wItems, "");
   }
   const errs = (s.errors || []).map((e) => el("li", e));
   if (errs.length) setList($("error-list"), errs, "none");
