@@ -1,0 +1,254 @@
+"""Per-pixel ray casting of boxes, capsules and triangle meshes into colour/depth/id buffers (numba).
+
+All geometry is in the camera frame (x right, y down, z forward; metres). The ray of pixel ``(u, v)``
+is ``d = ((u - cx)/fx, (v - cy)/fy, 1)``, so the ray parameter of a hit equals its depth ``z``.
+
+Every kernel works inside a pixel rectangle ``[u0, u1) × [v0, v1)`` and updates, where the hit is
+nearer than what the buffers hold:
+
+* ``depth`` (H×W float32): z of the nearest surface (``inf`` where nothing);
+* ``cosang`` (H×W float32): |cos| of the angle between the surface normal and the viewing ray
+  (used by the sensor model for grazing-angle dropouts);
+* ``color`` (H×W×3 float32): shaded colour, 0..255 scale (Lambert: ``albedo·(ambient + diffuse·max(0, n·l))``
+  with ``l`` the unit direction towards the light);
+* ``ids`` (H×W int16): id of the nearest primitive's object (-1 background).
+
+``hits[id]`` counts the pixels where the object is hit at all (occluded or not), which gives the
+visible fraction of a part.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def _shade(color, v, u, albedo, nx, ny, nz, light, ambient, diffuse, factor):
+    lam = nx * light[0] + ny * light[1] + nz * light[2]
+    if lam < 0.0:
+        lam = 0.0
+    s = (ambient + diffuse * lam) * factor
+    color[v, u, 0] = albedo[0] * s
+    color[v, u, 1] = albedo[1] * s
+    color[v, u, 2] = albedo[2] * s
+
+
+@nb.njit(cache=True)
+def render_box(depth, cosang, color, ids, hits, fx, fy, cx, cy, R, t, half, albedo, light, ambient, diffuse,
+               pid, u0, v0, u1, v1, edge_width, edge_dark):  # fmt: skip
+    """Ray-cast a box (centre ``t``, rotation ``R`` body→camera, half extents ``half``) with darkened edges."""
+    # ray origin (camera centre) in the box frame: o' = -Rᵀ t
+    o0 = -(R[0, 0] * t[0] + R[1, 0] * t[1] + R[2, 0] * t[2])
+    o1 = -(R[0, 1] * t[0] + R[1, 1] * t[1] + R[2, 1] * t[2])
+    o2 = -(R[0, 2] * t[0] + R[1, 2] * t[1] + R[2, 2] * t[2])
+    o = np.array([o0, o1, o2])
+    dp = np.zeros(3)
+    for v in range(v0, v1):
+        yv = (v - cy) / fy
+        for u in range(u0, u1):
+            xu = (u - cx) / fx
+            for j in range(3):
+                dp[j] = R[0, j] * xu + R[1, j] * yv + R[2, j]
+            tnear = -1e30
+            tfar = 1e30
+            axis = -1
+            sign = 0.0
+            miss = False
+            for j in range(3):
+                if abs(dp[j]) < 1e-12:
+                    if abs(o[j]) > half[j]:
+                        miss = True
+                        break
+                    continue
+                ta = (-half[j] - o[j]) / dp[j]
+                tb = (half[j] - o[j]) / dp[j]
+                if ta > tb:
+                    ta, tb = tb, ta
+                if ta > tnear:
+                    tnear = ta
+                    axis = j
+                    sign = -1.0 if dp[j] > 0 else 1.0
+                if tb < tfar:
+                    tfar = tb
+            if miss or tnear > tfar or tnear <= 0.0 or axis < 0:
+                continue
+            hits[pid] += 1
+            if tnear >= depth[v, u]:
+                continue
+            nx = R[0, axis] * sign
+            ny = R[1, axis] * sign
+            nz = R[2, axis] * sign
+            dn = np.sqrt(xu * xu + yv * yv + 1.0)
+            depth[v, u] = tnear
+            cosang[v, u] = abs(nx * xu + ny * yv + nz) / dn
+            ids[v, u] = pid
+            # distance of the hit point to the nearest edge of its face
+            emin = 1e30
+            for j in range(3):
+                if j != axis:
+                    e = half[j] - abs(o[j] + tnear * dp[j])
+                    if e < emin:
+                        emin = e
+            factor = 1.0
+            if edge_width > 0.0 and emin < edge_width:
+                factor = 1.0 - edge_dark * (1.0 - max(emin, 0.0) / edge_width)
+            _shade(color, v, u, albedo, nx, ny, nz, light, ambient, diffuse, factor)
+
+
+@nb.njit(cache=True)
+def render_capsule(depth, cosang, color, ids, hits, fx, fy, cx, cy, pa, pb, radius, albedo, light, ambient, diffuse,
+                   pid, u0, v0, u1, v1):  # fmt: skip
+    """Ray-cast a capsule (segment ``pa``–``pb`` swept by a sphere of ``radius``)."""
+    ba0 = pb[0] - pa[0]
+    ba1 = pb[1] - pa[1]
+    ba2 = pb[2] - pa[2]
+    # oa = ro - pa with ro = 0
+    oa0 = -pa[0]
+    oa1 = -pa[1]
+    oa2 = -pa[2]
+    baba = ba0 * ba0 + ba1 * ba1 + ba2 * ba2
+    baoa = ba0 * oa0 + ba1 * oa1 + ba2 * oa2
+    oaoa = oa0 * oa0 + oa1 * oa1 + oa2 * oa2
+    r2 = radius * radius
+    for v in range(v0, v1):
+        yv = (v - cy) / fy
+        for u in range(u0, u1):
+            xu = (u - cx) / fx
+            dn = np.sqrt(xu * xu + yv * yv + 1.0)
+            r0 = xu / dn
+            r1 = yv / dn
+            rz = 1.0 / dn
+            bard = ba0 * r0 + ba1 * r1 + ba2 * rz
+            rdoa = r0 * oa0 + r1 * oa1 + rz * oa2
+            a = baba - bard * bard
+            b = baba * rdoa - baoa * bard
+            c = baba * oaoa - baoa * baoa - r2 * baba
+            h = b * b - a * c
+            tt = -1.0
+            if h >= 0.0 and a > 1e-18:
+                tb = (-b - np.sqrt(h)) / a
+                y = baoa + tb * bard
+                if y > 0.0 and y < baba:
+                    tt = tb
+                else:
+                    # spherical caps
+                    if y <= 0.0:
+                        c0, c1, c2 = oa0, oa1, oa2
+                    else:
+                        c0, c1, c2 = -pb[0], -pb[1], -pb[2]
+                    bb = r0 * c0 + r1 * c1 + rz * c2
+                    cc = c0 * c0 + c1 * c1 + c2 * c2 - r2
+                    hh = bb * bb - cc
+                    if hh > 0.0:
+                        tt = -bb - np.sqrt(hh)
+            if tt <= 0.0:
+                continue
+            hits[pid] += 1
+            z = tt * rz
+            if z >= depth[v, u]:
+                continue
+            px = tt * r0
+            py = tt * r1
+            pz = tt * rz
+            s = ((px - pa[0]) * ba0 + (py - pa[1]) * ba1 + (pz - pa[2]) * ba2) / baba
+            s = min(max(s, 0.0), 1.0)
+            nx = (px - pa[0] - ba0 * s) / radius
+            ny = (py - pa[1] - ba1 * s) / radius
+            nz = (pz - pa[2] - ba2 * s) / radius
+            depth[v, u] = z
+            cosang[v, u] = abs(nx * r0 + ny * r1 + nz * rz)
+            ids[v, u] = pid
+            _shade(color, v, u, albedo, nx, ny, nz, light, ambient, diffuse, 1.0)
+
+
+@nb.njit(cache=True)
+def render_triangles(depth, cosang, color, ids, hits, local, fx, fy, cx, cy, tris, normals, albedo, light, ambient,
+                     diffuse, pid, u0, v0, u1, v1):  # fmt: skip
+    """Rasterise camera-frame triangles ``tris`` [N,3,3] (outward ``normals`` [N,3]) of one object.
+
+    ``local`` is a scratch float32 buffer of at least (v1-v0)×(u1-u0): the object's own z-buffer,
+    used so that ``hits`` counts each covered pixel once.
+    """
+    hh = v1 - v0
+    ww = u1 - u0
+    for i in range(hh):
+        for j in range(ww):
+            local[i, j] = np.inf
+    for k in range(tris.shape[0]):
+        nx = normals[k, 0]
+        ny = normals[k, 1]
+        nz = normals[k, 2]
+        if nx * tris[k, 0, 0] + ny * tris[k, 0, 1] + nz * tris[k, 0, 2] >= 0.0:
+            continue  # back face
+        if tris[k, 0, 2] < 0.05 or tris[k, 1, 2] < 0.05 or tris[k, 2, 2] < 0.05:
+            continue
+        pu0 = fx * tris[k, 0, 0] / tris[k, 0, 2] + cx
+        pv0 = fy * tris[k, 0, 1] / tris[k, 0, 2] + cy
+        pu1 = fx * tris[k, 1, 0] / tris[k, 1, 2] + cx
+        pv1 = fy * tris[k, 1, 1] / tris[k, 1, 2] + cy
+        pu2 = fx * tris[k, 2, 0] / tris[k, 2, 2] + cx
+        pv2 = fy * tris[k, 2, 1] / tris[k, 2, 2] + cy
+        area = (pu1 - pu0) * (pv2 - pv0) - (pu2 - pu0) * (pv1 - pv0)
+        if abs(area) < 1e-12:
+            continue
+        bu0 = max(u0, int(np.floor(min(pu0, pu1, pu2))))
+        bu1 = min(u1, int(np.ceil(max(pu0, pu1, pu2))) + 1)
+        bv0 = max(v0, int(np.floor(min(pv0, pv1, pv2))))
+        bv1 = min(v1, int(np.ceil(max(pv0, pv1, pv2))) + 1)
+        iz0 = 1.0 / tris[k, 0, 2]
+        iz1 = 1.0 / tris[k, 1, 2]
+        iz2 = 1.0 / tris[k, 2, 2]
+        for v in range(bv0, bv1):
+            for u in range(bu0, bu1):
+                w0 = ((pu1 - u) * (pv2 - v) - (pu2 - u) * (pv1 - v)) / area
+                w1 = ((pu2 - u) * (pv0 - v) - (pu0 - u) * (pv2 - v)) / area
+                w2 = 1.0 - w0 - w1
+                if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
+                    continue
+                z = 1.0 / (w0 * iz0 + w1 * iz1 + w2 * iz2)
+                if z < local[v - v0, u - u0]:
+                    local[v - v0, u - u0] = z
+                if z >= depth[v, u]:
+                    continue
+                xu = (u - cx) / fx
+                yv = (v - cy) / fy
+                dn = np.sqrt(xu * xu + yv * yv + 1.0)
+                depth[v, u] = z
+                cosang[v, u] = abs(nx * xu + ny * yv + nz) / dn
+                ids[v, u] = pid
+                _shade(color, v, u, albedo, nx, ny, nz, light, ambient, diffuse, 1.0)
+    n = 0
+    for i in range(hh):
+        for j in range(ww):
+            if local[i, j] < np.inf:
+                n += 1
+    hits[pid] += n
+
+
+def box_rect(R: np.ndarray, t: np.ndarray, half: np.ndarray, fx, fy, cx, cy, width, height, near=0.05):
+    """Pixel rectangle (u0, v0, u1, v1), end-exclusive and clipped, covering a box; None if off-screen."""
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    pts = (signs * half) @ R.T + t
+    return points_rect(pts, fx, fy, cx, cy, width, height, near)
+
+
+def points_rect(pts: np.ndarray, fx, fy, cx, cy, width, height, near=0.05):
+    """Clipped end-exclusive pixel rectangle covering the convex hull of camera-frame points; None if empty.
+
+    A hull that reaches behind the near plane gets the full image width and the rows it can reach.
+    """
+    z = pts[:, 2]
+    if np.all(z < near):
+        return None
+    if np.any(z < near):
+        return 0, 0, width, height
+    u = fx * pts[:, 0] / z + cx
+    v = fy * pts[:, 1] / z + cy
+    u0 = max(0, int(np.floor(u.min())))
+    v0 = max(0, int(np.floor(v.min())))
+    u1 = min(width, int(np.ceil(u.max())) + 1)
+    v1 = min(height, int(np.ceil(v.max())) + 1)
+    if u0 >= u1 or v0 >= v1:
+        return None
+    return u0, v0, u1, v1

@@ -1,0 +1,283 @@
+"""Depth and colour sensor models of the simulated RGB-D camera.
+
+This is deliberately NOT the tracker's depth likelihood: it imitates a structured-light / stereo depth
+camera (Kinect / RealSense class) with
+
+* depth-dependent Gaussian noise ``σ(z) = noise_coeff · z²`` (metres), on depth or on disparity;
+* quantisation: 1 mm steps (``quantization="mm"``) or disparity steps of ``disparity_step`` px with
+  ``z = focal·baseline / disparity`` (``quantization="disparity"``), or none;
+* missing pixels at depth discontinuities (``edge_missing`` of the pixels next to a jump of more than
+  ``edge_jump`` · z) and at grazing angles (probability rising from 0 at ``grazing_start_deg`` to 1 at
+  ``grazing_end_deg`` between the viewing ray and the surface normal);
+* "flying pixels" at edges (``edge_flying`` of the edge pixels take a depth interpolated between the
+  fore- and the background);
+* random dropouts (``dropout`` of all pixels), and a working range ``[min_range, max_range]``;
+* a fixed misregistration of the depth image relative to colour: the depth at pixel ``(u, v)`` is the
+  scene depth at ``(u + shift_u, v + shift_v)`` (integer pixels, ≤ 1).
+
+Randomness is counter-based (a splitmix64 hash of a per-frame key and the pixel index), so frame ``k``
+is bit-identical whenever it is rendered, in any order. Gaussian variates are Irwin–Hall sums of four
+uniforms (unit variance, tails cut at ±3.46 σ).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_S30 = np.uint64(30)
+_S27 = np.uint64(27)
+_S31 = np.uint64(31)
+_MASK16 = np.uint64(0xFFFF)
+_MASK8 = np.uint64(0xFF)
+
+
+@dataclass(frozen=True)
+class DepthSensorModel:
+    """Parameters of the simulated depth sensor (defaults imitate a Kinect-class camera at 0.5–1 m).
+
+    * ``noise_coeff``: σ(z) = noise_coeff · z² metres (1.4e-3 → 0.9 mm at 0.8 m).
+    * ``noise_on``: ``"depth"`` (Gaussian on z) or ``"disparity"`` (Gaussian on disparity with the same σ(z)).
+    * ``quantization``: ``"mm"`` (round to ``quant_step`` metres), ``"disparity"`` (disparity steps) or ``"none"``.
+    * ``quant_step``: metres per depth unit for ``"mm"`` (0.001).
+    * ``focal_baseline``: f·b in px·m for disparity (525 px · 0.075 m).
+    * ``disparity_step``: disparity quantum in px for ``"disparity"`` (1/8 px).
+    * ``edge_jump``: relative depth jump (Δz / z) that marks a depth discontinuity (0.02).
+    * ``edge_missing``: probability that a pixel at a discontinuity is missing (0.5).
+    * ``edge_flying``: probability that it is a flying pixel between fore- and background (0.1).
+    * ``grazing_start_deg`` / ``grazing_end_deg``: incidence angles where grazing dropouts begin (75°) /
+      become certain (87°).
+    * ``dropout``: probability of a random missing pixel anywhere (0.005).
+    * ``min_range`` / ``max_range``: working range in metres (0.3 / 4.0); outside it depth is missing.
+    * ``shift_u`` / ``shift_v``: depth-to-colour misregistration in whole pixels (1, 0).
+    """
+
+    noise_coeff: float = 1.4e-3
+    noise_on: str = "depth"
+    quantization: str = "mm"
+    quant_step: float = 0.001
+    focal_baseline: float = 525.0 * 0.075
+    disparity_step: float = 0.125
+    edge_jump: float = 0.02
+    edge_missing: float = 0.5
+    edge_flying: float = 0.1
+    grazing_start_deg: float = 75.0
+    grazing_end_deg: float = 87.0
+    dropout: float = 0.005
+    min_range: float = 0.3
+    max_range: float = 4.0
+    shift_u: int = 1
+    shift_v: int = 0
+
+    def __post_init__(self) -> None:
+        if self.noise_on not in ("depth", "disparity"):
+            raise ValueError(f"DepthSensorModel.noise_on must be 'depth' or 'disparity', got {self.noise_on!r}")
+        if self.quantization not in ("mm", "disparity", "none"):
+            raise ValueError(
+                f"DepthSensorModel.quantization must be 'mm', 'disparity' or 'none', got {self.quantization!r}"
+            )
+        if abs(self.shift_u) > 1 or abs(self.shift_v) > 1:
+            raise ValueError("DepthSensorModel.shift_u/shift_v must be -1, 0 or 1 pixel")
+        for name in ("edge_missing", "edge_flying", "dropout"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"DepthSensorModel.{name} must be a probability in [0, 1]")
+        if self.edge_missing + self.edge_flying > 1.0:
+            raise ValueError("DepthSensorModel.edge_missing + edge_flying must not exceed 1")
+
+    def sigma(self, z: np.ndarray | float) -> np.ndarray | float:
+        """Standard deviation (metres) of the depth noise at depth ``z`` metres (before quantisation)."""
+        return self.noise_coeff * np.asarray(z, dtype=float) ** 2
+
+    def apply(self, clean: np.ndarray, cosang: np.ndarray, key: int) -> np.ndarray:
+        """Noisy float32 depth (NaN missing) from noise-free ``clean`` depth (inf where nothing) and
+        ``cosang`` = |cos(incidence)|, with the randomness of per-frame ``key`` (uint64)."""
+        out = np.empty(clean.shape, np.float32)
+        quant = {"none": 0, "mm": 1, "disparity": 2}[self.quantization]
+        _depth_kernel(
+            clean,
+            cosang,
+            out,
+            np.uint64(key),
+            float(self.noise_coeff),
+            self.noise_on == "disparity",
+            quant,
+            float(self.quant_step),
+            float(self.focal_baseline),
+            float(self.disparity_step),
+            float(self.edge_jump),
+            float(self.edge_missing),
+            float(self.edge_flying),
+            float(np.cos(np.radians(self.grazing_start_deg))),
+            float(np.cos(np.radians(self.grazing_end_deg))),
+            float(self.dropout),
+            float(self.min_range),
+            float(self.max_range),
+            int(self.shift_u),
+            int(self.shift_v),
+        )
+        return out
+
+
+@dataclass(frozen=True)
+class ColorSensorModel:
+    """Parameters of the simulated colour camera.
+
+    * ``noise_sigma``: per-channel pixel noise, 0–255 levels (2.5; triangular-distributed).
+    * ``gain_amplitude``: amplitude of the slow global brightness variation (0.06 → ±6 %).
+    * ``gain_period``: its period in seconds (7 s), plus a weaker 1.7 s flicker of a quarter of the amplitude.
+    * ``ramp_amplitude``: amplitude of a slowly rotating left/right–top/bottom brightness ramp (0.08).
+    * ``ramp_period``: seconds per rotation of the ramp direction (23 s).
+    """
+
+    noise_sigma: float = 2.5
+    gain_amplitude: float = 0.06
+    gain_period: float = 7.0
+    ramp_amplitude: float = 0.08
+    ramp_period: float = 23.0
+
+    def lighting(self, t: float, phase: float) -> tuple[float, float, float]:
+        """Global gain and the (u, v) ramp coefficients at time ``t`` seconds (``phase`` in radians, seeded)."""
+        g = 1.0 + self.gain_amplitude * (
+            np.sin(2 * np.pi * t / self.gain_period + phase) + 0.25 * np.sin(2 * np.pi * t / 1.7 + 2 * phase)
+        )
+        ang = 2 * np.pi * t / self.ramp_period + phase
+        return float(g), float(self.ramp_amplitude * np.cos(ang)), float(self.ramp_amplitude * np.sin(ang))
+
+    def apply(self, color: np.ndarray, key: int, t: float, phase: float) -> np.ndarray:
+        """uint8 RGB from the float (0..255) rendered colour, with lighting variation and noise."""
+        g, ru, rv = self.lighting(t, phase)
+        out = np.empty(color.shape, np.uint8)
+        _color_kernel(color, out, np.uint64(key), g, ru, rv, float(self.noise_sigma))
+        return out
+
+
+@nb.njit(cache=True, inline="always")
+def _mix(x):
+    x = (x ^ (x >> _S30)) * _M1
+    x = (x ^ (x >> _S27)) * _M2
+    return x ^ (x >> _S31)
+
+
+@nb.njit(cache=True, inline="always")
+def _hash(key, i, stream):
+    return _mix(key + (np.uint64(i) * np.uint64(4) + np.uint64(stream) + np.uint64(1)) * _GOLDEN)
+
+
+@nb.njit(cache=True, inline="always")
+def _u16(h, k):
+    return np.float64((h >> np.uint64(16 * k)) & _MASK16) * (1.0 / 65536.0) + (0.5 / 65536.0)
+
+
+@nb.njit(cache=True, inline="always")
+def _gauss(h):
+    s = _u16(h, 0) + _u16(h, 1) + _u16(h, 2) + _u16(h, 3)
+    return (s - 2.0) * 1.7320508075688772
+
+
+@nb.njit(cache=True)
+def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dstep, jump, p_miss, p_fly, cos_start,
+                  cos_end, p_drop, zmin, zmax, su, sv):  # fmt: skip
+    h, w = clean.shape
+    nan = np.float32(np.nan)
+    for v in range(h):
+        vs = v + sv
+        for u in range(w):
+            us = u + su
+            if vs < 0 or vs >= h or us < 0 or us >= w:
+                out[v, u] = nan
+                continue
+            z = clean[vs, us]
+            if not (z >= zmin and z <= zmax):
+                out[v, u] = nan
+                continue
+            i = v * w + u
+            h1 = _hash(key, i, 0)
+            r_drop = _u16(h1, 0)
+            r_edge = _u16(h1, 1)
+            r_frac = _u16(h1, 2)
+            r_graz = _u16(h1, 3)
+            if r_drop < p_drop:
+                out[v, u] = nan
+                continue
+            # grazing incidence
+            c = cosang[vs, us]
+            if c < cos_start:
+                p = (cos_start - c) / (cos_start - cos_end)
+                if r_graz < p:
+                    out[v, u] = nan
+                    continue
+            # depth discontinuity: farthest / nearest 4-neighbour
+            znear = z
+            zfar = z
+            for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                vv = vs + dv
+                uu = us + du
+                if vv < 0 or vv >= h or uu < 0 or uu >= w:
+                    continue
+                zn = clean[vv, uu]
+                if not np.isfinite(zn):
+                    zn = zmax * 2.0
+                if zn < znear:
+                    znear = zn
+                if zn > zfar:
+                    zfar = zn
+            thr = jump * z
+            edge_fg = zfar - z > thr  # z is the foreground next to a jump
+            edge_bg = z - znear > thr  # z is the background next to a jump
+            if edge_fg or edge_bg:
+                if r_edge < p_miss:
+                    out[v, u] = nan
+                    continue
+                if r_edge < p_miss + p_fly:
+                    other = zfar if edge_fg else znear
+                    if other > zmax:
+                        out[v, u] = nan
+                        continue
+                    z = z + (other - z) * r_frac
+            n = _gauss(_hash(key, i, 1))
+            sigma = coeff * z * z
+            if on_disp:
+                d = fb / z
+                d = d + n * sigma * fb / (z * z)
+                if quant == 2:
+                    d = np.floor(d / dstep + 0.5) * dstep
+                if d <= 0.0:
+                    out[v, u] = nan
+                    continue
+                z = fb / d
+            else:
+                z = z + n * sigma
+                if quant == 2:
+                    d = np.floor(fb / z / dstep + 0.5) * dstep
+                    z = fb / d
+            if quant == 1:
+                z = np.floor(z / qstep + 0.5) * qstep
+            if z < zmin or z > zmax:
+                out[v, u] = nan
+            else:
+                out[v, u] = np.float32(z)
+
+
+@nb.njit(cache=True)
+def _color_kernel(color, out, key, gain, ramp_u, ramp_v, sigma):
+    h, w, _ = color.shape
+    scale = sigma / 104.51314746403095  # std of (b1 + b2 - 255) for two uniform bytes
+    for v in range(h):
+        gv = gain + ramp_v * (v / h - 0.5)
+        for u in range(w):
+            g = gv + ramp_u * (u / w - 0.5)
+            hh = _hash(key, v * w + u, 2)
+            for c in range(3):
+                b1 = np.float64((hh >> np.uint64(16 * c)) & _MASK8)
+                b2 = np.float64((hh >> np.uint64(16 * c + 8)) & _MASK8)
+                val = color[v, u, c] * g + (b1 + b2 - 255.0) * scale + 0.5
+                if val < 0.0:
+                    val = 0.0
+                elif val > 255.0:
+                    val = 255.0
+                out[v, u, c] = np.uint8(val)

@@ -1,0 +1,442 @@
+"""``SimulatedTable``: the built-in RGB-D source — a scripted table scene rendered with a depth-sensor model.
+
+Frames are rendered on demand (``render(index)``, random access) and are bit-identical for the same
+scenario, seed and options. Each frame carries its ground truth in ``frame.meta["groundtruth"]``:
+
+* ``"poses"``: ``{part name: Pose}`` in the camera frame (x right, y down, z forward, metres);
+* ``"hand_box"``: ``[u0, v0, u1, v1]`` pixel bounds of the visible hand (end-exclusive) or ``None``;
+* ``"visible"``: ``{part name: fraction 0..1}`` of the part's unoccluded projected area that is visible
+  (0 when it is out of the image or hidden by the hand or another part).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from tracker.camera import Intrinsics
+from tracker.frame import Frame
+from tracker.parts import PartSpec
+from tracker.pose import Pose
+from tracker.sources.base import FrameSource
+from tracker.sources.simulator import rasterizer as rz
+from tracker.sources.simulator.hand import Box, Capsule, hand_primitives
+from tracker.sources.simulator.scenarios import (
+    ConnectionEvent,
+    ScenarioInfo,
+    ScriptBuilder,
+    ScriptSettings,
+    Timeline,
+    get_scenario,
+)
+from tracker.sources.simulator.scene import AMBIENT, DIFFUSE, LIGHT_DIR_TABLE, CameraPlacement, render_background
+from tracker.sources.simulator.sensor_model import ColorSensorModel, DepthSensorModel
+
+FPS = 30.0
+"""Frame rate of the simulator; frame ``i`` has timestamp ``i / FPS`` seconds."""
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """Options of the simulated table.
+
+    * ``speed``: motion speed factor of the hand (1 = natural, 2 = twice as fast).
+    * ``occlusion``: amount of occlusion by the hand, 0..2 (1 = default). Scales the hand's width
+      (0.75 + 0.25·occlusion), the time it hovers over the target before lowering a part (0.4 s ·
+      occlusion) and, from 1.5 on, routes the carried part over another resting part.
+    * ``excursions``: when True, the hand carries the part beyond the left/right image border for
+      0.5–1 s before placing it (in about 60 % of the moves).
+    * ``camera_distance``: metres from the table centre (None: seeded choice in [0.6, 0.9]).
+    * ``camera_elevation_deg``: camera looking down at this angle (None: seeded choice in [40, 60]).
+    * ``width``, ``height``, ``focal``: image size and focal length in pixels (640×480, 525).
+    * ``static_duration``: length of the ``static`` scenario, seconds.
+    * ``free_moves``: number of pick-and-place moves in the ``free`` scenario.
+    * ``extra_parts``: further rigid parts (boxes such as the 2×2×10 cm rod, or meshes) lying on the table.
+    * ``shadows``: soft shadows of the parts and the hand on the table.
+    * ``depth_model`` / ``color_model``: the sensor models (see :mod:`.sensor_model`).
+    """
+
+    speed: float = 1.0
+    occlusion: float = 1.0
+    excursions: bool = False
+    camera_distance: float | None = None
+    camera_elevation_deg: float | None = None
+    width: int = 640
+    height: int = 480
+    focal: float = 525.0
+    static_duration: float = 10.0
+    free_moves: int = 6
+    extra_parts: tuple[PartSpec, ...] = ()
+    shadows: bool = True
+    depth_model: DepthSensorModel = field(default_factory=DepthSensorModel)
+    color_model: ColorSensorModel = field(default_factory=ColorSensorModel)
+
+    def __post_init__(self) -> None:
+        if not 0.05 <= self.speed <= 20:
+            raise ValueError(f"SimOptions.speed must be within 0.05–20, got {self.speed}")
+        if not 0.0 <= self.occlusion <= 2.0:
+            raise ValueError(f"SimOptions.occlusion must be within 0–2, got {self.occlusion}")
+        if self.static_duration <= 0:
+            raise ValueError("SimOptions.static_duration must be positive")
+
+
+class _MeshCache:
+    def __init__(self, part: PartSpec) -> None:
+        mesh = part.load_mesh()
+        self.vertices = np.asarray(mesh.vertices, float)
+        self.faces = np.asarray(mesh.faces, np.int64)
+        self.normals = np.asarray(mesh.face_normals, float)
+
+
+class SimulatedTable(FrameSource):
+    """A scripted simulated table (see module docstring). ``scenario`` is one of :func:`list_scenarios`."""
+
+    name = "sim"
+
+    def __init__(
+        self,
+        scenario: str = "static",
+        seed: int = 0,
+        options: SimOptions | None = None,
+        realtime: bool = False,
+        n_frames: int | None = None,
+    ) -> None:
+        self.info: ScenarioInfo = get_scenario(scenario)
+        self.options = options or SimOptions()
+        self.seed = int(seed)
+        self.realtime = bool(realtime)
+        opts = self.options
+        ss = np.random.SeedSequence([self.seed, 20261123])
+        rng_cam, rng_script, rng_bg, rng_misc = (np.random.default_rng(s) for s in ss.spawn(4))
+        dist = rng_cam.uniform(0.6, 0.9)
+        elev = rng_cam.uniform(40.0, 60.0)
+        self.camera = CameraPlacement(
+            float(opts.camera_distance if opts.camera_distance is not None else dist),
+            float(opts.camera_elevation_deg if opts.camera_elevation_deg is not None else elev),
+        )
+        w, h = int(opts.width), int(opts.height)
+        self._intr = Intrinsics(w, h, float(opts.focal), float(opts.focal), (w - 1) / 2.0, (h - 1) / 2.0)
+        self._parts = [PartSpec.cube(n, n) for n in self.info.parts] + list(opts.extra_parts)
+        names = [p.name for p in self._parts]
+        if len(set(names)) != len(names):
+            raise ValueError(f"simulator: part names must be unique, got {names}")
+        self._T = self.camera.table_to_camera()
+        settings = ScriptSettings(
+            speed=opts.speed,
+            occlusion=opts.occlusion,
+            excursions=opts.excursions,
+            static_duration=opts.static_duration,
+            free_moves=opts.free_moves,
+        )
+        builder = ScriptBuilder(self.info, self._parts, self._T, self._intr, rng_script, settings)
+        self.timeline: Timeline = builder.build()
+        self._n_total = int(np.ceil(self.timeline.duration * FPS))
+        self.n_frames = self._n_total if n_frames is None else max(0, int(n_frames))
+        self._phase = float(rng_misc.uniform(0, 2 * np.pi))
+        self._meshes = {p.name: _MeshCache(p) for p in self._parts if p.box is None}
+
+        bg = render_background(self._intr, self.camera, rng_bg)
+        self._bg = bg
+        self._bg_table = bg.table
+        self._plane = self.camera.table_plane()
+        self._depth = bg.depth.copy()
+        self._cos = bg.cosang.copy()
+        self._color = bg.color.copy()
+        self._ids = np.full((h, w), -1, np.int16)
+        self._dirty: list[tuple[int, int, int, int]] = []
+        self._closed = False
+
+    # ---------------------------------------------------------------- FrameSource / public properties
+    @property
+    def intrinsics(self) -> Intrinsics:
+        return self._intr
+
+    @property
+    def parts(self) -> list[PartSpec]:
+        return list(self._parts)
+
+    @property
+    def scenario(self) -> ScenarioInfo:
+        return self.info
+
+    @property
+    def table_to_camera(self) -> Pose:
+        """Pose of the table frame in the camera frame."""
+        return self._T
+
+    @property
+    def table_plane(self) -> tuple[np.ndarray, float]:
+        """``(n, d)``: ``n·p + d = 0`` for camera-frame points on the table, ``n`` the upward unit normal."""
+        return self.camera.table_plane()
+
+    @property
+    def duration(self) -> float:
+        """Length of the scripted scenario in seconds."""
+        return float(self.timeline.duration)
+
+    @property
+    def events(self) -> list[ConnectionEvent]:
+        return list(self.timeline.events)
+
+    @property
+    def initial_poses(self) -> dict[str, Pose]:
+        return self.groundtruth(0)
+
+    def groundtruth(self, index: int) -> dict[str, Pose]:
+        """Every part's pose in the camera frame at frame ``index``."""
+        t = index / FPS
+        return {p.name: self._T @ self.timeline.part_pose(p.name, t) for p in self._parts}
+
+    def metadata(self) -> dict[str, Any]:
+        md = super().metadata()
+        md.update(
+            {
+                "scenario": self.info.to_dict(),
+                "seed": self.seed,
+                "fps": FPS,
+                "n_frames": self.n_frames,
+                "duration": self.duration,
+                "camera_distance": self.camera.distance,
+                "camera_elevation_deg": self.camera.elevation_deg,
+                "table_plane": {"normal": [float(v) for v in self.table_plane[0]], "offset": self.table_plane[1]},
+                "parts": [p.name for p in self._parts],
+                "options": {
+                    "speed": self.options.speed,
+                    "occlusion": self.options.occlusion,
+                    "excursions": self.options.excursions,
+                },
+            }
+        )
+        return md
+
+    def __len__(self) -> int:
+        return self.n_frames
+
+    def __iter__(self) -> Iterator[Frame]:
+        start = time.perf_counter()
+        for i in range(self.n_frames):
+            if self._closed:
+                return
+            frame = self.render(i)
+            if self.realtime:
+                delay = start + i / FPS - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)
+            yield frame
+
+    def close(self) -> None:
+        self._closed = True
+
+    # ---------------------------------------------------------------- rendering
+    def frame_key(self, index: int) -> int:
+        """The per-frame random key (uint64) of frame ``index``."""
+        return int(np.random.SeedSequence([self.seed, int(index)]).generate_state(1, np.uint64)[0])
+
+    def _light(self, t: float) -> np.ndarray:
+        wob = 0.15 * np.array([np.sin(t / 5.0 + self._phase), 0.0, np.cos(t / 7.0 + self._phase)])
+        lt = LIGHT_DIR_TABLE + wob
+        return self._T.R @ (lt / np.linalg.norm(lt))
+
+    def render_clean(self, index: int) -> dict[str, Any]:
+        """Render frame ``index`` without sensor noise. Returns a dict with ``color`` (float32 0..255),
+        ``depth`` (float32, inf where nothing), ``cosang``, ``ids`` (int16: part index, hand = n_parts,
+        -1 background; views of internal buffers, valid until the next render), ``poses``, ``hand_box``,
+        ``visible`` and ``t``."""
+        t = index / FPS
+        intr = self._intr
+        W, H = intr.width, intr.height
+        fx, fy, cx, cy = intr.fx, intr.fy, intr.cx, intr.cy
+        bg = self._bg
+        for u0, v0, u1, v1 in self._dirty:
+            self._depth[v0:v1, u0:u1] = bg.depth[v0:v1, u0:u1]
+            self._cos[v0:v1, u0:u1] = bg.cosang[v0:v1, u0:u1]
+            self._color[v0:v1, u0:u1] = bg.color[v0:v1, u0:u1]
+            self._ids[v0:v1, u0:u1] = -1
+        dirty: list[tuple[int, int, int, int]] = []
+        light = self._light(t)
+        n_parts = len(self._parts)
+        hits = np.zeros(n_parts + 1, np.int64)
+        poses: dict[str, Pose] = {}
+        rects: dict[str, tuple[int, int, int, int] | None] = {}
+        hull_pts: dict[str, np.ndarray] = {}
+        shapes: list[tuple[np.ndarray, float]] = []
+
+        for pid, part in enumerate(self._parts):
+            pose = self._T @ self.timeline.part_pose(part.name, t)
+            poses[part.name] = pose
+            R, tt = pose.R, pose.t
+            albedo = np.asarray(part.color if part.color is not None else (150, 150, 150), float)
+            if part.box is not None:
+                half = np.asarray(part.box, float) / 2.0
+                pts = box_corners(R, tt, half)
+                rect = rz.points_rect(pts, fx, fy, cx, cy, W, H)
+                if rect is not None:
+                    rz.render_box(self._depth, self._cos, self._color, self._ids, hits, fx, fy, cx, cy, R, tt, half,
+                                  albedo, light, AMBIENT, DIFFUSE, pid, *rect, 0.0012, 0.35)  # fmt: skip
+            else:
+                mc = self._meshes[part.name]
+                verts = mc.vertices @ R.T + tt
+                pts = verts
+                rect = rz.points_rect(verts, fx, fy, cx, cy, W, H)
+                if rect is not None:
+                    tris = np.ascontiguousarray(verts[mc.faces])
+                    normals = np.ascontiguousarray(mc.normals @ R.T)
+                    local = np.empty((rect[3] - rect[1], rect[2] - rect[0]), np.float32)
+                    rz.render_triangles(self._depth, self._cos, self._color, self._ids, hits, local, fx, fy, cx, cy,
+                                        tris, normals, albedo, light, AMBIENT, DIFFUSE, pid, *rect)  # fmt: skip
+            rects[part.name] = rect
+            hull_pts[part.name] = pts
+            shapes.append((pts, 0.55))
+            if rect is not None:
+                dirty.append(rect)
+
+        # the hand
+        hand_id = n_parts
+        hand_rects: list[tuple[int, int, int, int]] = []
+        hp = self.timeline.active_pass(t)
+        if hp is not None:
+            hpose, grip = hp.state(t)
+            hpose = self._T @ hpose
+            prims = hand_primitives(hpose.R, hpose.t, grip, hp.half_height, hp.half_height, hp.scale)
+            for p in prims:
+                albedo = np.asarray(p.albedo, float)
+                if isinstance(p, Capsule):
+                    corners = _SIGNS * p.radius
+                    pts = np.concatenate([corners + p.a, corners + p.b])
+                    rect = rz.points_rect(pts, fx, fy, cx, cy, W, H)
+                    if rect is not None:
+                        rz.render_capsule(self._depth, self._cos, self._color, self._ids, hits, fx, fy, cx, cy, p.a,
+                                          p.b, p.radius, albedo, light, AMBIENT, DIFFUSE, hand_id, *rect)  # fmt: skip
+                    shapes.append((pts, 0.5))
+                else:
+                    assert isinstance(p, Box)
+                    rect = rz.box_rect(p.R, p.t, p.half, fx, fy, cx, cy, W, H)
+                    if rect is not None:
+                        rz.render_box(self._depth, self._cos, self._color, self._ids, hits, fx, fy, cx, cy, p.R, p.t,
+                                      p.half, albedo, light, AMBIENT, DIFFUSE, hand_id, *rect, 0.0, 0.0)  # fmt: skip
+                    shapes.append((box_corners(p.R, p.t, p.half), 0.5))
+                if rect is not None:
+                    hand_rects.append(rect)
+                    dirty.append(rect)
+
+        if self.options.shadows and shapes:
+            srect = self._shadow(shapes, light)
+            if srect is not None:
+                dirty.append(srect)
+
+        # ground truth: hand box and visible fractions
+        hand_box = None
+        if hand_rects:
+            u0 = min(r[0] for r in hand_rects)
+            v0 = min(r[1] for r in hand_rects)
+            u1 = max(r[2] for r in hand_rects)
+            v1 = max(r[3] for r in hand_rects)
+            m = self._ids[v0:v1, u0:u1] == hand_id
+            if m.any():
+                rows = np.flatnonzero(m.any(axis=1))
+                cols = np.flatnonzero(m.any(axis=0))
+                hand_box = [int(u0 + cols[0]), int(v0 + rows[0]), int(u0 + cols[-1] + 1), int(v0 + rows[-1] + 1)]
+        visible: dict[str, float] = {}
+        for pid, part in enumerate(self._parts):
+            rect = rects[part.name]
+            front = 0
+            if rect is not None:
+                front = int(np.count_nonzero(self._ids[rect[1] : rect[3], rect[0] : rect[2]] == pid))
+            outside = _outside_area(hull_pts[part.name], intr)
+            denom = hits[pid] + outside
+            visible[part.name] = float(min(1.0, front / denom)) if denom > 0 else 0.0
+        self._dirty = dirty
+        return {
+            "t": t,
+            "color": self._color,
+            "depth": self._depth,
+            "cosang": self._cos,
+            "ids": self._ids,
+            "poses": poses,
+            "hand_box": hand_box,
+            "visible": visible,
+        }
+
+    def _shadow(self, shapes: list[tuple[np.ndarray, float]], light: np.ndarray) -> tuple[int, int, int, int] | None:
+        """Soft shadows on the table: each shape's sample points (camera frame) are projected along the light
+        onto the table plane and into the image, filled as a convex polygon, blurred and multiplied in."""
+        n, d = self._plane
+        intr = self._intr
+        denom = float(n @ light)
+        if denom <= 1e-3:
+            return None
+        polys: list[tuple[np.ndarray, float]] = []
+        for pts, dark in shapes:
+            h = pts @ n + d
+            hm = float(h.mean())
+            if hm > 0.35:
+                continue
+            foot = pts - np.outer(np.maximum(h, 0.0) / denom, light)
+            if np.any(foot[:, 2] < 0.05):
+                continue
+            uv = np.stack([intr.fx * foot[:, 0] / foot[:, 2] + intr.cx, intr.fy * foot[:, 1] / foot[:, 2] + intr.cy], 1)
+            polys.append((uv, dark * float(np.exp(-hm / 0.2))))
+        if not polys:
+            return None
+        allp = np.concatenate([p for p, _ in polys])
+        pad = 8
+        u0 = max(0, int(np.floor(allp[:, 0].min())) - pad)
+        v0 = max(0, int(np.floor(allp[:, 1].min())) - pad)
+        u1 = min(intr.width, int(np.ceil(allp[:, 0].max())) + pad + 1)
+        v1 = min(intr.height, int(np.ceil(allp[:, 1].max())) + pad + 1)
+        if u0 >= u1 or v0 >= v1:
+            return None
+        mask = np.zeros((v1 - v0, u1 - u0), np.float32)
+        for uv, strength in sorted(polys, key=lambda x: x[1]):
+            hull = cv2.convexHull(np.round((uv - [u0, v0]) * 4).astype(np.int32))
+            cv2.fillConvexPoly(mask, hull, float(strength), lineType=cv2.LINE_8, shift=2)
+        mask = cv2.GaussianBlur(mask, (0, 0), 2.5)
+        region = self._color[v0:v1, u0:u1]
+        table = (self._ids[v0:v1, u0:u1] == -1) & self._bg_table[v0:v1, u0:u1]
+        factor = np.where(table, 1.0 - mask, 1.0).astype(np.float32)
+        region *= factor[..., None]
+        return u0, v0, u1, v1
+
+    def render(self, index: int) -> Frame:
+        """Frame ``index`` (0-based) with sensor noise and ground truth in ``meta["groundtruth"]``."""
+        if index < 0:
+            raise ValueError(f"simulator: frame index must be >= 0, got {index}")
+        clean = self.render_clean(index)
+        key = self.frame_key(index)
+        depth = self.options.depth_model.apply(clean["depth"], clean["cosang"], key)
+        color = self.options.color_model.apply(clean["color"], key, clean["t"], self._phase)
+        meta = {
+            "groundtruth": {"poses": clean["poses"], "hand_box": clean["hand_box"], "visible": clean["visible"]},
+            "scenario": self.info.name,
+            "seed": self.seed,
+        }
+        return Frame(index=index, timestamp=clean["t"], color=color, depth=depth, intrinsics=self._intr, meta=meta)
+
+
+def box_corners(R: np.ndarray, t: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """The 8 corners [8, 3] of a box (rotation R, centre t, half extents half) in the parent frame."""
+    return (_SIGNS * half) @ R.T + t
+
+
+_SIGNS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+
+
+def _outside_area(pts: np.ndarray, intr: Intrinsics) -> float:
+    """Area (px²) of the projected convex hull of camera-frame ``pts`` that falls outside the image."""
+    z = pts[:, 2]
+    if np.any(z <= 0.05):
+        return 0.0
+    uv = np.stack([intr.fx * pts[:, 0] / z + intr.cx, intr.fy * pts[:, 1] / z + intr.cy], axis=1)
+    lo, hi = -0.5, np.array([intr.width - 0.5, intr.height - 0.5])
+    if uv.min() >= lo and np.all(uv.max(axis=0) <= hi):
+        return 0.0
+    hull = cv2.convexHull(uv.astype(np.float32))
+    total = float(cv2.contourArea(hull))
+    img = np.array([[lo, lo], [hi[0], lo], [hi[0], hi[1]], [lo, hi[1]]], np.float32)
+    inter, _ = cv2.intersectConvexConvex(hull, img)
+    return max(0.0, total - float(inter))
