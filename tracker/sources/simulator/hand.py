@@ -1,9 +1,10 @@
 """Geometry of the simulated hand: a palm (box), four fingers and a thumb (capsules) and a forearm (capsule).
 
 Hand frame (metres): origin at the centre of the grasped object, y up (table normal), z towards the user
-(the forearm's side), x to the hand's side. The hand grasps from above: the palm hovers over the object,
-the fingers reach down along the object's far face (−z), the thumb along its near face (+z), and the
-forearm rises towards the user, so the hand enters the image from its bottom edge.
+(the forearm's side), x to the hand's side. The hand grasps from above: the palm (three rounded segments)
+lies just behind the object, the fingers reach forward over its top and down its far face (−z), the thumb
+comes down on its near face (+z), and the forearm rises towards the user, so the hand enters the image
+from its bottom edge.
 """
 
 from __future__ import annotations
@@ -44,46 +45,63 @@ def hand_primitives(
     half_height: float = 0.018,
     half_depth: float = 0.018,
     scale: float = 1.0,
+    shoulder: np.ndarray | None = None,
+    mirror: bool = False,
 ) -> list[Capsule | Box]:
     """Primitives of the hand in the parent frame of the hand pose ``(pose_R, pose_t)``.
 
     ``grip`` 0 = open, 1 = closed on the object whose half extents along y (``half_height``) and along z
-    (``half_depth``) are given; ``scale`` widens palm, fingers and forearm (the occlusion option).
+    (``half_depth``) are given; ``scale`` widens palm, fingers and forearm (the occlusion option);
+    ``shoulder`` (parent frame) is where the arm goes: the forearm (0.28 m) points from the wrist towards it
+    and the upper arm joins the elbow to it; ``mirror`` makes a left hand (x → −x).
     """
     s = float(scale)
     opening = (1.0 - float(np.clip(grip, 0.0, 1.0))) * 0.022
-    top = half_height + 0.014  # palm bottom above the object's top
+    top = half_height + 0.012  # height of the palm's underside above the object's centre
     prims_local: list[Capsule | Box] = []
-    palm_half = np.array([0.040 * s, 0.012, 0.045])
-    palm_c = np.array([0.0, top + palm_half[1], 0.012])
-    prims_local.append(Box(np.eye(3), palm_c, palm_half, SKIN_PALM))
-    # fingers along the far face
+    # palm: three parallel rounded segments from the knuckles (z ≈ 0) back towards the wrist
+    r_p = 0.0145 * s
+    y_p = top + r_p
+    for x in (-0.024 * s, 0.0, 0.024 * s):
+        prims_local.append(Capsule(np.array([x, y_p, 0.004]), np.array([x * 0.8, y_p + 0.004, 0.068]), r_p, SKIN_PALM))
+    # four fingers: from the knuckles forward over the object's top, then down its far face (−z)
     r_f = 0.0085 * min(s, 1.4)
-    xs = np.linspace(-0.027, 0.027, 4) * s
-    lengths = (0.055, 0.062, 0.060, 0.050)
-    for x, ln in zip(xs, lengths, strict=True):
-        base = np.array([x, top + 0.008, palm_c[2] - palm_half[2] + 0.004])
+    lengths = (0.030, 0.034, 0.032, 0.026)
+    for x, ln in zip(np.linspace(-0.027, 0.027, 4) * s, lengths, strict=True):
+        knuckle = np.array([x, y_p, 0.0])
         tip_z = -(half_depth + r_f + 0.001) - opening
-        tip = np.array([x * 0.85, max(-half_height * 0.4, top + 0.008 - ln), tip_z])
-        knuckle = np.array([x, top + 0.004, tip_z * 0.9])
-        prims_local.append(Capsule(base, knuckle, r_f, SKIN_FINGER))
-        prims_local.append(Capsule(knuckle, tip, r_f * 0.92, SKIN_FINGER))
-    # thumb on the near face
+        middle = np.array([x, y_p - 0.004, min(tip_z + 0.004, -ln * 0.6)])
+        tip = np.array([x * 0.9, y_p - 0.004 - ln, tip_z])
+        prims_local.append(Capsule(knuckle, middle, r_f, SKIN_FINGER))
+        prims_local.append(Capsule(middle, tip, r_f * 0.9, SKIN_FINGER))
+    # thumb from the side of the palm down to the near face (+z)
     r_t = 0.0105 * min(s, 1.4)
-    t_base = np.array([-0.02 * s, top + 0.006, palm_c[2] + 0.02])
-    t_tip = np.array([-0.005 * s, -half_height * 0.2, half_depth + r_t + 0.001 + opening])
-    prims_local.append(Capsule(t_base, t_tip, r_t, SKIN_FINGER))
-    # wrist and forearm rising towards the user
-    wrist = np.array([0.0, top + 0.016, palm_c[2] + palm_half[2] + 0.01])
-    direction = np.array([0.0, np.sin(np.radians(14.0)), np.cos(np.radians(14.0))])
-    elbow = wrist + 0.42 * direction
-    prims_local.append(Capsule(wrist - 0.02 * direction, wrist + 0.02 * direction, 0.026 * s, SKIN_ARM))
-    prims_local.append(Capsule(wrist + 0.02 * direction, elbow, 0.033 * s, SKIN_ARM))
+    t_base = np.array([-0.036 * s, y_p - 0.004, 0.05])
+    t_mid = np.array([-0.022 * s, top - 0.004, half_depth + r_t + 0.012 + opening])
+    t_tip = np.array([-0.006 * s, -half_height * 0.25, half_depth + r_t + 0.001 + opening])
+    prims_local.append(Capsule(t_base, t_mid, r_t, SKIN_FINGER))
+    prims_local.append(Capsule(t_mid, t_tip, r_t * 0.92, SKIN_FINGER))
+    wrist = np.array([0.0, y_p + 0.006, 0.075])
+    wrist_in = np.array([0.0, y_p + 0.004, 0.055])
 
+    if mirror:
+        flip = np.diag([-1.0, 1.0, 1.0])
+        prims_local = [Capsule(flip @ p.a, flip @ p.b, p.radius, p.albedo) for p in prims_local]
     out: list[Capsule | Box] = []
     for p in prims_local:
         if isinstance(p, Capsule):
             out.append(Capsule(pose_R @ p.a + pose_t, pose_R @ p.b + pose_t, p.radius, p.albedo))
         else:
             out.append(Box(pose_R @ p.R, pose_R @ p.t + pose_t, p.half, p.albedo))
+    # forearm and upper arm in the parent frame, towards the shoulder
+    w = pose_R @ wrist + pose_t
+    w_in = pose_R @ wrist_in + pose_t
+    if shoulder is None:
+        shoulder = w + pose_R @ np.array([0.0, 0.25, 0.6])
+    to_sh = np.asarray(shoulder, float) - w
+    dist = float(np.linalg.norm(to_sh))
+    elbow = w + to_sh * min(0.28 / max(dist, 1e-6), 0.6)
+    out.append(Capsule(w_in, w + 0.4 * (elbow - w), 0.025 * s, SKIN_ARM))
+    out.append(Capsule(w + 0.4 * (elbow - w), elbow, 0.031 * s, SKIN_ARM))
+    out.append(Capsule(elbow, np.asarray(shoulder, float), 0.038 * s, SKIN_ARM))
     return out

@@ -161,6 +161,11 @@ def wrap90(a: float) -> float:
     return float((a + q / 2) % q - q / 2)
 
 
+def wrap_pi(a: float) -> float:
+    """Angle wrapped into [-180°, 180°) (radians)."""
+    return float((a + np.pi) % (2 * np.pi) - np.pi)
+
+
 def cube_yaw(R: np.ndarray) -> float:
     """Yaw (mod 90°, in [-45°, 45°)) of a cube resting on one of its faces (rotation in the table frame)."""
     col = int(np.argmin(np.abs(R[1, :])))
@@ -210,6 +215,8 @@ class HandPass:
     grip_offset: Pose | None = None
     half_height: float = A / 2
     scale: float = 1.0
+    side: float = 1.0
+    shoulder: np.ndarray | None = None
 
     @property
     def t_start(self) -> float:
@@ -379,12 +386,12 @@ class ScriptBuilder:
         self.rests.setdefault(name, []).append((t, pose))
 
     # -- hand passes -------------------------------------------------------------------------------------
-    def offscreen_point(self, x: float, y: float) -> np.ndarray:
-        """A point at height ``y`` on the user's side (towards +z) that projects below the image."""
+    def offscreen_point(self, x: float, y: float, margin: float = 110.0) -> np.ndarray:
+        """A point at height ``y`` on the user's side (towards +z) that projects ``margin`` px below the image."""
         for z in np.arange(0.0, 1.6, 0.01):
             p = np.array([x, y, z])
             u, v, zc = self.project(p)[0]
-            if zc < 0.15 or v > self.intr.height + 110:
+            if zc < 0.15 or v > self.intr.height + margin:
                 return p
         return np.array([x, y, 1.6])
 
@@ -409,8 +416,16 @@ class ScriptBuilder:
         ycube = cube_yaw(start.R)
         ytarget = cube_yaw(target.R)
         delta = wrap90(ytarget - ycube)
-        cands = [ycube + k * np.pi / 2 for k in (-1, 0, 1)]
-        yh0 = min(cands, key=lambda y: abs(y + delta / 2))
+        # the hand comes from the user's right (or, sometimes, left) side: its z axis points that way
+        side = 1.0 if self.rng.random() < 0.8 else -1.0
+        # the arm reaches from a shoulder beyond the bottom image border; the hand is turned by ~40° from the
+        # forearm so that the carried part stays partly visible
+        shoulder = self.offscreen_point(side * 0.22, 0.30, margin=260)
+        mid = 0.5 * (start.t + target.t)
+        to_sh = shoulder - mid
+        want = float(np.arctan2(to_sh[0], to_sh[2])) + side * np.radians(40.0)
+        cands = [ycube + k * np.pi / 2 for k in (-1, 0, 1, 2)]
+        yh0 = min(cands, key=lambda y: abs(wrap_pi(y + delta / 2 - want)))
         yh1 = yh0 + delta
         # the target's rotation must be the start's turned by delta (cube symmetry makes that equivalent)
         target = Pose.from_rt(rot_y(delta) @ start.R, target.t)
@@ -426,9 +441,9 @@ class ScriptBuilder:
             t += dt / sp
             keys.append(HandKey(t, np.asarray(pos, float), float(yaw), float(grip)))
 
-        entry = self.offscreen_point(0.5 * p0[0] + 0.05, 0.16)
+        entry = self.offscreen_point(0.5 * p0[0] + side * 0.12, 0.16)
         above0 = p0 + np.array([0.0, 0.06, 0.0])
-        key(0.0, entry, 0.0, 0.0)
+        key(0.0, entry, yh0, 0.0)
         key(float(np.clip(np.linalg.norm(above0 - entry) / 0.45, 0.8, 1.6)), above0, yh0, 0.0)
         key(0.35, p0, yh0, 0.0)
         key(0.25, p0, yh0, 1.0)
@@ -457,9 +472,10 @@ class ScriptBuilder:
         t_release = t
         key(0.25, p1, yh1, 0.0)
         key(0.3, p1 + np.array([0.0, 0.06, 0.0]), yh1, 0.0)
-        key(0.9, self.offscreen_point(0.5 * p1[0] + 0.05, 0.16), 0.0, 0.0)
+        key(0.9, self.offscreen_point(0.5 * p1[0] + side * 0.12, 0.16), yh1, 0.0)
 
-        hp = HandPass(keys, part=name, t_grasp=t_grasp, t_release=t_release, half_height=half_h)
+        hp = HandPass(keys, part=name, t_grasp=t_grasp, t_release=t_release, half_height=half_h, side=side,
+                      shoulder=shoulder)  # fmt: skip
         hand_at_grasp, _ = hp.state(t_grasp)
         hp.grip_offset = hand_at_grasp.inverse() @ start
         hp.scale = 0.75 + 0.25 * occ

@@ -302,7 +302,9 @@ class SimulatedTable(FrameSource):
         if hp is not None:
             hpose, grip = hp.state(t)
             hpose = self._T @ hpose
-            prims = hand_primitives(hpose.R, hpose.t, grip, hp.half_height, hp.half_height, hp.scale)
+            shoulder = self._T.transform_points(hp.shoulder[None])[0] if hp.shoulder is not None else None
+            prims = hand_primitives(hpose.R, hpose.t, grip, hp.half_height, hp.half_height, hp.scale,
+                                    shoulder=shoulder, mirror=hp.side < 0)  # fmt: skip
             for p in prims:
                 albedo = np.asarray(p.albedo, float)
                 if isinstance(p, Capsule):
