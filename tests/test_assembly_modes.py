@@ -83,6 +83,8 @@ def test_guess_tie_break():
     assert choose_guess([0.5, 0.5, 0.0], [0.1, 0.9, 0.0], None) == (1, True)  # no earlier leader: evidence
     assert choose_guess([0.5, 0.5, 0.5], [0.0, 0.0, 0.0], 2) == (2, True)
     assert choose_guess([0.5, 0.5, 0.0], [0.0, 0.0, 0.0], 2) == (0, True)  # last leader not tied: evidence, order
+    assert choose_guess([0.5, 0.5, 0.0], [0.1, 0.2, 0.0], None, previous=0) == (0, True)  # sticky previous guess
+    assert choose_guess([0.5, 0.5, 0.0], [0.1, 0.5, 0.0], None, previous=0) == (1, True)
 
 
 def test_word_assignment_reproducible():

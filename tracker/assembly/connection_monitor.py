@@ -176,8 +176,18 @@ class ConnectionMonitor:
         ang = 2.0 * np.arccos(np.clip(rotation_dot(spec.R_des, R), 0.0, 1.0))
         return normalised_position_error(spec.p_des, p, self.params.m_p) + (ang / np.radians(self.params.m_q_deg)) ** 2
 
-    def _passes(self, spec: ConnectionSpec, o: Option, factor: float = 1.0) -> bool:
-        pos_ok = bool(np.all(np.abs(spec.p_des - o.p) < factor * margins(self.params.m_p)))
+    def _passes(self, spec: ConnectionSpec, o: Option, factor: float = 1.0, dy: float | None = None) -> bool:
+        """Per-axis position test (5.11) and rotation test (5.13) on the symmetry-corrected relative pose.
+
+        ``dy``: the measured height of the second part above the first (table normal, eq. 5.8). When the
+        first part is a cube its fundamental orientation has y up, so the height must match ``p_des[1]``
+        within ``m_p,y``: the vertical axis is checked in the table frame, independent of the (noisier)
+        estimated orientations.
+        """
+        m = factor * margins(self.params.m_p)
+        pos_ok = bool(np.all(np.abs(spec.p_des - o.p) < m))
+        if dy is not None and abs(dy - spec.p_des[1]) >= m[1]:
+            return False
         m_q = 1.0 - np.cos(np.radians(self.params.m_q_deg * factor) / 2.0)
         return pos_ok and rotation_dot(spec.R_des, o.R) >= 1.0 - m_q
 
@@ -205,12 +215,14 @@ class ConnectionMonitor:
             best = res.best
             st.option = best
             st.offset_table = relative_position_table(pa.t, pb.t, table_rotation(table_to_camera))
-            st.passing = self._passes(spec, best)
+            dy = float(st.offset_table[1]) if self.parts[spec.first].is_cube else None
+            st.passing = self._passes(spec, best, dy=dy)
             st.score = connection_score(spec.p_des, spec.R_des, best.p, best.R, prm.m_p, prm.K)
             if not established:
                 st.count = st.count + 1 if st.passing else 0
                 if st.count >= prm.N_checks:
-                    self.symmetry.establish(spec.first, spec.second, res, lambda o, s=spec: self._passes(s, o))
+                    self.symmetry.establish(spec.first, spec.second, res,
+                                            lambda o, s=spec, h=dy: self._passes(s, o, dy=h))
                     st.established_at = t
                     st.fail_count = 0
                     _set_state(st, "connected", t)
@@ -218,7 +230,7 @@ class ConnectionMonitor:
                 else:
                     _set_state(st, "near" if (st.passing or st.score >= prm.near_score) else "open", t)
             else:
-                ok = self._passes(spec, best, prm.break_factor)
+                ok = self._passes(spec, best, prm.break_factor, dy=dy)
                 st.fail_count = 0 if ok else st.fail_count + 1
                 if st.fail_count >= prm.N_break:
                     st.count = 0
@@ -292,13 +304,26 @@ class AdjacencyDetector:
     def reset(self) -> None:
         self.status = {pair: ConnectionStatus(pair[0], pair[1], expected=False) for pair in self.pairs}
 
-    def touching(self, pa: Pose, pb: Pose, size_a, size_b, factor: float = 1.0) -> bool:
+    def touching(self, pa: Pose, pb: Pose, size_a, size_b, factor: float = 1.0, R_ot: np.ndarray | None = None
+                 ) -> bool:
+        """Face contact of two boxes. Two equal cubes are tested in the table frame without orientations
+        (side by side: height < m and horizontal distance = edge ± m; stacked: horizontal distance < m and
+        height = edge ± m, with m = min(m_p, edge / 4)); other boxes in a's body frame."""
+        m = factor * margins(self.params.m_p)
+        if R_ot is not None and np.ptp(size_a) < 1e-9 and np.allclose(size_a, size_b):
+            d = R_ot @ (pb.t - pa.t)
+            h = float(np.hypot(d[0], d[2]))
+            a = float(size_a[0])
+            m = np.minimum(m, 0.25 * a)  # a diagonal neighbour is (√2 − 1)·a ≈ 0.41 a away from contact
+            side = abs(d[1]) < m[1] and abs(h - a) < min(m[0], m[2])
+            stacked = h < min(m[0], m[2]) and abs(abs(d[1]) - a) < m[1]
+            return bool(side or stacked)
         p_ab, R_ab = relative_pose(pa, pb)
         i = int(np.argmax(np.abs(p_ab)))
         ext_b = np.abs(R_ab) @ np.asarray(size_b, float)
         target = np.zeros(3)
         target[i] = np.sign(p_ab[i]) * (size_a[i] + ext_b[i]) / 2.0
-        return bool(np.all(np.abs(p_ab - target) < factor * margins(self.params.m_p)))
+        return bool(np.all(np.abs(p_ab - target) < m))
 
     def update(self, t: float, poses: dict[str, Pose], table_to_camera: Pose) -> list[MonitorEvent]:
         prm = self.params
@@ -311,7 +336,7 @@ class AdjacencyDetector:
             sa, sb = self.parts[a].box, self.parts[b].box
             st.offset_table = relative_position_table(pa.t, pb.t, R_ot)
             if st.state != "connected":
-                st.passing = self.touching(pa, pb, sa, sb)
+                st.passing = self.touching(pa, pb, sa, sb, R_ot=R_ot)
                 st.count = st.count + 1 if st.passing else 0
                 st.score = 1.0 if st.passing else 0.0
                 if st.count >= prm.N_checks:
@@ -320,7 +345,7 @@ class AdjacencyDetector:
                     st.fail_count = 0
                     events.append(MonitorEvent(t, "connected", a, b, False))
             else:
-                ok = self.touching(pa, pb, sa, sb, prm.break_factor)
+                ok = self.touching(pa, pb, sa, sb, prm.break_factor, R_ot=R_ot)
                 st.fail_count = 0 if ok else st.fail_count + 1
                 if st.fail_count >= prm.N_break:
                     st.count = 0

@@ -8,7 +8,8 @@ that are established (the completed count when all have the same number).
 Tie-break (thesis): keep the candidate that was the unique leader at the last time step without a tie.
 Chosen here when that candidate is not among the tied ones or there was no tie-free step yet: the tied
 candidate with the largest summed connection score over its open connections (continuous evidence of
-connections about to be made), then the order in the task file.
+connections about to be made), then the order in the task file; the previous guess is kept unless another
+tied candidate's evidence is larger by ``EVIDENCE_HYSTERESIS`` (no flicker between tied candidates).
 
 Confidence: leader's fraction minus the best other candidate's fraction (0 while tied, 1 when the leader is
 complete and no other candidate has any connection).
@@ -25,17 +26,27 @@ from tracker.assembly.task_file import TaskModel
 from tracker.parts import PartSpec
 from tracker.pose import Pose
 
+EVIDENCE_HYSTERESIS = 0.25
+"""A tied candidate replaces the previous guess on evidence only when its evidence is larger by this much."""
 
-def choose_guess(fractions: list[float], evidence: list[float], last_unique: int | None, tol: float = 1e-9
-                 ) -> tuple[int, bool]:
-    """Index of the guess and whether the leaders were tied (the rule in the module docstring)."""
+
+def choose_guess(fractions: list[float], evidence: list[float], last_unique: int | None,
+                 previous: int | None = None, tol: float = 1e-9) -> tuple[int, bool]:
+    """Index of the guess and whether the leaders were tied (the rule in the module docstring).
+
+    ``previous`` (the last guess) makes the evidence rule sticky: among tied candidates the previous guess
+    stays unless another one's evidence exceeds its own by :data:`EVIDENCE_HYSTERESIS`.
+    """
     top = max(fractions)
     tied = [i for i, f in enumerate(fractions) if f >= top - tol]
     if len(tied) == 1:
         return tied[0], False
     if last_unique is not None and last_unique in tied:
         return last_unique, True
-    return max(tied, key=lambda i: (evidence[i], -i)), True
+    best = max(tied, key=lambda i: (evidence[i], -i))
+    if previous is not None and previous in tied and evidence[best] < evidence[previous] + EVIDENCE_HYSTERESIS:
+        return previous, True
+    return best, True
 
 
 class GuessMode(Mode):
@@ -52,6 +63,7 @@ class GuessMode(Mode):
             for i, s in enumerate(self.structures)
         ]
         self._last_unique: int | None = None
+        self._previous: int | None = None
         self.guess_history: list[tuple[float, str]] = []
 
     def monitors(self) -> list[ConnectionMonitor]:
@@ -60,6 +72,7 @@ class GuessMode(Mode):
     def reset(self) -> None:
         super().reset()
         self._last_unique = None
+        self._previous = None
         self.guess_history = []
 
     def update(self, t: float, poses: dict[str, Pose], table_to_camera: Pose) -> ModeState:
@@ -71,7 +84,8 @@ class GuessMode(Mode):
             evidence.append(sum(st.score for st in m.status if st.state != "connected"))
             ranking.append({"structure": s.name, "title": s.title or s.name, "completed": n, "total": total,
                             "fraction": round(n / total, 4)})
-        idx, tied = choose_guess(fractions, evidence, self._last_unique)
+        idx, tied = choose_guess(fractions, evidence, self._last_unique, self._previous)
+        self._previous = idx
         if not tied:
             self._last_unique = idx
         others = [f for i, f in enumerate(fractions) if i != idx]

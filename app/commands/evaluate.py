@@ -1,0 +1,45 @@
+"""``assembly-agent evaluate``: the thesis's experiments on simulated sessions (guidance, guess, learning)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "evaluate",
+        help="run an evaluation experiment on simulated sessions",
+        description="Run the seed's experiments (guidance, guess, learning) or a parameter sweep on simulated "
+        "users; writes <experiment>.md tables, PNG plots and summary.json into --out.",
+    )
+    p.add_argument("experiment", nargs="?", help="experiment name (see --list)")
+    p.add_argument("--out", default=None, help="output directory (required unless --list)")
+    p.add_argument("--sessions", type=int, default=None, help="run only N sessions, spread over the full set")
+    p.add_argument("--poses", choices=["tracked", "groundtruth"], default=None,
+                   help="pose source: the depth tracker on rendered frames (default when available) or the "
+                   "simulator's ground truth plus noise")
+    p.add_argument("--frame-step", type=int, default=1, help="process every N-th frame (default 1 = 30 fps)")
+    p.add_argument("--particles", type=int, default=None, help="tracker particle count (default: the preset's)")
+    p.add_argument("--list", action="store_true", help="list the experiments and exit")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tracker.evaluation import EXPERIMENTS, run_experiment, tracked_available
+
+    if args.list:
+        for e in EXPERIMENTS.values():
+            print(f"{e.name:16s} {e.description}")
+        return 0
+    if not args.experiment:
+        raise ValueError("name an experiment (see --list)")
+    if not args.out:
+        raise ValueError("--out DIR is required")
+    poses = args.poses or ("tracked" if tracked_available() else "groundtruth")
+    summary = run_experiment(args.experiment, args.out, sessions=args.sessions, poses=poses,
+                             frame_step=args.frame_step, n_particles=args.particles, progress=print)
+    keys = ("sessions", "connections_total", "connections_within_1s", "connections_never", "false_completions",
+            "guess_correct", "sentences_correct", "mean_deviation_s")
+    print(json.dumps({k: summary[k] for k in keys if k in summary}))
+    return 0

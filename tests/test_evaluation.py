@@ -1,0 +1,49 @@
+"""Evaluation: a tracked end-to-end guess session, a small evaluate subset producing summary.json, metrics."""
+
+import json
+
+from app.cli import main
+from tracker.evaluation.metrics import classify, summarize
+from tracker.evaluation.runner import run_session
+from tracker.evaluation.sessions import guess_sessions, sessions_for
+
+
+def test_session_lists_match_the_thesis_sizes():
+    assert [len(sessions_for(e)) for e in ("guidance", "guess", "learning")] == [15, 16, 12]
+    assert sorted({s.truth for s in guess_sessions()}) == ["L", "T-tower", "tower-with-wings"]
+
+
+def test_classify_early_within_late_never():
+    assert classify(10.0, 8.5, 1.0) == "early"
+    assert classify(10.0, 10.9, 1.0) == "within"
+    assert classify(10.0, 11.5, 1.0) == "late" and classify(10.0, 11.5, 2.0) == "within"
+    assert classify(10.0, None, 4.0) == "never"
+
+
+def test_tracked_guess_session_reaches_the_right_verdict():
+    """End to end on TRACKED poses: simulator frames → colour detection → table → particle filter → guess mode."""
+    spec = next(s for s in guess_sessions() if s.user == 2 and s.truth == "L")  # fast user, ~11 s
+    r = run_session(spec, poses="tracked", frame_step=2, n_particles=100)
+    assert r.final_guess == "L"
+    assert r.false_completions == 0
+    s = summarize([r])
+    assert s["connections_total"] == 4 and s["connections_detected"] >= 3
+
+
+def test_evaluate_subset_writes_summary(tmp_path, capsys):
+    out = tmp_path / "ev"
+    assert main(["evaluate", "learning", "--out", str(out), "--sessions", "1", "--poses", "groundtruth"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("sessions", "connections_total", "connections_within_1s", "connections_never", "false_completions"):
+        assert key in summary
+    assert summary["sessions"] == 1 and summary["connections_total"] == 4
+    assert summary["connections_within_1s"] == 4 and summary["false_completions"] == 0
+    assert (out / "learning.md").read_text().count("| 1 |") >= 1 and (out / "learning_timing.png").stat().st_size > 0
+    assert main(["evaluate", "--list"]) == 0 and "guidance" in capsys.readouterr().out
+
+
+def test_evaluate_guess_subset_has_guess_correct(tmp_path):
+    out = tmp_path / "ev"
+    assert main(["evaluate", "guess", "--out", str(out), "--sessions", "1", "--poses", "groundtruth"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["guess_correct"] == 1 and summary["confusion"]["rows_recognised_cols_true"][0][0] == 1
