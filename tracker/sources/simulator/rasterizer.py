@@ -226,6 +226,35 @@ def render_triangles(depth, cosang, color, ids, hits, local, fx, fy, cx, cy, tri
     hits[pid] += n
 
 
+@nb.njit(cache=True)
+def apply_shadow(color, ids, table, mask, step, u0, v0, u1, v1):
+    """Multiply background table pixels (``ids == -1`` and ``table``) in the rectangle by ``1 - mask``, with
+    ``mask`` sampled bilinearly at ``1/step`` resolution (mask pixel (i, j) is image pixel (v0 + i·step,
+    u0 + j·step))."""
+    mh, mw = mask.shape
+    inv = 1.0 / step
+    for v in range(v0, v1):
+        fy = (v - v0) * inv
+        i0 = min(int(fy), mh - 1)
+        i1 = min(i0 + 1, mh - 1)
+        ay = fy - i0
+        for u in range(u0, u1):
+            if ids[v, u] != -1 or not table[v, u]:
+                continue
+            fx = (u - u0) * inv
+            j0 = min(int(fx), mw - 1)
+            j1 = min(j0 + 1, mw - 1)
+            ax = fx - j0
+            m = (1.0 - ay) * ((1.0 - ax) * mask[i0, j0] + ax * mask[i0, j1]) + ay * (
+                (1.0 - ax) * mask[i1, j0] + ax * mask[i1, j1]
+            )
+            if m > 0.002:
+                f = 1.0 - m
+                color[v, u, 0] *= f
+                color[v, u, 1] *= f
+                color[v, u, 2] *= f
+
+
 def box_rect(R: np.ndarray, t: np.ndarray, half: np.ndarray, fx, fy, cx, cy, width, height, near=0.05):
     """Pixel rectangle (u0, v0, u1, v1), end-exclusive and clipped, covering a box; None if off-screen."""
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)

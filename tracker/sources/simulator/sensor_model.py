@@ -17,7 +17,7 @@ camera (Kinect / RealSense class) with
 
 Randomness is counter-based (a splitmix64 hash of a per-frame key and the pixel index), so frame ``k``
 is bit-identical whenever it is rendered, in any order. Gaussian variates are Irwin–Hall sums of four
-uniforms (unit variance, tails cut at ±3.46 σ).
+12-bit uniforms (unit variance, tails cut at ±3.46 σ).
 """
 
 from __future__ import annotations
@@ -35,6 +35,8 @@ _S27 = np.uint64(27)
 _S31 = np.uint64(31)
 _MASK16 = np.uint64(0xFFFF)
 _MASK8 = np.uint64(0xFF)
+_MASK12 = np.uint64(0xFFF)
+_S48 = np.uint64(48)
 
 
 @dataclass(frozen=True)
@@ -174,9 +176,11 @@ def _u16(h, k):
 
 
 @nb.njit(cache=True, inline="always")
-def _gauss(h):
-    s = _u16(h, 0) + _u16(h, 1) + _u16(h, 2) + _u16(h, 3)
-    return (s - 2.0) * 1.7320508075688772
+def _gauss12(h):
+    s = 0.0
+    for k in range(4):
+        s += np.float64((h >> np.uint64(12 * k)) & _MASK12) * (1.0 / 4096.0)
+    return (s - 2.0 + 2.0 / 4096.0) * 1.7320508075688772
 
 
 @nb.njit(cache=True)
@@ -197,10 +201,8 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
                 continue
             i = v * w + u
             h1 = _hash(key, i, 0)
-            r_drop = _u16(h1, 0)
-            r_edge = _u16(h1, 1)
-            r_frac = _u16(h1, 2)
-            r_graz = _u16(h1, 3)
+            # bits 0..47: four 12-bit uniforms for the Gaussian; bits 48..63: the dropout draw
+            r_drop = np.float64(h1 >> _S48) * (1.0 / 65536.0)
             if r_drop < p_drop:
                 out[v, u] = nan
                 continue
@@ -208,28 +210,34 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
             c = cosang[vs, us]
             if c < cos_start:
                 p = (cos_start - c) / (cos_start - cos_end)
-                if r_graz < p:
+                if _u16(_hash(key, i, 2), 0) < p:
                     out[v, u] = nan
                     continue
             # depth discontinuity: farthest / nearest 4-neighbour
             znear = z
             zfar = z
-            for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-                vv = vs + dv
-                uu = us + du
-                if vv < 0 or vv >= h or uu < 0 or uu >= w:
-                    continue
-                zn = clean[vv, uu]
-                if not np.isfinite(zn):
-                    zn = zmax * 2.0
-                if zn < znear:
-                    znear = zn
-                if zn > zfar:
-                    zfar = zn
+            if vs > 0:
+                zn = clean[vs - 1, us]
+                znear = min(znear, zn)
+                zfar = max(zfar, zn if zn < zmax else zmax * 2.0)
+            if vs < h - 1:
+                zn = clean[vs + 1, us]
+                znear = min(znear, zn)
+                zfar = max(zfar, zn if zn < zmax else zmax * 2.0)
+            if us > 0:
+                zn = clean[vs, us - 1]
+                znear = min(znear, zn)
+                zfar = max(zfar, zn if zn < zmax else zmax * 2.0)
+            if us < w - 1:
+                zn = clean[vs, us + 1]
+                znear = min(znear, zn)
+                zfar = max(zfar, zn if zn < zmax else zmax * 2.0)
             thr = jump * z
             edge_fg = zfar - z > thr  # z is the foreground next to a jump
             edge_bg = z - znear > thr  # z is the background next to a jump
             if edge_fg or edge_bg:
+                h3 = _hash(key, i, 3)
+                r_edge = _u16(h3, 0)
                 if r_edge < p_miss:
                     out[v, u] = nan
                     continue
@@ -238,8 +246,8 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
                     if other > zmax:
                         out[v, u] = nan
                         continue
-                    z = z + (other - z) * r_frac
-            n = _gauss(_hash(key, i, 1))
+                    z = z + (other - z) * _u16(h3, 1)
+            n = _gauss12(h1)
             sigma = coeff * z * z
             if on_disp:
                 d = fb / z

@@ -393,15 +393,13 @@ class SimulatedTable(FrameSource):
         v1 = min(intr.height, int(np.ceil(allp[:, 1].max())) + pad + 1)
         if u0 >= u1 or v0 >= v1:
             return None
-        mask = np.zeros((v1 - v0, u1 - u0), np.float32)
+        step = 4
+        mask = np.zeros(((v1 - v0) // step + 2, (u1 - u0) // step + 2), np.float32)
         for uv, strength in sorted(polys, key=lambda x: x[1]):
-            hull = cv2.convexHull(np.round((uv - [u0, v0]) * 4).astype(np.int32))
-            cv2.fillConvexPoly(mask, hull, float(strength), lineType=cv2.LINE_8, shift=2)
-        mask = cv2.GaussianBlur(mask, (0, 0), 2.5)
-        region = self._color[v0:v1, u0:u1]
-        table = (self._ids[v0:v1, u0:u1] == -1) & self._bg_table[v0:v1, u0:u1]
-        factor = np.where(table, 1.0 - mask, 1.0).astype(np.float32)
-        region *= factor[..., None]
+            hull = cv2.convexHull(np.round((uv - [u0, v0]) * (16.0 / step)).astype(np.int32))
+            cv2.fillConvexPoly(mask, hull, float(strength), lineType=cv2.LINE_8, shift=4)
+        mask = cv2.GaussianBlur(mask, (0, 0), 2.5 / step + 0.3)
+        rz.apply_shadow(self._color, self._ids, self._bg_table, mask, step, u0, v0, u1, v1)
         return u0, v0, u1, v1
 
     def render(self, index: int) -> Frame:
