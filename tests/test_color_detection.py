@@ -193,3 +193,59 @@ def test_real_jenga_calibration(frame, rect):
     assert 245 <= x0 and x0 + bw <= 385
     hsv = rgb_to_hsv_float(img[v, u].reshape(1, 3).astype(float))[0]
     assert r.contains(hsv[0], hsv[1], hsv[2]) or m[v - 2 : v + 3, u - 2 : u + 3].any()
+
+
+@pytest.mark.skipif(not (REAL / "jenga").is_dir(), reason="real data folder not mounted")
+def test_inspect_colors_cli(capsys):
+    import json
+
+    from app.cli import main
+
+    rc = main(["inspect", "colors", str(REAL / "jenga"), "--frame", "1", "--colors", "red,yellow",
+               "--calibrate", "green=285,240,25,8"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["detections"]) == {"red", "yellow", "green"}
+    g = out["detections"]["green"]
+    assert g["score"] > 0 and 245 <= g["center"][0] <= 385
+    assert out["ranges"]["green"]["h_lo_deg"] < out["ranges"]["green"]["h_hi_deg"]
+    assert main(["inspect", "colors", str(REAL / "jenga"), "--calibrate", "green=1,2,3"]) == 1
+    assert "NAME=x,y,w,h" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("scenario,seed,index", [("static", 2, 0), ("guess-1", 5, 150), ("learning-5", 4, 90)])
+def test_simulated_frames_centres_near_projected_truth(scenario, seed, index):
+    from tracker.sources.simulator import SimulatedTable
+
+    src = SimulatedTable(scenario, seed=seed)
+    f = src.render(index)
+    gt = f.meta["groundtruth"]
+    det = ColorDetector.from_parts(src.parts).detect(f.color)
+    checked = 0
+    for p in src.parts:
+        uv = f.intrinsics.project(gt["poses"][p.name].t.reshape(1, 3))[0]
+        d = det[p.name]
+        if gt["visible"][p.name] >= 0.9:
+            assert d.detected, p.name
+            assert np.hypot(*(np.asarray(d.center) - uv)) < 4.0, (p.name, d.center, uv)
+            assert d.score > 0.9
+            checked += 1
+        elif gt["visible"][p.name] == 0.0:  # hidden or out of view: nothing else has its colour
+            assert not d.detected, p.name
+    assert checked >= 3
+
+
+def test_roi_detection_equals_full_image_detection():
+    rng = np.random.default_rng(9)
+    img = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)  # noisy: many small blobs everywhere
+    img[40:70, 50:90] = PRESET_COLORS["blue"]
+    det = ColorDetector.from_parts(["blue", "red", "yellow"])
+    fast = det.detect(img)
+    for n, m in det.masks(img).items():
+        from tracker.color_detection import detect_in_mask
+
+        full = detect_in_mask(n, m)
+        assert fast[n].score == pytest.approx(full.score) and fast[n].area == pytest.approx(full.area)
+        assert (fast[n].center is None) == (full.center is None)
+        if full.center is not None:
+            assert np.allclose(fast[n].center, full.center) and fast[n].bbox == full.bbox

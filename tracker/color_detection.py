@@ -80,9 +80,24 @@ def clean_mask(mask: np.ndarray, kernel_size: int = KERNEL_SIZE) -> np.ndarray:
     return cv2.erode(cv2.dilate(m, k, anchor=a1), k, anchor=a2)
 
 
-def detect_in_mask(name: str, mask: np.ndarray) -> ColorDetection:
-    """Largest external contour, its moment centroid and the eq. 3.7 score of a cleaned binary mask."""
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+def clean_mask_roi(mask: np.ndarray, kernel_size: int = KERNEL_SIZE) -> tuple[np.ndarray, tuple[int, int]]:
+    """:func:`clean_mask` restricted to the bounding box of the mask's pixels (padded by two kernels, so the
+    result equals the full-image one). Returns the cleaned crop and its top-left offset (x, y)."""
+    x, y, w, h = cv2.boundingRect(mask)
+    if w == 0 or h == 0:
+        return mask[0:0, 0:0], (0, 0)
+    pad = 2 * kernel_size
+    H, W = mask.shape
+    x0, y0, x1, y1 = max(0, x - pad), max(0, y - pad), min(W, x + w + pad), min(H, y + h + pad)
+    return clean_mask(np.ascontiguousarray(mask[y0:y1, x0:x1]), kernel_size), (x0, y0)
+
+
+def detect_in_mask(name: str, mask: np.ndarray, offset: tuple[int, int] = (0, 0)) -> ColorDetection:
+    """Largest external contour, its moment centroid and the eq. 3.7 score of a cleaned binary mask
+    (``offset``: image position of the mask's top-left pixel when the mask is a crop)."""
+    if mask.size == 0:
+        return ColorDetection(name)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=offset)
     if not contours:
         return ColorDetection(name)
     areas = np.array([cv2.contourArea(c) for c in contours], np.float64)
@@ -157,14 +172,21 @@ class ColorDetector:
         return ColorDetector(ranges)
 
     def masks(self, rgb: np.ndarray) -> dict[str, np.ndarray]:
-        """Cleaned masks M2 per part (uint8, 255 inside)."""
+        """Cleaned full-image masks M2 per part (uint8, 255 inside)."""
         _check_rgb(rgb, "ColorDetector")
         hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
         return {n: clean_mask(r.mask(hsv), self.kernel_size) for n, r in self.ranges.items()}
 
     def detect(self, rgb: np.ndarray) -> dict[str, ColorDetection]:
-        """Detections of all parts in an RGB uint8 image."""
-        return {n: detect_in_mask(n, m) for n, m in self.masks(rgb).items()}
+        """Detections of all parts in an RGB uint8 image (the morphology runs only around each range's
+        pixels, with the same result as on the full image)."""
+        _check_rgb(rgb, "ColorDetector")
+        hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
+        out = {}
+        for n, r in self.ranges.items():
+            crop, off = clean_mask_roi(r.mask(hsv), self.kernel_size)
+            out[n] = detect_in_mask(n, crop, off)
+        return out
 
 
 def clip_rect(rect, width: int, height: int) -> tuple[int, int, int, int]:

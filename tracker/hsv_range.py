@@ -190,16 +190,17 @@ class HSVRange:
     def preset(
         rgb: tuple[int, int, int],
         h_halfwidth_deg: float = 14.0,
-        s_min_factor: float = 0.45,
+        s_min_factor: float = 0.7,
         s_floor: float = 0.3,
         v_lo: float = 0.12,
     ) -> HSVRange:
         """Preset range around a nominal RGB colour (0–255).
 
         Hue: nominal hue ± ``h_halfwidth_deg``. Saturation: from ``max(s_floor, s_min_factor · S_nominal)`` to 1
-        (shading keeps the saturation of a Lambertian surface but specular highlights and camera white balance
-        lower it). Value: from ``v_lo`` to 1 (shaded faces are dark; below ~0.12 the hue of real camera pixels is
-        noise).
+        (shading keeps the saturation of a Lambertian surface; 0.7 × nominal keeps a wooden table, S ≈ 0.5 at
+        the orange hue in the simulator and in real rooms, and the skin of the hand, S ≈ 0.4, out of the orange and
+        red ranges, while real camera pixels of saturated parts stay above it). Value: from ``v_lo`` to 1 (shaded
+        faces are dark; below ~0.12 the hue of real camera pixels is noise).
         """
         h, s, _ = rgb_to_hsv_float(np.asarray(rgb, np.float64).reshape(1, 3))[0]
         s_lo = max(s_floor, s_min_factor * s)

@@ -16,7 +16,11 @@ Per frame:
    initialised with each pixel labelled by the nearest predicted box centre (deterministic, and the clusters
    start where the parts are expected); each part then gets, greedily by increasing distance over all
    (part, cluster) pairs, the closest cluster not yet taken (predicted box centre to cluster centroid).
-6. Blobs claimed by nobody are ignored (other objects, not-yet-claimed distractors).
+6. Blobs claimed by nobody: the seed ignores them, so a part whose box lost its cube (e.g. the hand carried
+   the cube away faster than the box follows) is never found again. Extension (``reacquire``, on by default):
+   before step 3 grows the occluded boxes, occluded parts take over unclaimed blobs of at least
+   ``reacquire_area_ratio`` × their typical area within ``reacquire_px``, nearest first (box centre to blob
+   centroid); the velocity is reset (a jump is not a motion) and the score is halved.
 
 Output per part (:class:`~tracker.color_detection.ColorDetection`): ``center`` = the new box centre, ``bbox`` the
 box, ``area`` the pixel area of its blob / cluster, ``score`` = the fraction of that blob's bounding box covered
@@ -58,7 +62,20 @@ class SameColorSettings:
     kmeans_attempts: int = 1
     kernel_size: int = KERNEL_SIZE
     split_score_factor: float = 0.5
-    """Score multiplier for parts whose position comes from a k-means split."""
+    """Score multiplier for parts whose position comes from a k-means split or a re-acquisition."""
+    split_area_ratio: float = 0.0
+    """Area gate (extension, off by default: it lowered the identity-correct fraction in the experiment). When
+    > 0, a blob claimed by n parts is split among m = min(n, round(blob area / typical part area)) of them (at
+    least 1) when its area is below this fraction of the claimants' summed areas (the claimants with the lowest
+    IoU of predicted box and blob bounding box are treated as occluded), and an occluded part may also join a
+    claimed blob big enough for one more part."""
+    reacquire: bool = True
+    """Occluded parts take over unclaimed blobs, nearest first (extension: the seed leaves |T_i| = 0 blobs
+    unused, so a part lost once is never found again)."""
+    reacquire_px: float = 400.0
+    """Largest box-centre to blob-centroid distance for a re-acquisition, pixels."""
+    reacquire_area_ratio: float = 0.3
+    """A re-acquired blob must have at least this fraction of the part's typical area."""
 
 
 @dataclass
@@ -66,6 +83,7 @@ class _Track:
     p: np.ndarray  # top-left (x, y), float
     s: np.ndarray  # size (w, h), float
     v: np.ndarray  # velocity of the top-left corner, px/frame
+    area: float = 0.0  # typical blob area of the part (running mean over single-blob frames), px
 
     @property
     def center(self) -> np.ndarray:
@@ -124,17 +142,22 @@ class SameColorTracker:
         s = np.minimum(s, m)
         return c - s / 2.0, s
 
-    def _assign(self, name: str, pred_p: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> None:
-        """Set the part's box to pixel bbox [x0, x1] × [y0, y1] (inclusive) plus the margin; update velocity."""
+    def _assign(self, name: str, x0: float, y0: float, x1: float, y1: float, area: float | None,
+                jump: bool = False) -> None:
+        """Set the part's box to pixel bbox [x0, x1] × [y0, y1] (inclusive) plus the margin (line 14); update the
+        velocity (line 15, not after a re-acquisition jump) and, for single-blob frames, the typical area."""
         st = self.settings
         t = self._tracks[name]
         a = st.margin
         p_new = np.array([x0 - a, y0 - a], float)
         s_new = np.array([x1 + 1 + a, y1 + 1 + a], float) - p_new
         p_new, s_new = self._cap(p_new, s_new)
-        kv = st.velocity_factor
-        t.v = kv * t.v + (1.0 - kv) * (p_new - t.p)
+        if not jump:
+            kv = st.velocity_factor
+            t.v = kv * t.v + (1.0 - kv) * (p_new - t.p)
         t.p, t.s = p_new, s_new
+        if area is not None and area > 0:
+            t.area = float(area) if t.area <= 0 else 0.8 * t.area + 0.2 * float(area)
 
     # ----------------------------------------------------------------------------- update
     def update(self, rgb: np.ndarray) -> dict[str, ColorDetection]:
@@ -146,13 +169,15 @@ class SameColorTracker:
         hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
         mask = clean_mask(self.range.mask(hsv), st.kernel_size)
         self.last_mask = mask
-        n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
         blobs = [i for i in range(1, n_lab) if stats[i, cv2.CC_STAT_AREA] >= st.min_blob_area]
 
+        # lines 2-12: predicted boxes, overlap with every blob's bounding box, claims
         claims: dict[int, list[str]] = {}
         preds: dict[str, np.ndarray] = {}
-        overlap_of: dict[str, float] = {}
-        out: dict[str, ColorDetection] = {}
+        frac_of: dict[str, float] = {}
+        iou_of: dict[str, float] = {}
+        occluded: list[str] = []
         for name, t in self._tracks.items():
             p_star = t.p + t.v
             preds[name] = p_star
@@ -162,68 +187,119 @@ class SameColorTracker:
                 a = _overlap(p_star[0], p_star[1], t.s[0], t.s[1], bx, by, bw, bh)
                 if a > best_a:
                     best, best_a = i, a
-            if best < 0:  # occluded: move to the prediction, grow, damp the velocity
-                g = st.growth
-                t.p, t.s = self._cap(p_star - g, t.s + 2.0 * g)
-                t.v = st.velocity_factor * t.v
-                out[name] = ColorDetection(name, None, 0.0, 0.0, t.box(), None)
+            if best < 0:
+                occluded.append(name)
             else:
                 claims.setdefault(best, []).append(name)
-                bw, bh = stats[best, cv2.CC_STAT_WIDTH], stats[best, cv2.CC_STAT_HEIGHT]
-                overlap_of[name] = best_a / float(max(1, bw * bh))
+                bw, bh = int(stats[best, cv2.CC_STAT_WIDTH]), int(stats[best, cv2.CC_STAT_HEIGHT])
+                frac_of[name] = best_a / float(max(1, bw * bh))
+                iou_of[name] = best_a / float(t.s[0] * t.s[1] + bw * bh - best_a)
 
+        # extension: occluded parts take over unclaimed blobs, or blobs big enough to hold one more part,
+        # nearest first (box centre to blob centroid)
+        rejoined: set[str] = set()
+        if st.reacquire and occluded:
+            pairs = []
+            for name in occluded:
+                t = self._tracks[name]
+                c = preds[name] + t.s / 2.0
+                for i in blobs:
+                    d = float(np.hypot(*(cents[i] - c)))
+                    area = float(stats[i, cv2.CC_STAT_AREA])
+                    if d > st.reacquire_px or area < st.reacquire_area_ratio * t.area:
+                        continue
+                    if i in claims:
+                        held = sum(self._tracks[n].area for n in claims[i])
+                        if t.area <= 0 or st.split_area_ratio <= 0 or area < st.split_area_ratio * (held + t.area):
+                            continue
+                    pairs.append((i in claims, d, name, i))
+            used_b: set[int] = set()
+            for _, _, name, i in sorted(pairs):  # free blobs first, then by distance
+                if name in rejoined or i in used_b:
+                    continue
+                rejoined.add(name)
+                used_b.add(i)
+                claims.setdefault(i, []).append(name)
+                bw, bh = int(stats[i, cv2.CC_STAT_WIDTH]), int(stats[i, cv2.CC_STAT_HEIGHT])
+                t = self._tracks[name]
+                t.v = np.zeros(2)  # a jump is not a velocity
+                preds[name] = cents[i] - t.s / 2.0  # the k-means split starts from the blob's centroid
+                frac_of[name] = st.split_score_factor
+                iou_of[name] = 0.0
+            occluded = [n for n in occluded if n not in rejoined]
+
+        out: dict[str, ColorDetection] = {}
         for i, names in claims.items():
             bx, by, bw, bh, area = (int(v) for v in stats[i, :5])
-            if len(names) == 1:
+            if len(names) > 1:  # too small for all its claimants? keep the best-overlapping ones
+                areas = [self._tracks[n].area for n in names]
+                if all(a > 0 for a in areas) and area < st.split_area_ratio * sum(areas):
+                    m = int(min(len(names), max(1, round(area / float(np.median(areas))))))
+                    keep = sorted(names, key=lambda n: -iou_of[n])[:m]
+                    occluded += [n for n in names if n not in keep]
+                    names = keep
+            if len(names) == 1:  # lines 13-15
                 name = names[0]
-                self._assign(name, preds[name], bx, by, bx + bw - 1, by + bh - 1)
-                out[name] = self._detection(name, overlap_of[name], area)
-                continue
-            # several parts claim one blob: k-means on its pixel coordinates
-            ys, xs = np.nonzero(labels[by : by + bh, bx : bx + bw] == i)
-            xy = np.stack([xs + bx, ys + by], axis=1).astype(np.float32)
-            k = len(names)
-            centres = np.array([preds[n] + self._tracks[n].s / 2.0 for n in names], np.float32)
-            if len(xy) < k:
-                init = np.zeros(len(xy), np.int32)
-            else:
-                d2 = ((xy[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
-                init = np.argmin(d2, axis=1).astype(np.int32)
-                missing = set(range(k)) - set(np.unique(init).tolist())
-                for j, m in enumerate(sorted(missing)):  # every cluster needs at least one pixel
-                    init[j] = m
-            crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, st.kmeans_iters, st.kmeans_eps)
-            _, lab, cen = cv2.kmeans(
-                xy, k, init.reshape(-1, 1).copy(), crit, st.kmeans_attempts, cv2.KMEANS_USE_INITIAL_LABELS
-            )
-            lab = lab.ravel()
-            pairs = sorted(
-                (float(np.hypot(*(centres[a] - cen[c]))), a, c) for a in range(k) for c in range(k)
-            )
-            used_p: set[int] = set()
-            used_c: set[int] = set()
-            for _, a, c in pairs:
-                if a in used_p or c in used_c:
-                    continue
-                used_p.add(a)
-                used_c.add(c)
-                name = names[a]
-                sel = xy[lab == c]
-                if len(sel) == 0:
-                    continue
-                x0, y0 = sel.min(axis=0)
-                x1, y1 = sel.max(axis=0)
-                self._assign(name, preds[name], float(x0), float(y0), float(x1), float(y1))
-                t = self._tracks[name]
-                out[name] = ColorDetection(
-                    name,
-                    (float(t.center[0]), float(t.center[1])),
-                    float(min(1.0, overlap_of[name]) * st.split_score_factor),
-                    float(len(sel)),
-                    t.box(),
-                    None,
-                )
+                self._assign(name, bx, by, bx + bw - 1, by + bh - 1, area, jump=name in rejoined)
+                score = frac_of[name] * (st.split_score_factor if name in rejoined else 1.0)
+                out[name] = self._detection(name, score, area)
+            else:  # lines 16-18
+                self._split(names, preds, labels, i, (bx, by, bw, bh), frac_of, out)
+
+        # lines 9-10: occluded parts move to the prediction, grow, damp their velocity
+        for name in occluded:
+            t = self._tracks[name]
+            g = st.growth
+            t.p, t.s = self._cap(preds[name] - g, t.s + 2.0 * g)
+            t.v = st.velocity_factor * t.v
+            out[name] = ColorDetection(name, None, 0.0, 0.0, t.box(), None)
         return {n: out.get(n, ColorDetection(n, None, 0.0, 0.0, self._tracks[n].box(), None)) for n in self._tracks}
+
+    def _split(self, names, preds, labels, label, bbox, frac_of, out) -> None:
+        """k-means split of one blob among ``names`` (lines 16-18)."""
+        st = self.settings
+        bx, by, bw, bh = bbox
+        ys, xs = np.nonzero(labels[by : by + bh, bx : bx + bw] == label)
+        xy = np.stack([xs + bx, ys + by], axis=1).astype(np.float32)
+        k = len(names)
+        centres = np.array([preds[n] + self._tracks[n].s / 2.0 for n in names], np.float32)
+        if len(xy) < k:
+            for n in names:
+                out[n] = ColorDetection(n, None, 0.0, 0.0, self._tracks[n].box(), None)
+            return
+        d2 = ((xy[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
+        init = np.argmin(d2, axis=1).astype(np.int32)
+        missing = sorted(set(range(k)) - set(np.unique(init).tolist()))
+        for j, m in enumerate(missing):  # every cluster needs at least one pixel
+            init[j] = m
+        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, st.kmeans_iters, st.kmeans_eps)
+        _, lab, cen = cv2.kmeans(xy, k, init.reshape(-1, 1).copy(), crit, st.kmeans_attempts,
+                                 cv2.KMEANS_USE_INITIAL_LABELS)
+        lab = lab.ravel()
+        pairs = sorted((float(np.hypot(*(centres[a] - cen[c]))), a, c) for a in range(k) for c in range(k))
+        used_p: set[int] = set()
+        used_c: set[int] = set()
+        for _, a, c in pairs:
+            if a in used_p or c in used_c:
+                continue
+            used_p.add(a)
+            used_c.add(c)
+            name = names[a]
+            sel = xy[lab == c]
+            if len(sel) == 0:
+                continue
+            x0, y0 = sel.min(axis=0)
+            x1, y1 = sel.max(axis=0)
+            self._assign(name, float(x0), float(y0), float(x1), float(y1), None)
+            t = self._tracks[name]
+            out[name] = ColorDetection(
+                name,
+                (float(t.center[0]), float(t.center[1])),
+                float(min(1.0, frac_of[name]) * st.split_score_factor),
+                float(len(sel)),
+                t.box(),
+                None,
+            )
 
     def _detection(self, name: str, frac: float, area: int) -> ColorDetection:
         t = self._tracks[name]
