@@ -114,7 +114,8 @@ def test_symmetry_cases_2_3_4_use_stored_priors():
     st = SymmetryState({"a": True, "b": True, "c": True})
     res = _check(st, "a", "b", pa, pb, [A, 0, 0])
     st.establish("a", "b", res, lambda o: True)
-    np.testing.assert_allclose(st.prior_rotation("a"), res.best.Q_a.T)
+    np.testing.assert_allclose(st.prior_rotation("a", pa.R), res.best.Q_a.T)
+    np.testing.assert_allclose(st.fundamental("a"), pa.R @ res.best.Q_a.T)
     # case 2: a (first) has a prior; c is free (checked as "a→c" two edges away)
     r2 = _check(st, "a", "c", pa, pc, [2 * A, 0, 0])
     assert r2.case == 2
@@ -199,3 +200,21 @@ def test_unexpected_connection_reported():
     un = m.unexpected()
     assert [(u.first, u.second) for u in un] == [("a", "c")]
     assert any(not e.expected and e.type == "connected" for e in m.events)
+
+
+def test_prior_survives_a_symmetric_jump_of_the_tracked_orientation():
+    """The tracker may swap a cube's orientation for an equivalent one; the stored prior follows it."""
+    pa = Pose.from_rt(R_FUND, [0, 0, 0.6])
+    pb = Pose.from_rt(R_FUND, [A, 0, 0.6])
+    pc = Pose.from_rt(R_FUND, [0, -A, 0.6])  # c on top of a
+    st = SymmetryState({"a": True, "b": True, "c": True})
+    st.establish("a", "b", _check(st, "a", "b", pa, pb, [A, 0, 0]), lambda o: True)
+    jumped = Pose.from_rt(pa.R @ G[5], pa.t)  # same cube, another of its 24 equivalent orientations
+    r = _check(st, "a", "b", jumped, pb, [A, 0, 0])
+    assert r.case == 4
+    np.testing.assert_allclose(r.best.p, [A, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(st.fundamental("a"), R_FUND, atol=1e-9)
+    # a 20° drift about the vertical is absorbed as well (p rotates with the drift, F follows the tracker)
+    drift = Pose.from_rt(Pose.from_rotvec(UP * np.radians(20), np.zeros(3)).R @ jumped.R, pa.t)
+    r2 = _check(st, "a", "c", drift, pc, [0, A, 0])
+    np.testing.assert_allclose(r2.best.p, [0, A, 0], atol=1e-9)

@@ -21,6 +21,9 @@ def register(subparsers) -> None:
                    "simulator's ground truth plus noise")
     p.add_argument("--frame-step", type=int, default=1, help="process every N-th frame (default 1 = 30 fps)")
     p.add_argument("--particles", type=int, default=None, help="tracker particle count (default: the preset's)")
+    p.add_argument("--tracker-preset", default="default", help="tracker preset for --poses tracked (default|seed-exp1|"
+                   "seed-exp23)")
+    p.add_argument("--no-hints", action="store_true", help="do not feed connection hints to the tracker (ablation)")
     p.add_argument("--list", action="store_true", help="list the experiments and exit")
     p.set_defaults(func=run)
 
@@ -38,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--out DIR is required")
     poses = args.poses or ("tracked" if tracked_available() else "groundtruth")
     summary = run_experiment(args.experiment, args.out, sessions=args.sessions, poses=poses,
-                             frame_step=args.frame_step, n_particles=args.particles, progress=print)
+                             frame_step=args.frame_step, n_particles=args.particles, progress=print,
+                             tracker_preset=args.tracker_preset, hints=not args.no_hints)
     keys = ("sessions", "connections_total", "connections_within_1s", "connections_never", "false_completions",
             "guess_correct", "sentences_correct", "mean_deviation_s")
     print(json.dumps({k: summary[k] for k in keys if k in summary}))

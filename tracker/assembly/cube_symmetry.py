@@ -20,6 +20,11 @@ Choices documented here (the thesis leaves them open):
   1e-6 relative). This keeps the vertical axis fixed and the horizontal axes free (Fig. 5.5, eq. 5.8), so a
   cube beside another never satisfies an "on top of" connection. (Spec 8.4 orders the two criteria the
   other way round; with that order a vertical connection would accept any face neighbour.)
+* A prior is stored as the part's fundamental orientation in the camera frame, ``F = R Qᵀ``, and
+  re-anchored every frame: ``Q = nearest element of G to Fᵀ R``, then ``F ← R Qᵀ``. The tracker does not
+  know about symmetry, so its estimate of a cube may turn into another equivalent orientation (a 90° jump
+  or a slow drift about the vertical); a fixed ``Q`` would then point the fundamental frame elsewhere,
+  whereas ``F`` stays with the physical structure (changes below 45° per frame are absorbed).
 * Priors are stored when a connection becomes established, as *hypotheses per connected component*: a
   vertical first connection leaves the structure's heading undetermined (four rotations about the normal
   tie), so all tied choices are kept and later horizontal connections pick the one that fits. A component's
@@ -74,6 +79,8 @@ class Option:
     error: float
     hyp_a: int | None = None
     hyp_b: int | None = None
+    F_a: np.ndarray | None = None
+    F_b: np.ndarray | None = None
 
 
 @dataclass
@@ -97,7 +104,7 @@ class SymmetryState:
 
     def reset(self) -> None:
         self._component: dict[str, int] = {}
-        self._hyps: dict[int, list[dict[str, np.ndarray]]] = {}
+        self._hyps: dict[int, list[dict[str, np.ndarray]]] = {}  # part → F (fundamental orientation)
         self._next_id = 0
 
     # ------------------------------------------------------------------ queries
@@ -108,10 +115,24 @@ class SymmetryState:
         cid = self._component.get(part)
         return self._hyps[cid] if cid is not None else []
 
-    def prior_rotation(self, part: str) -> np.ndarray | None:
-        """The stored prior ``P = Qᵀ`` of a part (its first hypothesis), or ``None``."""
+    def fundamental(self, part: str) -> np.ndarray | None:
+        """The stored fundamental orientation ``F = R Qᵀ`` (camera frame) of a part (first hypothesis) or None."""
         h = self.hypotheses(part)
-        return h[0][part].T if h else None
+        return h[0][part] if h else None
+
+    def prior_rotation(self, part: str, R: np.ndarray) -> np.ndarray | None:
+        """The prior ``P = Qᵀ`` for the observed orientation ``R`` (first hypothesis), or ``None``."""
+        F = self.fundamental(part)
+        return None if F is None else snap_to_group(F.T @ R).T
+
+    def _reanchor(self, part: str, R: np.ndarray, symmetric: bool) -> list[np.ndarray]:
+        """Q of every hypothesis of ``part`` for orientation ``R``; updates the stored F = R Qᵀ."""
+        out = []
+        for h in self.hypotheses(part):
+            Q = snap_to_group(h[part].T @ R) if symmetric else _I
+            h[part] = R @ Q.T
+            out.append(Q)
+        return out
 
     # ------------------------------------------------------------------ checking
     def resolve(
@@ -129,8 +150,9 @@ class SymmetryState:
         """All symmetry options for checking connection (a, b), best (smallest ``error_fn(p, R)``) first."""
         sym_a, sym_b = self.symmetric.get(a, False), self.symmetric.get(b, False)
         G = cube_group()
-        ha = self.hypotheses(a)
-        hb = self.hypotheses(b)
+        R_b = R_a @ R_ab
+        ha = self._reanchor(a, R_a, sym_a)
+        hb = self._reanchor(b, R_b, sym_b)
         same_component = bool(ha) and bool(hb) and self._component[a] == self._component[b]
 
         def q_b_free(Q_a):
@@ -143,15 +165,15 @@ class SymmetryState:
         if ha and hb:
             case = 4
             if same_component:
-                pairs = [(h[a], h[b], i, i) for i, h in enumerate(ha)]
+                pairs = [(x, y, i, i) for i, (x, y) in enumerate(zip(ha, hb, strict=True))]
             else:
-                pairs = [(x[a], y[b], i, j) for i, x in enumerate(ha) for j, y in enumerate(hb)]
+                pairs = [(x, y, i, j) for i, x in enumerate(ha) for j, y in enumerate(hb)]
         elif ha:
             case = 2
-            pairs = [(h[a], q_b_free(h[a]), i, None) for i, h in enumerate(ha)]
+            pairs = [(x, q_b_free(x), i, None) for i, x in enumerate(ha)]
         elif hb:
             case = 3
-            pairs = [(q_a_free(h[b]), h[b], None, j) for j, h in enumerate(hb)]
+            pairs = [(q_a_free(y), y, None, j) for j, y in enumerate(hb)]
         else:
             case = 1
             if sym_a:
@@ -163,7 +185,7 @@ class SymmetryState:
         for Q_a, Q_b, i, j in pairs:
             p = Q_a @ p_ab
             R = Q_a @ R_ab @ Q_b.T
-            options.append(Option(Q_a, Q_b, p, R, float(error_fn(p, R)), i, j))
+            options.append(Option(Q_a, Q_b, p, R, float(error_fn(p, R)), i, j, R_a @ Q_a.T, R_b @ Q_b.T))
         options.sort(key=lambda o: o.error)
         return Resolution(case, options)
 
@@ -181,8 +203,8 @@ class SymmetryState:
             else:
                 base = dict(ha[o.hyp_a] if o.hyp_a is not None else {})
                 base.update(hb[o.hyp_b] if o.hyp_b is not None else {})
-            base[a] = o.Q_a
-            base[b] = o.Q_b
+            base[a] = o.F_a
+            base[b] = o.F_b
             if not any(_same_hyp(base, h) for h in new):
                 new.append(base)
         new = new[:MAX_HYPOTHESES]
@@ -228,7 +250,7 @@ class SymmetryState:
             self._next_id += 1
             for p in comp:
                 self._component[p] = cid
-            self._hyps[cid] = hyps or [{p: _I for p in comp}]
+            self._hyps[cid] = hyps
 
 
 def _same_hyp(x: dict[str, np.ndarray], y: dict[str, np.ndarray]) -> bool:

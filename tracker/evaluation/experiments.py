@@ -80,7 +80,8 @@ def _label(setting: dict) -> str:
 
 
 def run_experiment(name: str, out: str | Path, sessions: int | None = None, poses: str = "groundtruth",
-                   frame_step: int = 1, n_particles: int | None = None, progress=None) -> dict:
+                   frame_step: int = 1, n_particles: int | None = None, progress=None,
+                   tracker_preset: str = "default", hints: bool = True) -> dict:
     """Run experiment ``name``, write its report into ``out`` and return the summary (also summary.json)."""
     if name not in EXPERIMENTS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {list(EXPERIMENTS)}")
@@ -98,7 +99,8 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
     for setting in exp.settings:
         results = []
         for spec in specs:
-            r = run_session(spec, poses=poses, overrides=setting, frame_step=frame_step, n_particles=n_particles)
+            r = run_session(spec, poses=poses, overrides=setting, frame_step=frame_step, n_particles=n_particles,
+                            tracker_preset=tracker_preset, hints=hints)
             results.append(r)
             if progress:
                 progress(f"{name} [{_label(setting)}] session {spec.index + 1} ({spec.scenario}, user {spec.user}): "
@@ -128,7 +130,8 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
         if "guess_correct" in first:
             summary["guess_correct"] = sum(s["guess_correct"] for s in per_setting.values())
         summary["settings"] = per_setting
-    summary.update({"experiment": name, "poses": poses, "frame_step": frame_step, "machine": machine()})
+    summary.update({"experiment": name, "poses": poses, "frame_step": frame_step, "machine": machine(),
+                    "tracker_preset": tracker_preset if poses == "tracked" else None, "hints": hints})
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
 

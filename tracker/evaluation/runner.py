@@ -4,12 +4,13 @@ Pose sources:
 
 * ``"groundtruth"``: the simulator's ground-truth poses (no rendering) plus Gaussian noise
   (σ = 3 mm per axis, 0.05 rad per rotation axis, seeded) and the true table frame;
-* ``"tracked"``: each frame is rendered, colour detections (``ColorDetector``) and the table (``detect_table``
-  on the first frame) feed the depth particle filter (``MultiObjectTracker``, preset ``seed-exp23`` unless
-  given), which is initialised with the first frame's true poses (as the thesis initialised manually) and
-  receives the mode's connection hints every frame (Algorithm 6).
+* ``"tracked"``: each frame is rendered, colour detections (``ColorDetector``) and the table
+  (``detect_table`` on the first frame) feed the depth particle filter (``MultiObjectTracker``), which is
+  initialised with the first frame's true poses (as the thesis initialised manually) and receives the mode's
+  connection hints every frame (Algorithm 6). Tracker preset: ``default`` unless given.
 
-``frame_step`` processes every n-th frame (timestamps stay the simulator's, 30 fps).
+``frame_step`` processes every n-th frame (timestamps stay the simulator's, 30 fps); ``hints=False`` runs the
+tracker without the mode's connection hints (ablation of Algorithm 6).
 """
 
 from __future__ import annotations
@@ -76,8 +77,8 @@ def _swapped(assignment: dict[str, str], sentence_words: list[str]) -> dict[str,
 
 
 def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict | None = None,
-                frame_step: int = 1, tracker_preset: str = "seed-exp23", n_particles: int | None = None,
-                noise: tuple[float, float] = (0.003, 0.05)) -> SessionResult:
+                frame_step: int = 1, tracker_preset: str = "default", n_particles: int | None = None,
+                noise: tuple[float, float] = (0.003, 0.05), hints: bool = True) -> SessionResult:
     """Run ``spec`` and compare the mode's output with the simulator's ground truth."""
     from tracker.sources.simulator import FPS, SimOptions, SimulatedTable
 
@@ -123,7 +124,7 @@ def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict |
         else:
             est = jitter(src.groundtruth(i), rng, *noise)
         state = mode.update(t, est, table_to_camera)
-        if tracker is not None:
+        if tracker is not None and hints:
             tracker.set_connection_hints(mode.connection_hints())
         n_frames += 1
         complete = state.complete

@@ -86,15 +86,12 @@ class GuidanceMode(Mode):
         anchor = poses.get(step.anchor)
         if anchor is None:
             return None
-        hyps = self.monitor.symmetry.hypotheses(step.anchor)
+        F = self.monitor.symmetry.fundamental(step.anchor)
         is_cube = next(p for p in self.parts if p.name == step.anchor).is_cube
-        if hyps:
-            Q = hyps[0][step.anchor]
-        elif is_cube:
-            Q = _upright_rotation(anchor.R, table_to_camera)
-        else:
-            Q = np.eye(3)
-        anchor_fund = Pose.from_rt(anchor.R @ Q.T, anchor.t)
+        if F is None:
+            Q = _upright_rotation(anchor.R, table_to_camera) if is_cube else np.eye(3)
+            F = anchor.R @ Q.T
+        anchor_fund = Pose.from_rt(F, anchor.t)
         c = self.specs[step.connection]
         rel = Pose.from_rt(c.R_des, c.p_des)
         return anchor_fund @ (rel if c.first == step.anchor else rel.inverse())
