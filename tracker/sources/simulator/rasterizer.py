@@ -22,8 +22,11 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+_FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
+"""Fast-math flags without ``nnan``/``ninf``: the kernels rely on inf/NaN semantics."""
 
-@nb.njit(cache=True)
+
+@nb.njit(cache=True, fastmath=_FM)
 def _shade(color, v, u, albedo, nx, ny, nz, light, ambient, diffuse, factor):
     lam = nx * light[0] + ny * light[1] + nz * light[2]
     if lam < 0.0:
@@ -34,7 +37,7 @@ def _shade(color, v, u, albedo, nx, ny, nz, light, ambient, diffuse, factor):
     color[v, u, 2] = albedo[2] * s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=_FM)
 def render_box(depth, cosang, color, ids, hits, fx, fy, cx, cy, R, t, half, albedo, light, ambient, diffuse,
                pid, u0, v0, u1, v1, edge_width, edge_dark):  # fmt: skip
     """Ray-cast a box (centre ``t``, rotation ``R`` body→camera, half extents ``half``) with darkened edges."""
@@ -96,7 +99,7 @@ def render_box(depth, cosang, color, ids, hits, fx, fy, cx, cy, R, t, half, albe
             _shade(color, v, u, albedo, nx, ny, nz, light, ambient, diffuse, factor)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=_FM)
 def render_capsule(depth, cosang, color, ids, hits, fx, fy, cx, cy, pa, pb, radius, albedo, light, ambient, diffuse,
                    pid, u0, v0, u1, v1):  # fmt: skip
     """Ray-cast a capsule (segment ``pa``–``pb`` swept by a sphere of ``radius``)."""
@@ -162,7 +165,7 @@ def render_capsule(depth, cosang, color, ids, hits, fx, fy, cx, cy, pa, pb, radi
             _shade(color, v, u, albedo, nx, ny, nz, light, ambient, diffuse, 1.0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=_FM)
 def render_triangles(depth, cosang, color, ids, hits, local, fx, fy, cx, cy, tris, normals, albedo, light, ambient,
                      diffuse, pid, u0, v0, u1, v1):  # fmt: skip
     """Rasterise camera-frame triangles ``tris`` [N,3,3] (outward ``normals`` [N,3]) of one object.
@@ -226,7 +229,7 @@ def render_triangles(depth, cosang, color, ids, hits, local, fx, fy, cx, cy, tri
     hits[pid] += n
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=_FM)
 def apply_shadow(color, ids, table, mask, step, u0, v0, u1, v1):
     """Multiply background table pixels (``ids == -1`` and ``table``) in the rectangle by ``1 - mask``, with
     ``mask`` sampled bilinearly at ``1/step`` resolution (mask pixel (i, j) is image pixel (v0 + i·step,

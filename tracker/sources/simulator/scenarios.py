@@ -305,6 +305,7 @@ class ScriptBuilder:
         self.parts = {p.name: p for p in parts}
         self.cubes = [p.name for p in parts if p.is_cube and abs(p.box[0] - A) < 1e-9]
         self.T = table_to_camera
+        self._R = table_to_camera.R
         self.intr = intr
         self.rng = rng
         self.cfg = settings
@@ -318,7 +319,7 @@ class ScriptBuilder:
     # -- geometry helpers ----------------------------------------------------------------------------
     def project(self, p_table: np.ndarray) -> np.ndarray:
         """(u, v, z_cam) of table-frame points [N, 3]."""
-        pc = self.T.transform_points(np.atleast_2d(p_table))
+        pc = np.atleast_2d(p_table) @ self._R.T + self.T.t
         z = pc[:, 2]
         u = self.intr.fx * pc[:, 0] / z + self.intr.cx
         v = self.intr.fy * pc[:, 1] / z + self.intr.cy

@@ -10,6 +10,7 @@ looking down at ``elevation_deg`` below the horizontal, without roll.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -81,11 +82,14 @@ def _value_noise(rng: np.random.Generator, shape: tuple[int, int], cells: tuple[
     return cv2.resize(grid, (shape[1], shape[0]), interpolation=cv2.INTER_CUBIC)
 
 
-def wood_texture(rng: np.random.Generator, texels_per_m: float = 1200.0) -> np.ndarray:
+@lru_cache(maxsize=2)
+def wood_texture(seed: int = 1234, texels_per_m: float = 1200.0) -> np.ndarray:
     """Procedural wood-like RGB texture (float32 0..255) covering the table; rows = z, cols = x.
 
     Planks 0.14 m wide run along x with fine grain lines distorted by smooth noise, plus per-plank tint.
+    The table is the same piece of furniture in every scenario, so the texture is made once (cached).
     """
+    rng = np.random.default_rng(seed)
     w = int((TABLE_X[1] - TABLE_X[0]) * texels_per_m)
     h = int((TABLE_Z[1] - TABLE_Z[0]) * texels_per_m)
     zz = (np.arange(h, dtype=np.float32) / texels_per_m)[:, None]
@@ -133,7 +137,7 @@ def render_background(intr: Intrinsics, cam: CameraPlacement, rng: np.random.Gen
     p = ct + tt[..., None] * dt
     on_table = (tt > 0) & (p[..., 0] > TABLE_X[0]) & (p[..., 0] < TABLE_X[1])
     on_table &= (p[..., 2] > TABLE_Z[0]) & (p[..., 2] < TABLE_Z[1])
-    tex = wood_texture(rng)
+    tex = wood_texture()
     tpm = tex.shape[1] / (TABLE_X[1] - TABLE_X[0])
     map_x = ((p[..., 0] - TABLE_X[0]) * tpm).astype(np.float32)
     map_y = ((p[..., 2] - TABLE_Z[0]) * tpm).astype(np.float32)

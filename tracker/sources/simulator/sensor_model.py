@@ -27,6 +27,9 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+_FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
+"""Fast-math flags without ``nnan``/``ninf``: the kernels rely on inf/NaN semantics."""
+
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
@@ -158,24 +161,24 @@ class ColorSensorModel:
         return out
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=_FM)
 def _mix(x):
     x = (x ^ (x >> _S30)) * _M1
     x = (x ^ (x >> _S27)) * _M2
     return x ^ (x >> _S31)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=_FM)
 def _hash(key, i, stream):
     return _mix(key + (np.uint64(i) * np.uint64(4) + np.uint64(stream) + np.uint64(1)) * _GOLDEN)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=_FM)
 def _u16(h, k):
     return np.float64((h >> np.uint64(16 * k)) & _MASK16) * (1.0 / 65536.0) + (0.5 / 65536.0)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, inline="always", fastmath=_FM)
 def _gauss12(h):
     s = 0.0
     for k in range(4):
@@ -183,7 +186,7 @@ def _gauss12(h):
     return (s - 2.0 + 2.0 / 4096.0) * 1.7320508075688772
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=_FM)
 def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dstep, jump, p_miss, p_fly, cos_start,
                   cos_end, p_drop, zmin, zmax, su, sv):  # fmt: skip
     h, w = clean.shape
@@ -271,7 +274,7 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
                 out[v, u] = np.float32(z)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=_FM)
 def _color_kernel(color, out, key, gain, ramp_u, ramp_v, sigma):
     h, w, _ = color.shape
     scale = sigma / 104.51314746403095  # std of (b1 + b2 - 255) for two uniform bytes
