@@ -299,3 +299,33 @@ def test_table_plane_matches_depth(static_src):
     assert 0.6 <= static_src.camera.distance <= 0.9
     assert 40 <= static_src.camera.elevation_deg <= 60
     assert n[1] < 0  # up on the table is up (−y) in the image
+
+
+def test_disparity_noise_and_quantisation():
+    model = DepthSensorModel(noise_on="disparity", quantization="disparity", dropout=0.0, edge_missing=0.0,
+                             edge_flying=0.0, shift_u=0)  # fmt: skip
+    clean = np.full((150, 150), 0.8, np.float32)
+    out = model.apply(clean, np.ones_like(clean), key=7)
+    assert np.isfinite(out).all()
+    disp = model.focal_baseline / out.astype(np.float64)
+    steps = disp / model.disparity_step
+    assert np.allclose(steps, np.round(steps), atol=1e-3)  # values lie on the disparity grid
+    # the step at 0.8 m is ~2 mm, so the spread is set by noise and quantisation together
+    step_z = 0.8**2 / model.focal_baseline * model.disparity_step
+    expected = np.sqrt(model.sigma(0.8) ** 2 + step_z**2 / 12)
+    assert out.std() == pytest.approx(expected, rel=0.2)
+    assert abs(out.mean() - 0.8) < 2e-4
+
+
+def test_colour_noise_matches_the_model():
+    from tracker.sources.simulator import ColorSensorModel
+
+    cm = ColorSensorModel(noise_sigma=3.0, gain_amplitude=0.0, ramp_amplitude=0.0)
+    src = SimulatedTable("static", seed=9, n_frames=2, options=SimOptions(color_model=cm))
+    clean = src.render_clean(1)["color"].copy()
+    frame = src.render(1)
+    res = frame.color[100:380, 50:590].astype(float) - clean[100:380, 50:590]
+    ok = (clean[100:380, 50:590] > 10).all(axis=-1) & (clean[100:380, 50:590] < 245).all(axis=-1)
+    r = res[ok]
+    assert abs(r.mean()) < 0.1
+    assert r.std() == pytest.approx(np.sqrt(3.0**2 + 1 / 12), rel=0.08)

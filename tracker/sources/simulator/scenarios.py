@@ -418,10 +418,12 @@ class ScriptBuilder:
         ytarget = cube_yaw(target.R)
         delta = wrap90(ytarget - ycube)
         # the hand comes from the user's right (or, sometimes, left) side: its z axis points that way
-        side = 1.0 if self.rng.random() < 0.8 else -1.0
+        mid_x = 0.5 * (start.t[0] + target.t[0])
+        p_right = 0.9 if mid_x > 0.04 else (0.15 if mid_x < -0.04 else 0.6)
+        side = 1.0 if self.rng.random() < p_right else -1.0
         # the arm reaches from a shoulder beyond the bottom image border; the hand is turned by ~40° from the
         # forearm so that the carried part stays partly visible
-        shoulder = self.offscreen_point(side * 0.22, 0.30, margin=260)
+        shoulder = self.offscreen_point(side * 0.20, 0.20, margin=240)
         mid = 0.5 * (start.t + target.t)
         to_sh = shoulder - mid
         want = float(np.arctan2(to_sh[0], to_sh[2])) + side * np.radians(40.0)
