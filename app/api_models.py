@@ -125,6 +125,33 @@ class BoxResponse(BaseModel):
     frame_index: int | None
 
 
+class BoxList(BaseModel):
+    """``GET /api/boxes``: the boxes users drew since the server started (newest last)."""
+
+    boxes: list[BoxResponse]
+
+
+class SnapshotModel(BaseModel):
+    """One processed frame, as sent on ``/ws`` (see :class:`tracker.snapshot.Snapshot`; camera-frame poses)."""
+
+    frame_index: int
+    time: float = Field(description="frame timestamp, seconds since the source started")
+    wall_time: float = Field(description="time.time() when the frame arrived from the source")
+    poses: dict[str, dict[str, list[float | None]]] = Field(description="{part: {t: [x,y,z] m, q: [x,y,z,w]}}")
+    boxes: dict[str, list[float | None]] = Field(description="{part: [u0, v0, u1, v1]} projected estimate, pixels")
+    detections: dict[str, dict[str, Any]] = Field(description="{part: {center, bbox [x,y,w,h], score, area}}")
+    connections: list[dict[str, Any]]
+    mode: str | None
+    mode_state: dict[str, Any]
+    instruction: str
+    table: dict[str, Any] | None
+    fps: float
+    timings: dict[str, float]
+    source: dict[str, Any]
+    errors: list[str]
+    image_size: list[int]
+
+
 class TaskRecord(BaseModel):
     """A stored teacher task."""
 

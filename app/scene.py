@@ -23,8 +23,8 @@ from tracker.snapshot import Snapshot
 
 log = logging.getLogger(__name__)
 
-DEPTH_STRIDE = 8
-"""Keep every n-th depth pixel in each direction for the point cloud."""
+DEPTH_POINTS = 6000
+"""About this many depth pixels (a regular subsample) make the point cloud."""
 MAX_PARTICLES_SHOWN = 400
 """Particles per part sent to the browser (a random but fixed subset)."""
 
@@ -71,10 +71,12 @@ class Scene:
 
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.port = self.server.get_port()
-        self.server.gui.configure_theme(
-            control_layout="collapsible", control_width="small", show_logo=False, show_share_button=False
-        )
-        self.server.initial_camera.position = (0.0, 0.45, 0.55)  # above and in front of the table (user side)
+        self.server.gui.configure_theme(control_width="small", show_logo=False, show_share_button=False)
+        try:
+            self.server.gui.main_panel.minimize()  # the scene is the point; the panel opens on click
+        except AttributeError:
+            pass
+        self.server.initial_camera.position = (0.0, 0.35, 0.42)  # above and in front of the table (user side)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
         self.server.initial_camera.up = (0.0, 1.0, 0.0)
         sc = self.server.scene
@@ -91,7 +93,7 @@ class Scene:
         )
         self.camera_node = sc.add_frame("/camera", show_axes=True, axes_length=0.05, axes_radius=0.003)
         self.depth_cloud = sc.add_point_cloud(
-            "/camera/depth", np.zeros((1, 3), np.float32), (128, 128, 128), point_size=0.004
+            "/camera/depth", np.zeros((1, 3), np.float32), (128, 128, 128), point_size=0.002
         )
         self.ghost = sc.add_box(
             "/camera/ghost", color=(255, 255, 255), dimensions=(0.036,) * 3, opacity=0.35, visible=False
@@ -147,13 +149,15 @@ class Scene:
                 self.camera_node.wxyz = _wxyz(cam_in_table.q)
                 self.camera_node.position = cam_in_table.t
             if frame is not None and frame.depth is not None and self._frames % 3 == 1:
-                d = frame.depth[::DEPTH_STRIDE, ::DEPTH_STRIDE]
-                v, u = np.mgrid[0 : frame.depth.shape[0] : DEPTH_STRIDE, 0 : frame.depth.shape[1] : DEPTH_STRIDE]
+                h, w = frame.depth.shape
+                k = max(1, int(round(np.sqrt(h * w / DEPTH_POINTS))))
+                d = frame.depth[::k, ::k]
+                v, u = np.mgrid[0:h:k, 0:w:k]
                 ok = np.isfinite(d)
                 if ok.any():
                     pts = frame.intrinsics.backproject(u[ok], v[ok], d[ok])
                     self.depth_cloud.points = pts.astype(np.float32)
-                    self.depth_cloud.colors = frame.color[::DEPTH_STRIDE, ::DEPTH_STRIDE][ok]
+                    self.depth_cloud.colors = frame.color[::k, ::k][ok]
             words = word_labels(snap.mode_state) if snap.mode == "learning" else {}
             for name, node in self.part_nodes.items():
                 pose = snap.poses.get(name)

@@ -88,6 +88,7 @@ class AppState:
         self.scene = None
         self.scene_updater = None
         self.session_id: int | None = None
+        self.boxes: list[m.BoxResponse] = []
         self._session_frames0 = 0
         self._lock = threading.Lock()
 
@@ -421,13 +422,28 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
             raise HTTPException(409, str(exc)) from exc
         except ValueError as exc:
             raise HTTPException(422, str(exc)) from exc
-        return m.BoxResponse(
+        box = m.BoxResponse(
             part=name,
             action=body.action,
             rect=list(rect),
             pose=None if pose is None else pose.to_dict(),
             frame_index=index,
         )
+        state.boxes.append(box)
+        del state.boxes[:-50]
+        return box
+
+    @app.get("/api/boxes", response_model=m.BoxList, tags=["stream"])
+    def list_boxes() -> m.BoxList:
+        return m.BoxList(boxes=state.boxes)
+
+    @app.get("/api/snapshot", response_model=m.SnapshotModel, tags=["stream"], responses={503: {"model": m.Message}})
+    def snapshot() -> dict:
+        """The latest processed frame (the same JSON as one ``/ws`` message)."""
+        snap = state.worker.latest
+        if snap is None:
+            raise HTTPException(503, "no frame processed yet")
+        return snap.to_dict()
 
     # ---------------------------------------------------------------- teacher auth
     @app.get("/api/auth", response_model=m.AuthStatus, tags=["teacher"])

@@ -239,30 +239,41 @@ class AssemblyPipeline:
         return Pose(ray * z, np.array([0.0, 0.0, 0.0, 1.0]))
 
     def guess_part(self, rgb: np.ndarray, rect: tuple[float, float, float, float]) -> str:
-        """The coloured part whose nominal colour is nearest (in hue) to the rectangle's median colour."""
+        """The coloured part with the most pixels of its colour inside the pixel rectangle ``(x, y, w, h)``.
+
+        Uses the colour detector's masks (so the table's own colour does not count); falls back to the
+        nominal colour nearest in hue to the rectangle's saturated pixels.
+        """
         import cv2
 
         x, y, w, h = (int(round(v)) for v in rect)
-        patch = rgb[max(0, y) : y + h, max(0, x) : x + w]
+        x0, y0 = max(0, x), max(0, y)
         coloured = [p for p in self.parts if p.color is not None]
-        if patch.size == 0 or not coloured:
+        if w <= 0 or h <= 0 or not coloured:
             raise ValueError("name the part: the rectangle is empty or no part has a colour")
+        if self.detector is not None:
+            counts = {
+                name: int(np.count_nonzero(mask[y0 : y + h, x0 : x + w]))
+                for name, mask in self.detector.masks(rgb).items()
+            }
+            best = max(counts, key=counts.get) if counts else None
+            if best is not None and counts[best] > 0:
+                return best
+        patch = rgb[y0 : y + h, x0 : x + w]
+        if patch.size == 0:
+            raise ValueError("name the part: the rectangle lies outside the image")
         hsv = cv2.cvtColor(patch.reshape(-1, 1, 3), cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(float)
         sat = hsv[:, 1] > 60
         if sat.any():
             hsv = hsv[sat]
-        # circular hue mean (OpenCV hue is 0..180)
-        ang = hsv[:, 0] * (2 * np.pi / 180.0)
+        ang = hsv[:, 0] * (2 * np.pi / 180.0)  # OpenCV hue is 0..180
         hue = (np.arctan2(np.sin(ang).mean(), np.cos(ang).mean()) % (2 * np.pi)) * 180.0 / (2 * np.pi)
 
-        def hue_of(c):
-            return float(cv2.cvtColor(np.uint8([[c]]), cv2.COLOR_RGB2HSV)[0, 0, 0])
-
-        def dist(p):
-            d = abs(hue_of(p.color) - hue)
+        def hue_distance(p: PartSpec) -> float:
+            d = abs(float(cv2.cvtColor(np.uint8([[p.color]]), cv2.COLOR_RGB2HSV)[0, 0, 0]) - hue)
             return min(d, 180.0 - d)
 
-        return min(coloured, key=dist).name
+        return min(coloured, key=hue_distance).name
 
     def calibrate_color(self, name: str, rgb: np.ndarray, rect: tuple[float, float, float, float]):
         """Re-learn part ``name``'s colour range from the pixels inside ``rect`` (perception's calibration)."""

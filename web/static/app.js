@@ -69,6 +69,7 @@ async function refreshModes() {
   $("mode-select").value = m.current;
   fillTasks(m, m.current, m.task);
   state.modes = m;
+  document.body.dataset.modesLoaded = "1";
 }
 
 function fillTasks(m, mode, selected) {

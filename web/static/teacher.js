@@ -148,9 +148,9 @@ $("task-form").addEventListener("submit", async (ev) => {
   const id = $("task-id").value;
   const r = await call(id ? `/api/tasks/${id}` : "/api/tasks", { method: id ? "PUT" : "POST", body: JSON.stringify(body) });
   if (r.ok) {
-    setMessage("save-message", `Saved task ${r.body.id} (${r.body.ref}).`);
     resetForm();
     await refreshTasks();
+    setMessage("save-message", `Saved task ${r.body.id} (${r.body.ref}).`);
     return;
   }
   const d = r.body && r.body.detail;

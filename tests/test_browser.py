@@ -1,0 +1,232 @@
+"""Browser tests: headless Chromium (Debian's, through Playwright) against the server on the simulated table.
+
+The server runs in a thread (uvicorn) on a free port with the simulator at 320×240 and few particles.
+Chromium comes from ``$CHROMIUM_PATH`` or ``/usr/bin/chromium``; without it these tests FAIL (CI installs
+it). A screenshot of the panel is written to ``artifacts/browser-panel.png``.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+pytestmark = pytest.mark.browser
+
+ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts"
+PASSWORD = "clase-de-español"
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+
+def chromium_path() -> str:
+    path = os.environ.get("CHROMIUM_PATH") or "/usr/bin/chromium"
+    if not Path(path).exists() and shutil.which(path) is None:
+        pytest.fail(f"Chromium not found at {path!r}: install Debian's chromium or set CHROMIUM_PATH")
+    return path
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def small_sim(spec: str):
+    from tracker.sources.simulator import SimOptions, SimulatedTable
+
+    scenario = spec.split(":", 1)[1] if ":" in spec else "guidance-demo"
+    return SimulatedTable(scenario, seed=3, options=SimOptions(width=320, height=240, focal=262.5), realtime=True)
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    import uvicorn
+
+    from app.server import create_app
+    from app.settings import Settings
+
+    settings = Settings(
+        host="127.0.0.1",
+        port=free_port(),
+        viser_port=free_port(),
+        source="sim:guidance-demo",
+        mode="guidance",
+        database=str(tmp_path_factory.mktemp("db") / "agent.sqlite3"),
+        teacher_password=PASSWORD,
+        n_particles=40,
+        max_fps=15,
+    )
+    app = create_app(settings, open_source=small_sim)
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=settings.port, log_level="warning"))
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    base = f"http://127.0.0.1:{settings.port}"
+    t0 = time.time()
+    while time.time() - t0 < 60:
+        try:
+            if httpx.get(f"{base}/api/snapshot", timeout=2).status_code == 200:
+                break
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.2)
+    else:
+        pytest.fail("the server did not process a frame within 60 s")
+    yield base
+    srv.should_exit = True
+    thread.join(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=chromium_path(), args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture()
+def page(browser):
+    context = browser.new_context(viewport={"width": 1500, "height": 900})
+    pg = context.new_page()
+    pg.dialogs = []
+    pg.on("dialog", lambda d: (pg.dialogs.append(d.message), d.dismiss()))
+    yield pg
+    context.close()
+
+
+def frame_number(page) -> int:
+    text = page.locator("#frame-index").text_content() or ""
+    return int(text) if text.strip().isdigit() else -1
+
+
+def test_page_loads_and_updates(server, page):
+    page.goto(server + "/")
+    page.wait_for_function("() => /^\\d+$/.test(document.getElementById('frame-index').textContent)")
+    first = frame_number(page)
+    page.wait_for_function(f"() => Number(document.getElementById('frame-index').textContent) > {first + 3}")
+    assert frame_number(page) > first
+    assert "sim:guidance-demo" in page.locator("#source-name").text_content()
+    page.wait_for_function("() => document.getElementById('instruction').textContent.startsWith('Step')")
+    page.wait_for_function("() => document.getElementById('color-image').naturalWidth === 320")
+    assert page.locator("#viser-frame").get_attribute("src").startswith("http://127.0.0.1:")
+    page.wait_for_timeout(2500)  # let the 3D scene draw before the screenshot
+    ARTIFACTS.mkdir(exist_ok=True)
+    page.screenshot(path=str(ARTIFACTS / "browser-panel.png"), full_page=True)
+    assert (ARTIFACTS / "browser-panel.png").stat().st_size > 10_000
+
+
+def test_drawn_rectangle_creates_box_on_server(server, page):
+    page.goto(server + "/")
+    page.wait_for_function("() => document.getElementById('color-image').naturalWidth === 320")
+    snap = httpx.get(server + "/api/snapshot").json()
+    det = snap["detections"]["yellow"]
+    assert det["bbox"] is not None, snap["detections"]
+    x, y, w, h = det["bbox"]
+    iw, ih = snap["image_size"]
+    box = page.locator("#overlay").bounding_box()
+    sx, sy = box["width"] / iw, box["height"] / ih
+    page.mouse.move(box["x"] + (x - 3) * sx, box["y"] + (y - 3) * sy)
+    page.mouse.down()
+    page.mouse.move(box["x"] + (x + w / 2) * sx, box["y"] + (y + h / 2) * sy, steps=4)
+    page.mouse.move(box["x"] + (x + w + 3) * sx, box["y"] + (y + h + 3) * sy, steps=4)
+    page.mouse.up()
+    page.wait_for_function("() => document.getElementById('box-message').textContent.startsWith('tracking')")
+    assert "yellow" in page.locator("#box-message").text_content()
+    boxes = httpx.get(server + "/api/boxes").json()["boxes"]
+    assert boxes and boxes[-1]["part"] == "yellow" and boxes[-1]["action"] == "track"
+    assert abs(boxes[-1]["rect"][0] - (x - 3)) < 3  # the rectangle arrived in image pixels
+    assert boxes[-1]["pose"]["t"][2] > 0.2
+
+
+def teacher_login(page, server, password=PASSWORD):
+    page.goto(server + "/teacher")
+    page.wait_for_function("() => document.getElementById('btn-login').textContent === 'Log in'")
+    page.fill("#password", password)
+    page.click("#btn-login")
+
+
+def test_wrong_password_is_refused(server, page):
+    teacher_login(page, server, "not-the-password")
+    page.wait_for_function("() => document.getElementById('login-message').textContent.length > 0")
+    assert page.locator("#login-message").text_content() == "Wrong password."
+    assert page.locator("#btn-logout").is_hidden()
+    assert page.locator("#btn-save").is_disabled()
+    r = httpx.post(
+        server + "/api/tasks",
+        json={"source_sentence": "x", "words": ["a", "b"]},
+        headers={"X-Teacher-Password": "not-the-password"},
+    )
+    assert r.status_code == 401
+
+
+def create_task(page, sentence, words, distractors=""):
+    page.fill("#f-source_sentence", sentence)
+    page.fill("#f-words", words)
+    page.fill("#f-distractors", distractors)
+    page.evaluate("document.getElementById('save-message').textContent = ''")
+    page.click("#btn-save")
+    page.wait_for_function("() => document.getElementById('save-message').textContent.length > 0")
+
+
+def test_teacher_task_appears_in_learning_mode(server, page):
+    teacher_login(page, server)
+    page.wait_for_selector("#btn-logout", state="visible")
+    # a bad field gets a clear message next to it
+    create_task(page, "Ο σκύλος τρέχει", "Solo")
+    assert "at least 2" in page.locator("#err-words").text_content()
+    create_task(page, "Ο σκύλος τρέχει", "El perro corre", "gato")
+    assert page.locator("#save-message").text_content().startswith("Saved task")
+    assert page.locator("#task-list").get_by_text("Ο σκύλος τρέχει").count() == 1
+    ref = httpx.get(server + "/api/tasks").json()["tasks"][-1]["ref"]
+
+    page.goto(server + "/")
+    page.wait_for_selector("body[data-modes-loaded='1']", state="attached")
+    page.select_option("#mode-select", "learning")
+    page.wait_for_selector(f"#task-select option[value='{ref}']", state="attached")
+    page.select_option("#task-select", ref)
+    page.click("#btn-apply-mode")
+    page.wait_for_function("() => document.getElementById('mode-message').textContent.startsWith('mode learning')")
+    page.wait_for_function("() => document.getElementById('source-sentence').textContent === 'Ο σκύλος τρέχει'")
+    cube_words = page.locator("#cube-words").text_content()
+    assert "perro" in cube_words and "gato" in cube_words
+    # back to guidance for the other tests
+    httpx.post(server + "/api/modes", json={"mode": "guidance"})
+
+
+def test_html_looking_word_is_shown_as_text(server, page):
+    word = "<script>alert(1)</script>"
+    teacher_login(page, server)
+    page.wait_for_selector("#btn-logout", state="visible")
+    create_task(page, "<b>bold?</b>", f"{word} | hola")
+    assert page.locator("#save-message").text_content().startswith("Saved task")
+    item = page.locator("#task-list li").filter(has_text="<b>bold?</b>")
+    item.wait_for()
+    assert item.count() == 1
+    assert word in item.text_content()
+    assert page.locator("#task-list b").count() == 0  # the markup was not interpreted
+    ref = httpx.get(server + "/api/tasks").json()["tasks"][-1]["ref"]
+    r = httpx.post(server + "/api/modes", json={"mode": "learning", "task": ref})
+    assert r.status_code == 200, r.text
+    page.goto(server + "/")
+    page.wait_for_function("() => document.getElementById('cube-words').textContent.includes('<script>')")
+    assert word in page.locator("#cube-words").text_content()
+    assert page.evaluate("document.querySelectorAll('script').length") == 1  # only app.js
+    assert page.dialogs == []  # alert(1) never ran
+    httpx.post(server + "/api/modes", json={"mode": "guidance"})
