@@ -104,7 +104,7 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
             results.append(r)
             if progress:
                 progress(f"{name} [{_label(setting)}] session {spec.index + 1} ({spec.scenario}, user {spec.user}): "
-                         f"{sum(1 for e in r.detected_events)}/{len(r.truth_events)} detected, "
+                         f"{summarize([r])['connections_detected']}/{len(r.truth_events)} detected, "
                          f"{r.frames} frames in {r.seconds:.1f} s")
         summary = summarize(results)
         label = _label(setting)

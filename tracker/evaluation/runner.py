@@ -9,6 +9,7 @@ Pose sources:
   initialised with the first frame's true poses (as the thesis initialised manually) and receives the mode's
   connection hints every frame (Algorithm 6). Tracker preset: ``default`` unless given.
 
+``max_time`` stops the session early (seconds; true connections after it are then counted as missed).
 ``frame_step`` processes every n-th frame (timestamps stay the simulator's, 30 fps); ``hints=False`` runs the
 tracker without the mode's connection hints (ablation of Algorithm 6).
 """
@@ -78,7 +79,8 @@ def _swapped(assignment: dict[str, str], sentence_words: list[str]) -> dict[str,
 
 def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict | None = None,
                 frame_step: int = 1, tracker_preset: str = "default", n_particles: int | None = None,
-                noise: tuple[float, float] = (0.003, 0.05), hints: bool = True) -> SessionResult:
+                noise: tuple[float, float] = (0.003, 0.05), hints: bool = True,
+                max_time: float | None = None) -> SessionResult:
     """Run ``spec`` and compare the mode's output with the simulator's ground truth."""
     from tracker.sources.simulator import FPS, SimOptions, SimulatedTable
 
@@ -118,6 +120,8 @@ def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict |
     state = None
     for i in range(0, len(src), max(1, frame_step)):
         t = i / FPS
+        if max_time is not None and t > max_time:
+            break
         if tracker is not None:
             frame = src.render(i)
             est = tracker.step(frame, detector.detect(frame.color), table).poses
