@@ -21,8 +21,37 @@ def register(subparsers) -> None:
     p.add_argument("--speed", type=float, default=1.0, help="hand motion speed factor (default 1.0)")
     p.add_argument("--occlusion", type=float, default=1.0, help="amount of hand occlusion 0..2 (default 1.0)")
     p.add_argument("--excursions", action="store_true", help="carry parts briefly out of view before placing")
+    p.add_argument("--rod", action="store_true", help="add a grey 2×2×10 cm rod lying on the table")
+    p.add_argument(
+        "--mesh",
+        action="append",
+        default=[],
+        metavar="PATH[:SCALE]",
+        help="add a rigid mesh part (OBJ/PLY/STL, SCALE to metres, default 1) lying on the table; repeatable",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an existing recording in --out")
     p.set_defaults(func=run)
+
+
+def extra_parts(args: argparse.Namespace) -> tuple:
+    """PartSpecs of --rod and --mesh PATH[:SCALE]."""
+    from pathlib import Path
+
+    from tracker.parts import ROD_SIZE, PartSpec
+
+    parts = []
+    if getattr(args, "rod", False):
+        parts.append(PartSpec("rod", box=ROD_SIZE, color=(170, 170, 175)))
+    for i, spec in enumerate(getattr(args, "mesh", None) or []):
+        path, _, scale = spec.partition(":")
+        try:
+            factor = float(scale) if scale else 1.0
+        except ValueError:
+            raise ValueError(f"--mesh {spec!r}: SCALE must be a number") from None
+        if not Path(path).is_file():
+            raise ValueError(f"--mesh {spec!r}: mesh file not found: {path}")
+        parts.append(PartSpec(f"mesh{i + 1}", box=None, mesh=path, mesh_scale=factor, color=(150, 150, 160)))
+    return tuple(parts)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,7 +72,9 @@ def run(args: argparse.Namespace) -> int:
 
     from tracker.sources.recording import RecordingWriter
 
-    opts = SimOptions(speed=args.speed, occlusion=args.occlusion, excursions=args.excursions)
+    opts = SimOptions(
+        speed=args.speed, occlusion=args.occlusion, excursions=args.excursions, extra_parts=extra_parts(args)
+    )
     src = SimulatedTable(args.scenario, seed=args.seed, options=opts, realtime=False, n_frames=args.frames)
     start = time.perf_counter()
     writer = RecordingWriter(

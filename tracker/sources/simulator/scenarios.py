@@ -325,9 +325,11 @@ class ScriptBuilder:
         v = self.intr.fy * pc[:, 1] / z + self.intr.cy
         return np.stack([u, v, z], axis=1)
 
-    def in_view(self, pose: Pose, part: PartSpec, margin: float = 30.0) -> bool:
+    def in_view(self, pose: Pose, part: PartSpec, margin: float | None = None) -> bool:
         uvz = self.project(pose.transform_points(part.vertices() if part.box is not None else _hull(part)))
         w, h = self.intr.width, self.intr.height
+        if margin is None:
+            margin = 30.0 * w / 640.0
         return bool(
             np.all(uvz[:, 2] > 0.1)
             and np.all(uvz[:, 0] > margin)
@@ -392,7 +394,7 @@ class ScriptBuilder:
         for z in np.arange(0.0, 1.6, 0.01):
             p = np.array([x, y, z])
             u, v, zc = self.project(p)[0]
-            if zc < 0.15 or v > self.intr.height + margin:
+            if zc < 0.15 or v > self.intr.height + margin * self.intr.height / 480.0:
                 return p
         return np.array([x, y, 1.6])
 
@@ -402,7 +404,8 @@ class ScriptBuilder:
         for dx in np.arange(0.0, 1.5, 0.01):
             q = p + np.array([side * dx, 0.0, 0.0])
             u = self.project(q)[0, 0]
-            if u < -70 or u > self.intr.width + 70:
+            m = 70.0 * self.intr.width / 640.0
+            if u < -m or u > self.intr.width + m:
                 return q
         return p + np.array([side * 1.5, 0.0, 0.0])
 
