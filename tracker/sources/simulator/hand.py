@@ -101,7 +101,7 @@ def hand_primitives(
     to_sh = np.asarray(shoulder, float) - w
     dist = float(np.linalg.norm(to_sh))
     elbow = w + to_sh * min(0.28 / max(dist, 1e-6), 0.6)
-    out.append(Capsule(w_in, w + 0.4 * (elbow - w), 0.025 * s, SKIN_ARM))
+    out.append(Capsule(w_in, w + 0.4 * (elbow - w), 0.027 * s, SKIN_ARM))
     out.append(Capsule(w + 0.4 * (elbow - w), elbow, 0.031 * s, SKIN_ARM))
-    out.append(Capsule(elbow, np.asarray(shoulder, float), 0.038 * s, SKIN_ARM))
+    out.append(Capsule(elbow, np.asarray(shoulder, float), 0.034 * s, SKIN_ARM))
     return out

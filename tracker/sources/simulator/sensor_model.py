@@ -137,6 +137,8 @@ class ColorSensorModel:
     * ``gain_period``: its period in seconds (7 s), plus a weaker 1.7 s flicker of a quarter of the amplitude.
     * ``ramp_amplitude``: amplitude of a slowly rotating left/right–top/bottom brightness ramp (0.08).
     * ``ramp_period``: seconds per rotation of the ramp direction (23 s).
+    * ``vignetting``: relative darkening in the image corners (0.15), growing with the squared distance from
+      the image centre.
     """
 
     noise_sigma: float = 2.5
@@ -144,6 +146,7 @@ class ColorSensorModel:
     gain_period: float = 7.0
     ramp_amplitude: float = 0.08
     ramp_period: float = 23.0
+    vignetting: float = 0.15
 
     def lighting(self, t: float, phase: float) -> tuple[float, float, float]:
         """Global gain and the (u, v) ramp coefficients at time ``t`` seconds (``phase`` in radians, seeded)."""
@@ -157,7 +160,7 @@ class ColorSensorModel:
         """uint8 RGB from the float (0..255) rendered colour, with lighting variation and noise."""
         g, ru, rv = self.lighting(t, phase)
         out = np.empty(color.shape, np.uint8)
-        _color_kernel(color, out, np.uint64(key), g, ru, rv, float(self.noise_sigma))
+        _color_kernel(color, out, np.uint64(key), g, ru, rv, float(self.vignetting), float(self.noise_sigma))
         return out
 
 
@@ -275,13 +278,15 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
 
 
 @nb.njit(cache=True, fastmath=_FM)
-def _color_kernel(color, out, key, gain, ramp_u, ramp_v, sigma):
+def _color_kernel(color, out, key, gain, ramp_u, ramp_v, vignetting, sigma):
     h, w, _ = color.shape
     scale = sigma / 104.51314746403095  # std of (b1 + b2 - 255) for two uniform bytes
     for v in range(h):
-        gv = gain + ramp_v * (v / h - 0.5)
+        dv = v / h - 0.5
+        gv = gain + ramp_v * dv
         for u in range(w):
-            g = gv + ramp_u * (u / w - 0.5)
+            du = u / w - 0.5
+            g = (gv + ramp_u * du) * (1.0 - vignetting * 2.0 * (du * du + dv * dv))
             hh = _hash(key, v * w + u, 2)
             for c in range(3):
                 b1 = np.float64((hh >> np.uint64(16 * c)) & _MASK8)
