@@ -34,18 +34,20 @@ def test_tracked_guess_session_reaches_the_right_verdict():
 
 def test_evaluate_subset_writes_summary(tmp_path, capsys):
     out = tmp_path / "ev"
-    assert main(["evaluate", "learning", "--out", str(out), "--sessions", "1", "--poses", "groundtruth"]) == 0
+    assert main(["evaluate", "guess", "--out", str(out), "--sessions", "1", "--poses", "groundtruth"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     for key in ("sessions", "connections_total", "connections_within_1s", "connections_never", "false_completions"):
         assert key in summary
     assert summary["sessions"] == 1 and summary["connections_total"] == 4
     assert summary["connections_within_1s"] == 4 and summary["false_completions"] == 0
-    assert (out / "learning.md").read_text().count("| 1 |") >= 1 and (out / "learning_timing.png").stat().st_size > 0
-    assert main(["evaluate", "--list"]) == 0 and "guidance" in capsys.readouterr().out
-
-
-def test_evaluate_guess_subset_has_guess_correct(tmp_path):
-    out = tmp_path / "ev"
-    assert main(["evaluate", "guess", "--out", str(out), "--sessions", "1", "--poses", "groundtruth"]) == 0
-    summary = json.loads((out / "summary.json").read_text())
     assert summary["guess_correct"] == 1 and summary["confusion"]["rows_recognised_cols_true"][0][0] == 1
+    assert "| 1 | 1 | 1 | guess-1 |" in (out / "guess.md").read_text()
+    assert (out / "guess_timing.png").stat().st_size > 0 and (out / "guess_confusion.png").stat().st_size > 0
+    assert main(["evaluate", "--list"]) == 0 and "learning" in capsys.readouterr().out
+
+
+def test_learning_session_on_groundtruth_verdicts_and_no_false_completion():
+    spec = next(s for s in sessions_for("learning") if s.user == 2 and s.recording == 4)
+    r = run_session(spec, poses="groundtruth", frame_step=2)
+    assert r.verdicts_correct and r.false_completions == 0  # the swapped-word twin mode never completes
+    assert len(r.detected_events) == 3
