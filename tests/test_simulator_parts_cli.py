@@ -104,6 +104,13 @@ def test_wider_hand_occludes_more():
         return total
 
     assert hand_pixels(2.0) > 1.2 * hand_pixels(0.0)
+    # without the hand nothing is drawn but the parts still move
+    src = SimulatedTable("guess-2", seed=5, options=SimOptions(show_hand=False))
+    hp = src.timeline.passes[0]
+    k = int((hp.t_grasp + hp.t_release) * 15)
+    clean = src.render_clean(k)
+    assert clean["hand_box"] is None and not (clean["ids"] == len(src.parts)).any()
+    assert not np.allclose(src.groundtruth(k)[hp.part].t, src.groundtruth(0)[hp.part].t)
 
 
 def test_cli_lists_scenarios_and_writes_a_recording(tmp_path, capsys):

@@ -58,6 +58,7 @@ class SimOptions:
     * ``free_moves``: number of pick-and-place moves in the ``free`` scenario.
     * ``extra_parts``: further rigid parts (boxes such as the 2×2×10 cm rod, or meshes) lying on the table.
     * ``shadows``: soft shadows of the parts and the hand on the table.
+    * ``show_hand``: render the hand (False: parts move as if carried by an invisible hand).
     * ``depth_model`` / ``color_model``: the sensor models (see :mod:`.sensor_model`).
     """
 
@@ -73,6 +74,7 @@ class SimOptions:
     free_moves: int = 6
     extra_parts: tuple[PartSpec, ...] = ()
     shadows: bool = True
+    show_hand: bool = True
     depth_model: DepthSensorModel = field(default_factory=DepthSensorModel)
     color_model: ColorSensorModel = field(default_factory=ColorSensorModel)
 
@@ -94,7 +96,11 @@ class _MeshCache:
 
 
 class SimulatedTable(FrameSource):
-    """A scripted simulated table (see module docstring). ``scenario`` is one of :func:`list_scenarios`."""
+    """A scripted simulated table (see module docstring). ``scenario`` is one of :func:`list_scenarios`.
+
+    ``realtime=True`` paces iteration at 30 fps; ``n_frames`` limits the length (default: the whole script).
+    Rendering reuses internal buffers, so one instance must not render from two threads at once.
+    """
 
     name = "sim"
 
@@ -298,7 +304,7 @@ class SimulatedTable(FrameSource):
         # the hand
         hand_id = n_parts
         hand_rects: list[tuple[int, int, int, int]] = []
-        hp = self.timeline.active_pass(t)
+        hp = self.timeline.active_pass(t) if self.options.show_hand else None
         if hp is not None:
             hpose, grip = hp.state(t)
             hpose = self._T @ hpose
