@@ -329,3 +329,17 @@ def test_colour_noise_matches_the_model():
     r = res[ok]
     assert abs(r.mean()) < 0.1
     assert r.std() == pytest.approx(np.sqrt(3.0**2 + 1 / 12), rel=0.08)
+
+
+def test_projector_shadow_band_left_of_a_near_surface():
+    model = DepthSensorModel(dropout=0.0, edge_missing=0.0, edge_flying=0.0, shift_u=0, noise_coeff=0.0)
+    clean = np.full((40, 200), 1.0, np.float32)
+    clean[:, 100:140] = 0.8  # a nearer block
+    out = model.apply(clean, np.ones_like(clean), key=3, fx=525.0)
+    width = 525.0 * 0.075 * (1 / 0.8 - 1 / 1.0)  # ≈ 9.8 px of background the projector cannot reach
+    row = out[20]
+    assert np.isnan(row[101 - int(width) : 100]).all()
+    assert np.isfinite(row[: 100 - int(np.ceil(width)) - 1]).all()
+    assert np.isfinite(row[100:]).all()  # block and the background to its right are measured
+    none = DepthSensorModel(projector_baseline=0.0, dropout=0.0, edge_missing=0.0, edge_flying=0.0, shift_u=0)
+    assert np.isfinite(none.apply(clean, np.ones_like(clean), key=3)).all()

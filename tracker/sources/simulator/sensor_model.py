@@ -12,6 +12,9 @@ camera (Kinect / RealSense class) with
 * "flying pixels" at edges (``edge_flying`` of the edge pixels take a depth interpolated between the
   fore- and the background);
 * random dropouts (``dropout`` of all pixels), and a working range ``[min_range, max_range]``;
+* the projector's shadow of a structured-light sensor: background pixels that the pattern projector,
+  ``projector_baseline`` metres to the right of the depth camera, cannot see behind a nearer surface get no
+  depth (a band to the left of every object, its width the disparity difference ``fx·b·(1/z_fg − 1/z_bg)``);
 * a fixed misregistration of the depth image relative to colour: the depth at pixel ``(u, v)`` is the
   scene depth at ``(u + shift_u, v + shift_v)`` (integer pixels, ≤ 1).
 
@@ -60,6 +63,8 @@ class DepthSensorModel:
     * ``dropout``: probability of a random missing pixel anywhere (0.005).
     * ``min_range`` / ``max_range``: working range in metres (0.3 / 4.0); outside it depth is missing.
     * ``shift_u`` / ``shift_v``: depth-to-colour misregistration in whole pixels (1, 0).
+    * ``projector_baseline``: metres from the depth camera to the pattern projector, on its right (0.075;
+      negative: on its left; 0: no projector shadows).
     """
 
     noise_coeff: float = 1.4e-3
@@ -78,6 +83,7 @@ class DepthSensorModel:
     max_range: float = 4.0
     shift_u: int = 1
     shift_v: int = 0
+    projector_baseline: float = 0.075
 
     def __post_init__(self) -> None:
         if self.noise_on not in ("depth", "disparity"):
@@ -98,10 +104,14 @@ class DepthSensorModel:
         """Standard deviation (metres) of the depth noise at depth ``z`` metres (before quantisation)."""
         return self.noise_coeff * np.asarray(z, dtype=float) ** 2
 
-    def apply(self, clean: np.ndarray, cosang: np.ndarray, key: int) -> np.ndarray:
+    def apply(self, clean: np.ndarray, cosang: np.ndarray, key: int, fx: float = 525.0) -> np.ndarray:
         """Noisy float32 depth (NaN missing) from noise-free ``clean`` depth (inf where nothing) and
-        ``cosang`` = |cos(incidence)|, with the randomness of per-frame ``key`` (uint64)."""
+        ``cosang`` = |cos(incidence)|, with the randomness of per-frame ``key`` (uint64); ``fx`` is the focal
+        length in pixels (for the projector shadows)."""
         out = np.empty(clean.shape, np.float32)
+        shadow = np.zeros(clean.shape, np.bool_)
+        if self.projector_baseline != 0.0:
+            _projector_shadow(clean, float(fx) * abs(self.projector_baseline), self.projector_baseline > 0, shadow)
         quant = {"none": 0, "mm": 1, "disparity": 2}[self.quantization]
         _depth_kernel(
             clean,
@@ -124,6 +134,7 @@ class DepthSensorModel:
             float(self.max_range),
             int(self.shift_u),
             int(self.shift_v),
+            shadow,
         )
         return out
 
@@ -191,7 +202,7 @@ def _gauss12(h):
 
 @nb.njit(cache=True, fastmath=_FM)
 def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dstep, jump, p_miss, p_fly, cos_start,
-                  cos_end, p_drop, zmin, zmax, su, sv):  # fmt: skip
+                  cos_end, p_drop, zmin, zmax, su, sv, shadow):  # fmt: skip
     h, w = clean.shape
     nan = np.float32(np.nan)
     for v in range(h):
@@ -202,7 +213,7 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
                 out[v, u] = nan
                 continue
             z = clean[vs, us]
-            if not (z >= zmin and z <= zmax):
+            if not (z >= zmin and z <= zmax) or shadow[vs, us]:
                 out[v, u] = nan
                 continue
             i = v * w + u
@@ -275,6 +286,36 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
                 out[v, u] = nan
             else:
                 out[v, u] = np.float32(z)
+
+
+@nb.njit(cache=True, fastmath=_FM)
+def _projector_shadow(clean, fxb, right, shadow):
+    """Mark pixels hidden from a projector ``fxb / fx`` metres to the right (``right``) or left of the camera.
+
+    Along a row the projector column of pixel u is ``c(u) = u ∓ fxb / z(u)``; a pixel is in shadow when a pixel
+    on the projector's side has a smaller (right) / larger (left) projector column, i.e. a nearer surface
+    blocks the projector's ray.
+    """
+    h, w = clean.shape
+    for v in range(h):
+        if right:
+            m = 1e30
+            for u in range(w - 1, -1, -1):
+                z = clean[v, u]
+                d = fxb / z if z > 0.0 and z < 1e29 else 0.0
+                c = u - d
+                shadow[v, u] = m < c - 0.5
+                if c < m:
+                    m = c
+        else:
+            m = -1e30
+            for u in range(w):
+                z = clean[v, u]
+                d = fxb / z if z > 0.0 and z < 1e29 else 0.0
+                c = u + d
+                shadow[v, u] = m > c + 0.5
+                if c > m:
+                    m = c
 
 
 @nb.njit(cache=True, fastmath=_FM)

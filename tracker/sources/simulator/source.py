@@ -22,7 +22,7 @@ import numpy as np
 from tracker.camera import Intrinsics
 from tracker.frame import Frame
 from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.pose import Pose, normalize_quat
 from tracker.sources.base import FrameSource
 from tracker.sources.simulator import rasterizer as rz
 from tracker.sources.simulator.hand import Box, Capsule, hand_primitives
@@ -196,7 +196,7 @@ class SimulatedTable(FrameSource):
     def groundtruth(self, index: int) -> dict[str, Pose]:
         """Every part's pose in the camera frame at frame ``index``."""
         t = index / FPS
-        return {p.name: self._T @ self.timeline.part_pose(p.name, t) for p in self._parts}
+        return {p.name: _stable(self._T @ self.timeline.part_pose(p.name, t)) for p in self._parts}
 
     def metadata(self) -> dict[str, Any]:
         md = super().metadata()
@@ -273,7 +273,7 @@ class SimulatedTable(FrameSource):
         shapes: list[tuple[np.ndarray, float]] = []
 
         for pid, part in enumerate(self._parts):
-            pose = self._T @ self.timeline.part_pose(part.name, t)
+            pose = _stable(self._T @ self.timeline.part_pose(part.name, t))
             poses[part.name] = pose
             R, tt = pose.R, pose.t
             albedo = np.asarray(part.color if part.color is not None else (150, 150, 150), float)
@@ -414,7 +414,7 @@ class SimulatedTable(FrameSource):
             raise ValueError(f"simulator: frame index must be >= 0, got {index}")
         clean = self.render_clean(index)
         key = self.frame_key(index)
-        depth = self.options.depth_model.apply(clean["depth"], clean["cosang"], key)
+        depth = self.options.depth_model.apply(clean["depth"], clean["cosang"], key, fx=self._intr.fx)
         color = self.options.color_model.apply(clean["color"], key, clean["t"], self._phase)
         meta = {
             "groundtruth": {"poses": clean["poses"], "hand_box": clean["hand_box"], "visible": clean["visible"]},
@@ -422,6 +422,18 @@ class SimulatedTable(FrameSource):
             "seed": self.seed,
         }
         return Frame(index=index, timestamp=clean["t"], color=color, depth=depth, intrinsics=self._intr, meta=meta)
+
+
+def _stable(pose: Pose) -> Pose:
+    """The pose with its quaternion at a fixed point of normalisation, so that writing it to JSON and reading
+    it back (which normalises again) reproduces it bit for bit."""
+    q = pose.q
+    for _ in range(4):
+        q2 = normalize_quat(q)
+        if np.array_equal(q2, q):
+            break
+        q = q2
+    return pose if q is pose.q else Pose(pose.t, q)
 
 
 def box_corners(R: np.ndarray, t: np.ndarray, half: np.ndarray) -> np.ndarray:
