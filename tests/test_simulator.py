@@ -259,6 +259,10 @@ def test_every_scenario_builds_its_structure(name):
         assert abs(final[n].t[1] - (cell[1] + 0.5) * A) < 1e-6  # resting on the table / on the cube below
     assert len(src.events) == len(s.connections)
     assert {tuple(e.parts) for e in src.events} == set(s.connections)
+    if name.startswith("learning"):  # the row reads left→right in the image
+        cam = src.groundtruth(src.n_frames - 1)
+        us = [src.intrinsics.project(cam[n].t[None])[0, 0] for n, _ in s.cells]
+        assert us == sorted(us)
     # distractors never move
     start = src.groundtruth(0)
     for n in src.scenario.distractors:
