@@ -228,7 +228,7 @@ class SceneUpdater:
         while not self._stop.is_set():
             self._event.wait(timeout=1.0)
             self._event.clear()
-            snap, frame, version = self.worker.latest, self.worker.latest_frame, self.worker.version
+            version, snap, frame = self.worker.published
             if snap is None or version == last_version:
                 continue
             if not self.scene.server.get_clients() and version - last_version < 30 and last_version >= 0:

@@ -83,7 +83,11 @@ class AppState:
             self.resolve_task(self.mode, self.task)  # fail early on a bad --task
         self._open = open_source or (lambda spec: open_source_spec(spec, settings.realtime, settings.seed))
         self.worker = PipelineWorker(
-            self._open_current, self._make_pipeline, max_fps=settings.max_fps, loop=settings.loop
+            self._open_current,
+            self._make_pipeline,
+            max_fps=settings.max_fps,
+            loop=settings.loop,
+            drop_stale=settings.realtime,
         )
         self.scene = None
         self.scene_updater = None
@@ -545,15 +549,28 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
         await websocket.accept()
         loop = asyncio.get_running_loop()
         event = asyncio.Event()
+        closed = asyncio.Event()
 
         def on_snapshot(_snap) -> None:
             loop.call_soon_threadsafe(event.set)
 
+        async def watch_disconnect() -> None:
+            # Notices a client that left (or a server shutdown) even while no frame arrives.
+            try:
+                while (await websocket.receive())["type"] != "websocket.disconnect":
+                    pass
+            except (WebSocketDisconnect, RuntimeError):
+                pass
+            finally:
+                closed.set()
+                event.set()
+
         state.worker.add_listener(on_snapshot)
+        watcher = asyncio.create_task(watch_disconnect())
         sent = -1
         try:
-            while True:
-                snap, version = state.worker.latest, state.worker.version
+            while not closed.is_set():
+                version, snap, _frame = state.worker.published
                 if snap is not None and version != sent:
                     sent = version
                     payload = snap.to_dict()
@@ -567,5 +584,6 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
             pass
         finally:
             state.worker.remove_listener(on_snapshot)
+            watcher.cancel()
 
     return app

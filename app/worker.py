@@ -44,6 +44,76 @@ class WorkerError:
         return {"time": self.time, "where": self.where, "message": self.message}
 
 
+class _FramePrefetcher:
+    """Reads a source on its own thread so rendering/decoding the next frame overlaps with processing this one.
+
+    Items are ``("frame", Frame, read_seconds, wall_time)``, ``("error", exception, ...)`` or ``("end", ...)``.
+    With ``drop_stale`` (live and real-time sources) a full queue drops its oldest frame, so the pipeline
+    always gets the newest one; otherwise the reader waits (no frame is lost).
+    """
+
+    def __init__(self, source: FrameSource, maxsize: int = 1, drop_stale: bool = False) -> None:
+        self.source = source
+        self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
+        self.drop_stale = drop_stale
+        self.dropped = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="frame-reader", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            it = iter(self.source)
+        except Exception as exc:  # noqa: BLE001 - handed to the worker
+            self._put(("error", exc, 0.0, time.time()))
+            self._put(("end", None, 0.0, time.time()))
+            return
+        while not self._stop.is_set():
+            t0 = time.perf_counter()
+            try:
+                item = ("frame", next(it), 0.0, 0.0)
+                item = (item[0], item[1], time.perf_counter() - t0, time.time())
+            except StopIteration:
+                self._put(("end", None, 0.0, time.time()))
+                return
+            except Exception as exc:  # noqa: BLE001 - a corrupt frame or a failing device: the worker decides
+                item = ("error", exc, time.perf_counter() - t0, time.time())
+            self._put(item)
+
+    def _put(self, item: tuple) -> None:
+        while not self._stop.is_set():
+            if self.drop_stale and item[0] == "frame":
+                try:
+                    self.queue.put_nowait(item)
+                    return
+                except queue.Full:
+                    try:
+                        old = self.queue.get_nowait()
+                        if old[0] == "frame":
+                            self.dropped += 1
+                        else:  # never drop an error or the end: put it back in front of this frame
+                            self.queue.put_nowait(old)
+                            self._stop.wait(0.01)
+                    except (queue.Empty, queue.Full):
+                        pass
+                    continue
+            try:
+                self.queue.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+
+    def get(self, timeout: float) -> tuple | None:
+        try:
+            return self.queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def close(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        self._thread.join(timeout)
+
+
 class PipelineWorker:
     """Runs ``make_pipeline(source)`` on frames of ``open_source()`` in a background thread.
 
@@ -52,6 +122,10 @@ class PipelineWorker:
     * ``max_fps``: upper bound on processed frames per second (the worker sleeps the rest).
     * ``loop``: reopen the source when it ends (recordings and the simulator run forever).
     * ``max_consecutive_errors``: source failures in a row before the source is reopened.
+    * ``drop_stale``: for live/real-time sources, skip frames that waited while the pipeline was busy.
+
+    Frames are read on a second thread (:class:`_FramePrefetcher`), so the source's work overlaps the
+    pipeline's; ``Snapshot.wall_time`` is when the frame left the source.
     """
 
     def __init__(
@@ -62,6 +136,7 @@ class PipelineWorker:
         loop: bool = True,
         max_consecutive_errors: int = 5,
         reopen_delay_s: float = 0.5,
+        drop_stale: bool = False,
     ) -> None:
         self._open_source = open_source
         self._make_pipeline = make_pipeline
@@ -69,19 +144,19 @@ class PipelineWorker:
         self.loop = loop
         self.max_consecutive_errors = int(max_consecutive_errors)
         self.reopen_delay_s = float(reopen_delay_s)
+        self.drop_stale = bool(drop_stale)
 
         self.source: FrameSource | None = None
         self.pipeline: AssemblyPipeline | None = None
-        self.latest: Snapshot | None = None
-        self.latest_frame: Frame | None = None
-        self.version = 0
+        self._published: tuple[int, Snapshot | None, Frame | None] = (0, None, None)
         self.frames_processed = 0
         self.frames_skipped = 0
         self.source_opens = 0
         self.state = "stopped"
         self.errors: collections.deque[WorkerError] = collections.deque(maxlen=100)
 
-        self._iter = None
+        self._reader: _FramePrefetcher | None = None
+        self._frames_dropped_before = 0
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._running = threading.Event()
@@ -124,6 +199,23 @@ class PipelineWorker:
         self.state = "stopped"
 
     @property
+    def published(self) -> tuple[int, Snapshot | None, Frame | None]:
+        """``(version, snapshot, frame)`` of the newest processed frame, read consistently."""
+        return self._published
+
+    @property
+    def latest(self) -> Snapshot | None:
+        return self._published[1]
+
+    @property
+    def latest_frame(self) -> Frame | None:
+        return self._published[2]
+
+    @property
+    def version(self) -> int:
+        return self._published[0]
+
+    @property
     def paused(self) -> bool:
         return not self._running.is_set()
 
@@ -161,19 +253,26 @@ class PipelineWorker:
             "paused": self.paused,
             "frames_processed": self.frames_processed,
             "frames_skipped": self.frames_skipped,
+            "frames_dropped": self.frames_dropped,
             "source_opens": self.source_opens,
             "frame_index": None if snap is None else snap.frame_index,
             "fps": 0.0 if snap is None else round(snap.fps, 2),
             "errors": [e.to_dict() for e in list(self.errors)[-10:]],
         }
 
+    @property
+    def frames_dropped(self) -> int:
+        """Frames the reader dropped because the pipeline was busy (``drop_stale`` only)."""
+        reader = self._reader
+        return self._frames_dropped_before + (reader.dropped if reader is not None else 0)
+
     def jpeg(self, quality: int = 75) -> tuple[int, bytes] | None:
         """The latest colour image as JPEG ``(frame_index, bytes)``, encoded once per frame."""
-        frame = self.latest_frame
+        version, _snap, frame = self._published
         if frame is None:
             return None
         cache = self._jpeg_cache
-        if cache is not None and cache[0] == frame.index and cache[1] == self.version:
+        if cache is not None and cache[1] == version:
             return cache[0], cache[2]
         ok, buf = cv2.imencode(
             ".jpg", cv2.cvtColor(frame.color, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality]
@@ -181,12 +280,16 @@ class PipelineWorker:
         if not ok:
             return None
         data = buf.tobytes()
-        self._jpeg_cache = (frame.index, self.version, data)
+        self._jpeg_cache = (frame.index, version, data)
         return frame.index, data
 
     # ------------------------------------------------------------------ the worker thread
     def _close_source(self) -> None:
-        src, self.source, self._iter = self.source, None, None
+        src, reader = self.source, self._reader
+        self.source, self._reader = None, None
+        if reader is not None:
+            reader.close()
+            self._frames_dropped_before += reader.dropped
         if src is not None:
             try:
                 src.close()
@@ -211,7 +314,7 @@ class PipelineWorker:
                 pass
             return False
         self.source, self.pipeline = src, pipeline
-        self._iter = iter(src)
+        self._reader = _FramePrefetcher(src, drop_stale=self.drop_stale)
         self.source_opens += 1
         self.state = "running"
         return True
@@ -234,9 +337,7 @@ class PipelineWorker:
         self._wake.clear()
 
     def _publish(self, snap: Snapshot, frame: Frame) -> None:
-        self.latest_frame = frame
-        self.latest = snap
-        self.version += 1
+        self._published = (self._published[0] + 1, snap, frame)  # one assignment: readers see a consistent triple
         with self._lock:
             listeners = list(self._listeners)
         for cb in listeners:
@@ -258,7 +359,7 @@ class PipelineWorker:
                     self.state = "paused"
                 self._sleep(0.2)
                 continue
-            if self._iter is None:
+            if self._reader is None:
                 if not self._open():
                     self.state = "error"
                     self._sleep(delay)
@@ -268,9 +369,11 @@ class PipelineWorker:
                 consecutive = 0
             self.state = "running"
             t_start = time.perf_counter()
-            try:
-                frame = next(self._iter)
-            except StopIteration:
+            item = self._reader.get(timeout=0.2)
+            if item is None:
+                continue  # no frame yet: look at commands and pause again
+            kind, payload, read_s, wall = item
+            if kind == "end":
                 if consecutive:
                     self.report("source", "source stopped after an error; reopening")
                 elif self.loop:
@@ -278,10 +381,12 @@ class PipelineWorker:
                 else:
                     self.state = "finished"
                     self._running.clear()
+                    self._close_source()
                     continue
                 self._close_source()
                 continue
-            except Exception as exc:  # noqa: BLE001 - a corrupt frame or a failing device
+            if kind == "error":
+                exc = payload
                 consecutive += 1
                 self.frames_skipped += 1
                 self.report("source", f"frame skipped: {type(exc).__name__}: {exc}")
@@ -290,13 +395,14 @@ class PipelineWorker:
                     self._close_source()
                     self._sleep(delay)
                 continue
+            frame = payload
             consecutive = 0
-            wall = time.time()
             try:
                 if not isinstance(frame, Frame):
                     raise FrameError(f"source yielded {type(frame).__name__}, not a Frame")
                 frame.validate()
                 snap = self.pipeline.process(frame, wall_time=wall)
+                snap.timings["source"] = read_s
             except Exception as exc:  # noqa: BLE001 - the frame is skipped, the worker goes on
                 self.frames_skipped += 1
                 self.report("frame", f"frame {getattr(frame, 'index', '?')} skipped: {type(exc).__name__}: {exc}")

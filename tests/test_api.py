@@ -25,7 +25,7 @@ def client(tmp_path):
         max_fps=100,
         n_particles=20,
     )
-    app = create_app(settings, open_source=lambda spec: SyntheticTable())
+    app = create_app(settings, open_source=lambda spec: SyntheticTable(n_frames=100_000))
     with TestClient(app) as c:
         yield c
 
@@ -183,3 +183,27 @@ def test_task_validation_messages(client):
     assert r.status_code == 422 and "alternatives[0]" in str(r.json()["detail"])
     r = client.post("/api/tasks", json={**TASK, "colour": "red"})
     assert r.status_code == 422  # unknown fields are refused
+
+
+def test_websocket_without_frames_ends_when_client_leaves(tmp_path):
+    """A client that leaves while no frame comes (the source cannot open) must not keep its handler alive."""
+
+    def broken(_spec):
+        raise OSError("camera 7 not found")
+
+    settings = Settings(database=str(tmp_path / "a.db"), viser_port=0, mode="none", source="camera:7")
+    app = create_app(settings, open_source=broken)
+    with TestClient(app) as c:
+        worker = app.state.assembly.worker
+        with c.websocket_connect("/ws"):
+            t0 = time.time()
+            while not worker._listeners and time.time() - t0 < 5:
+                time.sleep(0.02)
+            assert len(worker._listeners) == 1
+        t0 = time.time()
+        while worker._listeners and time.time() - t0 < 5:
+            time.sleep(0.02)
+        assert worker._listeners == []
+        st = c.get("/api/status").json()
+        assert st["worker"]["state"] in ("error", "starting")
+        assert any("camera 7 not found" in e["message"] for e in st["worker"]["errors"])

@@ -361,7 +361,7 @@ class AssemblyPipeline:
                 self.poses.update(state.poses)
                 particles = {k: np.asarray(v, np.float32) for k, v in state.particles.items()}
                 for k, v in (getattr(state, "timings", None) or {}).items():
-                    timings[f"tracker.{k}"] = float(v)
+                    timings[f"tracker.{k}"] = float(v) / 1000.0  # the tracker reports milliseconds
             except Exception as exc:  # noqa: BLE001
                 log.exception("tracker failed on frame %s", frame.index)
                 errors.append(f"tracker: {type(exc).__name__}: {exc}")

@@ -72,5 +72,5 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"invalid settings: {msgs}") from exc
     app = create_app(settings)
     print(f"Assembly Agent: http://{settings.host}:{settings.port}/  (teacher editor: /teacher, API: /docs)")
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning")
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning", timeout_graceful_shutdown=5)
     return 0
