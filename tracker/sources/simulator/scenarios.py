@@ -460,8 +460,8 @@ class ScriptBuilder:
         cur_yaw = yh0
         if self.cfg.excursions and self.rng.random() < 0.6:
             out = self.excursion_point(cur)
-            key(float(np.clip(np.linalg.norm(out - cur) / 0.5, 0.4, 1.2)), out, cur_yaw, 1.0)
-            key(float(self.rng.uniform(0.5, 1.0)), out, cur_yaw, 1.0)
+            key(float(np.clip(np.linalg.norm(out - cur) / 0.7, 0.35, 0.9)), out, cur_yaw, 1.0)
+            key(float(self.rng.uniform(0.15, 0.45)), out, cur_yaw, 1.0)
             cur = out
         if occ >= 1.5 and others:
             via = self.rest[others[self.rng.integers(len(others))]].t.copy()

@@ -49,8 +49,8 @@ class SimOptions:
     * ``occlusion``: amount of occlusion by the hand, 0..2 (1 = default). Scales the hand's width
       (0.75 + 0.25·occlusion), the time it hovers over the target before lowering a part (0.4 s ·
       occlusion) and, from 1.5 on, routes the carried part over another resting part.
-    * ``excursions``: when True, the hand carries the part beyond the left/right image border for
-      0.5–1 s before placing it (in about 60 % of the moves).
+    * ``excursions``: when True, the hand carries the part beyond the nearer left/right image border
+      before placing it (in about 60 % of the moves; the part is out of view for about 0.7–1.2 s).
     * ``camera_distance``: metres from the table centre (None: seeded choice in [0.6, 0.9]).
     * ``camera_elevation_deg``: camera looking down at this angle (None: seeded choice in [40, 60]).
     * ``width``, ``height``, ``focal``: image size and focal length in pixels (640×480, 525).
