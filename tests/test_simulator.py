@@ -324,7 +324,7 @@ def test_disparity_noise_and_quantisation():
 def test_colour_noise_matches_the_model():
     from tracker.sources.simulator import ColorSensorModel
 
-    cm = ColorSensorModel(noise_sigma=3.0, gain_amplitude=0.0, ramp_amplitude=0.0, vignetting=0.0)
+    cm = ColorSensorModel(noise_sigma=3.0, gain_amplitude=0.0, ramp_amplitude=0.0, vignetting=0.0, blur_sigma=0.0)
     src = SimulatedTable("static", seed=9, n_frames=2, options=SimOptions(color_model=cm))
     clean = src.render_clean(1)["color"].copy()
     frame = src.render(1)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numba as nb
 import numpy as np
 
@@ -150,6 +151,8 @@ class ColorSensorModel:
     * ``ramp_period``: seconds per rotation of the ramp direction (23 s).
     * ``vignetting``: relative darkening in the image corners (0.15), growing with the squared distance from
       the image centre.
+    * ``blur_sigma``: Gaussian optical blur in pixels (0.6; 3×3 kernel), which also softens the rendered
+      edges; 0 disables.
     """
 
     noise_sigma: float = 2.5
@@ -158,6 +161,7 @@ class ColorSensorModel:
     ramp_amplitude: float = 0.08
     ramp_period: float = 23.0
     vignetting: float = 0.15
+    blur_sigma: float = 0.6
 
     def lighting(self, t: float, phase: float) -> tuple[float, float, float]:
         """Global gain and the (u, v) ramp coefficients at time ``t`` seconds (``phase`` in radians, seeded)."""
@@ -170,6 +174,8 @@ class ColorSensorModel:
     def apply(self, color: np.ndarray, key: int, t: float, phase: float) -> np.ndarray:
         """uint8 RGB from the float (0..255) rendered colour, with lighting variation and noise."""
         g, ru, rv = self.lighting(t, phase)
+        if self.blur_sigma > 0:
+            color = cv2.GaussianBlur(color, (3, 3), float(self.blur_sigma))
         out = np.empty(color.shape, np.uint8)
         _color_kernel(color, out, np.uint64(key), g, ru, rv, float(self.vignetting), float(self.noise_sigma))
         return out
