@@ -268,19 +268,66 @@ def box_rect(R: np.ndarray, t: np.ndarray, half: np.ndarray, fx, fy, cx, cy, wid
 def points_rect(pts: np.ndarray, fx, fy, cx, cy, width, height, near=0.05):
     """Clipped end-exclusive pixel rectangle covering the convex hull of camera-frame points; None if empty.
 
-    A hull that reaches behind the near plane gets the full image width and the rows it can reach.
+    A hull that reaches behind the near plane gets the whole image.
     """
-    z = pts[:, 2]
-    if np.all(z < near):
-        return None
-    if np.any(z < near):
-        return 0, 0, width, height
-    u = fx * pts[:, 0] / z + cx
-    v = fy * pts[:, 1] / z + cy
-    u0 = max(0, int(np.floor(u.min())))
-    v0 = max(0, int(np.floor(v.min())))
-    u1 = min(width, int(np.ceil(u.max())) + 1)
-    v1 = min(height, int(np.ceil(v.max())) + 1)
+    r = _points_rect(np.ascontiguousarray(pts, dtype=np.float64), fx, fy, cx, cy, width, height, near)
+    return None if r[0] < 0 else (int(r[0]), int(r[1]), int(r[2]), int(r[3]))
+
+
+@nb.njit(cache=True)
+def _points_rect(pts, fx, fy, cx, cy, width, height, near):
+    n = pts.shape[0]
+    behind = 0
+    umin = 1e30
+    umax = -1e30
+    vmin = 1e30
+    vmax = -1e30
+    for i in range(n):
+        z = pts[i, 2]
+        if z < near:
+            behind += 1
+            continue
+        u = fx * pts[i, 0] / z + cx
+        v = fy * pts[i, 1] / z + cy
+        umin = min(umin, u)
+        umax = max(umax, u)
+        vmin = min(vmin, v)
+        vmax = max(vmax, v)
+    out = np.full(4, -1, np.int64)
+    if behind == n:
+        return out
+    if behind > 0:
+        out[0], out[1], out[2], out[3] = 0, 0, width, height
+        return out
+    u0 = max(0, int(np.floor(umin)))
+    v0 = max(0, int(np.floor(vmin)))
+    u1 = min(width, int(np.ceil(umax)) + 1)
+    v1 = min(height, int(np.ceil(vmax)) + 1)
     if u0 >= u1 or v0 >= v1:
-        return None
-    return u0, v0, u1, v1
+        return out
+    out[0], out[1], out[2], out[3] = u0, v0, u1, v1
+    return out
+
+
+@nb.njit(cache=True)
+def shadow_polygon(pts, n, d, light, fx, fy, cx, cy):
+    """Project camera-frame ``pts`` along ``light`` onto the plane ``n·p + d = 0`` and into the image.
+
+    Returns (uv [N, 2], mean height above the plane); uv is empty when a foot point is behind the camera.
+    """
+    m = pts.shape[0]
+    denom = n[0] * light[0] + n[1] * light[1] + n[2] * light[2]
+    uv = np.empty((m, 2))
+    hsum = 0.0
+    for i in range(m):
+        h = n[0] * pts[i, 0] + n[1] * pts[i, 1] + n[2] * pts[i, 2] + d
+        hsum += h
+        k = max(h, 0.0) / denom
+        x = pts[i, 0] - k * light[0]
+        y = pts[i, 1] - k * light[1]
+        z = pts[i, 2] - k * light[2]
+        if z < 0.05:
+            return np.empty((0, 2)), hsum / m
+        uv[i, 0] = fx * x / z + cx
+        uv[i, 1] = fy * y / z + cy
+    return uv, hsum / m

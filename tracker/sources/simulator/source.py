@@ -380,14 +380,9 @@ class SimulatedTable(FrameSource):
             return None
         polys: list[tuple[np.ndarray, float]] = []
         for pts, dark in shapes:
-            h = pts @ n + d
-            hm = float(h.mean())
-            if hm > 0.35:
+            uv, hm = rz.shadow_polygon(pts, n, d, light, intr.fx, intr.fy, intr.cx, intr.cy)
+            if hm > 0.35 or len(uv) == 0:
                 continue
-            foot = pts - np.outer(np.maximum(h, 0.0) / denom, light)
-            if np.any(foot[:, 2] < 0.05):
-                continue
-            uv = np.stack([intr.fx * foot[:, 0] / foot[:, 2] + intr.cx, intr.fy * foot[:, 1] / foot[:, 2] + intr.cy], 1)
             polys.append((uv, dark * float(np.exp(-hm / 0.2))))
         if not polys:
             return None
