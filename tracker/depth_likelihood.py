@@ -110,13 +110,18 @@ def _pixel_terms(d, z, s, e, o_hat, beta, lam, tail, use_occ):
 
 
 @nb.njit(cache=True)
-def update_log_likelihood(D, subset, z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail, use_occ, dirty):
+def update_log_likelihood(D, subset, z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail, use_occ, dirty, alpha,
+                          cmask, cvalid):
     """Recompute the contributions of the dirty ``subset`` pixels for every particle and update ``ell`` in place.
 
     * ``D`` (N, K, P) rendered depth per object (``inf`` = not covered); the pixel depth is the z-buffer min.
     * ``z``, ``s``, ``e``, ``log_po_inf`` (P,) per-pixel observation constants (:func:`pixel_constants`).
     * ``o_hat`` (N, P) predicted occlusion probabilities; ``C`` (N, P) cached contributions; ``ell`` (N,).
     * ``dirty`` (N, P) uint8: only pixels flagged 1 (a rendered depth changed) are recomputed; flags are cleared.
+    * ``alpha``: exponent of every pixel's likelihood ratio (1 = independent pixels, as in the spec).
+    * ``cmask`` (K, P) uint8 colour masks, ``cvalid`` (K,) uint8: where part o is front-most, has a valid colour
+      mask and the pixel is outside it, the part cannot be the visible surface: the pixel is treated as occluded
+      (ô = 1). All-zero ``cvalid`` = depth only (the spec).
     """
     n = D.shape[0]
     k = D.shape[1]
@@ -128,22 +133,28 @@ def update_log_likelihood(D, subset, z, s, e, log_po_inf, o_hat, C, ell, beta, l
                 continue
             dirty[j, i] = 0
             d = np.inf
+            front = -1
             for o in range(k):
                 if D[j, o, i] < d:
                     d = D[j, o, i]
+                    front = o
             if d == np.inf:
                 c = 0.0
             else:
-                lik, _ = _pixel_terms(d, z[i], s[i], e[i], o_hat[j, i], beta, lam, tail, use_occ)
-                c = math.log(lik) - log_po_inf[i]
+                oh = o_hat[j, i]
+                if cvalid[front] and not cmask[front, i]:
+                    oh = 1.0
+                lik, _ = _pixel_terms(d, z[i], s[i], e[i], oh, beta, lam, tail, True if oh == 1.0 else use_occ)
+                c = alpha * (math.log(lik) - log_po_inf[i])
             acc += c - C[j, i]
             C[j, i] = c
         ell[j] += acc
 
 
 @nb.njit(cache=True)
-def occlusion_posterior(D, z, s, e, o_hat, beta, lam, tail, use_occ):
-    """Posterior occlusion probabilities (N, P): p_o ô / ℓ on covered pixels, ô elsewhere (4.45)."""
+def occlusion_posterior(D, z, s, e, o_hat, beta, lam, tail, use_occ, cmask, cvalid):
+    """Posterior occlusion probabilities (N, P): p_o ô / ℓ on covered pixels, ô elsewhere (4.45); 1 where the
+    front-most part has a colour mask that excludes the pixel (see :func:`update_log_likelihood`)."""
     n = D.shape[0]
     k = D.shape[1]
     p = D.shape[2]
@@ -151,12 +162,42 @@ def occlusion_posterior(D, z, s, e, o_hat, beta, lam, tail, use_occ):
     for j in range(n):
         for i in range(p):
             d = np.inf
+            front = -1
             for o in range(k):
                 if D[j, o, i] < d:
                     d = D[j, o, i]
+                    front = o
             if d == np.inf or not use_occ:
                 out[j, i] = o_hat[j, i]
+            elif cvalid[front] and not cmask[front, i]:
+                out[j, i] = 1.0
             else:
                 lik, num = _pixel_terms(d, z[i], s[i], e[i], o_hat[j, i], beta, lam, tail, use_occ)
                 out[j, i] = num / lik
     return out
+
+
+@nb.njit(cache=True)
+def part_visibility(D, post):
+    """Visible fraction (N, K) of each part per particle: over the evaluated pixels where the part is front-most,
+    the mean of 1 − o' (posterior occlusion); 0 where the part covers no evaluated pixel."""
+    n = D.shape[0]
+    k = D.shape[1]
+    p = D.shape[2]
+    vis = np.zeros((n, k))
+    cnt = np.zeros((n, k))
+    for j in range(n):
+        for i in range(p):
+            d = np.inf
+            best = -1
+            for o in range(k):
+                if D[j, o, i] < d:
+                    d = D[j, o, i]
+                    best = o
+            if best >= 0:
+                cnt[j, best] += 1.0
+                vis[j, best] += 1.0 - post[j, i]
+    for j in range(n):
+        for o in range(k):
+            vis[j, o] = vis[j, o] / cnt[j, o] if cnt[j, o] > 0 else 0.0
+    return vis

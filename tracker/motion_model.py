@@ -50,11 +50,25 @@ def propagate(
     return p, R, v
 
 
-def sample_noise(rng: np.random.Generator, m: int, sigma_v: float, sigma_w: float) -> np.ndarray:
-    """Noise samples (m, 6): N(0, σ_v²) on the 3 linear and N(0, σ_ω²) on the 3 angular components."""
+def sample_noise(
+    rng: np.random.Generator,
+    m: int,
+    sigma_v: float,
+    sigma_w: float,
+    wide_fraction: float = 0.0,
+    wide_scale: float = 1.0,
+) -> np.ndarray:
+    """Noise samples (m, 6): N(0, σ_v²) on the 3 linear and N(0, σ_ω²) on the 3 angular components.
+
+    With ``wide_fraction`` > 0 a random share of the samples uses ``wide_scale`` times the standard deviations
+    (a two-component Gaussian mixture: precise at rest, still able to follow fast motion).
+    """
     w = rng.standard_normal((m, 6))
-    w[:, :3] *= sigma_v
-    w[:, 3:] *= sigma_w
+    scale = np.ones(m)
+    if wide_fraction > 0.0 and wide_scale != 1.0:
+        scale = np.where(rng.random(m) < wide_fraction, wide_scale, 1.0)
+    w[:, :3] *= (sigma_v * scale)[:, None]
+    w[:, 3:] *= (sigma_w * scale)[:, None]
     return w
 
 

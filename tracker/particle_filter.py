@@ -35,6 +35,7 @@ from tracker.connection_particles import ResolvedConnection, apply_connections, 
 from tracker.depth_likelihood import (
     LikelihoodParams,
     occlusion_posterior,
+    part_visibility,
     pixel_constants,
     predict_occlusion,
     update_log_likelihood,
@@ -151,6 +152,7 @@ class MultiObjectTracker:
         self._pv = self._vs[self._gj].astype(np.float64)
         self._rays = pixel_rays(intrinsics, self._pu, self._pv)
         self._hints: list[ResolvedConnection] = []
+        self._color_targets: list = []
         self._initialized = False
         self.estimates: dict[str, Pose] = {}
         self._warm_up()
@@ -173,6 +175,8 @@ class MultiObjectTracker:
         self.occ = np.full((n, self._pu.size), self.config.initial_occlusion, np.float32)
         self.occ_time = np.full(self._pu.size, np.nan)
         self.estimates = {name: poses[name] for name in self.names}
+        self.visibility = np.ones(k)
+        self._noise_scale = np.ones(k)
         self._last_time: float | None = None
         self._initialized = True
 
@@ -203,6 +207,7 @@ class MultiObjectTracker:
         # 1. colour input
         depth = frame.depth
         u = np.zeros((k, 3))
+        self._color_targets = []  # (part index, (u, v), weight) for the optional colour likelihood term
         if cfg.use_color_input and detections:
             for i, name in enumerate(self.names):
                 det = detections.get(name)
@@ -212,6 +217,10 @@ class MultiObjectTracker:
                 center = getattr(det, "center", None)
                 if center is None or score < cfg.min_detection_score:
                     continue
+                if cfg.color_area_weighting:
+                    score *= self._area_ratio(i, getattr(det, "area", None))
+                if cfg.color_likelihood_px > 0:
+                    self._color_targets.append((i, np.asarray(center, np.float64), min(score, 1.0)))
                 u[i] = color_input(center, min(score, 1.0), self.estimates[name], depth, intr, cfg.lambda_z,
                                    cfg.depth_radius_px, self._surface_offset(i, center))
 
@@ -256,7 +265,10 @@ class MultiObjectTracker:
         prm = self.likelihood
         beta, lam, tail = prm.tail_weight, prm.occluder_rate, prm.tail_weight / prm.max_depth
         use_occ = bool(cfg.use_occlusion_model)
-        update_log_likelihood(D, all_pix, z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail, use_occ, dirty)
+        alpha = float(cfg.likelihood_exponent)
+        cmask, cvalid = self._color_masks(detections, gi, gj)
+        update_log_likelihood(D, all_pix, z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail, use_occ, dirty, alpha,
+                              cmask, cvalid)
         t_render = t2 - t1
         t_lik = time.perf_counter() - t2
         t_res = 0.0
@@ -269,7 +281,9 @@ class MultiObjectTracker:
         # 3. coordinate passes (Algorithm 5)
         for i in range(k):
             old_p, old_R = p_cur[:, i].copy(), R_cur[:, i].copy()
-            noise = sample_noise(self.rng, n, cfg.sigma_v, cfg.sigma_w)
+            scale = self._noise_scale[i]
+            noise = sample_noise(self.rng, n, cfg.sigma_v * scale, cfg.sigma_w * scale, cfg.wide_noise_fraction,
+                                 cfg.wide_noise_scale)
             p_cur[:, i], R_cur[:, i], v_cur[:, i] = propagate(p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i], noise,
                                                               cfg.k_v, cfg.b)
             changed_objs = {i}
@@ -297,7 +311,7 @@ class MultiObjectTracker:
                              subset, D, dirty)
             tb = time.perf_counter()
             update_log_likelihood(D, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail,
-                                  use_occ, dirty)
+                                  use_occ, dirty, alpha, cmask, cvalid)
             tc = time.perf_counter()
             ell_tot = ell + self._log_penalties(p_cur, R_cur, plane)
             td = time.perf_counter()
@@ -322,11 +336,15 @@ class MultiObjectTracker:
         # 4. occlusion posterior and estimate
         tf = time.perf_counter()
         if use_occ:
-            post = occlusion_posterior(D, z, s, e, o_hat, beta, lam, tail, use_occ)
+            post = occlusion_posterior(D, z, s, e, o_hat, beta, lam, tail, use_occ, cmask, cvalid)
             if not np.array_equal(anc, np.arange(n)):
                 self.occ = self.occ[anc]
             self.occ[:, pix] = post
             self.occ_time[pix] = now
+            if cfg.hidden_noise_scale < 1.0:
+                vis = normalize_log_weights(log_w) @ part_visibility(D, post)
+                self.visibility = vis
+                self._noise_scale = np.clip(vis / cfg.visible_fraction_full, cfg.hidden_noise_scale, 1.0)
         t_occ = time.perf_counter() - tf
         self.p, self.R, self.v, self.log_w = p_cur, R_cur, v_cur, log_w
         self.last_log_likelihood = ell_prev  # penalised ℓ per particle of the last pass (diagnostics, tests)
@@ -346,7 +364,7 @@ class MultiObjectTracker:
         R = np.empty_like(R_prev)
         v = np.empty_like(v_prev)
         for i in range(k):
-            noise = sample_noise(self.rng, n, cfg.sigma_v, cfg.sigma_w)
+            noise = sample_noise(self.rng, n, cfg.sigma_v, cfg.sigma_w, cfg.wide_noise_fraction, cfg.wide_noise_scale)
             p[:, i], R[:, i], v[:, i] = propagate(p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i], noise, cfg.k_v, cfg.b)
         self.p, self.R, self.v = p, R, v
         state = self._make_state(frame, t0, timings)
@@ -382,6 +400,15 @@ class MultiObjectTracker:
     def _log_penalties(self, p, R, plane) -> np.ndarray:
         cfg = self.config
         out = np.zeros(p.shape[0])
+        if self._color_targets:
+            intr = self.intrinsics
+            sig2 = cfg.color_likelihood_px**2
+            for i, c, wgt in self._color_targets:
+                ctr = np.einsum("nij,j->ni", R[:, i], self.center[i]) + p[:, i]
+                z = np.maximum(ctr[:, 2], 1e-3)
+                du = intr.fx * ctr[:, 0] / z + intr.cx - c[0]
+                dv = intr.fy * ctr[:, 1] / z + intr.cy - c[1]
+                out -= 0.5 * wgt * np.minimum(du * du + dv * dv, 9.0 * sig2) / sig2
         if cfg.use_intersection_penalty and len(self.pairs):
             out += intersection_log_penalty(R, p, self.center, self.half, self.pairs, cfg.contact_tolerance,
                                             cfg.lambda_i)
@@ -425,6 +452,53 @@ class MultiObjectTracker:
         pix = np.nonzero(mask & valid)[0].astype(np.int64)
         return pix if pix.size else None
 
+    def _color_masks(self, detections, gi, gj) -> tuple[np.ndarray, np.ndarray]:
+        """Per part, which evaluated pixels lie inside its detected colour blob (dilated by one grid pixel)."""
+        k = len(self.parts)
+        cmask = np.ones((k, gi.size), np.uint8)
+        cvalid = np.zeros(k, np.uint8)
+        cfg = self.config
+        if not (cfg.color_mask_likelihood and detections):
+            return cmask, cvalid
+        import cv2
+
+        f = cfg.downsample
+        grid = (self._vs.size, self._us.size)
+        for i, name in enumerate(self.names):
+            det = detections.get(name)
+            contour = getattr(det, "contour", None) if det is not None else None
+            if contour is None or float(getattr(det, "score", 0.0) or 0.0) < cfg.color_mask_min_score:
+                continue
+            pts = (np.asarray(contour, np.float64).reshape(-1, 2) - self._off) / f
+            if pts.shape[0] < 3:
+                continue
+            m = np.zeros(grid, np.uint8)
+            cv2.fillPoly(m, [np.round(pts).astype(np.int32)], 1)
+            m = cv2.dilate(m, np.ones((3, 3), np.uint8))
+            cmask[i] = m[gj, gi]
+            cvalid[i] = 1
+        return cmask, cvalid
+
+    def _area_ratio(self, obj: int, area) -> float:
+        """min(1, detected blob area / projected area of the part at its estimate); 1 when unknown.
+
+        A part partly hidden by a hand has a blob whose centroid is biased toward the visible part, so the colour
+        input is trusted in proportion to the visible fraction (an addition to eq. 3.7's score).
+        """
+        if area is None or not np.isfinite(area) or area <= 0:
+            return 1.0
+        est = self.estimates[self.names[obj]]
+        pts = est.transform_points(self.hulls[obj])
+        if np.any(pts[:, 2] < 0.01):
+            return 1.0
+        uv = self.intrinsics.project(pts).astype(np.float32)
+        import cv2
+
+        expected = float(cv2.contourArea(cv2.convexHull(uv)))
+        if expected <= 1.0:
+            return 1.0
+        return float(min(1.0, area / expected))
+
     def _surface_offset(self, obj: int, center) -> float:
         """Distance along z from the estimate's visible surface at pixel ``center`` to the part's centre."""
         est = self.estimates[self.names[obj]]
@@ -461,8 +535,10 @@ class MultiObjectTracker:
         oh = np.zeros((n, p))
         C = np.zeros((n, p))
         ell = np.zeros(n)
-        update_log_likelihood(D, sub, z, s, e, lp, oh, C, ell, 0.01, 0.69, 0.001, True, dirty)
-        occlusion_posterior(D, z, s, e, oh, 0.01, 0.69, 0.001, True)
+        cm = np.ones((k, p), np.uint8)
+        cv = np.ones(k, np.uint8)
+        update_log_likelihood(D, sub, z, s, e, lp, oh, C, ell, 0.01, 0.69, 0.001, True, dirty, 1.0, cm, cv)
+        part_visibility(D, occlusion_posterior(D, z, s, e, oh, 0.01, 0.69, 0.001, True, cm, cv))
         if len(self.pairs):
             intersection_log_penalty(R, t, self.center, self.half, self.pairs, 0.001, 0.01)
 

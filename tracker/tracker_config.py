@@ -36,6 +36,18 @@ class TrackerConfig(BaseModel):
     k_v: float = Field(0.2, description="Velocity coefficient k_v (4.24-4.26).")
     sigma_v: float = Field(0.005, ge=0.0, description="Linear noise std sigma_v, metres per step.")
     sigma_w: float = Field(0.05, ge=0.0, description="Angular noise std sigma_omega, radians per step.")
+    wide_noise_fraction: float = Field(
+        0.0, ge=0.0, le=1.0, description="Share of noise samples drawn with wide_noise_scale x the stds (a Gaussian "
+        "mixture proposal; 0 = the spec's single Gaussian).",
+    )
+    wide_noise_scale: float = Field(1.0, ge=1.0, description="Std multiplier of the wide noise component.")
+    hidden_noise_scale: float = Field(
+        1.0, gt=0.0, le=1.0, description="Noise std multiplier of a part that is fully hidden (visible fraction 0, "
+        "from the occlusion posterior); 1 = off (the spec). Hidden parts otherwise drift toward the occluder.",
+    )
+    visible_fraction_full: float = Field(
+        0.5, gt=0.0, le=1.0, description="Visible fraction from which a part gets its full motion noise.",
+    )
 
     # --- colour input (spec 4.11)
     lambda_z: float = Field(1.0, ge=0.0, le=1.0, description="Damping lambda_z of the depth component u_z.")
@@ -44,6 +56,22 @@ class TrackerConfig(BaseModel):
     )
     min_detection_score: float = Field(
         0.05, ge=0.0, le=1.0, description="Detections with a lower score count as 'not detected' (u = 0)."
+    )
+
+    color_likelihood_px: float = Field(
+        0.0, ge=0.0, description="Std (pixels) of an optional colour term in the particle weights: "
+        "-s/2 min(d^2, 9 std^2)/std^2 with d the distance of the projected part centre from the colour detection "
+        "(not in the spec, which uses colour only as control input; 0 = off).",
+    )
+    color_mask_likelihood: bool = Field(
+        False, description="Use the colour blobs in the depth likelihood: a pixel outside a part's detected blob "
+        "cannot show that part, so it counts as occluded there (not in the spec; keeps a hand from being taken "
+        "for the part it holds). Parts without colour or detection stay depth only.",
+    )
+    color_mask_min_score: float = Field(0.5, ge=0.0, le=1.0, description="Minimum score for using a blob mask.")
+    color_area_weighting: bool = Field(
+        True, description="Scale the reliability s by min(1, blob area / projected part area) (not in the spec: a "
+        "partly hidden part's blob centroid is biased).",
     )
 
     # --- occlusion dynamics (spec 4.8)
@@ -65,6 +93,10 @@ class TrackerConfig(BaseModel):
     half_life_depth: float = Field(1.0, gt=0.0, description="Occluder depth half life, m; lambda = ln2 / this.")
     max_depth: float = Field(6.0, gt=0.0, description="m, maximum sensor depth, metres.")
     downsample: int = Field(8, ge=1, le=16, description="Likelihood resolution: depth image subsampled by this.")
+    likelihood_exponent: float = Field(
+        1.0, gt=0.0, le=1.0, description="alpha: each pixel's likelihood ratio is raised to this power (1 = the "
+        "spec's independent pixels; < 1 tempers the product for correlated sensor noise). Not in the spec.",
+    )
     roi_margin_px: int = Field(
         2, ge=0, description="Margin (downsampled pixels) around the parts' projections that is evaluated."
     )
@@ -188,5 +220,18 @@ PRESETS: dict[str, dict[str, Any]] = {
         "n_checks": 2,
     },
 }
-PRESETS["default"] = {**PRESETS["seed-exp23"]}
-"""Preset name -> field values. "default" is tuned in benchmarks/bench_tracker.py (updated there)."""
+PRESETS["default"] = {
+    **PRESETS["seed-exp23"],
+    # tuned on simulated static / guess-* / learning-5 sequences (benchmarks/bench_tracker.py)
+    "downsample": 4,
+    "likelihood_exponent": 0.15,
+    "sigma_v": 0.0015,
+    "sigma_w": 0.006,
+    "wide_noise_fraction": 0.15,
+    "wide_noise_scale": 10.0,
+    "hidden_noise_scale": 0.1,
+    "table_tolerance": 0.001,
+    "color_mask_likelihood": True,
+    "color_likelihood_px": 10.0,
+}
+"""Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
