@@ -303,25 +303,23 @@ def _projector_shadow(clean, fxb, right, shadow):
     blocks the projector's ray.
     """
     h, w = clean.shape
+    c = np.empty(w)
     for v in range(h):
+        # projector column of every pixel (inf depth → disparity 0); branch-free so that it vectorises
         if right:
+            for u in range(w):
+                c[u] = u - fxb / clean[v, u]
             m = 1e30
             for u in range(w - 1, -1, -1):
-                z = clean[v, u]
-                d = fxb / z if z > 0.0 and z < 1e29 else 0.0
-                c = u - d
-                shadow[v, u] = m < c - 0.5
-                if c < m:
-                    m = c
+                shadow[v, u] = m < c[u] - 0.5
+                m = min(m, c[u])
         else:
+            for u in range(w):
+                c[u] = u + fxb / clean[v, u]
             m = -1e30
             for u in range(w):
-                z = clean[v, u]
-                d = fxb / z if z > 0.0 and z < 1e29 else 0.0
-                c = u + d
-                shadow[v, u] = m > c + 0.5
-                if c > m:
-                    m = c
+                shadow[v, u] = m > c[u] + 0.5
+                m = max(m, c[u])
 
 
 @nb.njit(cache=True, fastmath=_FM)
