@@ -113,6 +113,7 @@ class SimulatedTable(FrameSource):
         n_frames: int | None = None,
     ) -> None:
         self.info: ScenarioInfo = get_scenario(scenario)
+        self.name = f"sim:{self.info.name}"
         self.options = options or SimOptions()
         self.seed = int(seed)
         self.realtime = bool(realtime)
