@@ -98,6 +98,9 @@ def breakdown(name: str = "guess-2", n: int = 60) -> dict:
 
 
 def main() -> int:
+    import cv2
+
+    cv2.setNumThreads(1)  # single thread throughout (the numba kernels are serial anyway)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=150, help="frames per scenario (default 150)")
     args = ap.parse_args()
