@@ -122,7 +122,8 @@ def test_page_loads_and_updates(server, page):
     first = frame_number(page)
     page.wait_for_function(f"() => Number(document.getElementById('frame-index').textContent) > {first + 3}")
     assert frame_number(page) > first
-    assert "sim:guidance-demo" in page.locator("#source-name").text_content()
+    page.wait_for_function("() => document.getElementById('source-select').value === 'sim:guidance-demo'")
+    assert page.locator("#source-select option").count() >= 8  # the simulated scenarios and a camera
     page.wait_for_function("() => document.getElementById('instruction').textContent.startsWith('Step')")
     page.wait_for_function("() => document.getElementById('color-image').naturalWidth === 320")
     assert page.locator("#viser-frame").get_attribute("src").startswith("http://127.0.0.1:")
@@ -135,6 +136,8 @@ def test_page_loads_and_updates(server, page):
 def test_drawn_rectangle_creates_box_on_server(server, page):
     page.goto(server + "/")
     page.wait_for_function("() => document.getElementById('color-image').naturalWidth === 320")
+    page.click("#btn-pause")  # hold the frame still: the box is judged on the frame the user sees
+    page.wait_for_function("() => document.getElementById('worker-state').textContent === 'paused'")
     snap = httpx.get(server + "/api/snapshot").json()
     det = snap["detections"]["yellow"]
     assert det["bbox"] is not None, snap["detections"]
@@ -153,6 +156,9 @@ def test_drawn_rectangle_creates_box_on_server(server, page):
     assert boxes and boxes[-1]["part"] == "yellow" and boxes[-1]["action"] == "track"
     assert abs(boxes[-1]["rect"][0] - (x - 3)) < 3  # the rectangle arrived in image pixels
     assert boxes[-1]["pose"]["t"][2] > 0.2
+    assert boxes[-1]["frame_index"] == snap["frame_index"]
+    page.click("#btn-start")
+    page.wait_for_function("() => document.getElementById('worker-state').textContent === 'running'")
 
 
 def teacher_login(page, server, password=PASSWORD):

@@ -205,3 +205,29 @@ def test_pause_and_commands_run_on_worker_thread():
         assert wait_for(lambda: worker.frames_processed > n)
     finally:
         worker.stop()
+
+
+def test_parts_without_pose_start_tracking_when_a_box_is_drawn():
+    """Like a live camera: no initial poses; drawing a box over a part starts tracking just that part."""
+    src = SyntheticTable(n_frames=4)
+    from tracker.tracker_config import TrackerConfig
+
+    config = TrackerConfig.preset("default").with_overrides(n_particles=20)
+    p = AssemblyPipeline(src.parts, src.intrinsics, mode=None, config=config, initial_poses=None)
+    frames = list(src)
+    snap = p.process(frames[0])
+    assert snap.poses == {} and p.tracker is None
+    assert snap.table is not None
+    w = src.intrinsics.width
+    h = src.intrinsics.height
+    rect = (w // 4 - 2, h // 2 - 2, 14, 14)  # around the red square
+    name = p.guess_part(frames[0].color, rect)
+    assert name == "red"
+    pose = p.pose_from_rect(name, rect, frames[0].depth)
+    # the cube's centre is half an edge above the table plane
+    height = float(TABLE_NORMAL @ pose.t + TABLE_OFFSET)
+    assert abs(height - 0.018) < 0.004
+    p.set_part_pose(name, pose)
+    snap = p.process(frames[1])
+    assert set(snap.poses) == {"red"} and set(snap.particles) == {"red"}
+    assert not snap.errors

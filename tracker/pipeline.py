@@ -119,9 +119,9 @@ class AssemblyPipeline:
         self._last_wall: float | None = None
         self._setup_errors: list[str] = []
         self.detector = self._make_detector()
-        self.tracker = self._make_tracker()
-        if self.tracker is not None and self.poses:
-            self._initialize_tracker()
+        self._tracked_names: list[str] = []
+        self.tracker = None
+        self._initialize_tracker()
         self.mode_name: str | None = None
         self.task: Any = None
         self.mode = None
@@ -138,6 +138,11 @@ class AssemblyPipeline:
         return ColorDetector.from_parts(coloured) if coloured else None
 
     def _make_tracker(self):
+        """The particle filter for the parts that have a pose so far (``None`` until one has)."""
+        tracked = [p for p in self.parts if p.name in self.poses]
+        self._tracked_names = [p.name for p in tracked]
+        if not tracked:
+            return None
         try:
             from tracker.particle_filter import MultiObjectTracker
         except ImportError as exc:
@@ -149,10 +154,14 @@ class AssemblyPipeline:
 
             is_file = config.endswith((".yaml", ".yml", ".toml"))
             config = TrackerConfig.load(config) if is_file else TrackerConfig.preset(config)
-        return MultiObjectTracker(self.parts, self.intrinsics, config, seed=self.seed)
+        return MultiObjectTracker(tracked, self.intrinsics, config, seed=self.seed)
 
     def _initialize_tracker(self) -> None:
-        self.tracker.initialize(dict(self.poses))
+        """(Re)start the filter at the current poses; rebuilt when a part got its first pose."""
+        if self.tracker is None or self._tracked_names != [p.name for p in self.parts if p.name in self.poses]:
+            self.tracker = self._make_tracker()
+        if self.tracker is not None:
+            self.tracker.initialize({n: self.poses[n] for n in self._tracked_names})
 
     def set_mode(self, mode: str | None, task: Any = None) -> None:
         """Switch the assembly mode (``None``: tracking only); ``task`` as for the constructor."""
@@ -194,8 +203,7 @@ class AssemblyPipeline:
         if name not in {p.name for p in self.parts}:
             raise ValueError(f"unknown part {name!r}; parts are {', '.join(p.name for p in self.parts)}")
         self.poses[name] = pose
-        if self.tracker is not None:
-            self._initialize_tracker()
+        self._initialize_tracker()
 
     def part(self, name: str) -> PartSpec:
         for p in self.parts:
@@ -291,9 +299,8 @@ class AssemblyPipeline:
         self.poses = dict(self._initial_poses)
         self.table, self._table_time = None, None
         self._fps, self._last_wall = 0.0, None
-        self.tracker = self._make_tracker()
-        if self.tracker is not None and self.poses:
-            self._initialize_tracker()
+        self.tracker = None
+        self._initialize_tracker()
         self.set_mode(self.mode_name, self.task)
 
     # ----------------------------------------------------------------- the per-frame cycle
@@ -356,7 +363,9 @@ class AssemblyPipeline:
         if self.tracker is not None and self.poses:
             try:
                 if self.mode is not None:
-                    self.tracker.set_connection_hints(self.mode.connection_hints())
+                    tracked = set(self._tracked_names)
+                    hints = [h for h in self.mode.connection_hints() if {h.first, h.second} <= tracked]
+                    self.tracker.set_connection_hints(hints)
                 state = self.tracker.step(frame, detections or None, self.table)
                 self.poses.update(state.poses)
                 particles = {k: np.asarray(v, np.float32) for k, v in state.particles.items()}

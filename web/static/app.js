@@ -64,6 +64,25 @@ async function refreshStatus() {
   }
 }
 
+async function refreshSources() {
+  const r = await api("/api/sources");
+  const sel = $("source-select");
+  const specs = r.available.map((a) => a.spec);
+  if (!specs.includes(r.current)) specs.unshift(r.current);
+  sel.replaceChildren(...specs.map((spec) => { const o = el("option", spec); o.value = spec; return o; }));
+  sel.value = r.current;
+}
+
+$("source-select").addEventListener("change", async () => {
+  try {
+    await api("/api/sources", { method: "POST", body: JSON.stringify({ source: $("source-select").value }) });
+    showMessage("mode-message", `source ${$("source-select").value}`);
+    setTimeout(() => { refreshModes(); refreshStatus(); }, 1500);
+  } catch (e) {
+    showMessage("mode-message", e.message, true);
+  }
+});
+
 async function refreshModes() {
   const m = await api("/api/modes");
   $("mode-select").value = m.current;
@@ -299,6 +318,7 @@ function connect() {
 
 window.addEventListener("resize", drawOverlay);
 refreshStatus();
+refreshSources().catch(() => {});
 refreshModes().catch((e) => showMessage("mode-message", e.message, true));
 setInterval(refreshStatus, 2000);
 connect();
