@@ -42,6 +42,7 @@ def plot_distribution(dist: dict, path: Path, title: str) -> None:
         vals = [100 * dist[T][k] / max(1, sum(dist[T].values())) for T in keys]
         ax.bar(Ts, vals, width=0.6, bottom=bottom, label=k, color=colours[k])
         bottom = [b + v for b, v in zip(bottom, vals, strict=True)]
+    ax.set_xticks(Ts)
     ax.set_xlabel("tolerance T (s)")
     ax.set_ylabel("% of connections")
     ax.set_title(title)
