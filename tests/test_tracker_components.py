@@ -17,8 +17,8 @@ from tracker.connection_particles import apply_connections, resolve_hints
 from tracker.depth_likelihood import (
     LikelihoodParams,
     depth_sigma,
+    finish_occlusion,
     occluded_likelihood,
-    occlusion_posterior,
     pixel_constants,
     predict_occlusion,
     update_log_likelihood,
@@ -86,39 +86,48 @@ def test_likelihood_kernel_matches_numpy_reference():
     D[:, 0, :25] = (z[:25] + rng.normal(0, 0.01, (n, 25))).astype(np.float32)
     D[:, 1, 20:35] = (z[20:35] - 0.02).astype(np.float32)
     D[:, 1, 30] = np.float32(z[30] + 0.1)  # the part lies 10 cm behind the observed surface: occluded
-    o_hat = rng.uniform(0, 1, (n, p))
+    o_hat = rng.uniform(0, 1, (n, p)).astype(np.float32)
     s, e, lpi = pixel_constants(z, PRM)
-    C = np.zeros((n, p))
-    ell = np.zeros(n)
-    dirty = np.ones((n, p), np.uint8)
-    tail = PRM.tail_weight / PRM.max_depth
+    Df = D.reshape(n, k * p).copy()  # one depth column per (part, pixel)
+    loc = np.arange(k * p, dtype=np.int64).reshape(k, p)
+    anc = np.arange(n)
+
+    def run(cm, cv):
+        C, Q, F = np.zeros((n, p), np.float32), np.full((n, p), -1, np.float32), np.full((n, p), -1, np.int8)
+        ell = np.zeros(n)
+        dirty = np.ones((n, p), np.uint8)
+        update_log_likelihood(Df, loc, np.arange(p), z, s, e, lpi, o_hat, anc, C, Q, F, ell, PRM.tail_weight,
+                              PRM.occluder_rate, PRM.tail_weight / PRM.max_depth, True, dirty, 1.0, cm, cv)
+        assert not dirty.any()
+        return ell, Q, F
+
     cm, cv = np.ones((k, p), np.uint8), np.zeros(k, np.uint8)
-    update_log_likelihood(D, np.arange(p), z, s, e, lpi, o_hat, C, ell, PRM.tail_weight, PRM.occluder_rate, tail,
-                          True, dirty, 1.0, cm, cv)
+    ell, Q, F = run(cm, cv)
     d = D.min(axis=1).astype(np.float64)
     pv = visible_likelihood(z[None], d, PRM)
     po = occluded_likelihood(z[None], d, PRM)
     lik = pv * (1 - o_hat) + po * o_hat
     ref = np.where(np.isfinite(d), np.log(lik) - np.log(occluded_likelihood(z, np.inf, PRM))[None], 0.0)
-    assert np.allclose(ell, ref.sum(axis=1), rtol=1e-6)
-    assert not dirty.any()
-    post = occlusion_posterior(D, z, s, e, o_hat, PRM.tail_weight, PRM.occluder_rate, tail, True, cm, cv)
+    assert np.allclose(ell, ref.sum(axis=1), rtol=1e-5)
+    post, vis = finish_occlusion(Q, F, o_hat, anc, k)
     ref_post = np.where(np.isfinite(d), po * o_hat / lik, o_hat)
-    assert np.allclose(post, ref_post, atol=1e-6)
+    assert np.allclose(post, ref_post, atol=1e-5)
+    front = np.argmin(D, axis=1)
+    for o in range(k):
+        sel = np.isfinite(d[0]) & (front[0] == o)
+        assert vis[0, o] == pytest.approx(float(np.mean(1 - ref_post[0, sel])), abs=1e-5)
     # a part behind the observed surface becomes more likely occluded; one matching it, less
     assert np.all(post[:, 30] > o_hat[:, 30])
     assert np.all(post[:, 5] < o_hat[:, 5])
     # colour masks: outside part 0's blob the pixel counts as occluded (ô = 1) where part 0 is front-most
     cv[0] = 1
     cm[0, :10] = 0
-    ell2, C2, dirty[:] = np.zeros(n), np.zeros((n, p)), 1
-    update_log_likelihood(D, np.arange(p), z, s, e, lpi, o_hat, C2, ell2, PRM.tail_weight, PRM.occluder_rate, tail,
-                          True, dirty, 1.0, cm, cv)
-    oh = o_hat.copy()
+    ell2, _, _ = run(cm, cv)
+    oh = o_hat.astype(np.float64)
     oh[:, :10] = 1.0
     lik2 = pv * (1 - oh) + po * oh
     ref2 = np.where(np.isfinite(d), np.log(lik2) - np.log(occluded_likelihood(z, np.inf, PRM))[None], 0.0)
-    assert np.allclose(ell2, ref2.sum(axis=1), rtol=1e-6)
+    assert np.allclose(ell2, ref2.sum(axis=1), rtol=1e-5)
     assert ell2[0] < ell[0]  # the part matches the depth there, so masking it out costs likelihood
 
 
@@ -185,11 +194,12 @@ def test_mesh_renderer_matches_box_renderer(tmp_path):
     hh, ww = ref.shape
     gj, gi = np.meshgrid(np.arange(hh), np.arange(ww), indexing="ij")
     gi, gj = gi.ravel().astype(np.int64), gj.ravel().astype(np.int64)
-    out = np.full((1, 1, gi.size), np.inf, np.float32)
+    out = np.full((1, gi.size), np.inf, np.float32)
+    loc = np.arange(gi.size, dtype=np.int64).reshape(1, -1)
     render_mesh_at_pixels(pose.R[None, None], pose.t[None, None], model.vertices, model.faces, 0,
                           np.zeros(1, np.int64), gi, gj, np.arange(gi.size, dtype=np.int64), float(f), float(off),
-                          intr.fx, intr.fy, intr.cx, intr.cy, out, np.zeros((1, gi.size), np.uint8))
-    mesh_d = out[0, 0].reshape(hh, ww)
+                          intr.fx, intr.fy, intr.cx, intr.cy, out, loc, np.zeros((1, gi.size), np.uint8))
+    mesh_d = out[0].reshape(hh, ww)
     both = np.isfinite(ref) & np.isfinite(mesh_d)
     assert both.sum() > 20
     assert np.abs(mesh_d[both] - ref[both]).max() < 1e-4

@@ -71,14 +71,16 @@ def _slab_depth(r00, r01, r02, r10, r11, r12, r20, r21, r22, ox, oy, oz, hx, hy,
 
 
 @nb.njit(cache=True)
-def render_boxes_at_pixels(R, t, center, half, obj, particles, rays, pu, pv, subset, fx, fy, cx, cy, out, dirty):
-    """Render box ``obj`` for the listed particles at the listed pixels into ``out[j, obj, i]``.
+def render_boxes_at_pixels(R, t, center, half, obj, particles, rays, pu, pv, subset, fx, fy, cx, cy, out, loc, dirty):
+    """Render box ``obj`` for the listed particles at the listed pixels into ``out[j, loc[obj, i]]``.
 
     * ``R`` (N, K, 3, 3) body→camera rotations, ``t`` (N, K, 3) body origins in the camera frame.
     * ``center`` (K, 3) box centre in the body frame, ``half`` (K, 3) half extents (metres).
     * ``particles`` (M,) particle indices; ``subset`` (S,) indices into the pixel list.
     * ``rays`` (P, 3) ray per evaluated pixel, ``pu``/``pv`` (P,) its full-resolution pixel coordinates.
-    * ``out`` (N, K, P) float32 depth buffers; pixels outside the box's projected bounding rectangle get ``inf``.
+    * ``out`` (N, M) float32 depth buffers, one column per (part, pixel) pair of the part's region of interest;
+      ``loc`` (K, P) int64 gives the column of part k at pixel i, or −1 (pixel outside the part's region: skipped).
+      Pixels outside the box's projected bounding rectangle get ``inf``.
     * ``dirty`` (N, P) uint8: set to 1 where a written depth differs from the previous one.
     """
     hx, hy, hz = half[obj, 0], half[obj, 1], half[obj, 2]
@@ -125,6 +127,9 @@ def render_boxes_at_pixels(R, t, center, half, obj, particles, rays, pu, pv, sub
         vmax += 1.0
         for ii in range(subset.shape[0]):
             i = subset[ii]
+            col = loc[obj, i]
+            if col < 0:
+                continue
             if pu[i] < umin or pu[i] > umax or pv[i] < vmin or pv[i] > vmax:
                 d = np.inf
             else:
@@ -132,8 +137,8 @@ def render_boxes_at_pixels(R, t, center, half, obj, particles, rays, pu, pv, sub
                     Rm[0, 0], Rm[1, 0], Rm[2, 0], Rm[0, 1], Rm[1, 1], Rm[2, 1], Rm[0, 2], Rm[1, 2], Rm[2, 2],
                     ox, oy, oz, hx, hy, hz, rays[i, 0], rays[i, 1], rays[i, 2],
                 )
-            if out[j, obj, i] != d:
-                out[j, obj, i] = d
+            if out[j, col] != d:
+                out[j, col] = d
                 dirty[j, i] = 1
 
 
@@ -170,13 +175,14 @@ def render_box_depth(
     t = np.stack([p.t for p in poses])[None].astype(np.float64)
     half = np.asarray(sizes, np.float64).reshape(k, 3) / 2.0
     center = np.zeros((k, 3))
-    out = np.full((1, k, pu.size), np.inf, np.float32)
+    out = np.full((1, k * pu.size), np.inf, np.float32)
+    loc = np.arange(k * pu.size, dtype=np.int64).reshape(k, pu.size)
     subset = np.arange(pu.size, dtype=np.int64)
     parts = np.zeros(1, np.int64)
     dirty = np.zeros((1, pu.size), np.uint8)
     for obj in range(k):
         render_boxes_at_pixels(
             R, t, center, half, obj, parts, rays, pu, pv, subset,
-            intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, out, dirty,
+            intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, out, loc, dirty,
         )
-    return out[0].min(axis=0).reshape(uu.shape)
+    return out[0].reshape(k, pu.size).min(axis=0).reshape(uu.shape)

@@ -110,13 +110,18 @@ def _pixel_terms(d, z, s, e, o_hat, beta, lam, tail, use_occ):
 
 
 @nb.njit(cache=True)
-def update_log_likelihood(D, subset, z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail, use_occ, dirty, alpha,
-                          cmask, cvalid):
+def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
+                          dirty, alpha, cmask, cvalid):
     """Recompute the contributions of the dirty ``subset`` pixels for every particle and update ``ell`` in place.
 
-    * ``D`` (N, K, P) rendered depth per object (``inf`` = not covered); the pixel depth is the z-buffer min.
+    * ``D`` (N, M) rendered depth columns, ``loc`` (K, P) column of part k at pixel i or −1 (part k cannot cover
+      pixel i); ``inf`` = not covered; the pixel depth is the z-buffer minimum over the parts.
     * ``z``, ``s``, ``e``, ``log_po_inf`` (P,) per-pixel observation constants (:func:`pixel_constants`).
-    * ``o_hat`` (N, P) predicted occlusion probabilities; ``C`` (N, P) cached contributions; ``ell`` (N,).
+    * ``o_hat`` (N, P) predicted occlusion probabilities of the particles at the start of the frame and ``anc``
+      (N,) each current particle's ancestor among them (resampling permutes ``anc`` instead of copying ``o_hat``);
+      ``C`` (N, P) cached contributions; ``ell`` (N,).
+    * ``Q`` (N, P) float32 receives the occlusion posterior p_o ô / ℓ (4.45) of covered pixels (−1 = uncovered),
+      ``F`` (N, P) int8 the front-most part (−1 = none); see :func:`finish_occlusion`.
     * ``dirty`` (N, P) uint8: only pixels flagged 1 (a rendered depth changed) are recomputed; flags are cleared.
     * ``alpha``: exponent of every pixel's likelihood ratio (1 = independent pixels, as in the spec).
     * ``cmask`` (K, P) uint8 colour masks, ``cvalid`` (K,) uint8: where part o is front-most, has a valid colour
@@ -124,7 +129,7 @@ def update_log_likelihood(D, subset, z, s, e, log_po_inf, o_hat, C, ell, beta, l
       (ô = 1). All-zero ``cvalid`` = depth only (the spec).
     """
     n = D.shape[0]
-    k = D.shape[1]
+    k = loc.shape[0]
     for j in range(n):
         acc = 0.0
         for ii in range(subset.shape[0]):
@@ -135,69 +140,46 @@ def update_log_likelihood(D, subset, z, s, e, log_po_inf, o_hat, C, ell, beta, l
             d = np.inf
             front = -1
             for o in range(k):
-                if D[j, o, i] < d:
-                    d = D[j, o, i]
+                col = loc[o, i]
+                if col >= 0 and D[j, col] < d:
+                    d = D[j, col]
                     front = o
+            F[j, i] = front
             if d == np.inf:
                 c = 0.0
+                Q[j, i] = -1.0
             else:
-                oh = o_hat[j, i]
+                oh = o_hat[anc[j], i]
                 if cvalid[front] and not cmask[front, i]:
                     oh = 1.0
-                lik, _ = _pixel_terms(d, z[i], s[i], e[i], oh, beta, lam, tail, True if oh == 1.0 else use_occ)
+                lik, num = _pixel_terms(d, z[i], s[i], e[i], oh, beta, lam, tail, True if oh == 1.0 else use_occ)
                 c = alpha * (math.log(lik) - log_po_inf[i])
+                Q[j, i] = num / lik if use_occ else o_hat[anc[j], i]
             acc += c - C[j, i]
             C[j, i] = c
         ell[j] += acc
 
 
 @nb.njit(cache=True)
-def occlusion_posterior(D, z, s, e, o_hat, beta, lam, tail, use_occ, cmask, cvalid):
-    """Posterior occlusion probabilities (N, P): p_o ô / ℓ on covered pixels, ô elsewhere (4.45); 1 where the
-    front-most part has a colour mask that excludes the pixel (see :func:`update_log_likelihood`)."""
-    n = D.shape[0]
-    k = D.shape[1]
-    p = D.shape[2]
-    out = np.empty((n, p), np.float32)
-    for j in range(n):
-        for i in range(p):
-            d = np.inf
-            front = -1
-            for o in range(k):
-                if D[j, o, i] < d:
-                    d = D[j, o, i]
-                    front = o
-            if d == np.inf or not use_occ:
-                out[j, i] = o_hat[j, i]
-            elif cvalid[front] and not cmask[front, i]:
-                out[j, i] = 1.0
-            else:
-                lik, num = _pixel_terms(d, z[i], s[i], e[i], o_hat[j, i], beta, lam, tail, use_occ)
-                out[j, i] = num / lik
-    return out
-
-
-@nb.njit(cache=True)
-def part_visibility(D, post):
-    """Visible fraction (N, K) of each part per particle: over the evaluated pixels where the part is front-most,
-    the mean of 1 − o' (posterior occlusion); 0 where the part covers no evaluated pixel."""
-    n = D.shape[0]
-    k = D.shape[1]
-    p = D.shape[2]
+def finish_occlusion(Q, F, o_hat, anc, k):
+    """Occlusion posterior (N, P) from the cached per-pixel values of :func:`update_log_likelihood` (ô where no
+    part covers the pixel) and each part's visible fraction (N, K): mean of 1 − o' over the pixels where the part
+    is front-most (0 when it is front-most nowhere)."""
+    n, p = Q.shape
+    post = np.empty((n, p), np.float32)
     vis = np.zeros((n, k))
     cnt = np.zeros((n, k))
     for j in range(n):
+        a = anc[j]
         for i in range(p):
-            d = np.inf
-            best = -1
-            for o in range(k):
-                if D[j, o, i] < d:
-                    d = D[j, o, i]
-                    best = o
-            if best >= 0:
-                cnt[j, best] += 1.0
-                vis[j, best] += 1.0 - post[j, i]
-    for j in range(n):
+            q = Q[j, i]
+            if q < 0.0:
+                post[j, i] = o_hat[a, i]
+            else:
+                post[j, i] = q
+                f = F[j, i]
+                cnt[j, f] += 1.0
+                vis[j, f] += 1.0 - q
         for o in range(k):
             vis[j, o] = vis[j, o] / cnt[j, o] if cnt[j, o] > 0 else 0.0
-    return vis
+    return post, vis

@@ -53,12 +53,14 @@ class MeshModel:
 
 
 @nb.njit(cache=True)
-def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset, f, off, fx, fy, cx, cy, out, dirty):
-    """Render mesh ``obj`` for the listed particles at the listed pixels into ``out[j, obj, i]``.
+def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset, f, off, fx, fy, cx, cy, out, loc,
+                          dirty):
+    """Render mesh ``obj`` for the listed particles at the listed pixels into ``out[j, loc[obj, i]]``.
 
     * ``R`` (N, K, 3, 3), ``t`` (N, K, 3): body→camera poses; ``vertices`` (V, 3), ``faces`` (F, 3).
     * ``gi``/``gj`` (P,) downsampled-grid column/row of each evaluated pixel; ``subset`` (S,) pixel indices.
     * ``f``/``off``: downsampling factor and offset of the grid (full-res u = off + f·gi).
+    * ``out`` (N, M) depth columns, ``loc`` (K, P) column of part k at pixel i or −1 (see the box renderer).
     * ``dirty`` (N, P) uint8: set to 1 where a written depth differs from the previous one.
     """
     if subset.shape[0] == 0:
@@ -124,7 +126,10 @@ def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset,
                         zbuf[r - j0, col - i0] = z
         for ii in range(subset.shape[0]):
             i = subset[ii]
+            col = loc[obj, i]
+            if col < 0:
+                continue
             d = zbuf[gj[i] - j0, gi[i] - i0]
-            if out[p, obj, i] != d:
-                out[p, obj, i] = d
+            if out[p, col] != d:
+                out[p, col] = d
                 dirty[p, i] = 1

@@ -34,8 +34,7 @@ from tracker.camera import Intrinsics
 from tracker.connection_particles import ResolvedConnection, apply_connections, resolve_hints
 from tracker.depth_likelihood import (
     LikelihoodParams,
-    occlusion_posterior,
-    part_visibility,
+    finish_occlusion,
     pixel_constants,
     predict_occlusion,
     update_log_likelihood,
@@ -233,11 +232,14 @@ class MultiObjectTracker:
         for i in range(k):
             p_cur[:, i], R_cur[:, i], v_cur[:, i] = propagate(p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i], zero,
                                                               cfg.k_v, cfg.b)
-        pix = self._evaluated_pixels(depth, p_prev, R_prev, p_cur, R_cur)
+        evaluated = self._evaluated_pixels(depth, p_prev, R_prev, p_cur, R_cur)
         timings["predict"] = (time.perf_counter() - t0) * 1e3
-        if pix is None:
+        if evaluated is None:
             return self._predict_only(frame, p_prev, R_prev, v_prev, u, t0, timings,
                                       "no valid depth near the parts: update skipped, prediction kept")
+        pix, regions = evaluated
+        loc = np.full(regions.shape, -1, np.int64)
+        loc[regions] = np.arange(int(regions.sum()), dtype=np.int64)  # one depth column per (part, pixel)
         z = depth.reshape(-1)[self._vs[self._gj[pix]] * intr.width + self._us[self._gi[pix]]].astype(np.float64)
         s, e, log_po_inf = pixel_constants(z, self.likelihood)
         rays, pu, pv = self._rays[pix], self._pu[pix], self._pv[pix]
@@ -247,35 +249,37 @@ class MultiObjectTracker:
             last = self.occ_time[pix]
             dtp = np.where(np.isfinite(last), now - last, 0.0)
             o_hat = predict_occlusion(self.occ[:, pix], dtp[None, :], cfg.p_occ_given_vis,
-                                      cfg.p_occ_given_occ).astype(np.float64)
+                                      cfg.p_occ_given_occ).astype(np.float32)
         else:
-            o_hat = np.zeros((n, npix))
+            o_hat = np.zeros((n, npix), np.float32)
 
         # full render + likelihood at the deterministic prediction
         t1 = time.perf_counter()
-        D = np.full((n, k, npix), np.inf, np.float32)
+        D = np.full((n, int(regions.sum())), np.inf, np.float32)
         dirty = np.zeros((n, npix), np.uint8)
         all_particles = np.arange(n, dtype=np.int64)
         all_pix = np.arange(npix, dtype=np.int64)
         for i in range(k):
-            self._render(i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, all_pix, D, dirty)
+            self._render(i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, all_pix, D, loc, dirty)
         t2 = time.perf_counter()
-        C = np.zeros((n, npix))
+        C = np.zeros((n, npix), np.float32)
+        Q = np.full((n, npix), -1.0, np.float32)  # consistent with D = inf: nothing covered yet
+        F = np.full((n, npix), -1, np.int8)
         ell = np.zeros(n)
+        anc = np.arange(n)
         prm = self.likelihood
         beta, lam, tail = prm.tail_weight, prm.occluder_rate, prm.tail_weight / prm.max_depth
         use_occ = bool(cfg.use_occlusion_model)
         alpha = float(cfg.likelihood_exponent)
         cmask, cvalid = self._color_masks(detections, gi, gj)
-        update_log_likelihood(D, all_pix, z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail, use_occ, dirty, alpha,
-                              cmask, cvalid)
+        update_log_likelihood(D, loc, all_pix, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
+                              dirty, alpha, cmask, cvalid)
         t_render = t2 - t1
         t_lik = time.perf_counter() - t2
         t_res = 0.0
         t_pen = 0.0
         ell_prev = np.zeros(n)  # ℓ_0 = 0 at the start of each frame
         log_w = self.log_w.copy()
-        anc = np.arange(n)
         n_resampled = 0
 
         # 3. coordinate passes (Algorithm 5)
@@ -305,13 +309,13 @@ class MultiObjectTracker:
                 rect = _union(rect, self._bbox(o, p_cur[sel, o], R_cur[sel, o]))
             subset = np.nonzero((pu >= rect[0]) & (pu <= rect[1]) & (pv >= rect[2]) & (pv <= rect[3]))[0]
             ta = time.perf_counter()
-            self._render(i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, subset, D, dirty)
+            self._render(i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, subset, D, loc, dirty)
             for o in changed_objs - {i}:
                 self._render(o, p_cur, R_cur, np.nonzero(forced[:, o])[0].astype(np.int64), rays, pu, pv, gi, gj,
-                             subset, D, dirty)
+                             subset, D, loc, dirty)
             tb = time.perf_counter()
-            update_log_likelihood(D, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, C, ell, beta, lam, tail,
-                                  use_occ, dirty, alpha, cmask, cvalid)
+            update_log_likelihood(D, loc, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
+                                  lam, tail, use_occ, dirty, alpha, cmask, cvalid)
             tc = time.perf_counter()
             ell_tot = ell + self._log_penalties(p_cur, R_cur, plane)
             td = time.perf_counter()
@@ -323,7 +327,7 @@ class MultiObjectTracker:
                 idx = systematic_resample(w, self.rng)
                 p_prev, R_prev, v_prev = p_prev[idx], R_prev[idx], v_prev[idx]
                 p_cur, R_cur, v_cur = p_cur[idx], R_cur[idx], v_cur[idx]
-                D, C, o_hat, dirty = D[idx], C[idx], o_hat[idx], dirty[idx]
+                D, C, Q, F = D[idx], C[idx], Q[idx], F[idx]  # dirty flags are all clear; ô is reached through anc
                 ell, ell_prev, anc = ell[idx], ell_prev[idx], anc[idx]
                 log_w = np.full(n, -np.log(n))
                 n_resampled += 1
@@ -336,13 +340,13 @@ class MultiObjectTracker:
         # 4. occlusion posterior and estimate
         tf = time.perf_counter()
         if use_occ:
-            post = occlusion_posterior(D, z, s, e, o_hat, beta, lam, tail, use_occ, cmask, cvalid)
+            post, vis_all = finish_occlusion(Q, F, o_hat, anc, k)
             if not np.array_equal(anc, np.arange(n)):
                 self.occ = self.occ[anc]
             self.occ[:, pix] = post
             self.occ_time[pix] = now
             if cfg.hidden_noise_scale < 1.0:
-                vis = normalize_log_weights(log_w) @ part_visibility(D, post)
+                vis = normalize_log_weights(log_w) @ vis_all
                 self.visibility = vis
                 self._noise_scale = np.clip(vis / cfg.visible_fraction_full, cfg.hidden_noise_scale, 1.0)
         t_occ = time.perf_counter() - tf
@@ -384,18 +388,18 @@ class MultiObjectTracker:
         self.estimates = poses
         return TrackerState(frame.index, float(frame.timestamp), poses, particles, w, timings)
 
-    def _render(self, obj, p, R, particles, rays, pu, pv, gi, gj, subset, D, dirty) -> None:
+    def _render(self, obj, p, R, particles, rays, pu, pv, gi, gj, subset, D, loc, dirty) -> None:
         if particles.size == 0 or subset.size == 0:
             return
         intr = self.intrinsics
         mesh = self.meshes[obj]
         if mesh is None:
             render_boxes_at_pixels(R, p, self.center, self.half, obj, particles, rays, pu, pv, subset,
-                                   intr.fx, intr.fy, intr.cx, intr.cy, D, dirty)
+                                   intr.fx, intr.fy, intr.cx, intr.cy, D, loc, dirty)
         else:
             render_mesh_at_pixels(R, p, mesh.vertices, mesh.faces, obj, particles, gi, gj, subset,
                                   float(self.config.downsample), float(self._off), intr.fx, intr.fy, intr.cx,
-                                  intr.cy, D, dirty)
+                                  intr.cy, D, loc, dirty)
 
     def _log_penalties(self, p, R, plane) -> np.ndarray:
         cfg = self.config
@@ -431,8 +435,10 @@ class MultiObjectTracker:
         m = 1.0
         return (u.min() - m, u.max() + m, v.min() - m, v.max() + m)
 
-    def _evaluated_pixels(self, depth, p_prev, R_prev, p_det, R_det) -> np.ndarray | None:
-        """Indices into the downsampled grid of the valid pixels near the parts, or None when there are none."""
+    def _evaluated_pixels(self, depth, p_prev, R_prev, p_det, R_det):
+        """Valid pixels near the parts: (indices into the downsampled grid (P,), per-part region masks (K, P)),
+        or None when there are none. A part's region is its projected rectangle over all particles (previous and
+        predicted poses) widened by the margin and the motion-noise spread (the mixture's std, 3σ)."""
         if depth is None:
             return None
         cfg = self.config
@@ -441,16 +447,23 @@ class MultiObjectTracker:
         valid = np.isfinite(z) & (z > 0) & (z < cfg.max_depth)
         if not valid.any():
             return None
-        mask = np.zeros(z.size, bool)
-        for i in range(len(self.parts)):
+        k = len(self.parts)
+        regions = np.zeros((k, z.size), bool)
+        f = cfg.wide_noise_fraction
+        spread = np.sqrt((1.0 - f) + f * cfg.wide_noise_scale**2)
+        for i in range(k):
             rect = _union(self._bbox(i, p_prev[:, i], R_prev[:, i]), self._bbox(i, p_det[:, i], R_det[:, i]))
             zc = max(float(np.median(p_det[:, i, 2])), 0.05)
             radius = float(np.linalg.norm(self.half[i]) + np.linalg.norm(self.center[i]))
-            margin = cfg.roi_margin_px * cfg.downsample + 3.0 * (cfg.sigma_v + cfg.sigma_w * radius) * intr.fx / zc
-            mask |= ((self._pu >= rect[0] - margin) & (self._pu <= rect[1] + margin)
-                     & (self._pv >= rect[2] - margin) & (self._pv <= rect[3] + margin))
-        pix = np.nonzero(mask & valid)[0].astype(np.int64)
-        return pix if pix.size else None
+            scale = spread * self._noise_scale[i]
+            margin = (cfg.roi_margin_px * cfg.downsample
+                      + 3.0 * scale * (cfg.sigma_v + cfg.sigma_w * radius) * intr.fx / zc)
+            regions[i] = ((self._pu >= rect[0] - margin) & (self._pu <= rect[1] + margin)
+                          & (self._pv >= rect[2] - margin) & (self._pv <= rect[3] + margin))
+        pix = np.nonzero(regions.any(axis=0) & valid)[0].astype(np.int64)
+        if not pix.size:
+            return None
+        return pix, regions[:, pix]
 
     def _color_masks(self, detections, gi, gj) -> tuple[np.ndarray, np.ndarray]:
         """Per part, which evaluated pixels lie inside its detected colour blob (dilated by one grid pixel)."""
@@ -506,13 +519,13 @@ class MultiObjectTracker:
         if self.meshes[obj] is not None:
             return fallback
         ray = pixel_rays(self.intrinsics, np.array([center[0]]), np.array([center[1]]))
-        out = np.full((1, 1, 1), np.inf, np.float32)
+        out = np.full((1, 1), np.inf, np.float32)
         render_boxes_at_pixels(est.R[None, None], est.t[None, None], self.center[obj:obj + 1],
                                self.half[obj:obj + 1], 0, np.zeros(1, np.int64), ray,
                                np.array([float(center[0])]), np.array([float(center[1])]), np.zeros(1, np.int64),
                                self.intrinsics.fx, self.intrinsics.fy, self.intrinsics.cx, self.intrinsics.cy, out,
-                               np.zeros((1, 1), np.uint8))
-        d = float(out[0, 0, 0])
+                               np.zeros((1, 1), np.int64), np.zeros((1, 1), np.uint8))
+        d = float(out[0, 0])
         if not np.isfinite(d):
             return fallback
         return float(est.t[2] - d)
@@ -524,21 +537,27 @@ class MultiObjectTracker:
         t = np.zeros((n, k, 3))
         t[..., 2] = 0.5
         rays = self._rays[:p]
-        D = np.full((n, k, p), np.inf, np.float32)
+        D = np.full((n, k * p), np.inf, np.float32)
+        loc = np.arange(k * p, dtype=np.int64).reshape(k, p)
         dirty = np.zeros((n, p), np.uint8)
         idx = np.arange(n, dtype=np.int64)
         sub = np.arange(p, dtype=np.int64)
         for i in range(k):
-            self._render(i, t, R, idx, rays, self._pu[:p], self._pv[:p], self._gi[:p], self._gj[:p], sub, D, dirty)
+            self._render(i, t, R, idx, rays, self._pu[:p], self._pv[:p], self._gi[:p], self._gj[:p], sub, D, loc,
+                         dirty)
         z = np.full(p, 0.5)
         s, e, lp = pixel_constants(z, self.likelihood)
-        oh = np.zeros((n, p))
-        C = np.zeros((n, p))
+        oh = np.zeros((n, p), np.float32)
+        C = np.zeros((n, p), np.float32)
+        Q = np.full((n, p), -1.0, np.float32)
+        F = np.full((n, p), -1, np.int8)
+        an = np.arange(n)
         ell = np.zeros(n)
         cm = np.ones((k, p), np.uint8)
         cv = np.ones(k, np.uint8)
-        update_log_likelihood(D, sub, z, s, e, lp, oh, C, ell, 0.01, 0.69, 0.001, True, dirty, 1.0, cm, cv)
-        part_visibility(D, occlusion_posterior(D, z, s, e, oh, 0.01, 0.69, 0.001, True, cm, cv))
+        update_log_likelihood(D, loc, sub, z, s, e, lp, oh, an, C, Q, F, ell, 0.01, 0.69, 0.001, True, dirty, 1.0, cm,
+                              cv)
+        finish_occlusion(Q, F, oh, an, k)
         if len(self.pairs):
             intersection_log_penalty(R, t, self.center, self.half, self.pairs, 0.001, 0.01)
 
