@@ -1,7 +1,8 @@
 """Baseline a user might pick instead of the particle filter: frame-to-frame point-to-plane ICP per part.
 
 For each part, each frame: take the depth points within a sphere around the previous estimate (radius =
-part bounding radius + ``crop_margin``), register the part's surface model (points with normals sampled on its
+part bounding radius + ``crop_margin``), minus the table points (within ``table_band`` of the plane) when a
+table plane is given, register the part's surface model (points with normals sampled on its
 mesh) to them with point-to-plane ICP, starting from the previous estimate. Uses Open3D when it is installed
 (optional benchmark-only dependency), else a numpy/scipy implementation (``backend`` says which).
 """
@@ -48,12 +49,17 @@ class ICPTracker:
     def initialize(self, poses: dict[str, Pose]) -> None:
         self.poses = dict(poses)
 
-    def step(self, depth: np.ndarray) -> dict[str, Pose]:
+    def step(self, depth: np.ndarray, table: tuple[np.ndarray, float] | None = None,
+             table_band: float = 0.004) -> dict[str, Pose]:
+        """Register every part to ``depth`` (metres); ``table`` = (normal, offset) removes the table points."""
         s = self.stride
         d = depth[::s, ::s]
         v, u = np.mgrid[0:depth.shape[0]:s, 0:depth.shape[1]:s]
         ok = np.isfinite(d) & (d > 0)
         pts = self.intr.backproject(u[ok], v[ok], d[ok])
+        if table is not None:
+            n, off = np.asarray(table[0], np.float64), float(table[1])
+            pts = pts[pts @ n + off > table_band]
         for p in self.parts:
             prev = self.poses[p.name]
             near = pts[np.linalg.norm(pts - prev.t, axis=1) < self.radius[p.name]]
