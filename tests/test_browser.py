@@ -104,6 +104,7 @@ def browser():
 @pytest.fixture()
 def page(browser):
     context = browser.new_context(viewport={"width": 1500, "height": 900})
+    context.set_default_timeout(60_000)  # the machine may be busy: generous waits, no timing assertions
     pg = context.new_page()
     pg.dialogs = []
     pg.on("dialog", lambda d: (pg.dialogs.append(d.message), d.dismiss()))
@@ -134,7 +135,7 @@ def test_page_loads_and_updates(server, page):
 
 
 def test_drawn_rectangle_creates_box_on_server(server, page):
-    page.goto(server + "/")
+    page.goto(server + "/?scene=off")
     page.wait_for_function("() => document.getElementById('color-image').naturalWidth === 320")
     page.click("#btn-pause")  # hold the frame still: the box is judged on the frame the user sees
     page.wait_for_function("() => document.getElementById('worker-state').textContent === 'paused'")
@@ -202,7 +203,7 @@ def test_teacher_task_appears_in_learning_mode(server, page):
     assert page.locator("#task-list").get_by_text("Ο σκύλος τρέχει").count() == 1
     ref = httpx.get(server + "/api/tasks").json()["tasks"][-1]["ref"]
 
-    page.goto(server + "/")
+    page.goto(server + "/?scene=off")
     page.wait_for_selector("body[data-modes-loaded='1']", state="attached")
     page.select_option("#mode-select", "learning")
     page.wait_for_selector(f"#task-select option[value='{ref}']", state="attached")
@@ -230,7 +231,7 @@ def test_html_looking_word_is_shown_as_text(server, page):
     ref = httpx.get(server + "/api/tasks").json()["tasks"][-1]["ref"]
     r = httpx.post(server + "/api/modes", json={"mode": "learning", "task": ref})
     assert r.status_code == 200, r.text
-    page.goto(server + "/")
+    page.goto(server + "/?scene=off")
     page.wait_for_function("() => document.getElementById('cube-words').textContent.includes('<script>')")
     assert word in page.locator("#cube-words").text_content()
     assert page.evaluate("document.querySelectorAll('script').length") == 1  # only app.js

@@ -3,6 +3,8 @@
 "use strict";
 
 const $ = (id) => document.getElementById(id);
+// "?scene=off" shows the panel and colour image without the embedded 3D scene (small screens, slow machines).
+const SHOW_SCENE = new URLSearchParams(location.search).get("scene") !== "off";
 const state = { snap: null, imageSize: [640, 480], parts: [], drag: null, lastBox: null, imgBusy: false, lastImg: 0 };
 
 function el(tag, text, cls) {
@@ -51,7 +53,9 @@ async function refreshStatus() {
     sel.replaceChildren(...opts);
     sel.value = s.parts.includes(current) ? current : "";
     const frame = $("viser-frame");
-    if (s.viser_port && frame.dataset.port !== String(s.viser_port)) {
+    if (!SHOW_SCENE) {
+      document.querySelector(".scene3d").classList.add("hidden");
+    } else if (s.viser_port && frame.dataset.port !== String(s.viser_port)) {
       frame.dataset.port = String(s.viser_port);
       frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/`;
     } else if (!s.viser_port) {
