@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, Header, HTTPException, Request, Response, WebSocket, WebSocketDisconnect
-from fastapi.responses import FileResponse
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import ValidationError
 
@@ -213,6 +214,22 @@ def _safe_metadata(src: FrameSource) -> dict[str, Any]:
     return out
 
 
+def _friendly(err: dict[str, Any]) -> str:
+    """A plain-language version of a pydantic error message (for forms)."""
+    kind, ctx, msg = err.get("type", ""), err.get("ctx") or {}, str(err.get("msg", ""))
+    if kind == "string_too_short" and ctx.get("min_length") == 1:
+        return "must not be empty"
+    if kind == "too_short" and "min_length" in ctx:
+        n = ctx["min_length"]
+        what = "words" if err.get("loc", [None, None])[-1] == "words" else "items"
+        return f"give at least {n} {what}"
+    if kind == "missing":
+        return "is required"
+    if kind == "extra_forbidden":
+        return "is not a known field"
+    return msg.removeprefix("Value error, ")
+
+
 def _task_record(rec: dict[str, Any]) -> m.TaskRecord:
     return m.TaskRecord(
         id=rec["id"],
@@ -244,6 +261,14 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
         lifespan=lifespan,
     )
     app.state.assembly = state
+
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
+        """422 with FastAPI's usual ``detail`` list (loc, msg, type), messages in plain language."""
+        detail = [
+            {"loc": list(e.get("loc", [])), "msg": _friendly(e), "type": e.get("type", "")} for e in exc.errors()
+        ]
+        return JSONResponse({"detail": detail}, status_code=422)
     app.mount("/static", StaticFiles(directory=WEB_DIR / "static"), name="static")
 
     def teacher(

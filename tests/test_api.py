@@ -178,7 +178,11 @@ def test_task_validation_messages(client):
     errs = r.json()["detail"]
     assert any(e["loc"][:2] == ["body", "words"] and "word 2 is empty" in e["msg"] for e in errs)
     r = client.post("/api/tasks", json={**TASK, "source_sentence": ""})
-    assert any(e["loc"][1] == "source_sentence" for e in r.json()["detail"])
+    assert {"loc": ["body", "source_sentence"], "msg": "must not be empty", "type": "string_too_short"} in r.json()[
+        "detail"
+    ]
+    r = client.post("/api/tasks", json={**TASK, "words": ["solo"]})
+    assert r.json()["detail"][0]["msg"] == "give at least 2 words"
     r = client.post("/api/tasks", json={**TASK, "alternatives": [["Me", "gusta", "café"]]})
     assert r.status_code == 422 and "alternatives[0]" in str(r.json()["detail"])
     r = client.post("/api/tasks", json={**TASK, "colour": "red"})
