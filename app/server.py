@@ -94,6 +94,7 @@ class AppState:
         self.scene_updater = None
         self.session_id: int | None = None
         self.boxes: list[m.BoxResponse] = []
+        self.user_poses: dict[str, Any] = {}  # parts placed by drawn boxes: kept when a source loops or reconnects
         self._session_frames0 = 0
         self._lock = threading.Lock()
 
@@ -125,7 +126,7 @@ class AppState:
 
     def _make_pipeline(self, src: FrameSource) -> AssemblyPipeline:
         parts = getattr(src, "parts", None) or [PartSpec.cube(c, c) for c in DEFAULT_CAMERA_PARTS]
-        poses = getattr(src, "initial_poses", None) or {}
+        poses = {**(getattr(src, "initial_poses", None) or {}), **self.user_poses}
         config = self.settings.tracker_config
         if self.settings.n_particles is not None:
             from tracker.tracker_config import TrackerConfig
@@ -327,6 +328,7 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
         if kind not in ("sim", "recording", "camera"):
             raise HTTPException(422, f"source {body.source!r}: expected sim:<scenario>, recording:<dir> or camera:<n>")
         state.source_spec = body.source
+        state.user_poses.clear()
         state.worker.reset()
         state.start_session()
         return sources()
@@ -401,6 +403,7 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
         elif body.action == "pause":
             w.pause()
         else:
+            state.user_poses.clear()
             w.reset()
             w.start()
             state.start_session()
@@ -441,6 +444,7 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
                 return name, None, frame.index
             pose = pipeline.pose_from_rect(name, rect, frame.depth)
             pipeline.set_part_pose(name, pose)
+            state.user_poses[name] = pose
             return name, pose, frame.index
 
         try:

@@ -211,3 +211,34 @@ def test_websocket_without_frames_ends_when_client_leaves(tmp_path):
         st = c.get("/api/status").json()
         assert st["worker"]["state"] in ("error", "starting")
         assert any("camera 7 not found" in e["message"] for e in st["worker"]["errors"])
+
+
+def test_drawn_box_survives_source_reopen(tmp_path):
+    """A part placed by hand stays placed when the source ends and is reopened (loop) — until a reset."""
+    settings = Settings(database=str(tmp_path / "a.db"), viser_port=0, mode="none", source="synthetic:", max_fps=100)
+
+    def no_poses(_spec):
+        src = SyntheticTable(n_frames=15)
+        src.initial_poses = {}
+        return src
+
+    app = create_app(settings, open_source=no_poses)
+    with TestClient(app) as c:
+        wait_frames(c, 2)
+        assert c.get("/api/snapshot").json()["poses"] == {}
+        r = c.post("/api/boxes", json={"x": 38, "y": 58, "w": 14, "h": 14})
+        assert r.status_code == 200 and r.json()["part"] == "red"
+        opens = c.get("/api/status").json()["worker"]["source_opens"]
+        t0 = time.time()
+        while c.get("/api/status").json()["worker"]["source_opens"] <= opens and time.time() - t0 < 20:
+            time.sleep(0.05)
+        wait_frames(c, 1)
+        assert set(c.get("/api/snapshot").json()["poses"]) == {"red"}
+        c.post("/api/sessions", json={"action": "reset"})
+        t0 = time.time()
+        while time.time() - t0 < 20:
+            snap = c.get("/api/snapshot").json()
+            if snap["poses"] == {}:
+                break
+            time.sleep(0.05)
+        assert c.get("/api/snapshot").json()["poses"] == {}
