@@ -218,3 +218,26 @@ def test_prior_survives_a_symmetric_jump_of_the_tracked_orientation():
     drift = Pose.from_rt(Pose.from_rotvec(UP * np.radians(20), np.zeros(3)).R @ jumped.R, pa.t)
     r2 = _check(st, "a", "c", drift, pc, [0, A, 0])
     np.testing.assert_allclose(r2.best.p, [0, A, 0], atol=1e-9)
+
+
+def test_tracker_yaw_and_tilt_errors_are_tolerated_but_directions_stay_distinct():
+    T = default_table_to_camera()
+    m = _monitor(n_checks=1)
+    base = T @ Pose(np.array([0, A / 2, 0]))
+    n = T.R[:, 1]
+    err = Pose.from_rotvec(n * np.radians(25), np.zeros(3)).R @ Pose.from_rotvec(T.R[:, 0] * np.radians(10),
+                                                                                  np.zeros(3)).R
+    pa = Pose.from_rt(err @ base.R, base.t)  # a's orientation estimate is 25° off in yaw and tilted 10°
+    pb = base @ Pose(np.array([A, 0, 0]))
+    m.update(0.0, {"a": pa, "b": pb}, T)
+    assert m.status[0].state == "connected"
+    np.testing.assert_allclose(m.status[0].option.p, [A, 0, 0], atol=1e-6)
+    # b in front of a (90° away from the established direction) does not satisfy it
+    m2 = _monitor(n_checks=1)
+    st = m2.symmetry
+    m2.update(0.0, {"a": base, "b": pb}, T)
+    assert st.has_prior("a")
+    front = base @ Pose(np.array([0, 0, A]))
+    m2.params.N_break = 1
+    m2.update(0.1, {"a": Pose.from_rt(err @ base.R, base.t), "b": front}, T)
+    assert m2.status[0].state == "open"

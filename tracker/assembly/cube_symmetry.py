@@ -63,6 +63,47 @@ def case1_first_rotations(p_ab: np.ndarray, p_des: np.ndarray, R_a: np.ndarray, 
     return [int(i) for i in best]
 
 
+def _rotation_onto(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Smallest rotation taking unit vector ``u`` onto unit vector ``v``."""
+    axis = np.cross(u, v)
+    s, c = float(np.linalg.norm(axis)), float(np.clip(u @ v, -1.0, 1.0))
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        w = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+        w /= np.linalg.norm(w)
+        return 2.0 * np.outer(w, w) - np.eye(3)  # 180° about an axis perpendicular to u
+    k = axis / s
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * K + (1 - c) * K @ K
+
+
+def levelled_frames(F_a: np.ndarray, F_b: np.ndarray | None, normal: np.ndarray, p_des: np.ndarray,
+                    d: np.ndarray, yaw_tolerance: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """Fundamental orientations made robust to the tracker's orientation noise (choice documented here).
+
+    Both are levelled (smallest rotation taking their y axis onto the table normal ``normal``). When the
+    desired offset ``p_des`` is mostly horizontal, ``F_a`` is also turned about the normal by the angle
+    between the desired direction ``F_a p_des`` and the observed offset ``d`` (camera frame), if that angle
+    is within ``yaw_tolerance``; the tolerance stays below 45° so that the four horizontal directions
+    (90° apart) remain distinct. ``F_b`` gets the same turn, so the relative rotation keeps its yaw error.
+    """
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    La = _rotation_onto(F_a[:, 1], n) @ F_a
+    Lb = None if F_b is None else _rotation_onto(F_b[:, 1], n) @ F_b
+    u = La @ p_des
+    u_h = u - (u @ n) * n
+    v_h = d - (d @ n) * n
+    if np.linalg.norm(u_h) > 0.5 * np.linalg.norm(p_des) and np.linalg.norm(v_h) > 1e-6:
+        phi = float(np.arctan2(n @ np.cross(u_h, v_h), u_h @ v_h))
+        if abs(phi) <= yaw_tolerance:
+            K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+            Rz = np.eye(3) + np.sin(phi) * K + (1 - np.cos(phi)) * K @ K
+            La = Rz @ La
+            Lb = None if Lb is None else Rz @ Lb
+    return La, Lb
+
+
 def snap_to_group(M: np.ndarray) -> np.ndarray:
     """Nearest cube rotation to ``M`` (argmax over G of |q_S · q_M|, i.e. smallest angle)."""
     return nearest_in_group(M)[1]
@@ -146,8 +187,16 @@ class SymmetryState:
         R_des: np.ndarray,
         normal: np.ndarray,
         error_fn,
+        yaw_tolerance: float | None = None,
     ) -> Resolution:
-        """All symmetry options for checking connection (a, b), best (smallest ``error_fn(p, R)``) first."""
+        """All symmetry options for checking connection (a, b), best (smallest ``error_fn(p, R)``) first.
+
+        With ``yaw_tolerance`` (radians), cube orientations are first levelled (their fundamental y axis
+        turned onto the table normal: cubes in a structure rest level) and the first cube's heading is then
+        turned about the normal by up to ``yaw_tolerance`` towards the observed offset (see
+        :func:`levelled_frames`); the comparison then depends on positions and the discrete symmetry choice,
+        not on the tracker's small orientation errors.
+        """
         sym_a, sym_b = self.symmetric.get(a, False), self.symmetric.get(b, False)
         G = cube_group()
         R_b = R_a @ R_ab
@@ -182,10 +231,17 @@ class SymmetryState:
                 firsts = [_I]
             pairs = [(Q_a, q_b_free(Q_a), None, None) for Q_a in firsts]
         options = []
+        d = R_a @ p_ab  # p_b − p_a in the camera frame
         for Q_a, Q_b, i, j in pairs:
-            p = Q_a @ p_ab
-            R = Q_a @ R_ab @ Q_b.T
-            options.append(Option(Q_a, Q_b, p, R, float(error_fn(p, R)), i, j, R_a @ Q_a.T, R_b @ Q_b.T))
+            F_a, F_b = R_a @ Q_a.T, R_b @ Q_b.T
+            if yaw_tolerance is not None and sym_a:
+                Fa_c, Fb_c = levelled_frames(F_a, F_b if sym_b else None, normal, p_des, d, yaw_tolerance)
+                p = Fa_c.T @ d
+                R = Fa_c.T @ (Fb_c if sym_b else R_b)
+            else:
+                p = Q_a @ p_ab
+                R = Q_a @ R_ab @ Q_b.T
+            options.append(Option(Q_a, Q_b, p, R, float(error_fn(p, R)), i, j, F_a, F_b))
         options.sort(key=lambda o: o.error)
         return Resolution(case, options)
 
