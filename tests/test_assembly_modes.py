@@ -175,3 +175,20 @@ def test_learning_mode_verdicts(swap):
     else:
         assert all(correct) and state["complete"] and completes[-1]
     assert {w["word"] for w in state["words"] if w["is_distractor"]} == {"gusto", "leche"}
+
+
+@pytest.mark.parametrize("ahead", [True, False])
+def test_guidance_check_ahead(ahead):
+    """Green–blue made before red–green: confirmed in the background only with check_ahead."""
+    task = load_preset("guidance-5-cubes")
+    T = default_table_to_camera()
+    s = task.structures[0]
+    g = PartGraph.from_connections(specs_from_structure(task, s))
+    frames = build_up_session(g, ["green", "blue"], T, np.random.default_rng(8),
+                              extra_parts=["red", "orange", "yellow"])
+    mode = build_mode(task, check_ahead=ahead)
+    state = _run(mode, frames, T).to_dict()
+    assert state["next_step"]["part"] == "green" and state["step"] == 0
+    gb = next(c for c in state["connections"] if {c["first"], c["second"]} == {"green", "blue"})
+    assert (gb["state"] == "connected") == ahead
+    assert state["progress"]["done"] == (1 if ahead else 0)

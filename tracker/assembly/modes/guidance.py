@@ -1,11 +1,16 @@
-"""Guidance mode (spec section 11.1): one path through the sequence graph, one connection checked at a time.
+"""Guidance mode (spec section 11.1): one path through the sequence graph, one step at a time.
 
 Each plan step places one part next to an already placed part (its *anchor*) through one connection of the
-structure. Only the current step's connection is checked (plus the established ones, which may break);
-the step is confirmed when the connection is established. The next step is given as text and as data: the
-camera-frame target pose of the part, computed from the anchor's pose with its cube-symmetry choice (the
-stored prior once the anchor is connected; before that, the cube rotation that puts its y axis up and its
-x axis along the table x axis, i.e. left → right for the user). A warning is shown when a placement does
+structure. The current step is the first one whose connection is not established; it is confirmed when its
+connection is established. With ``check_ahead=False`` only the current step's connection is checked (plus
+the established ones, which may break), as in the thesis; by default (``check_ahead=True``, a documented
+deviation) the later steps' connections are checked as well, so that one missed confirmation does not
+block the rest of the session (the instruction still names the first unconfirmed step).
+
+The next step is given as text and as data: the camera-frame target pose of the part, computed from the
+anchor's pose with its cube-symmetry choice (the stored prior once the anchor is connected; before that,
+the cube rotation that puts its y axis up and its x axis along the table x axis, i.e. left → right for the
+user). A warning is shown when a placement does
 not match the plan (a contact no connection asked for, or a confirmed step that came apart).
 """
 
@@ -46,8 +51,9 @@ class GuidanceMode(Mode):
     name = "guidance"
 
     def __init__(self, task: TaskModel, parts: Iterable[PartSpec] | None = None, params: AssemblyParams | None = None,
-                 structure: str | None = None, **overrides):
+                 structure: str | None = None, check_ahead: bool = True, **overrides):
         super().__init__(task, parts, params, **overrides)
+        self.check_ahead = check_ahead
         self.structure = task.structure(structure)
         if not self.structure.plan:
             raise ValueError(f"structure {self.structure.name!r} of task {task.id!r} has no plan")
@@ -98,7 +104,8 @@ class GuidanceMode(Mode):
 
     def update(self, t: float, poses: dict[str, Pose], table_to_camera: Pose) -> ModeState:
         i = self.current_step()
-        active = {self.steps[i].connection} if i < len(self.steps) else set()
+        ahead = self.steps[i:] if self.check_ahead else self.steps[i : i + 1]
+        active = {s.connection for s in ahead}
         n0 = len(self.monitor.events)
         self.monitor.update(t, poses, table_to_camera, active=active)
         events = [e.to_dict() for e in self.monitor.events[n0:]]
