@@ -54,7 +54,8 @@ def machine() -> dict:
                 break
     except OSError:
         pass
-    return {"nproc": os.cpu_count(), "cpu": model, "python": platform.python_version()}
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    return {"nproc": os.cpu_count(), "cpu": model, "python": platform.python_version(), "load_avg_1min": load}
 
 
 async def read_ws(url: str, seconds: float) -> list[dict]:
@@ -160,6 +161,7 @@ def main() -> int:
     args = ap.parse_args()
     RESULTS.mkdir(parents=True, exist_ok=True)
     db = Path("/tmp") / f"bench-server-{os.getpid()}.sqlite3"
+    mach = machine()
     cases = [
         run_case("unpaced", False, args.seconds, args.particles, db),
         run_case("realtime-30fps", True, args.seconds, args.particles, db),
@@ -167,7 +169,7 @@ def main() -> int:
     db.unlink(missing_ok=True)
     result = {
         "benchmark": "server",
-        "machine": machine(),
+        "machine": mach,
         "scenario": "sim:guidance-demo, 5 cubes, 640x480",
         "particles": args.particles or "tracker default",
         "cases": cases,
@@ -181,7 +183,8 @@ def main() -> int:
         f"Simulated table (guidance-demo, 5 cubes, 640×480), guidance mode, tracker particles: {result['particles']};"
         " `assembly-agent serve` as a subprocess, one websocket client on `/ws`, viser scene off.",
         f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}. The machine was shared with five other"
-        " engineers' jobs while this ran, so the figures are pessimistic.",
+        f" engineers' jobs while this ran (1-minute load average {m['load_avg_1min']:.1f} at the start),"
+        " so the figures are pessimistic.",
         "",
         "| run | processed fps (target ≥ 25) | latency frame → ws, median / p95 ms (target < 100) | server CPU "
         "(100 % = 1 core) | ws frames skipped |",
