@@ -88,7 +88,6 @@ class AppState:
             self._make_pipeline,
             max_fps=settings.max_fps,
             loop=settings.loop,
-            drop_stale=settings.realtime,
         )
         self.scene = None
         self.scene_updater = None
@@ -100,6 +99,9 @@ class AppState:
 
     # -------------------------------------------------------------- source and pipeline
     def _open_current(self) -> FrameSource:
+        # A live camera keeps producing while the pipeline is busy: read it continuously and process the
+        # newest frame. Simulated and recorded frames are produced on demand, so none is rendered in vain.
+        self.worker.drop_stale = self.source_spec.startswith("camera:")
         return self._open(self.source_spec)
 
     def resolve_task(self, mode: str, ref: str | None) -> Any:

@@ -48,8 +48,10 @@ class _FramePrefetcher:
     """Reads a source on its own thread so rendering/decoding the next frame overlaps with processing this one.
 
     Items are ``("frame", Frame, read_seconds, wall_time)``, ``("error", exception, ...)`` or ``("end", ...)``.
-    With ``drop_stale`` (live and real-time sources) a full queue drops its oldest frame, so the pipeline
-    always gets the newest one; otherwise the reader waits (no frame is lost).
+    With ``drop_stale`` (live cameras) the source is read continuously and a full queue drops its oldest
+    frame, so the pipeline always gets the newest one. Otherwise the next frame is requested when the
+    worker takes one (:meth:`get`): it is produced while the current one is processed, no frame is lost
+    and none waits long after it was made.
     """
 
     def __init__(self, source: FrameSource, maxsize: int = 1, drop_stale: bool = False) -> None:
@@ -57,6 +59,7 @@ class _FramePrefetcher:
         self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
         self.drop_stale = drop_stale
         self.dropped = 0
+        self._wanted = threading.Semaphore(1)  # on-demand mode: one frame requested at a time
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="frame-reader", daemon=True)
         self._thread.start()
@@ -69,6 +72,8 @@ class _FramePrefetcher:
             self._put(("end", None, 0.0, time.time()))
             return
         while not self._stop.is_set():
+            if not self.drop_stale and not self._wanted.acquire(timeout=0.1):
+                continue
             t0 = time.perf_counter()
             try:
                 item = ("frame", next(it), 0.0, 0.0)
@@ -105,9 +110,12 @@ class _FramePrefetcher:
 
     def get(self, timeout: float) -> tuple | None:
         try:
-            return self.queue.get(timeout=timeout)
+            item = self.queue.get(timeout=timeout)
         except queue.Empty:
             return None
+        if not self.drop_stale:
+            self._wanted.release()  # start producing the next frame while this one is processed
+        return item
 
     def close(self, timeout: float = 2.0) -> None:
         self._stop.set()
@@ -397,12 +405,14 @@ class PipelineWorker:
                 continue
             frame = payload
             consecutive = 0
+            waited = max(0.0, time.time() - wall)
             try:
                 if not isinstance(frame, Frame):
                     raise FrameError(f"source yielded {type(frame).__name__}, not a Frame")
                 frame.validate()
                 snap = self.pipeline.process(frame, wall_time=wall)
-                snap.timings["source"] = read_s
+                snap.timings["source"] = read_s  # producing the frame (overlapped with the previous frame)
+                snap.timings["wait"] = waited  # from the frame's production to the start of its processing
             except Exception as exc:  # noqa: BLE001 - the frame is skipped, the worker goes on
                 self.frames_skipped += 1
                 self.report("frame", f"frame {getattr(frame, 'index', '?')} skipped: {type(exc).__name__}: {exc}")
