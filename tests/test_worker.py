@@ -231,3 +231,27 @@ def test_parts_without_pose_start_tracking_when_a_box_is_drawn():
     snap = p.process(frames[1])
     assert set(snap.poses) == {"red"} and set(snap.particles) == {"red"}
     assert not snap.errors
+
+
+def test_live_source_busy_pipeline_gets_newest_frame():
+    """With drop_stale (live cameras) frames that arrive while the pipeline is busy are skipped, not queued."""
+
+    class SlowPipeline:
+        def __init__(self, src):
+            self.inner = make_pipeline(src)
+            self.parts = self.inner.parts
+
+        def process(self, frame, wall_time=None):
+            time.sleep(0.05)
+            return self.inner.process(frame, wall_time)
+
+    seen = []
+    worker = PipelineWorker(lambda: SyntheticTable(n_frames=100_000), SlowPipeline, max_fps=None, drop_stale=True)
+    worker.add_listener(lambda s: seen.append(s.frame_index))
+    worker.start()
+    try:
+        assert wait_for(lambda: len(seen) >= 6)
+    finally:
+        worker.stop()
+    assert worker.frames_dropped > 0
+    assert seen == sorted(seen) and seen[-1] - seen[0] > len(seen)  # gaps: stale frames were skipped
