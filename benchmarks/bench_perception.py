@@ -12,8 +12,9 @@ Run: ``.venv/bin/python benchmarks/bench_perception.py [--quick]``. Prints the f
   (pixels of the cubes, from the ground-truth part-id image when the simulator provides one, otherwise from
   the per-colour masks, get the red hue at their own saturation and value), boxes initialised from the
   projected ground-truth boxes of frame 0; identity-correct = the part's centre is closer to its own projected
-  centre than to any other part's and within 12 px (part-frames with ≥ 50 % visibility and a detection),
-  plus the fraction of detected part-frames, for a sweep of the settings g, a, k_v'.
+  centre than to that of any other part that is at least 25 % visible (part-frames with ≥ 50 % visibility and a
+  detection), plus the fraction of detected part-frames and of correct ones within 12 px, for a sweep of the
+  settings g, a, k_v' and the extensions.
 * Table plane: normal angle and offset error against the simulator's ``table_plane`` on several scenarios and
   seeds; inlier fraction and residual on the real frames of ``/work/shared/data/real``.
 """
@@ -47,6 +48,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 WRONG_PX = 12.0
 VISIBLE = 0.5
 HIDDEN = 0.05
+RIVAL = 0.25
 
 
 def machine() -> dict:
@@ -143,7 +145,7 @@ class ColorStats:
 class SameStats:
     def __init__(self, settings: SameColorSettings) -> None:
         self.settings = settings
-        self.n_eval = self.n_correct = self.n_detected = self.frames_all_ok = self.n_frames = 0
+        self.n_eval = self.n_correct = self.n_detected = self.frames_all_ok = self.n_frames = self.n_close = 0
         self.times: list[float] = []
         self.tracker: SameColorTracker | None = None
 
@@ -167,9 +169,12 @@ class SameStats:
                 all_ok = False
                 continue
             self.n_detected += 1
-            e = {m: float(np.hypot(*np.subtract(d.center, c))) for m, c in centres.items()}
-            ok = min(e, key=e.get) == n and e[n] < WRONG_PX
+            # identity: nearest to its own projected centre among the parts that can be seen (>= 25 %)
+            e = {m: float(np.hypot(*np.subtract(d.center, c))) for m, c in centres.items()
+                 if m == n or float(vis.get(m, 0.0)) >= RIVAL}
+            ok = min(e, key=e.get) == n
             self.n_correct += ok
+            self.n_close += ok and e[n] < WRONG_PX
             all_ok &= ok
         self.frames_all_ok += all_ok
         self.n_frames += 1
@@ -185,6 +190,7 @@ class SameStats:
             "identity_correct_fraction": self.n_correct / max(1, self.n_detected),
             "detected_fraction": self.n_detected / max(1, self.n_eval),
             "correct_of_visible_fraction": self.n_correct / max(1, self.n_eval),
+            "correct_within_12px_of_visible_fraction": self.n_close / max(1, self.n_eval),
             "frames_all_correct_fraction": self.frames_all_ok / max(1, self.n_frames),
             "time_ms_median": 1000 * float(np.median(self.times)),
             "time_ms_p95": 1000 * float(np.percentile(self.times, 95)),
@@ -326,13 +332,15 @@ def write_md(res: dict, path: Path) -> None:
         "",
         "All cubes of the simulated sequences re-hued to the red preset (own saturation/value kept), boxes "
         "initialised from the projected ground-truth boxes of frame 0. *identity* = of the detected part-frames, the "
-        "fraction whose centre is nearest its own projected centre (and < 12 px); *detected* = part-frames (≥ 50 % "
-        "visible) with a detection; *correct/visible* = both. Rows: the 8 best settings, the 3 best without "
+        "fraction whose centre is nearer its own projected centre than any other ≥ 25 % visible part's; *detected* = "
+        "part-frames (≥ 50 % visible) with a detection; *correct/visible* = both; *≤ 12 px* = correct and within "
+        "12 px of the projected centre (partly hidden cubes shift the box centre). Rows: the 8 best settings, "
+        "the 3 best without "
         f"re-acquisition and the best with the area gate, of {len(s['sweep'])} (all in perception.json).",
         "",
         "| g (px/side/frame) | a (px) | k_v' | re-acquire | split area gate | identity | detected | correct/visible "
-        "| all parts correct (frames) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| ≤ 12 px | all parts correct (frames) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     top = sorted(s["sweep"], key=lambda r: -r["correct_of_visible_fraction"])
     shown = top[:8] + [r for r in top if not r["reacquire"]][:3] + [r for r in top if r["split_area_ratio"] > 0][:1]
@@ -341,7 +349,7 @@ def write_md(res: dict, path: Path) -> None:
         lines.append(f"| {r['growth']} | {r['margin']} | {r['velocity_factor']} | {r['reacquire']} | "
                      f"{r['split_area_ratio']} | "
                      f"{r['identity_correct_fraction']:.3f} | {r['detected_fraction']:.3f} | "
-                     f"{r['correct_of_visible_fraction']:.3f} | "
+                     f"{r['correct_of_visible_fraction']:.3f} | {r['correct_within_12px_of_visible_fraction']:.3f} | "
                      f"{r['frames_all_correct_fraction']:.3f} |")
     b = s["best"]
     dflt = SameColorSettings()
@@ -359,7 +367,9 @@ def write_md(res: dict, path: Path) -> None:
         f"reaches correct/visible {seed_best['correct_of_visible_fraction']:.3f} (g={seed_best['growth']}, "
         f"a={seed_best['margin']}, k_v'={seed_best['velocity_factor']}): parts whose box lost its cube while the "
         "hand carried it are never found again. The area gate hurts. Identity swaps at contacts (k-means splits "
-        "of two touching cubes) and after hand passes remain; the seed also found this mode unsatisfactory.",
+        "of two touching cubes) and after hand passes remain; the seed also found this mode unsatisfactory. "
+        "One seed per scenario: an earlier run on a previous simulator version ranked the settings differently and "
+        "moved single rows by up to 6 points, so differences of a few points between settings are noise.",
         "",
         "### Table plane",
         "",
@@ -406,11 +416,11 @@ def main() -> int:
         grid = [{"growth": g, "margin": a, "velocity_factor": kv, "reacquire": ra, "split_area_ratio": gate}
                 for (g, a, kv), (ra, gate) in itertools.product(base, variants)]
     else:
-        base = list(itertools.product([0.0, 1.0, 2.0, 4.0], [0.0, 2.0, 5.0], [0.0, 0.5, 0.8]))
+        base = list(itertools.product([0.0, 1.0, 2.0, 4.0], [0.0, 5.0], [0.5, 0.8]))
         grid = [{"growth": g, "margin": a, "velocity_factor": kv, "reacquire": ra, "split_area_ratio": 0.0}
                 for (g, a, kv), ra in itertools.product(base, [False, True])]
-        grid += [{"growth": g, "margin": 2.0, "velocity_factor": 0.5, "reacquire": True, "split_area_ratio": 0.6}
-                 for g in (0.0, 1.0, 2.0)]
+        grid += [{"growth": g, "margin": 0.0, "velocity_factor": 0.5, "reacquire": True, "split_area_ratio": 0.6}
+                 for g in (0.0, 1.0)]
     print("simulated sequences ...")
     res.update(bench_sim(scen, seeds, max_frames, stride, grid))
     print(json.dumps({k: v for k, v in res["color"].items() if not isinstance(v, dict)}, indent=1))

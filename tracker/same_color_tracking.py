@@ -45,15 +45,15 @@ class SameColorSettings:
     """Parameters of :class:`SameColorTracker` (pixels at the image's own resolution; per processed frame).
 
     Defaults chosen by the experiment in ``benchmarks/bench_perception.py`` (see benchmarks/results/perception.md):
-    a sweep of g ∈ {0, 1, 2, 4}, a ∈ {0, 2, 5}, k_v' ∈ {0, 0.5, 0.8}, with and without re-acquisition, on five
-    simulated sequences (2250 frames at 15 fps) with all cubes re-hued to one red; g = 1, a = 0, k_v' = 0.5 with
-    re-acquisition gave the highest fraction of visible part-frames with the correct identity (0.76, vs 0.70 for
-    the best setting without re-acquisition). The differences between neighbouring settings are a few percent.
+    a sweep of g ∈ {0, 1, 2, 4}, a ∈ {0, 5}, k_v' ∈ {0.5, 0.8}, with and without re-acquisition, on five
+    simulated sequences (2250 frames at 15 fps) with all cubes re-hued to one red; g = 1, a = 5, k_v' = 0.5 with
+    re-acquisition gave the highest fraction of visible part-frames with the correct identity (0.78, vs 0.74 for
+    the best setting without re-acquisition). Neighbouring settings differ by a few percent.
     """
 
     growth: float = 1.0
     """g: pixels added per side per frame while a part is occluded."""
-    margin: float = 0.0
+    margin: float = 5.0
     """a: pixels added around a blob's bounding box."""
     velocity_factor: float = 0.5
     """k_v': weight of the previous velocity (the prose's update rate c = 1 − k_v')."""
