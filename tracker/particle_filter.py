@@ -40,10 +40,11 @@ from tracker.depth_likelihood import (
     update_log_likelihood,
 )
 from tracker.frame import Frame
+from tracker.icp_refinement import PartSurfaceModel, icp_refine, part_points
 from tracker.mesh_renderer import MeshModel, render_mesh_at_pixels
 from tracker.motion_model import color_input, mean_pose, propagate, sample_noise
 from tracker.parts import PartSpec
-from tracker.penalties import intersection_log_penalty, lowest_heights, table_log_penalty
+from tracker.penalties import intersection_flags, intersection_log_penalty, lowest_heights, table_log_penalty
 from tracker.pose import Pose
 from tracker.resampling import kl_from_uniform, normalize_log_weights, systematic_resample
 from tracker.tracker_config import TrackerConfig
@@ -152,6 +153,9 @@ class MultiObjectTracker:
         self._rays = pixel_rays(intrinsics, self._pu, self._pv)
         self._hints: list[ResolvedConnection] = []
         self._color_targets: list = []
+        self._surface: list[PartSurfaceModel | None] = [None] * k
+        self._radius = [p.bounding_radius() if p.box is not None else float(np.linalg.norm(self.half[i]))
+                        for i, p in enumerate(parts)]
         self._initialized = False
         self.estimates: dict[str, Pose] = {}
         self._warm_up()
@@ -345,17 +349,21 @@ class MultiObjectTracker:
                 self.occ = self.occ[anc]
             self.occ[:, pix] = post
             self.occ_time[pix] = now
+            vis = normalize_log_weights(log_w) @ vis_all
+            self.visibility = vis
             if cfg.hidden_noise_scale < 1.0:
-                vis = normalize_log_weights(log_w) @ vis_all
-                self.visibility = vis
                 self._noise_scale = np.clip(vis / cfg.visible_fraction_full, cfg.hidden_noise_scale, 1.0)
         t_occ = time.perf_counter() - tf
         self.p, self.R, self.v, self.log_w = p_cur, R_cur, v_cur, log_w
         self.last_log_likelihood = ell_prev  # penalised ℓ per particle of the last pass (diagnostics, tests)
         state = self._make_state(frame, t0, timings)
         state.resampled = n_resampled
+        tg = time.perf_counter()
+        if cfg.icp_refinement:
+            self._refine(state, depth, detections, table)
+        t_icp = time.perf_counter() - tg
         timings.update(render=t_render * 1e3, likelihood=t_lik * 1e3, penalties=t_pen * 1e3,
-                       resample=t_res * 1e3, occlusion=t_occ * 1e3)
+                       resample=t_res * 1e3, occlusion=t_occ * 1e3, icp=t_icp * 1e3)
         timings["total"] = (time.perf_counter() - t0) * 1e3
         state.timings = timings
         return state
@@ -464,6 +472,68 @@ class MultiObjectTracker:
         if not pix.size:
             return None
         return pix, regions[:, pix]
+
+    def _refine(self, state: TrackerState, depth, detections, table) -> None:
+        """ICP refinement of well-visible parts (see :mod:`tracker.icp_refinement`); shifts their particles."""
+        cfg = self.config
+        plane = _table_normal_offset(table)
+        for i, name in enumerate(self.names):
+            if self.visibility[i] < cfg.icp_min_visibility:
+                continue
+            blob = None
+            if self.parts[i].color is not None and detections:
+                blob = self._blob_mask(detections.get(name), depth.shape)
+                if blob is None:  # a coloured part that is not detected now: do not trust nearby points
+                    continue
+            if self._surface[i] is None:
+                self._surface[i] = PartSurfaceModel(self.parts[i])
+            est = state.poses[name]
+            others = np.array([state.poses[n].t for n in self.names if n != name]).reshape(-1, 3)
+            pts = part_points(depth, self.intrinsics, est, self._radius[i] + 0.005, blob, plane, cfg.icp_stride,
+                              others=others)
+            ref = icp_refine(self._surface[i], pts, est, cfg.icp_iterations)
+            if ref is None:
+                continue
+            Rd = ref.R @ est.R.T
+            angle = float(np.arccos(np.clip((np.trace(Rd) - 1.0) / 2.0, -1.0, 1.0)))
+            if np.linalg.norm(ref.t - est.t) > cfg.icp_max_translation or angle > cfg.icp_max_rotation:
+                continue
+            if self._intersects_others(i, ref, state.poses):
+                continue
+            self.p[:, i] = (self.p[:, i] - est.t) @ Rd.T + ref.t
+            self.R[:, i] = Rd @ self.R[:, i]
+            state.poses[name] = ref
+            state.particles[name] = self.p[:, i].astype(np.float32)
+            self.estimates[name] = ref
+
+    def _intersects_others(self, obj: int, pose: Pose, poses: dict[str, Pose]) -> bool:
+        """Would part ``obj`` at ``pose`` interpenetrate another part's estimate (beyond the contact tolerance)?"""
+        k = len(self.parts)
+        if k < 2:
+            return False
+        R = np.stack([pose.R if i == obj else poses[n].R for i, n in enumerate(self.names)])[None]
+        t = np.stack([pose.t if i == obj else poses[n].t for i, n in enumerate(self.names)])[None]
+        pairs = np.array([(obj, o) for o in range(k) if o != obj], np.int64)
+        return bool(intersection_flags(R, t, self.center, self.half, pairs, self.config.contact_tolerance)[0])
+
+    def _blob_mask(self, det, shape) -> np.ndarray | None:
+        """Full-resolution mask of a detection's blob, eroded by 2 px (edges mix part and background)."""
+        if det is None or getattr(det, "contour", None) is None:
+            return None
+        if float(getattr(det, "score", 0.0) or 0.0) < self.config.color_mask_min_score:
+            return None
+        import cv2
+
+        pts = np.asarray(det.contour, np.int32).reshape(-1, 2)
+        x0, y0 = max(int(pts[:, 0].min()) - 3, 0), max(int(pts[:, 1].min()) - 3, 0)
+        x1, y1 = min(int(pts[:, 0].max()) + 4, shape[1]), min(int(pts[:, 1].max()) + 4, shape[0])
+        m = np.zeros(shape, bool)
+        if x0 >= x1 or y0 >= y1:
+            return m
+        win = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.fillPoly(win, [pts - np.array([x0, y0], np.int32)], 1)
+        m[y0:y1, x0:x1] = cv2.erode(win, np.ones((5, 5), np.uint8)).astype(bool)
+        return m
 
     def _color_masks(self, detections, gi, gj) -> tuple[np.ndarray, np.ndarray]:
         """Per part, which evaluated pixels lie inside its detected colour blob (dilated by one grid pixel)."""

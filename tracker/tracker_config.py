@@ -101,6 +101,17 @@ class TrackerConfig(BaseModel):
         2, ge=0, description="Margin (downsampled pixels) around the parts' projections that is evaluated."
     )
 
+    # --- ICP refinement (spec section 17, future work; not in the seed)
+    icp_refinement: bool = Field(
+        False, description="Refine well-visible parts with point-to-plane ICP on their full-resolution points (colour "
+        "blob, or near the estimate above the table) and shift their particles by the correction.",
+    )
+    icp_min_visibility: float = Field(0.85, ge=0.0, le=1.0, description="Visible fraction needed for refinement.")
+    icp_iterations: int = Field(6, ge=1, description="ICP iterations per part and frame.")
+    icp_stride: int = Field(3, ge=1, description="Use every n-th full-resolution pixel (each axis) for ICP.")
+    icp_max_translation: float = Field(0.008, gt=0.0, description="Largest accepted ICP correction, metres.")
+    icp_max_rotation: float = Field(0.15, gt=0.0, description="Largest accepted ICP rotation correction, radians.")
+
     # --- penalties (spec 4.13-4.15)
     lambda_i: float = Field(0.01, gt=0.0, le=1.0, description="Intersection penalty factor lambda_i (not 0).")
     contact_tolerance: float = Field(
@@ -233,5 +244,6 @@ PRESETS["default"] = {
     "table_tolerance": 0.001,
     "color_mask_likelihood": True,
     "color_likelihood_px": 10.0,
+    "icp_refinement": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
