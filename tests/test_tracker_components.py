@@ -327,3 +327,22 @@ def test_presets_and_config_files(tmp_path):
         TrackerConfig.load(bad)
     with pytest.raises(ValueError, match="unknown tracker preset"):
         TrackerConfig.preset("nope")
+
+
+# ---------------------------------------------------------------- ICP refinement
+def test_icp_refinement_recovers_small_offset():
+    from tracker.icp_refinement import PartSurfaceModel, icp_refine, part_points
+
+    intr = Intrinsics.default()
+    part = PartSpec.cube("c")
+    true = Pose.from_rotvec([0.5, 0.3, 0.1], [0.01, 0.02, 0.6])
+    depth = render_box_depth(intr, [true], [part.box]).astype(np.float32)
+    depth[~np.isfinite(depth)] = np.nan
+    start = Pose.from_rt(Pose.from_rotvec([0.0, 0.05, 0.0], [0, 0, 0]).R @ true.R, true.t + [0.003, -0.002, 0.002])
+    pts = part_points(depth, intr, start, part.bounding_radius() + 0.005, None, None, stride=2)
+    assert pts.shape[0] > 100
+    ref = icp_refine(PartSurfaceModel(part), pts, start, iterations=15)
+    assert ref is not None
+    assert ref.translation_error(true) < 0.001
+    assert math.degrees(ref.rotation_error(true)) < 1.0
+    assert icp_refine(PartSurfaceModel(part), pts[:5], start) is None  # too few points
