@@ -24,6 +24,9 @@ def register(subparsers) -> None:
     p.add_argument("--tracker-preset", default="default", help="tracker preset for --poses tracked (default|seed-exp1|"
                    "seed-exp23)")
     p.add_argument("--no-hints", action="store_true", help="do not feed connection hints to the tracker (ablation)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override an assembly parameter for every session (m_p, m_q_deg, yaw_tolerance_deg, K, "
+                   "N_max, N_checks, N_break, break_factor); repeatable")
     p.add_argument("--list", action="store_true", help="list the experiments and exit")
     p.set_defaults(func=run)
 
@@ -39,10 +42,19 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("name an experiment (see --list)")
     if not args.out:
         raise ValueError("--out DIR is required")
+    overrides = {}
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+        try:
+            overrides[key.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--set {key}: value must be a number, got {value!r}") from None
     poses = args.poses or ("tracked" if tracked_available() else "groundtruth")
     summary = run_experiment(args.experiment, args.out, sessions=args.sessions, poses=poses,
                              frame_step=args.frame_step, n_particles=args.particles, progress=print,
-                             tracker_preset=args.tracker_preset, hints=not args.no_hints)
+                             tracker_preset=args.tracker_preset, hints=not args.no_hints, overrides=overrides)
     keys = ("sessions", "connections_total", "connections_within_1s", "connections_never", "false_completions",
             "guess_correct", "sentences_correct", "mean_deviation_s")
     print(json.dumps({k: summary[k] for k in keys if k in summary}))

@@ -81,7 +81,7 @@ def _label(setting: dict) -> str:
 
 def run_experiment(name: str, out: str | Path, sessions: int | None = None, poses: str = "groundtruth",
                    frame_step: int = 1, n_particles: int | None = None, progress=None,
-                   tracker_preset: str = "default", hints: bool = True) -> dict:
+                   tracker_preset: str = "default", hints: bool = True, overrides: dict | None = None) -> dict:
     """Run experiment ``name``, write its report into ``out`` and return the summary (also summary.json)."""
     if name not in EXPERIMENTS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {list(EXPERIMENTS)}")
@@ -99,7 +99,8 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
     for setting in exp.settings:
         results = []
         for spec in specs:
-            r = run_session(spec, poses=poses, overrides=setting, frame_step=frame_step, n_particles=n_particles,
+            r = run_session(spec, poses=poses, overrides={**(overrides or {}), **setting}, frame_step=frame_step,
+                            n_particles=n_particles,
                             tracker_preset=tracker_preset, hints=hints)
             results.append(r)
             if progress:
@@ -131,7 +132,8 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
             summary["guess_correct"] = sum(s["guess_correct"] for s in per_setting.values())
         summary["settings"] = per_setting
     summary.update({"experiment": name, "poses": poses, "frame_step": frame_step, "machine": machine(),
-                    "tracker_preset": tracker_preset if poses == "tracked" else None, "hints": hints})
+                    "tracker_preset": tracker_preset if poses == "tracked" else None, "hints": hints,
+                    "overrides": overrides or {}})
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
 
