@@ -20,8 +20,14 @@ Choices documented here (the thesis leaves them open):
   1e-6 relative). This keeps the vertical axis fixed and the horizontal axes free (Fig. 5.5, eq. 5.8), so a
   cube beside another never satisfies an "on top of" connection. (Spec 8.4 orders the two criteria the
   other way round; with that order a vertical connection would accept any face neighbour.)
-* A prior is stored as the part's fundamental orientation in the camera frame, ``F = R Qᵀ``, and
-  re-anchored every frame: ``Q = nearest element of G to Fᵀ R``, then ``F ← R Qᵀ``. The tracker does not
+* A prior is stored as the part's fundamental orientation in the camera frame, ``F`` (``Q`` = nearest
+  element of G to ``Fᵀ R`` each frame, for the tracker hints). Without ``yaw_tolerance`` F is re-anchored
+  every frame, ``F ← R Qᵀ``. With ``yaw_tolerance`` (the monitor's default) the priors are *structural*: the
+  first and second parts' F are levelled, the first is turned towards the observed offset (within the
+  tolerance), the second part gets ``F_b = F_a R_des`` when it is new to the component, and a component's
+  headings are turned with the observed offsets of its connections; the tracker's orientation estimates
+  are then used only to pick the discrete symmetry for a part that has no prior yet.
+* (Re-anchoring, without ``yaw_tolerance``:) The tracker does not
   know about symmetry, so its estimate of a cube may turn into another equivalent orientation (a 90° jump
   or a slow drift about the vertical); a fixed ``Q`` would then point the fundamental frame elsewhere,
   whereas ``F`` stays with the physical structure (changes below 45° per frame are absorbed).
@@ -44,6 +50,8 @@ from tracker.symmetry import cube_group, nearest_in_group
 UP_TIE_TOL = 1e-3
 DOT_TIE_TOL = 1e-6
 MAX_HYPOTHESES = 24
+UPDATE_ERROR = 3.0
+"""Structural priors turn with the observed offsets only when the check's error (normalised) is at most this."""
 
 _I = np.eye(3)
 
@@ -79,14 +87,15 @@ def _rotation_onto(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def levelled_frames(F_a: np.ndarray, F_b: np.ndarray | None, normal: np.ndarray, p_des: np.ndarray,
-                    d: np.ndarray, yaw_tolerance: float) -> tuple[np.ndarray, np.ndarray | None]:
+                    d: np.ndarray, yaw_tolerance: float) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """Fundamental orientations made robust to the tracker's orientation noise (choice documented here).
 
-    Both are levelled (smallest rotation taking their y axis onto the table normal ``normal``). When the
-    desired offset ``p_des`` is mostly horizontal, ``F_a`` is also turned about the normal by the angle
-    between the desired direction ``F_a p_des`` and the observed offset ``d`` (camera frame), if that angle
-    is within ``yaw_tolerance``; the tolerance stays below 45° so that the four horizontal directions
-    (90° apart) remain distinct. ``F_b`` gets the same turn, so the relative rotation keeps its yaw error.
+    Returns ``(L_a, L_b, Rz)``: both orientations levelled (smallest rotation taking their y axis onto the
+    table normal ``normal``) and ``Rz``, a turn about the normal. When the desired offset ``p_des`` is mostly
+    horizontal, ``Rz`` turns the desired direction ``L_a p_des`` onto the observed offset ``d`` (camera
+    frame) if the angle is within ``yaw_tolerance`` (identity otherwise); ``L_a`` includes the turn,
+    ``L_b`` does not. The tolerance stays below 45° so that the four horizontal directions (90° apart)
+    remain distinct.
     """
     n = np.asarray(normal, float) / np.linalg.norm(normal)
     La = _rotation_onto(F_a[:, 1], n) @ F_a
@@ -94,14 +103,13 @@ def levelled_frames(F_a: np.ndarray, F_b: np.ndarray | None, normal: np.ndarray,
     u = La @ p_des
     u_h = u - (u @ n) * n
     v_h = d - (d @ n) * n
+    Rz = np.eye(3)
     if np.linalg.norm(u_h) > 0.5 * np.linalg.norm(p_des) and np.linalg.norm(v_h) > 1e-6:
         phi = float(np.arctan2(n @ np.cross(u_h, v_h), u_h @ v_h))
         if abs(phi) <= yaw_tolerance:
             K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
             Rz = np.eye(3) + np.sin(phi) * K + (1 - np.cos(phi)) * K @ K
-            La = Rz @ La
-            Lb = None if Lb is None else Rz @ Lb
-    return La, Lb
+    return Rz @ La, Lb, Rz
 
 
 def snap_to_group(M: np.ndarray) -> np.ndarray:
@@ -122,6 +130,7 @@ class Option:
     hyp_b: int | None = None
     F_a: np.ndarray | None = None
     F_b: np.ndarray | None = None
+    turn: np.ndarray | None = None
 
 
 @dataclass
@@ -166,13 +175,15 @@ class SymmetryState:
         F = self.fundamental(part)
         return None if F is None else snap_to_group(F.T @ R).T
 
-    def _reanchor(self, part: str, R: np.ndarray, symmetric: bool) -> list[np.ndarray]:
-        """Q of every hypothesis of ``part`` for orientation ``R``; updates the stored F = R Qᵀ."""
+    def _reanchor(self, part: str, R: np.ndarray, symmetric: bool, update: bool) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``(Q, F)`` of every hypothesis of ``part`` for orientation ``R``: ``Q`` = nearest element of G to
+        ``Fᵀ R``. With ``update`` the stored F follows the tracker (``F ← R Qᵀ``)."""
         out = []
         for h in self.hypotheses(part):
             Q = snap_to_group(h[part].T @ R) if symmetric else _I
-            h[part] = R @ Q.T
-            out.append(Q)
+            if update:
+                h[part] = R @ Q.T
+            out.append((Q, h[part]))
         return out
 
     # ------------------------------------------------------------------ checking
@@ -200,8 +211,11 @@ class SymmetryState:
         sym_a, sym_b = self.symmetric.get(a, False), self.symmetric.get(b, False)
         G = cube_group()
         R_b = R_a @ R_ab
-        ha = self._reanchor(a, R_a, sym_a)
-        hb = self._reanchor(b, R_b, sym_b)
+        structural = yaw_tolerance is not None
+        ha_full = self._reanchor(a, R_a, sym_a, update=not structural)
+        hb_full = self._reanchor(b, R_b, sym_b, update=not structural)
+        ha = [q for q, _ in ha_full]
+        hb = [q for q, _ in hb_full]
         same_component = bool(ha) and bool(hb) and self._component[a] == self._component[b]
 
         def q_b_free(Q_a):
@@ -234,15 +248,30 @@ class SymmetryState:
         d = R_a @ p_ab  # p_b − p_a in the camera frame
         for Q_a, Q_b, i, j in pairs:
             F_a, F_b = R_a @ Q_a.T, R_b @ Q_b.T
-            if yaw_tolerance is not None and sym_a:
-                Fa_c, Fb_c = levelled_frames(F_a, F_b if sym_b else None, normal, p_des, d, yaw_tolerance)
-                p = Fa_c.T @ d
-                R = Fa_c.T @ (Fb_c if sym_b else R_b)
+            turn = None
+            if structural and sym_a:
+                # structural priors: stored F (not the tracker's orientation) for parts that have one
+                base_a = ha_full[i][1] if i is not None else F_a
+                base_b = hb_full[j][1] if j is not None else F_b
+                La, Lb, turn = levelled_frames(base_a, base_b if sym_b else None, normal, p_des, d, yaw_tolerance)
+                if same_component and Lb is not None:
+                    Lb = turn @ Lb
+                p = La.T @ d
+                R = La.T @ (Lb if sym_b else R_b)
+                F_a = La
+                F_b = Lb if (j is not None and Lb is not None) else (La @ R_des if sym_b else R_b)
             else:
                 p = Q_a @ p_ab
                 R = Q_a @ R_ab @ Q_b.T
-            options.append(Option(Q_a, Q_b, p, R, float(error_fn(p, R)), i, j, F_a, F_b))
+            o = Option(Q_a, Q_b, p, R, float(error_fn(p, R)), i, j, F_a, F_b)
+            o.turn = turn
+            options.append(o)
         options.sort(key=lambda o: o.error)
+        best = options[0]
+        if structural and best.turn is not None and best.hyp_a is not None and best.error <= UPDATE_ERROR:
+            # the component's heading follows the observed positions of its parts
+            for part, F in self._hyps[self._component[a]][best.hyp_a].items():
+                self._hyps[self._component[a]][best.hyp_a][part] = best.turn @ F
         return Resolution(case, options)
 
     # ------------------------------------------------------------------ updates
