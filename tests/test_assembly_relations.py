@@ -241,3 +241,23 @@ def test_tracker_yaw_and_tilt_errors_are_tolerated_but_directions_stay_distinct(
     m2.params.N_break = 1
     m2.update(0.1, {"a": Pose.from_rt(err @ base.R, base.t), "b": front}, T)
     assert m2.status[0].state == "open"
+
+
+def test_structural_priors_ignore_the_tracked_orientation_of_connected_cubes():
+    """Once a–b is established, b's fundamental frame comes from the structure (F_b = F_a R_des): a 44° yaw
+    error of b's tracked orientation does not spoil the next connection b–c."""
+    T = default_table_to_camera()
+    parts = [PartSpec.cube(n, c) for n, c in (("a", "red"), ("b", "green"), ("c", "blue"))]
+    specs = [ConnectionSpec("a", "b", np.array([A, 0, 0]), np.eye(3)), ConnectionSpec("b", "c", np.array([A, 0, 0]),
+                                                                                        np.eye(3))]
+    m = ConnectionMonitor(parts, specs, AssemblyParams(N_checks=1))
+    base = T @ Pose(np.array([0, A / 2, 0]))
+    poses = {"a": base, "b": base @ Pose(np.array([A, 0, 0])), "c": base @ Pose(np.array([0.3, 0, 0]))}
+    m.update(0.0, poses, T)
+    assert m.established == [True, False]
+    n = T.R[:, 1]
+    bad = Pose.from_rotvec(n * np.radians(44), np.zeros(3)).R
+    poses = dict(poses, b=Pose.from_rt(bad @ poses["b"].R, poses["b"].t), c=base @ Pose(np.array([2 * A, 0, 0])))
+    m.update(0.1, poses, T)
+    assert m.established == [True, True]
+    np.testing.assert_allclose(m.status[1].option.p, [A, 0, 0], atol=1e-6)
