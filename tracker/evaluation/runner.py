@@ -27,8 +27,9 @@ from tracker.assembly.synthetic import jitter
 from tracker.evaluation.sessions import SessionSpec
 from tracker.pose import Pose
 
-COMPLETE_GRACE = 0.5
-"""A mode's "complete" counts as false when it comes more than this many seconds before the true completion."""
+COMPLETE_GRACE = 1.0
+"""A mode's "complete" counts as false when it comes more than this many seconds before the true completion
+(the ±1 s tolerance of the timing metric), or names the wrong structure (guess)."""
 
 
 @dataclass
