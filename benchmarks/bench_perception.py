@@ -16,7 +16,7 @@ Run: ``.venv/bin/python benchmarks/bench_perception.py [--quick]``. Prints the f
   detection), plus the fraction of detected part-frames and of correct ones within 12 px, for a sweep of the
   settings g, a, k_v' and the extensions.
 * Table plane: normal angle and offset error against the simulator's ``table_plane`` on several scenarios and
-  seeds; inlier fraction and residual on the real frames of ``/work/shared/data/real``.
+  seeds; inlier fraction and residual on the real frames of ``../shared/data/real`` (beside the checkout).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from tracker.parts import PRESET_COLORS  # noqa: E402
 from tracker.same_color_tracking import SameColorSettings, SameColorTracker  # noqa: E402
 from tracker.table_plane import detect_table  # noqa: E402
 
-REAL = Path("/work/shared/data/real")
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 RESULTS = ROOT / "benchmarks" / "results"
 WRONG_PX = 12.0
 VISIBLE = 0.5

@@ -22,7 +22,7 @@ from tracker.sources.depth_registration import register_depth
 from tracker.sources.recording import RecordingSource, RecordingWriter
 
 RESULTS = Path(__file__).resolve().parent / "results"
-REAL = Path("/work/shared/data/real/visp-cube-desk")
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "visp-cube-desk"
 
 
 def cpu_model() -> str:

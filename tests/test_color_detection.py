@@ -12,7 +12,7 @@ from tracker.color_detection import ColorDetection, ColorDetector, calibrate_ran
 from tracker.hsv_range import PRESET_RANGES, HSVRange, circular_stats, preset_range, rgb_to_hsv_float
 from tracker.parts import PRESET_COLORS, PartSpec
 
-REAL = Path("/work/shared/data/real")
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
 def hsv_image_rgb(h_deg: np.ndarray, s: float, v: float) -> np.ndarray:

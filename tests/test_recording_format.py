@@ -22,7 +22,7 @@ from tracker.sources.recording import (
     depth_units_to_metres,
 )
 
-REAL = Path("/work/shared/data/real")
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 SMALL = Intrinsics(64, 48, 60.0, 61.0, 31.5, 23.5)
 
 

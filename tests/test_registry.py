@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from tracker.sources.base import SourceError
 from tracker.sources.recording import RecordingSource, RecordingWriter
 from tracker.sources.registry import open_source, parse_source_spec
 
-REAL = "/work/shared/data/real/visp-cube-desk"
+REAL = str(Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "visp-cube-desk")
 SMALL = Intrinsics(40, 30, 40.0, 40.0, 19.5, 14.5)
 
 

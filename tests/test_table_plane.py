@@ -19,7 +19,7 @@ from tracker.table_plane import (
     table_changed,
 )
 
-REAL = Path("/work/shared/data/real")
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
 def plane_from_camera_tilt(tilt_deg: float, height: float, roll_deg: float = 0.0) -> tuple[np.ndarray, float]:
