@@ -26,6 +26,7 @@ class WorkerStatus(BaseModel):
     paused: bool
     frames_processed: int
     frames_skipped: int
+    frames_dropped: int = Field(0, description="stale frames skipped because the pipeline was busy (real time)")
     source_opens: int
     frame_index: int | None
     fps: float

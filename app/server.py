@@ -48,8 +48,12 @@ def _version() -> str:
         return "0.0.0"
 
 
-def open_source_spec(spec: str, realtime: bool = True, seed: int = 0) -> FrameSource:
-    """Open ``sim:<scenario>``, ``recording:<dir>`` or ``camera:<n>`` through the sources registry."""
+def open_source_spec(spec: str, realtime: bool = False, seed: int = 0) -> FrameSource:
+    """Open ``sim:<scenario>``, ``recording:<dir>`` or ``camera:<n>`` through the sources registry.
+
+    The server opens simulated and recorded sources unpaced (``realtime=False``): the worker paces them
+    itself at their frame rate and skips frames that became stale (see :class:`app.worker.PipelineWorker`).
+    """
     from tracker.sources.registry import open_source
 
     return open_source(spec, realtime=realtime, seed=seed, loop=False)
@@ -82,12 +86,13 @@ class AppState:
         self.task = settings.task
         if self.task is not None:
             self.resolve_task(self.mode, self.task)  # fail early on a bad --task
-        self._open = open_source or (lambda spec: open_source_spec(spec, settings.realtime, settings.seed))
+        self._open = open_source or (lambda spec: open_source_spec(spec, False, settings.seed))
         self.worker = PipelineWorker(
             self._open_current,
             self._make_pipeline,
             max_fps=settings.max_fps,
             loop=settings.loop,
+            realtime=settings.realtime,
         )
         self.scene = None
         self.scene_updater = None
@@ -601,16 +606,14 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
         sent = -1
         try:
             while not closed.is_set():
-                version, snap, _frame = state.worker.published
-                if snap is not None and version != sent:
-                    sent = version
-                    payload = snap.to_dict()
-                    payload["worker"] = {"state": state.worker.state, "paused": state.worker.paused}
-                    await websocket.send_json(payload)
+                event.clear()  # cleared before reading: a snapshot published from now on wakes us again
+                got = state.worker.snapshot_json()  # JSON encoded once per snapshot for every client
+                if got is not None and got[0] != sent:
+                    sent = got[0]
+                    await websocket.send_text(got[1])
                     continue
                 with contextlib.suppress(asyncio.TimeoutError):
-                    await asyncio.wait_for(event.wait(), timeout=1.0)
-                event.clear()
+                    await asyncio.wait_for(event.wait(), timeout=5.0)
         except (WebSocketDisconnect, RuntimeError):
             pass
         finally:

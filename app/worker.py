@@ -12,8 +12,11 @@ dies, it is closed and reopened with a growing delay. Opening failures are repor
 
 from __future__ import annotations
 
+import bisect
 import collections
+import json
 import logging
+import math
 import queue
 import threading
 import time
@@ -44,46 +47,157 @@ class WorkerError:
         return {"time": self.time, "where": self.where, "message": self.message}
 
 
-class _FramePrefetcher:
-    """Reads a source on its own thread so rendering/decoding the next frame overlaps with processing this one.
+class _RandomAccess:
+    """A source whose frame ``i`` can be produced directly (the simulator's ``render``, a recording's ``read``).
 
-    Items are ``("frame", Frame, read_seconds, wall_time)``, ``("error", exception, ...)`` or ``("end", ...)``.
-    With ``drop_stale`` (live cameras) the source is read continuously and a full queue drops its oldest
-    frame, so the pipeline always gets the newest one. Otherwise the next frame is requested when the
-    worker takes one (:meth:`get`): it is produced while the current one is processed, no frame is lost
-    and none waits long after it was made.
+    ``count`` frames; ``offset(i)``: seconds of frame ``i`` after the first; ``produce(i)``: the Frame.
+    ``due(t)``: the newest frame whose time has come ``t`` seconds after the first frame.
     """
 
-    def __init__(self, source: FrameSource, maxsize: int = 1, drop_stale: bool = False) -> None:
+    def __init__(self, count: int, offsets: Callable[[int], float], produce: Callable[[int], Frame], fps: float | None):
+        self.count = count
+        self.offset = offsets
+        self.produce = produce
+        self.fps = fps
+        self._times: list[float] | None = None
+
+    def due(self, t: float) -> int:
+        if self.fps:
+            return int(math.floor(t * self.fps + 1e-9))
+        if self._times is None:
+            self._times = [self.offset(i) for i in range(self.count)]
+        return bisect.bisect_right(self._times, t) - 1
+
+    @classmethod
+    def of(cls, source: FrameSource) -> _RandomAccess | None:
+        """The random access of ``source``, or ``None`` when it can only be iterated (cameras, test doubles)."""
+        render, read = getattr(source, "render", None), getattr(source, "read", None)
+        if callable(render) and isinstance(getattr(source, "n_frames", None), int):
+            fps = 30.0
+            try:
+                fps = float(source.metadata().get("fps") or 30.0)
+            except Exception:  # noqa: BLE001 - the nominal simulator rate
+                pass
+            return cls(int(source.n_frames), lambda i: i / fps, render, fps)
+        timestamp = getattr(source, "timestamp", None)
+        if callable(read) and callable(timestamp):
+            try:
+                n = len(source)  # type: ignore[arg-type]
+                t0 = float(timestamp(0)) if n else 0.0
+            except Exception:  # noqa: BLE001
+                return None
+            return cls(n, lambda i: float(timestamp(i)) - t0, read, None)
+        return None
+
+
+class _FramePrefetcher:
+    """Reads a source on its own thread so producing the next frame overlaps with processing this one.
+
+    Items are ``("frame", Frame, produce_s, capture_wall, ready_wall)``, ``("error", exception, ...)`` or
+    ``("end", None, ...)``; ``capture_wall`` is the frame's capture time (``time.time()``), ``ready_wall`` when
+    it was produced. Three ways of reading:
+
+    * ``drop_stale`` (live cameras): the source is read continuously and a full queue drops its oldest
+      frame, so the pipeline always gets the newest one; capture time = when the source returned it.
+    * ``realtime`` on a source with random access (the simulator's ``render(i)``, a recording's
+      ``read(i)``): frames are due at their own times after the first one; each time the worker needs a
+      frame the reader produces the newest frame whose time has come, skipping the stale ones (counted in
+      :attr:`dropped`), so latency cannot pile up when the pipeline is slower than the source. Capture
+      time = the frame's due time.
+    * otherwise on demand: the next frame of the iterator (no frame is lost); capture time = when its
+      production started.
+
+    On demand and paced, the next frame is produced *just in time*: production starts when the worker's
+    typical frame cycle minus the typical production time has passed since it took the previous frame,
+    so the frame is ready when the worker is, instead of waiting (and ageing) in the queue.
+    """
+
+    def __init__(self, source: FrameSource, maxsize: int = 1, drop_stale: bool = False, realtime: bool = False) -> None:
         self.source = source
         self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
         self.drop_stale = drop_stale
+        self.access = _RandomAccess.of(source) if realtime and not drop_stale else None
         self.dropped = 0
-        self._wanted = threading.Semaphore(1)  # on-demand mode: one frame requested at a time
+        self._wanted = threading.Semaphore(1)  # on-demand / paced: one frame requested at a time
+        self._want_at = 0.0  # perf_counter() time at which production of the requested frame should start
+        self._cycle_s = 0.0  # moving average: worker's time from taking one frame to asking for the next
+        self._produce_s = 0.0  # moving average: time to produce one frame
+        self._taken_at: float | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="frame-reader", daemon=True)
         self._thread.start()
 
+    @staticmethod
+    def _average(old: float, new: float) -> float:
+        return new if old == 0.0 else 0.8 * old + 0.2 * new
+
+    def _wait_until(self, t: float) -> None:
+        delay = t - time.perf_counter()
+        if delay > 0:
+            self._stop.wait(delay)
+
     def _run(self) -> None:
+        if self.access is not None:
+            self._run_paced(self.access)
+            return
         try:
             it = iter(self.source)
         except Exception as exc:  # noqa: BLE001 - handed to the worker
-            self._put(("error", exc, 0.0, time.time()))
-            self._put(("end", None, 0.0, time.time()))
+            now = time.time()
+            self._put(("error", exc, 0.0, now, now))
+            self._put(("end", None, 0.0, now, now))
             return
         while not self._stop.is_set():
-            if not self.drop_stale and not self._wanted.acquire(timeout=0.1):
-                continue
-            t0 = time.perf_counter()
+            if not self.drop_stale:
+                if not self._wanted.acquire(timeout=0.1):
+                    continue
+                self._wait_until(self._want_at)
+            t0, started = time.perf_counter(), time.time()
             try:
-                item = ("frame", next(it), 0.0, 0.0)
-                item = (item[0], item[1], time.perf_counter() - t0, time.time())
+                frame = next(it)
             except StopIteration:
-                self._put(("end", None, 0.0, time.time()))
+                now = time.time()
+                self._put(("end", None, 0.0, now, now))
                 return
             except Exception as exc:  # noqa: BLE001 - a corrupt frame or a failing device: the worker decides
-                item = ("error", exc, time.perf_counter() - t0, time.time())
-            self._put(item)
+                now = time.time()
+                self._put(("error", exc, time.perf_counter() - t0, now, now))
+                continue
+            took, now = time.perf_counter() - t0, time.time()
+            if not self.drop_stale:
+                self._produce_s = self._average(self._produce_s, took)
+            self._put(("frame", frame, took, now if self.drop_stale else started, now))
+
+    def _run_paced(self, access: _RandomAccess) -> None:
+        clock0: float | None = None
+        wall0 = 0.0
+        last = -1
+        while not self._stop.is_set():
+            if not self._wanted.acquire(timeout=0.1):
+                continue
+            self._wait_until(self._want_at)
+            if clock0 is None:
+                clock0, wall0 = time.perf_counter(), time.time()
+            index = max(last + 1, access.due(time.perf_counter() - clock0))
+            if index >= access.count:
+                now = time.time()
+                self._put(("end", None, 0.0, now, now))
+                return
+            self._wait_until(clock0 + access.offset(index))  # not due yet: the pipeline is faster than the source
+            if self._stop.is_set():
+                return
+            self.dropped += index - last - 1
+            last = index
+            t0 = time.perf_counter()
+            try:
+                frame = access.produce(index)
+            except Exception as exc:  # noqa: BLE001 - a corrupt frame: the worker decides
+                now = time.time()
+                self._put(("error", exc, time.perf_counter() - t0, now, now))
+                continue
+            took = time.perf_counter() - t0
+            self._produce_s = self._average(self._produce_s, took)
+            self._put(("frame", frame, took, wall0 + access.offset(index), time.time()))
 
     def _put(self, item: tuple) -> None:
         while not self._stop.is_set():
@@ -109,12 +223,22 @@ class _FramePrefetcher:
                 continue
 
     def get(self, timeout: float) -> tuple | None:
+        asked = time.perf_counter()
+        if self._taken_at is not None:
+            cycle = asked - self._taken_at
+            if cycle < 1.0:  # pauses and commands are not part of the frame cycle
+                self._cycle_s = self._average(self._cycle_s, cycle)
+            self._taken_at = None
         try:
             item = self.queue.get(timeout=timeout)
         except queue.Empty:
             return None
+        taken = time.perf_counter()
+        self._taken_at = taken
         if not self.drop_stale:
-            self._wanted.release()  # start producing the next frame while this one is processed
+            lead = self._cycle_s - 1.2 * self._produce_s - 0.003
+            self._want_at = taken + max(0.0, lead)
+            self._wanted.release()  # the next frame is produced while this one is processed
         return item
 
     def close(self, timeout: float = 2.0) -> None:
@@ -130,10 +254,14 @@ class PipelineWorker:
     * ``max_fps``: upper bound on processed frames per second (the worker sleeps the rest).
     * ``loop``: reopen the source when it ends (recordings and the simulator run forever).
     * ``max_consecutive_errors``: source failures in a row before the source is reopened.
-    * ``drop_stale``: for live/real-time sources, skip frames that waited while the pipeline was busy.
+    * ``drop_stale``: for live cameras, read continuously and skip frames that waited while the pipeline
+      was busy.
+    * ``realtime``: pace sources with random access (simulator, recordings; open them *unpaced*) at their
+      own frame rate, always processing the newest due frame and skipping stale ones.
 
     Frames are read on a second thread (:class:`_FramePrefetcher`), so the source's work overlaps the
-    pipeline's; ``Snapshot.wall_time`` is when the frame left the source.
+    pipeline's; ``Snapshot.wall_time`` is the frame's capture time (see there), so ``time.time() -
+    wall_time`` on receipt is the honest frame → client latency.
     """
 
     def __init__(
@@ -145,6 +273,7 @@ class PipelineWorker:
         max_consecutive_errors: int = 5,
         reopen_delay_s: float = 0.5,
         drop_stale: bool = False,
+        realtime: bool = False,
     ) -> None:
         self._open_source = open_source
         self._make_pipeline = make_pipeline
@@ -153,6 +282,7 @@ class PipelineWorker:
         self.max_consecutive_errors = int(max_consecutive_errors)
         self.reopen_delay_s = float(reopen_delay_s)
         self.drop_stale = bool(drop_stale)
+        self.realtime = bool(realtime)
 
         self.source: FrameSource | None = None
         self.pipeline: AssemblyPipeline | None = None
@@ -176,6 +306,7 @@ class PipelineWorker:
         self._listeners: list[Callable[[Snapshot], None]] = []
         self._lock = threading.Lock()
         self._jpeg_cache: tuple[int, int, bytes] | None = None
+        self._json_cache: tuple[int, str] | None = None
 
     # ------------------------------------------------------------------ control (any thread)
     def start(self) -> None:
@@ -270,9 +401,23 @@ class PipelineWorker:
 
     @property
     def frames_dropped(self) -> int:
-        """Frames the reader dropped because the pipeline was busy (``drop_stale`` only)."""
+        """Stale frames skipped because the pipeline was busy (``drop_stale`` or ``realtime``)."""
         reader = self._reader
         return self._frames_dropped_before + (reader.dropped if reader is not None else 0)
+
+    def snapshot_json(self) -> tuple[int, str] | None:
+        """``(version, JSON text)`` of the newest snapshot, encoded once however many clients read it."""
+        version, snap, _frame = self._published
+        if snap is None:
+            return None
+        cache = self._json_cache
+        if cache is not None and cache[0] == version:
+            return cache
+        payload = snap.to_dict()
+        payload["worker"] = {"state": self.state, "paused": self.paused}
+        cache = (version, json.dumps(payload, separators=(",", ":"), allow_nan=False))
+        self._json_cache = cache
+        return cache
 
     def jpeg(self, quality: int = 75) -> tuple[int, bytes] | None:
         """The latest colour image as JPEG ``(frame_index, bytes)``, encoded once per frame."""
@@ -322,7 +467,7 @@ class PipelineWorker:
                 pass
             return False
         self.source, self.pipeline = src, pipeline
-        self._reader = _FramePrefetcher(src, drop_stale=self.drop_stale)
+        self._reader = _FramePrefetcher(src, drop_stale=self.drop_stale, realtime=self.realtime)
         self.source_opens += 1
         self.state = "running"
         return True
@@ -380,7 +525,7 @@ class PipelineWorker:
             item = self._reader.get(timeout=0.2)
             if item is None:
                 continue  # no frame yet: look at commands and pause again
-            kind, payload, read_s, wall = item
+            kind, payload, read_s, captured, ready = item
             if kind == "end":
                 if consecutive:
                     self.report("source", "source stopped after an error; reopening")
@@ -405,14 +550,14 @@ class PipelineWorker:
                 continue
             frame = payload
             consecutive = 0
-            waited = max(0.0, time.time() - wall)
+            waited = max(0.0, time.time() - ready)
             try:
                 if not isinstance(frame, Frame):
                     raise FrameError(f"source yielded {type(frame).__name__}, not a Frame")
                 frame.validate()
-                snap = self.pipeline.process(frame, wall_time=wall)
+                snap = self.pipeline.process(frame, wall_time=captured)
                 snap.timings["source"] = read_s  # producing the frame (overlapped with the previous frame)
-                snap.timings["wait"] = waited  # from the frame's production to the start of its processing
+                snap.timings["wait"] = waited  # from the end of the frame's production to the start of its processing
             except Exception as exc:  # noqa: BLE001 - the frame is skipped, the worker goes on
                 self.frames_skipped += 1
                 self.report("frame", f"frame {getattr(frame, 'index', '?')} skipped: {type(exc).__name__}: {exc}")

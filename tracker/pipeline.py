@@ -7,11 +7,13 @@ Plain Python, no HTTP: the web worker, scripts and benchmarks drive it the same 
     for frame in src:
         snap = pipeline.process(frame)
 
-Per frame: the table plane is found on the first frame with depth and re-checked every
-``table_recheck_s`` seconds (perception); colour detections of every coloured part; one step of the
-multi-object particle filter (with the mode's connection hints); the mode's update (instruction,
-connections, verdicts). A stage that fails on a frame is reported in ``Snapshot.errors`` and the
-rest of the frame still runs. Poses are camera-frame (metres, quaternions ``[x, y, z, w]``).
+Per frame: the table plane is found on the first frame with depth (perception's ``detect_table``, tens
+of milliseconds) and re-checked every ``table_recheck_s`` seconds on a cheap subsampled grid of the
+depth (well under a millisecond); only when that check finds much less of the table on the plane than at
+detection (the camera moved) is the full detection run again. Then colour detections of every
+coloured part; one step of the multi-object particle filter (with the mode's connection hints); the
+mode's update (instruction, connections, verdicts). A stage that fails on a frame is reported in
+``Snapshot.errors`` and the rest of the frame still runs. Poses are camera-frame (metres, quaternions ``[x, y, z, w]``).
 """
 
 from __future__ import annotations
@@ -33,6 +35,13 @@ log = logging.getLogger(__name__)
 
 MODE_NAMES = ("guidance", "guess", "learning")
 """The assembly modes (engineer 5's ``build_mode`` names); ``None`` runs tracking only."""
+
+TABLE_CHECK_STEP = 8
+"""Pixel step of the depth grid used to re-check the table plane (every 8th pixel: 4800 points at 640×480)."""
+TABLE_CHECK_TOLERANCE = 0.015
+"""Metres: a grid point within this distance of the plane counts as lying on it."""
+TABLE_CHECK_KEEP = 0.5
+"""The plane is kept while the on-plane share of the grid is at least this fraction of the share at detection."""
 
 DEFAULT_TASKS = {"guidance": "guidance-5-cubes", "guess": "guess-structures", "learning": "learning-4-words"}
 """Task used for a mode when none is named (preset ids of ``tracker.assembly``)."""
@@ -115,6 +124,8 @@ class AssemblyPipeline:
         self.poses: dict[str, Pose] = dict(self._initial_poses)
         self.table = None
         self._table_time: float | None = None
+        self._table_share = 0.0  # share of the check grid on the plane when it was detected
+        self._table_rays: tuple[tuple[int, int], np.ndarray] | None = None  # (depth shape, normal · grid rays)
         self._fps = 0.0
         self._last_wall: float | None = None
         self._setup_errors: list[str] = []
@@ -297,26 +308,49 @@ class AssemblyPipeline:
     def reset(self) -> None:
         """Back to the initial poses, a fresh mode and a table to be found again."""
         self.poses = dict(self._initial_poses)
-        self.table, self._table_time = None, None
+        self.table, self._table_time, self._table_rays = None, None, None
         self._fps, self._last_wall = 0.0, None
         self.tracker = None
         self._initialize_tracker()
         self.set_mode(self.mode_name, self.task)
 
     # ----------------------------------------------------------------- the per-frame cycle
+    def _on_table_share(self, depth: np.ndarray, intrinsics: Intrinsics) -> float:
+        """Share of a subsampled depth grid (every :data:`TABLE_CHECK_STEP` th pixel) lying on ``self.table``."""
+        k = TABLE_CHECK_STEP
+        if self._table_rays is None or self._table_rays[0] != depth.shape:
+            h, w = depth.shape
+            v, u = np.mgrid[0:h:k, 0:w:k].astype(np.float32)
+            n = np.asarray(self.table.normal, np.float32)
+            dots = n[0] * (u - intrinsics.cx) / intrinsics.fx + n[1] * (v - intrinsics.cy) / intrinsics.fy + n[2]
+            self._table_rays = (depth.shape, dots)
+        z = depth[::k, ::k]
+        with np.errstate(invalid="ignore"):
+            on = np.abs(z * self._table_rays[1] + np.float32(self.table.offset)) < TABLE_CHECK_TOLERANCE
+        return float(np.count_nonzero(on)) / max(1, on.size)
+
     def _update_table(self, frame: Frame, errors: list[str]) -> None:
         if frame.depth is None:
             return
-        due = self._table_time is None or frame.timestamp - self._table_time >= self.table_recheck_s
+        due = self._table_time is None or abs(frame.timestamp - self._table_time) >= self.table_recheck_s
         if not due:
             return
+        self._table_time = frame.timestamp
+        if self.table is not None:
+            share = self._on_table_share(frame.depth, frame.intrinsics)
+            if share >= TABLE_CHECK_KEEP * self._table_share:
+                return  # still the same plane: no full detection
+            log.info("table plane re-detected: %.0f %% of the grid on it, %.0f %% at detection",
+                     100 * share, 100 * self._table_share)  # fmt: skip
         from tracker.table_plane import detect_table
 
-        self._table_time = frame.timestamp
         try:
             self.table = detect_table(frame.depth, frame.intrinsics)
         except ValueError as exc:  # TableNotFoundError is a ValueError
             errors.append(f"table: {exc}")
+            return
+        self._table_rays = None
+        self._table_share = self._on_table_share(frame.depth, frame.intrinsics)
 
     def _boxes(self) -> dict[str, list[float]]:
         out: dict[str, list[float]] = {}
@@ -337,7 +371,7 @@ class AssemblyPipeline:
         return out
 
     def process(self, frame: Frame, wall_time: float | None = None) -> Snapshot:
-        """Run every stage on ``frame``; ``wall_time`` is when it arrived (default: now)."""
+        """Run every stage on ``frame``; ``wall_time`` is its capture time, ``time.time()`` (default: now)."""
         wall = time.time() if wall_time is None else float(wall_time)
         errors: list[str] = list(self._setup_errors)
         timings: dict[str, float] = {}
@@ -390,12 +424,13 @@ class AssemblyPipeline:
                     errors.append(f"mode: {type(exc).__name__}: {exc}")
         timings["mode"] = time.perf_counter() - t0
 
+        done = time.time()  # processed-frame rate: from the ends of processing (capture times may be uneven)
         if self._last_wall is not None:
-            dt = wall - self._last_wall
+            dt = done - self._last_wall
             if dt > 0:
                 inst = 1.0 / dt
                 self._fps = inst if self._fps == 0.0 else 0.9 * self._fps + 0.1 * inst
-        self._last_wall = wall
+        self._last_wall = done
 
         table = None
         if self.table is not None:

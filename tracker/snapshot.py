@@ -29,7 +29,9 @@ class Snapshot:
     """The state after processing one frame.
 
     * ``frame_index``, ``time``: the frame's index and timestamp (seconds since the source started).
-    * ``wall_time``: ``time.time()`` when the frame arrived from the source (for latency measurements).
+    * ``wall_time``: the frame's capture time as ``time.time()`` (for latency measurements): a paced
+      simulator/recording frame's due time, when an unpaced frame's production started, when a camera
+      frame arrived.
     * ``poses``: estimated part poses, camera frame.
     * ``particles``: per part, the particle positions ``(N, 3)`` float32, camera frame (not sent as JSON).
     * ``boxes``: per part, the pixel bounding box of its estimated pose projected into the colour image.
