@@ -1,0 +1,89 @@
+"""The /ws websocket pushes each snapshot as soon as the worker publishes it, JSON-encoded once for all clients.
+
+The source is gated: a frame exists only when the test lets one through, so a message for frame k can
+only come from the push that followed frame k's publication (no later frame, no timer needed).
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+
+import pytest
+from fastapi.testclient import TestClient
+from test_worker import SyntheticTable
+
+from app.server import create_app
+from app.settings import Settings
+from tracker.frame import Frame
+
+PUSH_BOUND_S = 3.0
+"""Generous bound for one push (the handler's fallback wake-up is 5 s, so a timer could not meet it)."""
+
+
+class GatedTable(SyntheticTable):
+    """Yields frame i only after ``gate.release()``."""
+
+    def __init__(self):
+        super().__init__(n_frames=100_000)
+        self.gate = threading.Semaphore(0)
+
+    def _frames(self):
+        for i in range(self.n_frames):
+            while not self.gate.acquire(timeout=0.2):
+                if self.closed:
+                    return
+            yield Frame(i, i / 30.0, self.color.copy(), self.depth.copy(), self.intrinsics)
+
+
+@pytest.fixture()
+def gated(tmp_path):
+    src = GatedTable()
+    settings = Settings(
+        database=str(tmp_path / "agent.sqlite3"), viser_port=0, mode="none", source="synthetic:", n_particles=20
+    )
+    app = create_app(settings, open_source=lambda spec: src)
+    with TestClient(app) as client:
+        yield client, src, app.state.assembly.worker
+
+
+def receive(ws, timeout: float) -> tuple[str, float]:
+    """The next text message and when it came; fails after ``timeout`` seconds."""
+    out: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: out.put(ws.receive_text()), daemon=True).start()
+    try:
+        text = out.get(timeout=timeout)
+    except queue.Empty:
+        pytest.fail(f"no websocket message within {timeout} s")
+    return text, time.monotonic()
+
+
+def test_websocket_pushes_each_published_snapshot(gated):
+    client, src, worker = gated
+    published: dict[int, float] = {}
+    worker.add_listener(lambda s: published.setdefault(s.frame_index, time.monotonic()))
+    with client.websocket_connect("/ws") as ws:
+        src.gate.release()
+        text, _ = receive(ws, 20.0)  # frame 0 (start-up of the worker and pipeline)
+        assert json.loads(text)["frame_index"] == 0
+        for k in range(1, 4):
+            src.gate.release()  # exactly one more frame exists
+            text, got = receive(ws, 20.0)
+            assert json.loads(text)["frame_index"] == k
+            assert got - published[k] < PUSH_BOUND_S
+
+
+def test_snapshot_json_is_encoded_once_for_all_clients(gated):
+    client, src, worker = gated
+    with client.websocket_connect("/ws") as a, client.websocket_connect("/ws") as b:
+        src.gate.release()
+        text_a, _ = receive(a, 20.0)
+        text_b, _ = receive(b, 20.0)
+    assert text_a == text_b
+    first = worker.snapshot_json()
+    assert first is worker.snapshot_json()  # cached per snapshot version, not re-encoded
+    assert first[1] == text_a
+    d = json.loads(text_a)
+    assert d["worker"]["state"] in ("running", "starting") and "particles" not in d
