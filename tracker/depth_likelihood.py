@@ -86,6 +86,24 @@ def predict_occlusion(o: np.ndarray, dt: np.ndarray | float, p_occ_vis: float, p
     return 1.0 - (cd * (1.0 - o) + (1.0 - p_occ_occ) * (cd - 1.0) / (c - 1.0))
 
 
+def predict_occlusion_rows(o: np.ndarray, dt: np.ndarray, p_occ_vis: float, p_occ_occ: float) -> np.ndarray:
+    """:func:`predict_occlusion` for pixel-major float32 rows ``o`` (P, N) with one Δt per pixel ``dt`` (P,);
+    the affine map is computed once per pixel. Returns float32 (P, N)."""
+    o = np.asarray(o, np.float32)
+    c = p_occ_occ - p_occ_vis
+    dt = np.asarray(dt, np.float64)
+    if abs(c - 1.0) < 1e-12:
+        return o.copy()
+    if c <= 0.0:
+        a = np.full(dt.shape, p_occ_occ - p_occ_vis)
+        b = np.full(dt.shape, p_occ_vis)
+    else:  # ô = 1 − [c^Δt (1 − o) + (1 − p11)(c^Δt − 1)/(c − 1)] = c^Δt o + (1 − c^Δt − (1 − p11)(c^Δt − 1)/(c − 1))
+        cd = np.power(c, dt)
+        a = cd
+        b = 1.0 - cd - (1.0 - p_occ_occ) * (cd - 1.0) / (c - 1.0)
+    return (o * a.astype(np.float32)[:, None] + b.astype(np.float32)[:, None]).astype(np.float32, copy=False)
+
+
 def pixel_constants(z: np.ndarray, prm: LikelihoodParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-pixel constants of the kernels: σ(z), e(z) = (1−β)λe^(−λz+½λ²σ²) and log p_o(z|∞)."""
     s = depth_sigma(z, prm)

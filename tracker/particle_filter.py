@@ -36,7 +36,7 @@ from tracker.depth_likelihood import (
     LikelihoodParams,
     finish_occlusion,
     pixel_constants,
-    predict_occlusion,
+    predict_occlusion_rows,
     update_log_likelihood,
 )
 from tracker.frame import Frame
@@ -46,7 +46,7 @@ from tracker.motion_model import color_input, mean_pose, propagate, sample_noise
 from tracker.parts import PartSpec
 from tracker.penalties import intersection_flags, intersection_log_penalty, lowest_heights, table_log_penalty
 from tracker.pose import Pose
-from tracker.resampling import kl_from_uniform, normalize_log_weights, systematic_resample
+from tracker.resampling import kl_from_uniform, normalize_log_weights, systematic_resample, take_rows
 from tracker.tracker_config import TrackerConfig
 
 
@@ -154,9 +154,11 @@ class MultiObjectTracker:
         self._hints: list[ResolvedConnection] = []
         self._color_targets: list = []
         self._surface: list[PartSurfaceModel | None] = [None] * k
+        self._icp_last: list[tuple | None] = [None] * k  # (refined pose, blob centre, blob area, times reused)
         self._radius = [p.bounding_radius() if p.box is not None else float(np.linalg.norm(self.half[i]))
                         for i, p in enumerate(parts)]
         self._initialized = False
+        self._store: dict[str, np.ndarray] = {}
         self.estimates: dict[str, Pose] = {}
         self._warm_up()
 
@@ -175,11 +177,14 @@ class MultiObjectTracker:
             self.R[:, i] = pose.R
         self.v = np.zeros((n, k, 6))
         self.log_w = np.full(n, -np.log(n))
-        self.occ = np.full((n, self._pu.size), self.config.initial_occlusion, np.float32)
+        # occlusion posterior per grid pixel and particle, stored pixel-major (P_grid, N) so that the evaluated
+        # pixels' rows are gathered / written back contiguously
+        self.occ = np.full((self._pu.size, n), self.config.initial_occlusion, np.float32)
         self.occ_time = np.full(self._pu.size, np.nan)
         self.estimates = {name: poses[name] for name in self.names}
         self.visibility = np.ones(k)
         self._noise_scale = np.ones(k)
+        self._icp_last = [None] * k
         self._last_time: float | None = None
         self._initialized = True
 
@@ -252,23 +257,25 @@ class MultiObjectTracker:
         if cfg.use_occlusion_model:
             last = self.occ_time[pix]
             dtp = np.where(np.isfinite(last), now - last, 0.0)
-            o_hat = predict_occlusion(self.occ[:, pix], dtp[None, :], cfg.p_occ_given_vis,
-                                      cfg.p_occ_given_occ).astype(np.float32)
+            o_hat = np.ascontiguousarray(predict_occlusion_rows(self.occ[pix], dtp, cfg.p_occ_given_vis,
+                                                                cfg.p_occ_given_occ).T)
         else:
             o_hat = np.zeros((n, npix), np.float32)
 
         # full render + likelihood at the deterministic prediction
         t1 = time.perf_counter()
-        D = np.full((n, int(regions.sum())), np.inf, np.float32)
-        dirty = np.zeros((n, npix), np.uint8)
+        m_cols = int(regions.sum())
+        D = self._buffer("D0", (n, m_cols), np.float32, np.inf)
+        dirty = self._buffer("dirty", (n, npix), np.uint8, 0)
         all_particles = np.arange(n, dtype=np.int64)
         all_pix = np.arange(npix, dtype=np.int64)
         for i in range(k):
             self._render(i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, all_pix, D, loc, dirty)
         t2 = time.perf_counter()
-        C = np.zeros((n, npix), np.float32)
-        Q = np.full((n, npix), -1.0, np.float32)  # consistent with D = inf: nothing covered yet
-        F = np.full((n, npix), -1, np.int8)
+        C = self._buffer("C0", (n, npix), np.float32, 0.0)
+        Q = self._buffer("Q0", (n, npix), np.float32, -1.0)  # consistent with D = inf: nothing covered yet
+        F = self._buffer("F0", (n, npix), np.int8, -1)
+        spare = {"D": "D1", "C": "C1", "Q": "Q1", "F": "F1"}  # double buffers for resampling without allocation
         ell = np.zeros(n)
         anc = np.arange(n)
         prm = self.likelihood
@@ -331,7 +338,8 @@ class MultiObjectTracker:
                 idx = systematic_resample(w, self.rng)
                 p_prev, R_prev, v_prev = p_prev[idx], R_prev[idx], v_prev[idx]
                 p_cur, R_cur, v_cur = p_cur[idx], R_cur[idx], v_cur[idx]
-                D, C, Q, F = D[idx], C[idx], Q[idx], F[idx]  # dirty flags are all clear; ô is reached through anc
+                # dirty flags are all clear; ô is reached through anc
+                D, C, Q, F = (self._take(spare, key, arr, idx) for key, arr in (("D", D), ("C", C), ("Q", Q), ("F", F)))
                 ell, ell_prev, anc = ell[idx], ell_prev[idx], anc[idx]
                 log_w = np.full(n, -np.log(n))
                 n_resampled += 1
@@ -345,9 +353,9 @@ class MultiObjectTracker:
         tf = time.perf_counter()
         if use_occ:
             post, vis_all = finish_occlusion(Q, F, o_hat, anc, k)
-            if not np.array_equal(anc, np.arange(n)):
-                self.occ = self.occ[anc]
-            self.occ[:, pix] = post
+            # post is already in the particles' final order (ancestors applied); grid pixels outside this frame's
+            # evaluated set keep their stored values without re-indexing (no part can cover them this frame)
+            self.occ[pix] = post.T
             self.occ_time[pix] = now
             vis = normalize_log_weights(log_w) @ vis_all
             self.visibility = vis
@@ -369,6 +377,27 @@ class MultiObjectTracker:
         return state
 
     # ------------------------------------------------------------------ internals
+    def _buffer(self, name: str, shape: tuple[int, int], dtype, fill=None) -> np.ndarray:
+        """A C-contiguous work array of ``shape`` backed by persistent storage (grown when needed), optionally
+        filled. Reusing the storage avoids fresh page-faulting allocations of several MB per frame and pass."""
+        size = int(shape[0]) * int(shape[1])
+        store = self._store.get(name)
+        if store is None or store.size < size or store.dtype != np.dtype(dtype):
+            store = np.empty(max(size, 1) * 5 // 4 + 64, dtype)
+            self._store[name] = store
+        out = store[:size].reshape(shape)
+        if fill is not None:
+            out.fill(fill)
+        return out
+
+    def _take(self, spare: dict, key: str, arr: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """``arr[idx]`` (rows) written into the spare buffer of ``key``; the old array becomes the spare."""
+        name = spare[key]
+        out = self._buffer(name, arr.shape, arr.dtype)
+        take_rows(arr, idx, out)
+        spare[key] = name[:-1] + ("0" if name.endswith("1") else "1")
+        return out
+
     def _predict_only(self, frame, p_prev, R_prev, v_prev, u, t0, timings, message) -> TrackerState:
         cfg = self.config
         n, k = cfg.n_particles, len(self.parts)
@@ -480,31 +509,61 @@ class MultiObjectTracker:
         for i, name in enumerate(self.names):
             if self.visibility[i] < cfg.icp_min_visibility:
                 continue
-            blob = None
-            if self.parts[i].color is not None and detections:
-                blob = self._blob_mask(detections.get(name), depth.shape)
-                if blob is None:  # a coloured part that is not detected now: do not trust nearby points
-                    continue
-            if self._surface[i] is None:
-                self._surface[i] = PartSurfaceModel(self.parts[i])
+            det = detections.get(name) if detections else None
+            coloured = self.parts[i].color is not None and bool(detections)
             est = state.poses[name]
-            others = np.array([state.poses[n].t for n in self.names if n != name]).reshape(-1, 3)
-            pts = part_points(depth, self.intrinsics, est, self._radius[i] + 0.005, blob, plane, cfg.icp_stride,
-                              others=others)
-            ref = icp_refine(self._surface[i], pts, est, cfg.icp_iterations)
-            if ref is None:
-                continue
+            ref = self._reuse_icp(i, est, det) if coloured else None
+            fresh = ref is None
+            if fresh:
+                blob = None
+                if coloured:
+                    blob = self._blob_mask(det, depth.shape)
+                    if blob is None:  # a coloured part that is not detected now: do not trust nearby points
+                        self._icp_last[i] = None
+                        continue
+                if self._surface[i] is None:
+                    self._surface[i] = PartSurfaceModel(self.parts[i])
+                others = np.array([state.poses[n].t for n in self.names if n != name]).reshape(-1, 3)
+                pts = part_points(depth, self.intrinsics, est, self._radius[i] + 0.005, blob, plane, cfg.icp_stride,
+                                  others=others)
+                ref = icp_refine(self._surface[i], pts, est, cfg.icp_iterations)
+                self._icp_last[i] = None
+                if ref is None:
+                    continue
             Rd = ref.R @ est.R.T
             angle = float(np.arccos(np.clip((np.trace(Rd) - 1.0) / 2.0, -1.0, 1.0)))
             if np.linalg.norm(ref.t - est.t) > cfg.icp_max_translation or angle > cfg.icp_max_rotation:
+                self._icp_last[i] = None
                 continue
             if self._intersects_others(i, ref, state.poses):
+                self._icp_last[i] = None
                 continue
+            if fresh and det is not None and getattr(det, "center", None) is not None:
+                self._icp_last[i] = (ref, np.asarray(det.center, np.float64), float(getattr(det, "area", 0) or 0), 0)
             self.p[:, i] = (self.p[:, i] - est.t) @ Rd.T + ref.t
             self.R[:, i] = Rd @ self.R[:, i]
             state.poses[name] = ref
             state.particles[name] = self.p[:, i].astype(np.float32)
             self.estimates[name] = ref
+
+    def _reuse_icp(self, obj: int, est: Pose, det) -> Pose | None:
+        """The last ICP result of a part whose colour blob has not moved since (``icp_reuse_px``), else None: the
+        depth points ICP would use are the same, so would be its answer; saves the registration."""
+        cfg = self.config
+        last = self._icp_last[obj]
+        if cfg.icp_reuse_px <= 0.0 or last is None or det is None or last[3] >= cfg.icp_max_skipped:
+            return None
+        center = getattr(det, "center", None)
+        if (center is None or getattr(det, "contour", None) is None
+                or float(getattr(det, "score", 0.0) or 0.0) < cfg.color_mask_min_score):
+            return None
+        area = float(getattr(det, "area", 0) or 0)
+        if np.linalg.norm(np.asarray(center, np.float64) - last[1]) > cfg.icp_reuse_px:
+            return None
+        if last[2] <= 0 or abs(area / last[2] - 1.0) > 0.05:
+            return None
+        self._icp_last[obj] = (last[0], last[1], last[2], last[3] + 1)
+        return last[0]
 
     def _intersects_others(self, obj: int, pose: Pose, poses: dict[str, Pose]) -> bool:
         """Would part ``obj`` at ``pose`` interpenetrate another part's estimate (beyond the contact tolerance)?"""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 
@@ -41,3 +42,13 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nda
     c[-1] = 1.0
     u = (rng.random() + np.arange(n)) / n
     return np.searchsorted(c, u, side="left").astype(np.int64)
+
+
+@nb.njit(cache=True)
+def take_rows(src: np.ndarray, idx: np.ndarray, out: np.ndarray) -> None:
+    """``out[i] = src[idx[i]]`` for 2-D arrays (rows), without allocating."""
+    m = src.shape[1]
+    for i in range(idx.shape[0]):
+        r = idx[i]
+        for c in range(m):
+            out[i, c] = src[r, c]

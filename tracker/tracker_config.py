@@ -111,6 +111,12 @@ class TrackerConfig(BaseModel):
     icp_stride: int = Field(3, ge=1, description="Use every n-th full-resolution pixel (each axis) for ICP.")
     icp_max_translation: float = Field(0.008, gt=0.0, description="Largest accepted ICP correction, metres.")
     icp_max_rotation: float = Field(0.15, gt=0.0, description="Largest accepted ICP rotation correction, radians.")
+    icp_reuse_px: float = Field(
+        0.0, ge=0.0, description="Reuse a part's last ICP result instead of running ICP again while its colour blob "
+        "stays put (centroid within this many pixels, area within 5 % of the refined frame's); 0 = refine every "
+        "frame. Parts without colour always run ICP.",
+    )
+    icp_max_skipped: int = Field(3, ge=0, description="With icp_reuse_px: run ICP at least every (this + 1)-th frame.")
 
     # --- penalties (spec 4.13-4.15)
     lambda_i: float = Field(0.01, gt=0.0, le=1.0, description="Intersection penalty factor lambda_i (not 0).")
@@ -245,5 +251,6 @@ PRESETS["default"] = {
     "color_mask_likelihood": True,
     "color_likelihood_px": 10.0,
     "icp_refinement": True,
+    "icp_reuse_px": 0.5,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
