@@ -86,7 +86,8 @@ class AppState:
         self.task = settings.task
         if self.task is not None:
             self.resolve_task(self.mode, self.task)  # fail early on a bad --task
-        self._open = open_source or (lambda spec: open_source_spec(spec, False, settings.seed))
+        self._open = open_source or self._open_spec
+        self._process_source: tuple[str, Any] | None = None  # (spec, ProcessSource) kept across reopenings
         self.worker = PipelineWorker(
             self._open_current,
             self._make_pipeline,
@@ -108,6 +109,24 @@ class AppState:
         # newest frame. Simulated and recorded frames are produced on demand, so none is rendered in vain.
         self.worker.drop_stale = self.source_spec.startswith("camera:")
         return self._open(self.source_spec)
+
+    def _open_spec(self, spec: str) -> FrameSource:
+        """The registry's source; the simulator renders in a child process that lives until the spec changes."""
+        if not (self.settings.source_process and spec.startswith("sim:")):
+            self._close_process_source()
+            return open_source_spec(spec, False, self.settings.seed)
+        from app.source_process import ProcessSource, SharedView, open_registry_source
+
+        cached = self._process_source
+        if cached is None or cached[0] != spec or not cached[1].alive:
+            self._close_process_source()
+            self._process_source = (spec, ProcessSource(open_registry_source, spec, self.settings.seed))
+        return SharedView(self._process_source[1])
+
+    def _close_process_source(self) -> None:
+        if self._process_source is not None:
+            proc, self._process_source = self._process_source[1], None
+            proc.close()
 
     def resolve_task(self, mode: str, ref: str | None) -> Any:
         """The task object for a reference: a preset id, or ``teacher:<n>`` (a stored sentence task)."""
@@ -202,6 +221,7 @@ class AppState:
     def shutdown(self) -> None:
         self.end_session()
         self.worker.stop()
+        self._close_process_source()
         if self.scene_updater is not None:
             self.scene_updater.stop()
         if self.scene is not None:

@@ -8,6 +8,8 @@
   the mode); ``mode``/``task``: the assembly mode at start and its task (preset id or ``teacher:<id>``).
 * ``realtime``: pace recordings and the simulator at their frame rate, always processing the newest due
   frame (stale frames are skipped, so latency does not pile up); ``loop``: restart a finished source.
+* ``source_process``: render the simulated table in a child process (parallel to the tracker; the
+  simulator and the tracker both hold Python's interpreter lock while they compute).
 * ``tracker_config``: tracker preset name or YAML/TOML path; ``seed``: random seed of tracker and modes.
 * ``n_particles``: the tracker's particle count N. Default :data:`SERVER_PARTICLES` = 100 rather than the
   tracker preset's 225: on a 2-core machine 225 particles cannot keep up with a 30 fps source, while
@@ -43,6 +45,7 @@ class Settings(BaseSettings):
     seed: int = 0
     realtime: bool = True
     loop: bool = True
+    source_process: bool = Field(True, description="render the simulator in a child process (parallel to tracking)")
     tracker_config: str | None = None
     n_particles: int | None = Field(
         SERVER_PARTICLES,
