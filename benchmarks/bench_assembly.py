@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_assembly.py [--tracked DIR] [--groundtruth DIR]
+    .venv/bin/python benchmarks/bench_assembly.py [--tracked DIR ...] [--groundtruth DIR ...]
 
 ``DIR`` holds one sub-directory per experiment written by ``assembly-agent evaluate EXPERIMENT --out DIR/EXPERIMENT``
 (guidance, guess, learning, sweep-*). Writes benchmarks/results/assembly.json and assembly.md.
@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -125,11 +126,22 @@ def render_md(timing: dict, tracked: dict, gt: dict) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--tracked", type=Path, default=None)
-    ap.add_argument("--groundtruth", type=Path, default=None)
+    ap.add_argument("--tracked", type=Path, nargs="*", default=[])
+    ap.add_argument("--groundtruth", type=Path, nargs="*", default=[])
     args = ap.parse_args()
     timing = time_modes()
-    tracked, gt = load_summaries(args.tracked), load_summaries(args.groundtruth)
+    tracked, gt = {}, {}
+    for d in args.tracked:
+        tracked.update(load_summaries(d))
+    for d in args.groundtruth:
+        gt.update(load_summaries(d))
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    for d in args.tracked:  # plots of the tracked main experiments, as assembly.<experiment>_<plot>.png
+        for name in ("guidance", "guess", "learning"):
+            for kind in ("timing", "confusion"):
+                src = d / name / f"{name}_{kind}.png"
+                if src.is_file():
+                    shutil.copyfile(src, RESULTS / f"assembly.{name}_{kind}.png")
     RESULTS.mkdir(parents=True, exist_ok=True)
     data = {"machine": machine(), "mode_update_ms": timing, "tracked": tracked, "groundtruth": gt,
             "load": os.getloadavg()}
