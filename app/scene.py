@@ -76,7 +76,7 @@ class Scene:
             self.server.gui.main_panel.minimize()  # the scene is the point; the panel opens on click
         except AttributeError:
             pass
-        self.server.initial_camera.position = (0.0, 0.35, 0.42)  # above and in front of the table (user side)
+        self.server.initial_camera.position = (0.0, 0.26, 0.32)  # above and in front of the table (user side)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
         self.server.initial_camera.up = (0.0, 1.0, 0.0)
         sc = self.server.scene
@@ -93,7 +93,7 @@ class Scene:
         )
         self.camera_node = sc.add_frame("/camera", show_axes=True, axes_length=0.05, axes_radius=0.003)
         self.depth_cloud = sc.add_point_cloud(
-            "/camera/depth", np.zeros((1, 3), np.float32), (128, 128, 128), point_size=0.002
+            "/camera/depth", np.zeros((1, 3), np.float32), (128, 128, 128), point_size=0.003
         )
         self.ghost = sc.add_box(
             "/camera/ghost", color=(255, 255, 255), dimensions=(0.036,) * 3, opacity=0.35, visible=False

@@ -118,6 +118,7 @@ def frame_number(page) -> int:
 
 
 def test_page_loads_and_updates(server, page):
+    page.set_viewport_size({"width": 1280, "height": 800})  # a common laptop screen: the screenshot's size
     page.goto(server + "/")
     page.wait_for_function("() => /^\\d+$/.test(document.getElementById('frame-index').textContent)")
     first = frame_number(page)

@@ -392,7 +392,7 @@ class AssemblyPipeline:
                 errors.append(f"colour detection: {type(exc).__name__}: {exc}")
         timings["detection"] = time.perf_counter() - t0
 
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         particles: dict[str, np.ndarray] = {}
         if self.tracker is not None and self.poses:
             try:
@@ -409,6 +409,7 @@ class AssemblyPipeline:
                 log.exception("tracker failed on frame %s", frame.index)
                 errors.append(f"tracker: {type(exc).__name__}: {exc}")
         timings["tracker"] = time.perf_counter() - t0
+        timings["tracker_cpu"] = time.thread_time() - c0  # this thread's CPU time (wall time minus waiting for a core)
 
         t0 = time.perf_counter()
         mode_state: dict[str, Any] = {}

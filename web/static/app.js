@@ -239,15 +239,15 @@ function drawOverlay() {
     }
     if ($("show-boxes").checked) {
       ctx.setLineDash([]);
-      ctx.font = "12px sans-serif";
+      const labels = [];
       for (const [name, b] of Object.entries(s.boxes || {})) {
         if (b.some((v) => v === null)) continue;
         ctx.strokeStyle = "#fff";
         ctx.lineWidth = 2;
         ctx.strokeRect(b[0] * sx, b[1] * sy, (b[2] - b[0]) * sx, (b[3] - b[1]) * sy);
-        ctx.fillStyle = "#fff";
-        ctx.fillText(name, b[0] * sx, b[1] * sy - 3);
+        labels.push([name, b[0] * sx, b[1] * sy, b[3] * sy]);
       }
+      drawLabels(ctx, labels, w, h);
     }
   }
   const r = state.drag || state.lastBox;
@@ -256,6 +256,28 @@ function drawOverlay() {
     ctx.strokeStyle = "#00e5ff";
     ctx.lineWidth = 2;
     ctx.strokeRect(r.x * sx, r.y * sy, r.w * sx, r.h * sy);
+  }
+}
+
+// Part names on dark tags (legible on any background), above their box or, when that place is taken by
+// a neighbour's tag, below it.
+function drawLabels(ctx, labels, w, h) {
+  ctx.font = "bold 12px sans-serif";
+  ctx.textBaseline = "middle";
+  const taken = [];
+  const overlaps = (r) => taken.some((t) => r.x < t.x + t.w && t.x < r.x + r.w && r.y < t.y + t.h && t.y < r.y + r.h);
+  for (const [name, x0, top, bottom] of labels) {
+    const tw = ctx.measureText(name).width + 16;
+    const x = Math.max(0, Math.min(x0, w - tw));
+    let r = { x, y: Math.max(0, top - 17), w: tw, h: 15 };
+    if (overlaps(r)) r = { x, y: Math.min(h - 15, bottom + 2), w: tw, h: 15 };
+    taken.push(r);
+    ctx.fillStyle = "rgba(20, 20, 20, 0.75)";
+    ctx.fillRect(r.x, r.y, r.w, r.h);
+    ctx.fillStyle = PART_COLORS[name] || "#fff";
+    ctx.fillRect(r.x + 3, r.y + 4, 7, 7);
+    ctx.fillStyle = "#fff";
+    ctx.fillText(name, r.x + 13, r.y + r.h / 2 + 1);
   }
 }
 
