@@ -127,8 +127,25 @@ def test_likelihood_kernel_matches_numpy_reference():
     oh[:, :10] = 1.0
     lik2 = pv * (1 - oh) + po * oh
     ref2 = np.where(np.isfinite(d), np.log(lik2) - np.log(occluded_likelihood(z, np.inf, PRM))[None], 0.0)
+    ref2[:, :10] = np.minimum(ref2[:, :10], 0.0)  # a forced-occluded pixel is no evidence for the part (cap at 0)
     assert np.allclose(ell2, ref2.sum(axis=1), rtol=1e-5)
     assert ell2[0] < ell[0]  # the part matches the depth there, so masking it out costs likelihood
+    # outside its blob, a part hidden behind a nearer surface gains nothing there (without the cap the truncated
+    # occluder density would reward it), while a part floating in front of the observed surface is still penalised
+    cm2, cv2 = np.ones((k, p), np.uint8), np.zeros(k, np.uint8)
+    cv2[1] = 1
+    cm2[1, 30] = 0
+    saved = Df.copy()
+    Df[:, loc[0, 30]] = np.inf
+    Df[:, loc[1, 30]] = np.inf
+    ell_none, _, _ = run(cm2, cv2)  # pixel 30 uncovered: contributes 0
+    Df[:, loc[1, 30]] = np.float32(z[30] + 0.1)  # part 1 alone, 10 cm behind the observed depth
+    ell_behind, _, _ = run(cm2, cv2)
+    Df[:, loc[1, 30]] = np.float32(z[30] - 0.1)  # part 1 alone, 10 cm in front of it
+    ell_front, _, _ = run(cm2, cv2)
+    Df[:] = saved
+    assert np.allclose(ell_behind, ell_none, rtol=1e-6)
+    assert np.all(ell_front < ell_none - 1.0)
 
 
 # ---------------------------------------------------------------- resampling (spec 4.4)

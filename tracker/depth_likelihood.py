@@ -144,7 +144,8 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
     * ``alpha``: exponent of every pixel's likelihood ratio (1 = independent pixels, as in the spec).
     * ``cmask`` (K, P) uint8 colour masks, ``cvalid`` (K,) uint8: where part o is front-most, has a valid colour
       mask and the pixel is outside it, the part cannot be the visible surface: the pixel is treated as occluded
-      (ô = 1). All-zero ``cvalid`` = depth only (the spec).
+      (ô = 1) and its contribution is capped at 0 (only the penalty of a part in front of the observed surface
+      remains). All-zero ``cvalid`` = depth only (the spec).
     """
     n = D.shape[0]
     k = loc.shape[0]
@@ -168,10 +169,15 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
                 Q[j, i] = -1.0
             else:
                 oh = o_hat[anc[j], i]
-                if cvalid[front] and not cmask[front, i]:
+                forced = cvalid[front] and not cmask[front, i]
+                if forced:
                     oh = 1.0
                 lik, num = _pixel_terms(d, z[i], s[i], e[i], oh, beta, lam, tail, True if oh == 1.0 else use_occ)
                 c = alpha * (math.log(lik) - log_po_inf[i])
+                if forced and c > 0.0:
+                    # a pixel that cannot show the part carries no evidence for it; without this cap the truncated
+                    # occluder density 1/(1 − e^(−λd)) rewards parts for hiding just behind a hand
+                    c = 0.0
                 Q[j, i] = num / lik if use_occ else o_hat[anc[j], i]
             acc += c - C[j, i]
             C[j, i] = c

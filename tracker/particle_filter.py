@@ -185,6 +185,7 @@ class MultiObjectTracker:
         self.visibility = np.ones(k)
         self._noise_scale = np.ones(k)
         self._icp_last = [None] * k
+        self.n_reseeded = 0  # re-seeding events since initialize (diagnostics, tests)
         self._last_time: float | None = None
         self._initialized = True
 
@@ -212,10 +213,11 @@ class MultiObjectTracker:
         timings: dict[str, float] = {}
         n, k = cfg.n_particles, len(self.parts)
 
-        # 1. colour input
+        # 1. colour input (and re-seeding of parts whose reliable colour blob lies off their estimate)
         depth = frame.depth
         u = np.zeros((k, 3))
         self._color_targets = []  # (part index, (u, v), weight) for the optional colour likelihood term
+        detected = np.zeros(k, bool)
         if cfg.use_color_input and detections:
             for i, name in enumerate(self.names):
                 det = detections.get(name)
@@ -225,12 +227,28 @@ class MultiObjectTracker:
                 center = getattr(det, "center", None)
                 if center is None or score < cfg.min_detection_score:
                     continue
-                if cfg.color_area_weighting:
-                    score *= self._area_ratio(i, getattr(det, "area", None))
+                area = getattr(det, "area", None)
+                reliable = (score >= cfg.reseed_min_score and area is not None and np.isfinite(area)
+                            and area >= cfg.reseed_min_area_px)
+                detected[i] = reliable
+                hit = self._surface_depth(i, center)
+                off_silhouette = reliable and not np.isfinite(hit)
+                if cfg.color_area_weighting and not off_silhouette:
+                    score *= self._area_ratio(i, area)
+                if off_silhouette and cfg.reseed_fraction > 0 and depth is not None:
+                    self._reseed(i, det, depth)
+                    hit = self._surface_depth(i, center)
                 if cfg.color_likelihood_px > 0:
-                    self._color_targets.append((i, np.asarray(center, np.float64), min(score, 1.0)))
-                u[i] = color_input(center, min(score, 1.0), self.estimates[name], depth, intr, cfg.lambda_z,
-                                   cfg.depth_radius_px, self._surface_offset(i, center))
+                    # with a dead zone the term tolerates the centroid bias of a partly hidden blob: full score
+                    wgt = min(float(det.score) if cfg.color_term_dead_zone > 0 else score, 1.0)
+                    self._color_targets.append((i, np.asarray(center, np.float64), wgt))
+                est = self.estimates[name]
+                offset = float(est.t[2] - hit) if np.isfinite(hit) else self._surface_fallback(i)
+                u[i] = color_input(center, min(score, 1.0), est, depth, intr, cfg.lambda_z, cfg.depth_radius_px,
+                                   offset)
+        noise_scale = self._noise_scale.copy()
+        if cfg.detected_full_noise:
+            noise_scale[detected] = 1.0
 
         # 2. deterministic prediction and evaluated pixels
         p_prev, R_prev, v_prev = self.p, self.R, self.v
@@ -296,7 +314,7 @@ class MultiObjectTracker:
         # 3. coordinate passes (Algorithm 5)
         for i in range(k):
             old_p, old_R = p_cur[:, i].copy(), R_cur[:, i].copy()
-            scale = self._noise_scale[i]
+            scale = noise_scale[i]
             noise = sample_noise(self.rng, n, cfg.sigma_v * scale, cfg.sigma_w * scale, cfg.wide_noise_fraction,
                                  cfg.wide_noise_scale)
             p_cur[:, i], R_cur[:, i], v_cur[:, i] = propagate(p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i], noise,
@@ -449,7 +467,11 @@ class MultiObjectTracker:
                 z = np.maximum(ctr[:, 2], 1e-3)
                 du = intr.fx * ctr[:, 0] / z + intr.cx - c[0]
                 dv = intr.fy * ctr[:, 1] / z + intr.cy - c[1]
-                out -= 0.5 * wgt * np.minimum(du * du + dv * dv, 9.0 * sig2) / sig2
+                d2 = du * du + dv * dv
+                if cfg.color_term_dead_zone > 0:
+                    r_in = cfg.color_term_dead_zone * float(self.half[i].min()) * intr.fx / z
+                    d2 = np.maximum(np.sqrt(d2) - r_in, 0.0) ** 2
+                out -= 0.5 * wgt * np.minimum(d2, 9.0 * sig2) / sig2
         if cfg.use_intersection_penalty and len(self.pairs):
             out += intersection_log_penalty(R, p, self.center, self.half, self.pairs, cfg.contact_tolerance,
                                             cfg.lambda_i)
@@ -641,12 +663,18 @@ class MultiObjectTracker:
             return 1.0
         return float(min(1.0, area / expected))
 
-    def _surface_offset(self, obj: int, center) -> float:
-        """Distance along z from the estimate's visible surface at pixel ``center`` to the part's centre."""
+    def _surface_fallback(self, obj: int) -> float:
+        return float(self.half[obj].min())
+
+    def _surface_depth(self, obj: int, center) -> float:
+        """Depth (m) of the part's estimate at pixel ``center`` (inf = the pixel is off its silhouette; meshes: the
+        estimate's centre depth when the pixel is within its bounding radius, else inf)."""
         est = self.estimates[self.names[obj]]
-        fallback = float(self.half[obj].min())
         if self.meshes[obj] is not None:
-            return fallback
+            uv = self.intrinsics.project(est.t[None])[0]
+            rpx = self._radius[obj] * self.intrinsics.fx / max(float(est.t[2]), 0.05)
+            inside = np.hypot(uv[0] - center[0], uv[1] - center[1]) <= rpx
+            return float(est.t[2]) - self._surface_fallback(obj) if inside else np.inf
         ray = pixel_rays(self.intrinsics, np.array([center[0]]), np.array([center[1]]))
         out = np.full((1, 1), np.inf, np.float32)
         render_boxes_at_pixels(est.R[None, None], est.t[None, None], self.center[obj:obj + 1],
@@ -654,10 +682,35 @@ class MultiObjectTracker:
                                np.array([float(center[0])]), np.array([float(center[1])]), np.zeros(1, np.int64),
                                self.intrinsics.fx, self.intrinsics.fy, self.intrinsics.cx, self.intrinsics.cy, out,
                                np.zeros((1, 1), np.int64), np.zeros((1, 1), np.uint8))
-        d = float(out[0, 0])
-        if not np.isfinite(d):
-            return fallback
-        return float(est.t[2] - d)
+        return float(out[0, 0])
+
+    def _reseed(self, obj: int, det, depth: np.ndarray) -> bool:
+        """Re-draw ``reseed_fraction`` of part ``obj``'s particles (previous poses) around its colour blob: the
+        centroid's ray at the blob's median depth plus half the part's smallest extent (std ``reseed_sigma``),
+        velocity zero, orientation kept. The estimate is moved to the target as well. Returns whether it did."""
+        cfg = self.config
+        mask = self._blob_mask(det, depth.shape)
+        if mask is None:
+            return False
+        vals = depth[mask]
+        vals = vals[np.isfinite(vals) & (vals > 0)]
+        est = self.estimates[self.names[obj]]
+        if vals.size >= 5:
+            zc = float(np.median(vals)) + self._surface_fallback(obj)
+        else:  # no valid depth on the blob (sensor shadow next to a hand): keep the estimate's depth
+            zc = float((est.R @ self.center[obj] + est.t)[2])
+        ray = pixel_rays(self.intrinsics, np.array([float(det.center[0])]), np.array([float(det.center[1])]))[0]
+        target = ray * zc - est.R @ self.center[obj]  # body origin whose box centre lies on the ray
+        n = self.p.shape[0]
+        m = int(round(cfg.reseed_fraction * n))
+        if m <= 0:
+            return False
+        sel = np.sort(self.rng.choice(n, m, replace=False))
+        self.p[sel, obj] = target + self.rng.normal(0.0, cfg.reseed_sigma, (m, 3))
+        self.v[sel, obj] = 0.0
+        self.estimates[self.names[obj]] = Pose.from_rt(est.R, target)
+        self.n_reseeded += 1
+        return True
 
     def _warm_up(self) -> None:
         """Compile (or load from cache) the numba kernels on tiny inputs."""

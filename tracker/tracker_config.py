@@ -63,6 +63,12 @@ class TrackerConfig(BaseModel):
         "-s/2 min(d^2, 9 std^2)/std^2 with d the distance of the projected part centre from the colour detection "
         "(not in the spec, which uses colour only as control input; 0 = off).",
     )
+    color_term_dead_zone: float = Field(
+        0.0, ge=0.0, description="Colour term measured from the part's projected inscribed circle instead of its "
+        "centre: d = max(0, |centroid - projected centre| - this x smallest half extent x f/z), and weighted by the "
+        "full score (the blob centroid of a partly hidden part stays inside its silhouette). 0 = centre distance, "
+        "area-weighted score.",
+    )
     color_mask_likelihood: bool = Field(
         False, description="Use the colour blobs in the depth likelihood: a pixel outside a part's detected blob "
         "cannot show that part, so it counts as occluded there (not in the spec; keeps a hand from being taken "
@@ -72,6 +78,20 @@ class TrackerConfig(BaseModel):
     color_area_weighting: bool = Field(
         True, description="Scale the reliability s by min(1, blob area / projected part area) (not in the spec: a "
         "partly hidden part's blob centroid is biased).",
+    )
+
+    reseed_fraction: float = Field(
+        0.0, ge=0.0, le=1.0, description="Re-seeding (not in the spec): when a part's colour blob is reliable "
+        "(score >= reseed_min_score, area >= reseed_min_area_px) but its centroid lies off the part's estimated "
+        "silhouette, this share of the part's particles is re-drawn around the blob (centroid ray, blob median depth "
+        "+ half the smallest extent) before the prediction; the likelihood then decides. 0 = off.",
+    )
+    reseed_sigma: float = Field(0.008, gt=0.0, description="Std (m) of the re-seeded positions around the target.")
+    reseed_min_score: float = Field(0.5, ge=0.0, le=1.0, description="Minimum detection score for re-seeding.")
+    reseed_min_area_px: float = Field(40.0, ge=0.0, description="Minimum blob area (full-res px) for re-seeding.")
+    detected_full_noise: bool = Field(
+        False, description="A part with a reliable colour detection (reseed_min_score/area) always gets its full "
+        "motion noise, whatever its estimated visible fraction (hidden_noise_scale damps hidden parts only).",
     )
 
     # --- occlusion dynamics (spec 4.8)
@@ -252,5 +272,8 @@ PRESETS["default"] = {
     "color_likelihood_px": 10.0,
     "icp_refinement": True,
     "icp_reuse_px": 0.5,
+    "reseed_fraction": 0.3,
+    "detected_full_noise": True,
+    "color_term_dead_zone": 1.0,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
