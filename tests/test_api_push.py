@@ -87,3 +87,24 @@ def test_snapshot_json_is_encoded_once_for_all_clients(gated):
     assert first[1] == text_a
     d = json.loads(text_a)
     assert d["worker"]["state"] in ("running", "starting") and "particles" not in d
+
+
+def test_simulator_runs_in_a_child_process_kept_until_the_source_changes(tmp_path):
+    settings = Settings(database=str(tmp_path / "a.db"), viser_port=0, mode="none", source="sim:static", n_particles=20)
+    app = create_app(settings)  # the real registry: the simulator renders in a child process
+    state = app.state.assembly
+    with TestClient(app) as client:
+        t0 = time.time()
+        while (client.get("/api/status").json()["worker"]["frame_index"] or 0) < 2:
+            assert time.time() - t0 < 120, client.get("/api/status").json()
+            time.sleep(0.1)
+        assert client.get("/api/sources").json()["metadata"]["process"] == "child"
+        first = state._process_source[1]
+        assert first.alive
+        client.post("/api/sources", json={"source": "sim:free"})
+        t0 = time.time()
+        while state._process_source is None or state._process_source[0] != "sim:free":
+            assert time.time() - t0 < 120
+            time.sleep(0.1)
+        assert not first.alive  # the old scenario's process was closed
+    assert state._process_source is None  # and the last one at shutdown
