@@ -154,7 +154,10 @@ class AppState:
         parts = getattr(src, "parts", None) or [PartSpec.cube(c, c) for c in DEFAULT_CAMERA_PARTS]
         poses = {**(getattr(src, "initial_poses", None) or {}), **self.user_poses}
         config = self.settings.tracker_config
-        if self.settings.n_particles is not None:
+        # the server's default N (settings.SERVER_PARTICLES) applies to the default preset; a named preset or
+        # config file keeps its own N unless --particles / ASSEMBLY_AGENT_N_PARTICLES is given as well
+        explicit = "n_particles" in self.settings.model_fields_set
+        if self.settings.n_particles is not None and (explicit or not config):
             from tracker.tracker_config import TrackerConfig
 
             base = (

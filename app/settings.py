@@ -12,9 +12,10 @@
   simulator and the tracker both hold Python's interpreter lock while they compute).
 * ``tracker_config``: tracker preset name or YAML/TOML path; ``seed``: random seed of tracker and modes.
 * ``n_particles``: the tracker's particle count N. Default :data:`SERVER_PARTICLES` = 100 rather than the
-  tracker preset's 225: on a 2-core machine 225 particles cannot keep up with a 30 fps source, while
-  N = 100 tracks as accurately on the simulated sequences (benchmarks/results/tracker.md: translation
-  median 1.2–1.5 mm, rotation median 0.5–0.7°, the same as N = 225) in about half the time.
+  tracker preset's 225 (a ``tracker_config`` given without ``n_particles`` keeps its own N): on a 2-core
+  machine 225 particles cannot keep up with a 30 fps source, while N = 100 tracks as accurately on the
+  simulated sequences (benchmarks/results/tracker.md: translation median 1.2–1.5 mm, rotation median
+  0.5–0.7°, the same as N = 225) in about half the time.
 """
 
 from __future__ import annotations

@@ -108,3 +108,17 @@ def test_simulator_runs_in_a_child_process_kept_until_the_source_changes(tmp_pat
             time.sleep(0.1)
         assert not first.alive  # the old scenario's process was closed
     assert state._process_source is None  # and the last one at shutdown
+
+
+def test_server_default_particle_count(tmp_path):
+    """N = 100 with the default preset; a named tracker config keeps its own N unless N is given too."""
+    from app.server import AppState
+
+    def n_of(**kw):
+        state = AppState(Settings(database=str(tmp_path / "n.db"), viser_port=0, mode="none", **kw))
+        src = SyntheticTable(n_frames=1)
+        return state._make_pipeline(src).tracker.config.n_particles
+
+    assert n_of() == 100
+    assert n_of(tracker_config="seed-exp1") == 225
+    assert n_of(tracker_config="seed-exp1", n_particles=60) == 60

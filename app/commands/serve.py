@@ -34,7 +34,7 @@ def register(subparsers) -> None:
         "--particles",
         type=int,
         dest="n_particles",
-        help="the tracker's particle count N (default 100: fast enough for a 30 fps source on 2 cores)",
+        help="the tracker's particle count N (default 100: real time on 2 cores; with --tracker-config: its own N)",
     )
     p.add_argument("--seed", type=int, help="random seed of tracker and modes")
     p.add_argument(
