@@ -35,6 +35,28 @@ THESIS = {
 }
 
 
+NOTES = [
+    "- Sessions: the simulator's guidance-demo / guess-1..3 / learning-4,5 scenarios with six simulated users "
+    "(speed 1.5/2/2.5, occlusion 0.5/1/1.6, out-of-view excursions for users 5 and 6), 15 / 16 / 12 sessions "
+    "as in the thesis; 4 connections per guidance/guess session (the thesis's rods had 2).",
+    "- Tracked runs process every 2nd frame (15 fps, `--frame-step 2`), tracker preset `default`, "
+    "initialised with the first frame's true poses, hints from the mode every frame; parameters m_p = 1 cm, "
+    "K = 3, N_max = 9, N_checks = 2, m_q = 45°, heading tolerance 40° (task presets).",
+    "- `guess-noyaw` is the ablation without the orientation-robust comparison (yaw_tolerance_deg = 0, "
+    "m_q = 30°, priors re-anchored on the tracker's orientation).",
+    "- The tracker's output varies from run to run (the same session re-run gave different connection "
+    "results), so the tracked figures have a spread of several connections; the sweep used 4 sessions per "
+    "setting only.",
+    "- Ground-truth sweeps: K and N_max only change the tracker's connection particles, so they have no "
+    "effect without the tracker; the ground-truth sweeps ran on a revision before the structural-prior "
+    "change (irrelevant without orientation noise beyond 0.05 rad).",
+    "- Misses and early detections on tracked poses come from the tracker losing a cube while the hand "
+    "carries it or jumping onto a neighbour (detections 5–13 s early); on ground truth + noise every "
+    "connection is detected within ±1 s (typically 0.07 s early: the cube is within the margins while it is "
+    "lowered).",
+]
+
+
 def time_modes(frames_per_step: int = 10) -> dict:
     """Mean wall time of ``mode.update`` per frame on a scripted session (no tracker), milliseconds."""
     T = default_table_to_camera()
@@ -118,6 +140,7 @@ def render_md(timing: dict, tracked: dict, gt: dict) -> str:
             else:
                 lines.append(_row(name, s))
         lines.append("")
+    lines += ["### Notes", "", *NOTES, ""]
     lines += ["### The thesis's numbers (spec section 18)", ""]
     lines += [f"- {k}: {v}" for k, v in THESIS.items()]
     lines.append("")
