@@ -121,7 +121,8 @@ class _FramePrefetcher:
         self._wanted = threading.Semaphore(1)  # on-demand / paced: one frame requested at a time
         self._want_at = 0.0  # perf_counter() time at which production of the requested frame should start
         self._cycle_s = 0.0  # moving average: worker's time from taking one frame to asking for the next
-        self._produce_s = 0.0  # moving average: time to produce one frame
+        self._produced: collections.deque[float] = collections.deque(maxlen=30)  # recent production times
+        self.starved_s = 0.0  # how long the last get() waited for its frame
         self._taken_at: float | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="frame-reader", daemon=True)
@@ -165,7 +166,7 @@ class _FramePrefetcher:
                 continue
             took, now = time.perf_counter() - t0, time.time()
             if not self.drop_stale:
-                self._produce_s = self._average(self._produce_s, took)
+                self._produced.append(took)
             self._put(("frame", frame, took, now if self.drop_stale else started, now))
 
     def _run_paced(self, access: _RandomAccess) -> None:
@@ -196,7 +197,7 @@ class _FramePrefetcher:
                 self._put(("error", exc, time.perf_counter() - t0, now, now))
                 continue
             took = time.perf_counter() - t0
-            self._produce_s = self._average(self._produce_s, took)
+            self._produced.append(took)
             self._put(("frame", frame, took, wall0 + access.offset(index), time.time()))
 
     def _put(self, item: tuple) -> None:
@@ -222,6 +223,13 @@ class _FramePrefetcher:
             except queue.Full:
                 continue
 
+    def _production_estimate(self) -> float:
+        """A pessimistic production time: the 80th percentile of the recent ones (0 before the first)."""
+        if not self._produced:
+            return 0.0
+        times = sorted(self._produced)
+        return times[int(0.8 * (len(times) - 1))]
+
     def get(self, timeout: float) -> tuple | None:
         asked = time.perf_counter()
         if self._taken_at is not None:
@@ -234,9 +242,10 @@ class _FramePrefetcher:
         except queue.Empty:
             return None
         taken = time.perf_counter()
+        self.starved_s = taken - asked
         self._taken_at = taken
         if not self.drop_stale:
-            lead = self._cycle_s - 1.2 * self._produce_s - 0.003
+            lead = self._cycle_s - self._production_estimate() - 0.004
             self._want_at = taken + max(0.0, lead)
             self._wanted.release()  # the next frame is produced while this one is processed
         return item
@@ -558,6 +567,7 @@ class PipelineWorker:
                 snap = self.pipeline.process(frame, wall_time=captured)
                 snap.timings["source"] = read_s  # producing the frame (overlapped with the previous frame)
                 snap.timings["wait"] = waited  # from the end of the frame's production to the start of its processing
+                snap.timings["starved"] = self._reader.starved_s  # the worker waited this long for the frame
             except Exception as exc:  # noqa: BLE001 - the frame is skipped, the worker goes on
                 self.frames_skipped += 1
                 self.report("frame", f"frame {getattr(frame, 'index', '?')} skipped: {type(exc).__name__}: {exc}")
