@@ -363,3 +363,13 @@ def test_icp_refinement_recovers_small_offset():
     assert ref.translation_error(true) < 0.001
     assert math.degrees(ref.rotation_error(true)) < 1.0
     assert icp_refine(PartSurfaceModel(part), pts[:5], start) is None  # too few points
+
+
+def test_icp_surface_model_is_deterministic():
+    """Two models of the same part sample the same surface points (trimesh needs an explicit seed)."""
+    from tracker.icp_refinement import PartSurfaceModel
+
+    part = PartSpec.cube("c")
+    a, b = PartSurfaceModel(part), PartSurfaceModel(part)
+    assert np.array_equal(a.points, b.points) and np.array_equal(a.normals, b.normals)
+    assert not np.array_equal(a.points, PartSurfaceModel(part, seed=1).points)

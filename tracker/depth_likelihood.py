@@ -129,7 +129,7 @@ def _pixel_terms(d, z, s, e, o_hat, beta, lam, tail, use_occ):
 
 @nb.njit(cache=True)
 def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
-                          dirty, alpha, cmask, cvalid):
+                          dirty, alpha, cmask, cvalid, occ_cap=0.0):
     """Recompute the contributions of the dirty ``subset`` pixels for every particle and update ``ell`` in place.
 
     * ``D`` (N, M) rendered depth columns, ``loc`` (K, P) column of part k at pixel i or −1 (part k cannot cover
@@ -146,6 +146,8 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
       mask and the pixel is outside it, the part cannot be the visible surface: the pixel is treated as occluded
       (ô = 1) and its contribution is capped at 0 (only the penalty of a part in front of the observed surface
       remains). All-zero ``cvalid`` = depth only (the spec).
+    * ``occ_cap`` > 0: likewise cap at 0 the contribution of every pixel where the rendered part lies more than
+      ``occ_cap`` σ behind the observed depth (occlusion is then no evidence for a pose; 0 = the spec).
     """
     n = D.shape[0]
     k = loc.shape[0]
@@ -174,7 +176,7 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
                     oh = 1.0
                 lik, num = _pixel_terms(d, z[i], s[i], e[i], oh, beta, lam, tail, True if oh == 1.0 else use_occ)
                 c = alpha * (math.log(lik) - log_po_inf[i])
-                if forced and c > 0.0:
+                if c > 0.0 and (forced or (occ_cap > 0.0 and d - z[i] > occ_cap * s[i])):
                     # a pixel that cannot show the part carries no evidence for it; without this cap the truncated
                     # occluder density 1/(1 − e^(−λd)) rewards parts for hiding just behind a hand
                     c = 0.0

@@ -23,12 +23,10 @@ class PartSurfaceModel:
 
     def __init__(self, part: PartSpec, n_points: int = 1200, seed: int = 0) -> None:
         mesh = part.load_mesh()
-        rng_state = np.random.get_state()
-        np.random.seed(seed)  # trimesh samples with the global generator; keep the model deterministic
-        try:
-            pts, faces = mesh.sample(n_points, return_index=True)
-        finally:
-            np.random.set_state(rng_state)
+        # trimesh >= 4 draws from an unseeded default_rng unless given a seed (the global numpy state does not
+        # matter): pass it explicitly, or every tracker instance gets different surface samples (non-deterministic
+        # refinement)
+        pts, faces = mesh.sample(n_points, return_index=True, seed=seed)
         self.points = np.asarray(pts, np.float64)
         self.normals = np.asarray(mesh.face_normals[faces], np.float64)
         self.tree = cKDTree(self.points)

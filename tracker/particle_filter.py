@@ -301,8 +301,9 @@ class MultiObjectTracker:
         use_occ = bool(cfg.use_occlusion_model)
         alpha = float(cfg.likelihood_exponent)
         cmask, cvalid = self._color_masks(detections, gi, gj)
+        occ_cap = float(cfg.occluded_evidence_cap)
         update_log_likelihood(D, loc, all_pix, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
-                              dirty, alpha, cmask, cvalid)
+                              dirty, alpha, cmask, cvalid, occ_cap)
         t_render = t2 - t1
         t_lik = time.perf_counter() - t2
         t_res = 0.0
@@ -344,7 +345,7 @@ class MultiObjectTracker:
                              subset, D, loc, dirty)
             tb = time.perf_counter()
             update_log_likelihood(D, loc, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
-                                  lam, tail, use_occ, dirty, alpha, cmask, cvalid)
+                                  lam, tail, use_occ, dirty, alpha, cmask, cvalid, occ_cap)
             tc = time.perf_counter()
             ell_tot = ell + self._log_penalties(p_cur, R_cur, plane)
             td = time.perf_counter()

@@ -117,6 +117,12 @@ class TrackerConfig(BaseModel):
         1.0, gt=0.0, le=1.0, description="alpha: each pixel's likelihood ratio is raised to this power (1 = the "
         "spec's independent pixels; < 1 tempers the product for correlated sensor noise). Not in the spec.",
     )
+    occluded_evidence_cap: float = Field(
+        0.0, ge=0.0, description="Where a particle's part lies more than this many sigma(z) behind the observed "
+        "depth, the pixel's log-likelihood ratio is capped at 0: occlusion is no evidence for a pose (the spec's "
+        "truncated occluder density 1/(1 - exp(-lambda d)) otherwise pulls hidden parts toward the camera, into a "
+        "hand). 0 = the spec.",
+    )
     roi_margin_px: int = Field(
         2, ge=0, description="Margin (downsampled pixels) around the parts' projections that is evaluated."
     )
