@@ -261,3 +261,16 @@ def test_structural_priors_ignore_the_tracked_orientation_of_connected_cubes():
     m.update(0.1, poses, T)
     assert m.established == [True, True]
     np.testing.assert_allclose(m.status[1].option.p, [A, 0, 0], atol=1e-6)
+
+
+def test_far_apart_parts_skip_the_search_and_get_no_particles():
+    T = default_table_to_camera()
+    m = _monitor(n_checks=1)
+    base = T @ Pose(np.array([0, A / 2, 0]))
+    for dx, far in ((0.2, True), (0.06, False)):
+        assert m._far_apart(m.connections[0], base, base @ Pose(np.array([dx, 0, 0]))) == far
+    m.update(0.0, {"a": base, "b": base @ Pose(np.array([0.2, 0, 0]))}, T)
+    assert m.status[0].score == 0.0 and m.connection_hints() == []
+    # the cheap path agrees with the full score: 0.5 / N_max is not reached there
+    full = connection_score(np.array([A, 0, 0]), np.eye(3), np.array([0.2, 0, 0]), np.eye(3), 0.01, 3)
+    assert allocate_particles(full, 9) == 0

@@ -194,6 +194,15 @@ class ConnectionMonitor:
         m_q = 1.0 - np.cos(np.radians(self.params.m_q_deg * factor) / 2.0)
         return pos_ok and rotation_dot(spec.R_des, o.R) >= 1.0 - m_q
 
+    def _far_apart(self, spec: ConnectionSpec, pa: Pose, pb: Pose) -> bool:
+        """True when the parts are so far from the desired distance that the score is below 0.5 / N_max
+        whatever the symmetry choice (|‖d‖ − ‖p_des‖| bounds every per-axis error from below)."""
+        prm = self.params
+        dist = float(np.linalg.norm(pb.t - pa.t))
+        gap = abs(dist - float(np.linalg.norm(spec.p_des))) / float(margins(prm.m_p).max())
+        e_min = ((2.0 * max(prm.N_max, 1)) ** 2 - 1.0) / max(prm.K, 1e-9) + 3.0
+        return gap * gap > max(e_min, 3.0 * prm.break_factor**2 * 3.0)
+
     def update(
         self, t: float, poses: dict[str, Pose], table_to_camera: Pose, active: Iterable[int] | None = None
     ) -> list[ConnectionStatus]:
@@ -209,6 +218,20 @@ class ConnectionMonitor:
                 continue
             pa, pb = poses.get(spec.first), poses.get(spec.second)
             if pa is None or pb is None:
+                continue
+            if self._far_apart(spec, pa, pb):
+                # cannot pass and would get no particles (score < 0.5 / N_max): skip the symmetry search
+                st.passing, st.score, st.count = False, 0.0, 0
+                st.offset_table = relative_position_table(pa.t, pb.t, table_rotation(table_to_camera))
+                if established:
+                    st.fail_count += 1
+                    if st.fail_count >= prm.N_break:
+                        st.established_at = None
+                        _set_state(st, "open", t)
+                        self.events.append(MonitorEvent(t, "disconnected", spec.first, spec.second, True))
+                        broke = True
+                else:
+                    _set_state(st, "open", t)
                 continue
             p_ab, R_ab = relative_pose(pa, pb)
             res = self.symmetry.resolve(
