@@ -119,7 +119,7 @@ def render_md(timing: dict, tracked: dict, gt: dict) -> str:
         f"Machine: {m['nproc']} cores, {m['cpu']}; shared with five other engineers while measured, so wall "
         "times are pessimistic.",
         "",
-        "Per-frame cost of `mode.update` + `connection_hints()` (no tracker; ms): "
+        "Per-frame cost of `mode.update` + `connection_hints()` (no tracker; ms; scripted session): "
         + ", ".join(f"{k} {v}" for k, v in timing.items()) + ".",
         "",
         "Columns: within ±1 s (count and share), share within ±T for T = 1/2/3/4 s (%), never detected, mean "
