@@ -229,7 +229,8 @@ class MultiObjectTracker:
                     continue
                 area = getattr(det, "area", None)
                 reliable = (score >= cfg.reseed_min_score and area is not None and np.isfinite(area)
-                            and area >= cfg.reseed_min_area_px)
+                            and area >= cfg.reseed_min_area_px
+                            and self._area_ratio(i, area) >= cfg.reseed_min_area_ratio)
                 detected[i] = reliable
                 hit = self._surface_depth(i, center)
                 off_silhouette = reliable and not np.isfinite(hit)
