@@ -42,8 +42,8 @@ NOTES = [
     "- Tracked runs process every 2nd frame (15 fps, `--frame-step 2`), tracker preset `default`, "
     "initialised with the first frame's true poses, hints from the mode every frame; parameters m_p = 1 cm, "
     "K = 3, N_max = 9, N_checks = 2, m_q = 45°, heading tolerance 40° (task presets).",
-    "- `guess-rerun` / `learning-rerun` are the same experiments run again on the final revision (far-apart shortcut), a "
-    "measure of the run-to-run spread of the tracked figures.",
+    "- `guess-rerun` / `learning-rerun` are the same experiments run again on the final revision "
+    "(far-apart shortcut), a measure of the run-to-run spread of the tracked figures.",
     "- `guess-noyaw` is the ablation without the orientation-robust comparison (yaw_tolerance_deg = 0, "
     "m_q = 30°, priors re-anchored on the tracker's orientation).",
     "- The tracker's output varies from run to run (the same session re-run gave different connection "
