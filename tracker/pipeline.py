@@ -191,9 +191,27 @@ class AssemblyPipeline:
             built = build_mode(self._sentence_task_model(task), mode, self.parts, self.seed, sentence=task)
         else:
             built = build_mode(resolve_task(task), mode, self.parts, self.seed)
+        if mode == "learning":
+            built = self._follow_scripted_row(built, build_mode)
         self.mode_name, self.task, self.mode = mode, task, built
         if self.tracker is not None:
             self.tracker.set_connection_hints([])
+
+    def _follow_scripted_row(self, built, build_mode):
+        """For a simulated learning scenario, put the words on the cubes in the order the scripted user builds
+        its row (left to right), so the simulated user builds the correct sentence; distractor words go on the
+        scenario's distractor cubes. Other sources keep the mode's random seeded assignment."""
+        scenario = self.source_info.get("scenario") or {}
+        cells = (scenario.get("structure") or {}).get("cells") or {}
+        row = [c for c, _ in sorted(cells.items(), key=lambda item: item[1][0])]
+        words = list(built.sentence.words)
+        if not row or len(row) != len(words) or not set(row) <= set(built.assignment):
+            return built
+        assignment = dict(zip(row, words, strict=True))
+        spare = [c for c in scenario.get("distractors", []) if c in built.assignment]
+        assignment.update(zip(spare, built.sentence.distractors, strict=False))
+        return build_mode(built.task, "learning", self.parts, self.seed, sentence=built.sentence,
+                          assignment=assignment)
 
     def _sentence_task_model(self, sentence):
         """A learning task around one sentence (e.g. a teacher's) using every part of this pipeline as a cube."""
