@@ -243,6 +243,31 @@ def test_tracker_yaw_and_tilt_errors_are_tolerated_but_directions_stay_distinct(
     assert m2.status[0].state == "open"
 
 
+def test_first_cube_without_prior_tracked_44_degrees_off_still_connects():
+    """A released cube is often tracked with a heading error near 45° (between two faces). Without a stored
+    prior the first cube's heading follows the observed offset (free_yaw_tolerance_deg = 45); with only the
+    40° tolerance the true connection is rejected."""
+    T = default_table_to_camera()
+    n = T.R[:, 1]
+    base = T @ Pose(np.array([0, A / 2, 0]))
+    pb = base @ Pose(np.array([A, 0, 0]))
+    for yaw in (44.0, -44.0):
+        bad = Pose.from_rotvec(n * np.radians(yaw), np.zeros(3)).R
+        poses = {"a": Pose.from_rt(bad @ base.R, base.t), "b": pb}
+        m = _monitor(n_checks=1)
+        m.update(0.0, poses, T)
+        assert m.status[0].state == "connected"
+        strict = _monitor(n_checks=1)
+        strict.params.free_yaw_tolerance_deg = 0.0
+        strict.update(0.0, poses, T)
+        assert strict.status[0].state != "connected"
+    # the heading freedom does not accept a diagonal grid neighbour (√2·a away, 45° off both faces)
+    diag = base @ Pose(np.array([A, 0, A]))
+    m = _monitor(n_checks=1)
+    m.update(0.0, {"a": base, "b": diag}, T)
+    assert m.status[0].state != "connected"
+
+
 def test_structural_priors_ignore_the_tracked_orientation_of_connected_cubes():
     """Once a–b is established, b's fundamental frame comes from the structure (F_b = F_a R_des): a 44° yaw
     error of b's tracked orientation does not spoil the next connection b–c."""

@@ -41,7 +41,10 @@ class AssemblyParams:
     * ``m_p``: per-axis position margin(s), metres (5.11); ``m_q_deg``: rotation tolerance in degrees,
       ``m_q = 1 − cos(m_q_deg / 2)`` (5.13); ``yaw_tolerance_deg``: cubes are compared levelled and with
       the first cube's heading turned by up to this angle towards the observed offset (0 = off; see
-      :func:`~tracker.assembly.cube_symmetry.levelled_frames`); ``K``: score sensitivity (5.16); ``N_max``:
+      :func:`~tracker.assembly.cube_symmetry.levelled_frames`); ``free_yaw_tolerance_deg``: the same turn
+      for a first cube without a stored prior (its heading comes only from the tracker, which often ends ~45°
+      off after a cube was carried; the larger of the two applies; 45 = the heading follows the observed
+      offset); ``K``: score sensitivity (5.16); ``N_max``:
       maximum particles per connection (5.19); ``N_checks``: consecutive passing frames to establish a connection;
       ``N_break`` / ``break_factor``: hysteresis for breaking; ``near_score``: score above which an open
       connection is reported as "near".
@@ -50,6 +53,7 @@ class AssemblyParams:
     m_p: float = 0.01
     m_q_deg: float = 45.0
     yaw_tolerance_deg: float = 40.0
+    free_yaw_tolerance_deg: float = 45.0
     K: float = 3.0
     N_max: int = 9
     N_checks: int = 2
@@ -238,6 +242,7 @@ class ConnectionMonitor:
                 spec.first, spec.second, p_ab, R_ab, pa.R, spec.p_des, spec.R_des, normal,
                 lambda p, R, s=spec: self._error(s, p, R),
                 yaw_tolerance=np.radians(prm.yaw_tolerance_deg) if prm.yaw_tolerance_deg > 0 else None,
+                free_yaw_tolerance=np.radians(prm.free_yaw_tolerance_deg) if prm.yaw_tolerance_deg > 0 else None,
             )
             best = res.best
             st.option = best

@@ -199,6 +199,7 @@ class SymmetryState:
         normal: np.ndarray,
         error_fn,
         yaw_tolerance: float | None = None,
+        free_yaw_tolerance: float | None = None,
     ) -> Resolution:
         """All symmetry options for checking connection (a, b), best (smallest ``error_fn(p, R)``) first.
 
@@ -206,7 +207,12 @@ class SymmetryState:
         turned onto the table normal: cubes in a structure rest level) and the first cube's heading is then
         turned about the normal by up to ``yaw_tolerance`` towards the observed offset (see
         :func:`levelled_frames`); the comparison then depends on positions and the discrete symmetry choice,
-        not on the tracker's small orientation errors.
+        not on the tracker's small orientation errors. ``free_yaw_tolerance`` (radians, used instead when larger)
+        applies when the first cube has no stored prior, i.e. its heading comes only from the tracker's
+        orientation estimate: a cube that the hand carried and released is often tracked with a heading error
+        near 45°, between two faces, so a 40° tolerance would reject a true connection for seconds. The
+        discrete face choice (case 1) already leaves every horizontal direction open for such a cube, so
+        turning by up to 45° changes only the residual angle, not which faces can connect.
         """
         sym_a, sym_b = self.symmetric.get(a, False), self.symmetric.get(b, False)
         G = cube_group()
@@ -253,7 +259,10 @@ class SymmetryState:
                 # structural priors: stored F (not the tracker's orientation) for parts that have one
                 base_a = ha_full[i][1] if i is not None else F_a
                 base_b = hb_full[j][1] if j is not None else F_b
-                La, Lb, turn = levelled_frames(base_a, base_b if sym_b else None, normal, p_des, d, yaw_tolerance)
+                tol = yaw_tolerance
+                if i is None and free_yaw_tolerance is not None:
+                    tol = max(tol, free_yaw_tolerance)
+                La, Lb, turn = levelled_frames(base_a, base_b if sym_b else None, normal, p_des, d, tol)
                 if same_component and Lb is not None:
                     Lb = turn @ Lb
                 p = La.T @ d
