@@ -268,6 +268,32 @@ def test_first_cube_without_prior_tracked_44_degrees_off_still_connects():
     assert m.status[0].state != "connected"
 
 
+def test_new_cube_re_anchors_the_heading_of_a_vertical_component():
+    """r–g is vertical (g on top of r) and established while r's tracked heading was 44° off, so the component's
+    heading is 44° off. o joins r horizontally (case 3): its observed offset re-anchors the component, so the
+    next horizontal connection r–y is accepted."""
+    T = default_table_to_camera()
+    n = T.R[:, 1]
+    names = ("r", "g", "o", "y")
+    parts = [PartSpec.cube(x, c) for x, c in zip(names, ("red", "green", "orange", "yellow"), strict=True)]
+    specs = [ConnectionSpec("r", "g", np.array([0, A, 0]), np.eye(3)),
+             ConnectionSpec("o", "r", np.array([A, 0, 0]), np.eye(3)),
+             ConnectionSpec("r", "y", np.array([A, 0, 0]), np.eye(3))]
+    base = T @ Pose(np.array([0, A / 2, 0]))
+    bad = Pose.from_rotvec(n * np.radians(44), np.zeros(3)).R
+    r_bad = Pose.from_rt(bad @ base.R, base.t)
+    far = {"o": base @ Pose(np.array([-0.3, 0, 0])), "y": base @ Pose(np.array([0.3, 0, 0]))}
+    m = ConnectionMonitor(parts, specs, AssemblyParams(N_checks=1))
+    m.update(0.0, {"r": r_bad, "g": Pose.from_rt(bad @ base.R, (base @ Pose(np.array([0, A, 0]))).t), **far}, T)
+    assert m.established == [True, False, False]
+    poses = {"r": base, "g": base @ Pose(np.array([0, A, 0])), "o": base @ Pose(np.array([-A, 0, 0])), "y": far["y"]}
+    m.update(0.1, poses, T)
+    assert m.established == [True, True, False]
+    m.update(0.2, dict(poses, y=base @ Pose(np.array([A, 0, 0]))), T)
+    assert m.established == [True, True, True]
+    np.testing.assert_allclose(m.status[2].option.p, [A, 0, 0], atol=1e-6)
+
+
 def test_structural_priors_ignore_the_tracked_orientation_of_connected_cubes():
     """Once a–b is established, b's fundamental frame comes from the structure (F_b = F_a R_des): a 44° yaw
     error of b's tracked orientation does not spoil the next connection b–c."""

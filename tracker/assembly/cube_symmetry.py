@@ -131,6 +131,7 @@ class Option:
     F_a: np.ndarray | None = None
     F_b: np.ndarray | None = None
     turn: np.ndarray | None = None
+    realign: np.ndarray | None = None
 
 
 @dataclass
@@ -274,6 +275,10 @@ class SymmetryState:
                 R = Q_a @ R_ab @ Q_b.T
             o = Option(Q_a, Q_b, p, R, float(error_fn(p, R)), i, j, F_a, F_b)
             o.turn = turn
+            if structural and sym_a and sym_b and i is None and j is not None:
+                # case 3: a new cube joins b's component; its heading (turned onto the observed offset) re-anchors
+                # the component's heading (see establish)
+                o.realign = _heading_turn(F_b, La @ R_des, normal)
             options.append(o)
         options.sort(key=lambda o: o.error)
         best = options[0]
@@ -296,9 +301,14 @@ class SymmetryState:
                 base = dict(ha[o.hyp_a])
             else:
                 base = dict(ha[o.hyp_a] if o.hyp_a is not None else {})
-                base.update(hb[o.hyp_b] if o.hyp_b is not None else {})
+                hyp_b = hb[o.hyp_b] if o.hyp_b is not None else {}
+                if o.realign is not None:
+                    # case 3: b's component (whose heading may only come from the tracker, e.g. after a vertical
+                    # first connection) takes the heading of the new connection's observed offset
+                    hyp_b = {p: o.realign @ F for p, F in hyp_b.items()}
+                base.update(hyp_b)
             base[a] = o.F_a
-            base[b] = o.F_b
+            base[b] = o.F_b if o.realign is None else o.realign @ o.F_b
             if not any(_same_hyp(base, h) for h in new):
                 new.append(base)
         new = new[:MAX_HYPOTHESES]
@@ -345,6 +355,18 @@ class SymmetryState:
             for p in comp:
                 self._component[p] = cid
             self._hyps[cid] = hyps
+
+
+def _heading_turn(F_from: np.ndarray, F_to: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
+    """Rotation about ``normal`` taking the heading of ``F_from`` onto that of ``F_to`` (both levelled: their
+    y axes along the normal); None when either is not level."""
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    if F_from[:, 1] @ n < 0.99 or F_to[:, 1] @ n < 0.99:
+        return None
+    u, v = F_from[:, 0] - (F_from[:, 0] @ n) * n, F_to[:, 0] - (F_to[:, 0] @ n) * n
+    phi = float(np.arctan2(n @ np.cross(u, v), u @ v))
+    K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+    return np.eye(3) + np.sin(phi) * K + (1 - np.cos(phi)) * K @ K
 
 
 def _same_hyp(x: dict[str, np.ndarray], y: dict[str, np.ndarray]) -> bool:
