@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Rebuild BENCHMARKS.md from benchmarks/summary.md (targets vs latest figures, written by hand after a run)
+# and the sections each benchmark script writes to benchmarks/results/<component>.md.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+{
+  cat benchmarks/summary.md
+  for part in simulator recording perception tracker assembly server; do
+    if [ -f "benchmarks/results/$part.md" ]; then
+      printf '\n'
+      sed 's/^## /## /' "benchmarks/results/$part.md"
+    fi
+  done
+} > BENCHMARKS.md
+echo "wrote BENCHMARKS.md"
