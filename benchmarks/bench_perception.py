@@ -25,14 +25,14 @@ import argparse
 import itertools
 import json
 import math
-import os
-import platform
 import sys
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from tracker.machine_info import machine_info
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -52,15 +52,7 @@ RIVAL = 0.25
 
 
 def machine() -> dict:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"nproc": os.cpu_count(), "cpu": cpu, "python": platform.python_version(), "opencv": cv2.__version__}
+    return {**machine_info(), "opencv": cv2.__version__}
 
 
 def gt_centres(frame, names) -> dict[str, tuple[float, float]]:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -18,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from tracker.camera import Intrinsics
 from tracker.frame import Frame
+from tracker.machine_info import cpu_model
 from tracker.sources.depth_registration import register_depth
 from tracker.sources.recording import RecordingSource, RecordingWriter
 
@@ -25,14 +25,6 @@ RESULTS = Path(__file__).resolve().parent / "results"
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "visp-cube-desk"
 
 
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def timed(fn, repeat: int) -> float:

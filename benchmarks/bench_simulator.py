@@ -20,19 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from tracker.machine_info import cpu_model
 from tracker.sources.simulator import SimulatedTable, list_scenarios
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def nproc() -> int:

@@ -23,12 +23,12 @@ from __future__ import annotations
 
 import os
 
+from tracker.machine_info import machine_info
+
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")  # the tracker is single-threaded; keep numba from spawning threads
 
 import argparse
 import json
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -79,20 +79,9 @@ ABLATIONS: dict[str, tuple[str, dict]] = {
 
 
 def machine() -> dict:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        load = os.getloadavg()[0]
-    except OSError:
-        load = float("nan")
-    nproc = subprocess.run(["nproc"], capture_output=True, text=True).stdout.strip()
-    return {"nproc": nproc, "cpu": cpu, "python": platform.python_version(), "load_1min_at_start": round(load, 2)}
+    info = machine_info()
+    info["load_1min_at_start"] = info.pop("load_avg_1min")
+    return info
 
 
 def render_sequence(name: str, n_frames: int, seed: int):
