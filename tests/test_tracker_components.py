@@ -300,6 +300,27 @@ def test_connection_particles_force_relative_pose():
         resolve_hints([ConnectionHint("a", "zzz", rel_ab, 3)], names, n, 0.5)
 
 
+def test_unlocked_hints_do_not_force_hidden_parts():
+    """Visibility gate (hint_min_visibility): an unlocked hint leaves a part that is not forceable (hidden)
+    alone; a locked hint forces it anyway."""
+    rng = np.random.default_rng(5)
+    n = 6
+    p = rng.normal(0, 0.1, (n, 2, 3))
+    R = np.broadcast_to(np.eye(3), (n, 2, 3, 3)).copy()
+    rel = Pose([CUBE_EDGE, 0, 0], [0, 0, 0, 1])
+    hidden_b = np.array([True, False])  # a visible, b hidden
+    for locked in (False, True):
+        conns = resolve_hints([ConnectionHint("a", "b", rel, 4, locked)], ["a", "b"], n, 1.0)
+        q, Rq = p.copy(), R.copy()
+        changed = apply_connections(q, Rq, conns, hidden_b)
+        if locked:
+            assert changed[0, 1] and np.allclose(q[0, 1], q[0, 0] + [CUBE_EDGE, 0, 0])
+        else:
+            assert not changed[:, 1].any() and np.allclose(q[:, 1], p[:, 1])
+        # the backward pass moves the visible first part onto the hidden second part in both cases
+        assert changed[1, 0] and np.allclose(q[1, 0], q[1, 1] - [CUBE_EDGE, 0, 0])
+
+
 # ---------------------------------------------------------------- motion model
 def test_rotation_mean_and_propagation():
     rng = np.random.default_rng(3)

@@ -12,6 +12,13 @@ Choices (spec leaves them open): the velocities of forced particles are left as 
 connection uses its hint's N_k (the monitor passes N_max); overflow rule: every N_k is clipped to
 ``max_fraction · N`` so that at least the remaining particles always stay free (all connections share the
 leading particles, so Σ N_k may exceed N without harm otherwise).
+
+Visibility gate (choice documented here; TrackerConfig ``hint_min_visibility``): a connection that is not yet
+locked forces a part only when the tracker estimates that part as visible enough (``forceable``). A part
+hidden by the hand cannot be judged by the depth image, so a forced hypothesis "next to its neighbour" costs
+it nothing and could win against the true, hidden position: the cube would jump onto the neighbour seconds
+before the user places it. Locked connections always force both parts (a hidden cube of an established
+structure stays with it).
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ class ResolvedConnection:
     p_des: np.ndarray
     R_des: np.ndarray
     n_k: int
+    locked: bool = False
 
 
 def resolve_hints(hints, names: list[str], n_particles: int, max_fraction: float) -> list[ResolvedConnection]:
@@ -46,22 +54,33 @@ def resolve_hints(hints, names: list[str], n_particles: int, max_fraction: float
         n_k = int(min(max(int(h.n_particles), 0), cap))
         if n_k <= 0:
             continue
-        out.append(ResolvedConnection(index[h.first], index[h.second], h.relative.t.copy(), h.relative.R.copy(), n_k))
+        out.append(ResolvedConnection(index[h.first], index[h.second], h.relative.t.copy(), h.relative.R.copy(), n_k,
+                                      bool(getattr(h, "locked", False))))
     return out
 
 
-def apply_connections(p: np.ndarray, R: np.ndarray, conns: list[ResolvedConnection]) -> np.ndarray:
+def apply_connections(p: np.ndarray, R: np.ndarray, conns: list[ResolvedConnection],
+                      forceable: np.ndarray | None = None) -> np.ndarray:
     """Force the leading particles onto their connections in place (Algorithm 6); returns the changed mask (N, K).
 
-    ``p`` (N, K, 3) positions and ``R`` (N, K, 3, 3) rotations in the camera frame.
+    ``p`` (N, K, 3) positions and ``R`` (N, K, 3, 3) rotations in the camera frame. ``forceable`` (K,) bool:
+    parts that unlocked connections may move (None = all); locked connections move any part.
     """
     changed = np.zeros(p.shape[:2], bool)
+
+    def allowed(c: ResolvedConnection, part: int) -> bool:
+        return c.locked or forceable is None or bool(forceable[part])
+
     for c in conns:  # forward pass: odd particles (1-based) take the second part from the first
+        if not allowed(c, c.b):
+            continue
         idx = np.arange(0, min(c.n_k, p.shape[0]), 2)
         p[idx, c.b] = p[idx, c.a] + R[idx, c.a] @ c.p_des
         R[idx, c.b] = R[idx, c.a] @ c.R_des
         changed[idx, c.b] = True
     for c in reversed(conns):  # backward pass: even particles take the first part from the second
+        if not allowed(c, c.a):
+            continue
         idx = np.arange(1, min(c.n_k, p.shape[0]), 2)
         Rt = c.R_des.T
         p[idx, c.a] = p[idx, c.b] - R[idx, c.b] @ (Rt @ c.p_des)

@@ -313,7 +313,10 @@ class MultiObjectTracker:
         log_w = self.log_w.copy()
         n_resampled = 0
 
-        # 3. coordinate passes (Algorithm 5)
+        # 3. coordinate passes (Algorithm 5); unlocked hints move only parts estimated visible enough
+        forceable = self.visibility >= cfg.hint_min_visibility  # previous frame's occlusion estimate
+        if cfg.hint_min_visibility > 0 and cfg.use_color_input and detections:
+            forceable &= detected  # and a reliable colour blob now: the hand may have covered the part this frame
         for i in range(k):
             old_p, old_R = p_cur[:, i].copy(), R_cur[:, i].copy()
             scale = noise_scale[i]
@@ -326,7 +329,7 @@ class MultiObjectTracker:
             if self._hints and cfg.use_connection_particles:
                 before_p = p_cur.copy()
                 before_R = R_cur.copy()
-                forced = apply_connections(p_cur, R_cur, self._hints)
+                forced = apply_connections(p_cur, R_cur, self._hints, forceable)
                 forced[:, i] = False
                 for o in range(k):
                     if forced[:, o].any():

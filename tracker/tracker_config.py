@@ -166,6 +166,13 @@ class TrackerConfig(BaseModel):
     max_connection_fraction: float = Field(
         0.5, ge=0.0, le=1.0, description="Overflow rule: N_k is clipped to this fraction of N (rest stay free)."
     )
+    hint_min_visibility: float = Field(
+        0.5, ge=0.0, le=1.0,
+        description="A connection hint that is not locked forces a part only while the part's estimated visible "
+        "fraction (previous frame) is at least this and, when colour detections are given, it has a reliable colour "
+        "blob in the current frame (a hidden cube, e.g. in the hand, cannot be judged by the depth image and "
+        "would jump onto its neighbour); locked connections always apply. 0 = off.",
+    )
     m_p: float = Field(0.01, gt=0.0, description="Position margin m_p of the connection score (5.16), metres.")
     score_k: float = Field(3.0, ge=0.0, description="Score sensitivity K of (5.16).")
     n_max: int = Field(9, ge=0, description="N_max, maximum particles per connection (5.19).")
