@@ -261,6 +261,15 @@ def test_first_cube_without_prior_tracked_44_degrees_off_still_connects():
         strict.params.free_yaw_tolerance_deg = 0.0
         strict.update(0.0, poses, T)
         assert strict.status[0].state != "connected"
+    # the same for the second cube: b's tracked orientation 30° off in yaw and tilted 25° (levelled residual
+    # beyond the 45° rotation margin before the modulo-90° face choice), a exact
+    tilt = Pose.from_rotvec(T.R[:, 2] * np.radians(25), np.zeros(3)).R
+    for yaw in (30.0, -30.0):
+        bad = Pose.from_rotvec(n * np.radians(yaw), np.zeros(3)).R @ tilt
+        poses = {"a": base, "b": Pose.from_rt(bad @ pb.R, pb.t)}
+        m = _monitor(n_checks=1)
+        m.update(0.0, poses, T)
+        assert m.status[0].state == "connected"
     # the heading freedom does not accept a diagonal grid neighbour (√2·a away, 45° off both faces)
     diag = base @ Pose(np.array([A, 0, A]))
     m = _monitor(n_checks=1)

@@ -213,7 +213,8 @@ class SymmetryState:
         orientation estimate: a cube that the hand carried and released is often tracked with a heading error
         near 45°, between two faces, so a 40° tolerance would reject a true connection for seconds. The
         discrete face choice (case 1) already leaves every horizontal direction open for such a cube, so
-        turning by up to 45° changes only the residual angle, not which faces can connect.
+        turning by up to 45° changes only the residual angle, not which faces can connect. Likewise the yaw
+        residual of a second cube without a prior (levelled, modulo 90°) is forgiven up to the same angle.
         """
         sym_a, sym_b = self.symmetric.get(a, False), self.symmetric.get(b, False)
         G = cube_group()
@@ -267,7 +268,15 @@ class SymmetryState:
                 if same_component and Lb is not None:
                     Lb = turn @ Lb
                 p = La.T @ d
-                R = La.T @ (Lb if sym_b else R_b)
+                Lb_test = Lb
+                if sym_b and j is None and Lb is not None and free_yaw_tolerance is not None:
+                    # a second cube without a prior: its tracked heading is as unreliable as the first's; levelled,
+                    # its heading is only defined modulo 90° (cube symmetry), so the yaw residual to the desired
+                    # heading is taken modulo 90° (|φ| ≤ 45°) and forgiven up to free_yaw_tolerance
+                    M = _heading_turn(Lb, La @ R_des, normal, modulo=np.pi / 2)
+                    if M is not None and np.arccos(np.clip((np.trace(M) - 1.0) / 2.0, -1.0, 1.0)) <= free_yaw_tolerance:
+                        Lb_test = La @ R_des
+                R = La.T @ (Lb_test if sym_b else R_b)
                 F_a = La
                 F_b = Lb if (j is not None and Lb is not None) else (La @ R_des if sym_b else R_b)
             else:
@@ -357,14 +366,18 @@ class SymmetryState:
             self._hyps[cid] = hyps
 
 
-def _heading_turn(F_from: np.ndarray, F_to: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
+def _heading_turn(F_from: np.ndarray, F_to: np.ndarray, normal: np.ndarray, modulo: float | None = None
+                  ) -> np.ndarray | None:
     """Rotation about ``normal`` taking the heading of ``F_from`` onto that of ``F_to`` (both levelled: their
-    y axes along the normal); None when either is not level."""
+    y axes along the normal), the angle reduced into ``[−modulo/2, modulo/2]`` when given; None when either is
+    not level."""
     n = np.asarray(normal, float) / np.linalg.norm(normal)
     if F_from[:, 1] @ n < 0.99 or F_to[:, 1] @ n < 0.99:
         return None
     u, v = F_from[:, 0] - (F_from[:, 0] @ n) * n, F_to[:, 0] - (F_to[:, 0] @ n) * n
     phi = float(np.arctan2(n @ np.cross(u, v), u @ v))
+    if modulo is not None:
+        phi = (phi + modulo / 2.0) % modulo - modulo / 2.0
     K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
     return np.eye(3) + np.sin(phi) * K + (1 - np.cos(phi)) * K @ K
 
