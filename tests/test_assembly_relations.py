@@ -245,8 +245,8 @@ def test_tracker_yaw_and_tilt_errors_are_tolerated_but_directions_stay_distinct(
 
 def test_first_cube_without_prior_tracked_44_degrees_off_still_connects():
     """A released cube is often tracked with a heading error near 45° (between two faces). Without a stored
-    prior the first cube's heading follows the observed offset (free_yaw_tolerance_deg = 45); with only the
-    40° tolerance the true connection is rejected."""
+    prior the first cube's heading follows the observed offset (free_yaw_tolerance_deg, default 180); with only
+    the 40° tolerance the true connection is rejected."""
     T = default_table_to_camera()
     n = T.R[:, 1]
     base = T @ Pose(np.array([0, A / 2, 0]))
@@ -270,6 +270,18 @@ def test_first_cube_without_prior_tracked_44_degrees_off_still_connects():
         m = _monitor(n_checks=1)
         m.update(0.0, poses, T)
         assert m.status[0].state == "connected"
+    # tracked 45° off in yaw and tilted 20°: after levelling, the face chosen from the tracked rotation leaves
+    # more than 45°; the default (180°) still follows the offset, a 45° bound does not
+    tilted = Pose.from_rotvec(n * np.radians(45), np.zeros(3)).R @ Pose.from_rotvec(T.R[:, 0] * np.radians(20),
+                                                                                    np.zeros(3)).R
+    poses = {"a": Pose.from_rt(tilted @ base.R, base.t), "b": pb}
+    m = _monitor(n_checks=1)
+    m.update(0.0, poses, T)
+    assert m.status[0].state == "connected"
+    bounded = _monitor(n_checks=1)
+    bounded.params.free_yaw_tolerance_deg = 45.0
+    bounded.update(0.0, poses, T)
+    assert bounded.status[0].state != "connected"
     # the heading freedom does not accept a diagonal grid neighbour (√2·a away, 45° off both faces)
     diag = base @ Pose(np.array([A, 0, A]))
     m = _monitor(n_checks=1)

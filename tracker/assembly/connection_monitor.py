@@ -43,8 +43,10 @@ class AssemblyParams:
       the first cube's heading turned by up to this angle towards the observed offset (0 = off; see
       :func:`~tracker.assembly.cube_symmetry.levelled_frames`); ``free_yaw_tolerance_deg``: the same turn
       for a first cube without a stored prior (its heading comes only from the tracker, which often ends ~45°
-      off after a cube was carried; the larger of the two applies; 45 = the heading follows the observed
-      offset); ``K``: score sensitivity (5.16); ``N_max``:
+      off after a cube was carried; the larger of the two applies; 180 (default) = the heading follows the
+      observed offset whatever the tracked heading, which after levelling may leave more than 45° with the
+      face chosen from the tracked rotation; the same bound forgives the yaw residual of a second cube
+      without a prior); ``K``: score sensitivity (5.16); ``N_max``:
       maximum particles per connection (5.19); ``N_checks``: consecutive passing frames to establish a connection;
       ``N_break`` / ``break_factor``: hysteresis for breaking; ``near_score``: score above which an open
       connection is reported as "near".
@@ -53,7 +55,7 @@ class AssemblyParams:
     m_p: float = 0.01
     m_q_deg: float = 45.0
     yaw_tolerance_deg: float = 40.0
-    free_yaw_tolerance_deg: float = 45.0
+    free_yaw_tolerance_deg: float = 180.0
     K: float = 3.0
     N_max: int = 9
     N_checks: int = 2
