@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import platform
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,6 +20,7 @@ from tracker.evaluation.metrics import summarize, timing_distribution
 from tracker.evaluation.report import markdown_table, plot_sweep, write_experiment
 from tracker.evaluation.runner import run_session
 from tracker.evaluation.sessions import GUESS_STRUCTURES, sessions_for
+from tracker.machine_info import machine_info
 
 log = logging.getLogger(__name__)
 
@@ -64,15 +63,7 @@ def tracked_available() -> bool:
 
 
 def machine() -> dict:
-    cpu = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"nproc": os.cpu_count(), "cpu": cpu or platform.processor(), "python": platform.python_version()}
+    return machine_info()
 
 
 def _label(setting: dict) -> str:
