@@ -231,6 +231,13 @@ class AppState:
             self.scene.stop()
 
 
+def _found(record, task_id: int):
+    """``record`` itself, or a 404 naming the task id when the store had no such task."""
+    if record is None:
+        raise HTTPException(404, f"no task with id {task_id}")
+    return record
+
+
 def _safe_metadata(src: FrameSource) -> dict[str, Any]:
     try:
         meta = src.metadata()
@@ -571,10 +578,7 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
 
     @app.get("/api/tasks/{task_id}", response_model=m.TaskRecord, tags=["tasks"], responses={404: {"model": m.Message}})
     def get_task(task_id: int) -> m.TaskRecord:
-        rec = state.storage.get_task(task_id)
-        if rec is None:
-            raise HTTPException(404, f"no task with id {task_id}")
-        return _task_record(rec)
+        return _task_record(_found(state.storage.get_task(task_id), task_id))
 
     @app.put(
         "/api/tasks/{task_id}",
@@ -584,10 +588,7 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
         responses={401: {"model": m.Message}, 403: {"model": m.Message}, 404: {"model": m.Message}},
     )
     def update_task(task_id: int, body: SentenceTask) -> m.TaskRecord:
-        rec = state.storage.update_task(task_id, body.model_dump(mode="json"))
-        if rec is None:
-            raise HTTPException(404, f"no task with id {task_id}")
-        return _task_record(rec)
+        return _task_record(_found(state.storage.update_task(task_id, body.model_dump(mode="json")), task_id))
 
     @app.delete(
         "/api/tasks/{task_id}",
@@ -597,8 +598,7 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
         responses={401: {"model": m.Message}, 403: {"model": m.Message}, 404: {"model": m.Message}},
     )
     def delete_task(task_id: int) -> m.Message:
-        if not state.storage.delete_task(task_id):
-            raise HTTPException(404, f"no task with id {task_id}")
+        _found(state.storage.delete_task(task_id) or None, task_id)
         return m.Message(detail=f"task {task_id} deleted")
 
     # ---------------------------------------------------------------- websocket

@@ -169,6 +169,10 @@ def test_teacher_tasks_need_password(client):
     assert any(t["id"] == rec["ref"] and t["mode"] == "learning" for t in modes["tasks"])
     assert client.delete(f"/api/tasks/{rec['id']}").status_code == 200
     assert client.get("/api/tasks").json()["tasks"] == []
+    # a task that is gone: editing or deleting it again is a 404 naming the id
+    r = client.put(f"/api/tasks/{rec['id']}", json=TASK)
+    assert r.status_code == 404 and str(rec["id"]) in r.json()["detail"]
+    assert client.delete(f"/api/tasks/{rec['id']}").status_code == 404
 
 
 def test_task_validation_messages(client):
