@@ -249,8 +249,8 @@ def to_markdown(results: dict) -> str:
     lines = [
         "## Depth tracker (issue 4)",
         "",
-        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; shared by six engineers while measured "
-        f"(1-min load {m['load_1min_at_start']} at start), so times are pessimistic. Time = tracker `step` only, "
+        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; 1-min load {m['load_1min_at_start']} at start "
+        "(above 1, other jobs shared the cores and wall times are pessimistic). Time = tracker `step` only, "
         "single thread (thread CPU time, and wall time), 640×480 input, 5 cubes. Simulator seed "
         f"{results['seed']}, {results['frames']} frames per guess/learning sequence, {results['static_frames']} "
         f"static; run took {results['elapsed_s']} s.",
