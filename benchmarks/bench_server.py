@@ -216,9 +216,9 @@ def main() -> int:
         f" N = {result['particles']} particles; `assembly-agent serve` as a subprocess (simulator rendered in its"
         f" child process), one client: {result['client']}; viser scene off. Latency is measured from the frame's"
         " capture time (a paced frame's due time) to the receipt of its websocket message.",
-        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}. The machine was shared with five other"
-        f" engineers' jobs while this ran (1-minute load average {m['load_avg_1min']:.1f} at the start),"
-        " so the figures are pessimistic.",
+        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; 1-minute load average"
+        f" {m['load_avg_1min']:.1f} at the start (above 1, other jobs shared the cores and the figures are"
+        " pessimistic).",
         "",
         "| run | processed fps (target ≥ 25) | latency capture → ws, median / p95 ms (target < 100) | "
         "tracker ms/frame: wall median / p95, CPU median | server CPU (100 % = 1 core) | stale frames skipped | "
