@@ -75,6 +75,7 @@ ABLATIONS: dict[str, tuple[str, dict]] = {
     "ours − penalties": ("default", {"use_intersection_penalty": False, "use_table_penalty": False}),
     "ours − connection particles": ("default", {"use_connection_particles": False}),
     "ours − ICP refinement": ("default", {"icp_refinement": False}),
+    "ours − rest prior": ("default", {"rest_prior_sigma": 0.0}),
 }
 
 
@@ -184,7 +185,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="90 frames per sequence, fewer configurations")
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite tracker.md from tracker.json and exit")
-    ap.add_argument("--only", default=None, help="comma-separated setting labels to run (others skipped, no ICP); "
+    ap.add_argument("--only", default=None, help="setting labels to run, comma-separated (semicolon-separated "
+                    "if a label contains a comma); others skipped, no ICP; "
                     "with --merge the rows are added to the existing tracker.json")
     ap.add_argument("--merge", action="store_true", help="merge the rows into benchmarks/results/tracker.json")
     args = ap.parse_args(argv)
@@ -212,7 +214,7 @@ def main(argv=None) -> int:
         if seq in abl:
             todo.update(ABLATIONS)
         if args.only:
-            wanted = {x.strip() for x in args.only.split(",")}
+            wanted = {x.strip() for x in args.only.split(";" if ";" in args.only else ",")}
             todo = {k: v for k, v in todo.items() if k in wanted}
         for label, (preset, ov) in todo.items():
             res[label] = run_tracker(src, frames, preset, ov)
@@ -292,7 +294,8 @@ def to_markdown(results: dict) -> str:
         "colour term with a dead zone in the weights, occluded pixels (part > 3σ behind the observed depth) capped "
         "at no evidence, re-seeding of 30 % of a part's particles around a reliable colour blob that lies off its "
         "estimate, table tolerance 1 mm, point-to-plane ICP refinement of well-visible parts, reused while the "
-        "part's blob stays put); "
+        "part's blob stays put, rest prior: a part without a reliable blob and < 30 % visible is held at its last "
+        "well-observed position, velocity 0, Gaussian pull σ = 3 mm in the weights); "
         "*seed-exp23* / *seed-exp1* = the thesis's parameter sets with the reference-code defaults (1/8 "
         "resolution, none of these extensions). learning-5 has 7 cubes (2 distractors), hence its longer times. "
         "Ablations switch one component of *ours* off (colour = control input, blob masks and colour term). "

@@ -249,3 +249,27 @@ def test_bad_construction_inputs(tmp_path):
         tr.step(_frame(np.ones((240, 320), np.float32), small))
     with pytest.raises(ValueError, match="unknown part"):
         tr.set_connection_hints([ConnectionHint("a", "b", Pose(), 4)])
+
+
+@pytest.mark.parametrize("sigma, pulled", [(0.003, True), (0.0, False)])
+def test_rest_prior_holds_a_hidden_undetected_part(sigma, pulled):
+    """A part with no colour blob and ~0 visible fraction (an occluder in front of it everywhere) is at rest: the
+    rest prior (rest_prior_sigma) keeps the particles near its last well-observed position; without it the flat
+    occluded likelihood lets particles that drifted 8 mm away count as much as those at rest."""
+    intr = Intrinsics.default(160, 120)
+    part = PartSpec.cube("red", "red")
+    tr = MultiObjectTracker([part], intr, _cfg(n_particles=60, rest_prior_sigma=sigma, wide_noise_fraction=0.0),
+                            seed=0)
+    pose = Pose([0, 0, 0.6], [0, 0, 0, 1])
+    tr.initialize({"red": pose})
+    tr.p[30:, 0] += [0.008, 0.0, 0.0]  # half the particles drifted while the part was hidden
+    tr.visibility[:] = 0.0
+    tr._noise_scale[:] = 0.1
+    occluder = np.full((120, 160), 0.3, np.float32)  # a hand in front of everything
+    for i in range(3):
+        st = tr.step(_frame(occluder, intr, i), {}, None)
+    err = st.poses["red"].translation_error(pose)
+    if pulled:
+        assert err < 0.0005, err
+    else:
+        assert err > 0.0015, err

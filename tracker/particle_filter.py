@@ -185,6 +185,8 @@ class MultiObjectTracker:
         self.visibility = np.ones(k)
         self._noise_scale = np.ones(k)
         self._icp_last = [None] * k
+        self._rest_t = np.array([poses[name].t for name in self.names], np.float64)  # rest-prior anchors
+        self._rest_on = np.zeros(k, bool)
         self.n_reseeded = 0  # re-seeding events since initialize (diagnostics, tests)
         self._last_time: float | None = None
         self._initialized = True
@@ -248,6 +250,11 @@ class MultiObjectTracker:
                 u[i] = color_input(center, min(score, 1.0), est, depth, intr, cfg.lambda_z, cfg.depth_radius_px,
                                    offset)
         noise_scale = self._noise_scale.copy()
+        self._rest_on = np.zeros(k, bool)
+        if cfg.rest_prior_sigma > 0 and cfg.use_color_input and detections is not None:
+            self._rest_on = ~detected & (self.visibility < cfg.rest_prior_max_visibility)
+            if self._rest_on.any():
+                self.v[:, self._rest_on] = 0.0
         if cfg.detected_full_noise:
             noise_scale[detected] = 1.0
 
@@ -351,7 +358,7 @@ class MultiObjectTracker:
             update_log_likelihood(D, loc, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
                                   lam, tail, use_occ, dirty, alpha, cmask, cvalid, occ_cap)
             tc = time.perf_counter()
-            ell_tot = ell + self._log_penalties(p_cur, R_cur, plane)
+            ell_tot = ell + self._log_penalties(p_cur, R_cur, plane) + self._log_rest_prior(p_cur)
             td = time.perf_counter()
             log_w += ell_tot - ell_prev
             ell_prev = ell_tot
@@ -388,6 +395,10 @@ class MultiObjectTracker:
         self.p, self.R, self.v, self.log_w = p_cur, R_cur, v_cur, log_w
         self.last_log_likelihood = ell_prev  # penalised ℓ per particle of the last pass (diagnostics, tests)
         state = self._make_state(frame, t0, timings)
+        if cfg.rest_prior_sigma > 0:
+            well = detected & (self.visibility >= cfg.visible_fraction_full)
+            for i in np.nonzero(well)[0]:
+                self._rest_t[i] = self.estimates[self.names[i]].t
         state.resampled = n_resampled
         tg = time.perf_counter()
         if cfg.icp_refinement:
@@ -484,6 +495,14 @@ class MultiObjectTracker:
             hmin = lowest_heights(R, p, self.hulls, plane[0], plane[1])
             out += table_log_penalty(hmin, cfg.lambda_h, cfg.table_tolerance)
         return out
+
+    def _log_rest_prior(self, p) -> np.ndarray | float:
+        """Rest prior (TrackerConfig.rest_prior_sigma): Gaussian pull of resting hidden parts to their anchors."""
+        if not self._rest_on.any():
+            return 0.0
+        sig2 = self.config.rest_prior_sigma ** 2
+        d2 = ((p[:, self._rest_on] - self._rest_t[self._rest_on]) ** 2).sum(-1)
+        return -0.5 * np.minimum(d2, 9.0 * sig2).sum(-1) / sig2
 
     def _bbox(self, obj, p, R) -> tuple[float, float, float, float]:
         """Full-resolution pixel rectangle (umin, umax, vmin, vmax) covering part ``obj`` for all given poses."""

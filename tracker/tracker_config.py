@@ -45,6 +45,17 @@ class TrackerConfig(BaseModel):
         1.0, gt=0.0, le=1.0, description="Noise std multiplier of a part that is fully hidden (visible fraction 0, "
         "from the occlusion posterior); 1 = off (the spec). Hidden parts otherwise drift toward the occluder.",
     )
+    rest_prior_sigma: float = Field(
+        0.0, ge=0.0, description="Rest prior (not in the spec; 0 = off): a part without a reliable colour blob whose "
+        "estimated visible fraction is below rest_prior_max_visibility is taken to be at rest (cubes move only in "
+        "the hand, and then their blob moves): its velocity is zeroed and each particle's weight gets "
+        "-|p - p_rest|^2 / (2 sigma^2) (capped at 9 sigma^2), p_rest = its position at the last frame with a "
+        "reliable blob and visibility >= visible_fraction_full. Keeps the occlusion likelihood from dragging a "
+        "hidden part toward the occluder. Metres.",
+    )
+    rest_prior_max_visibility: float = Field(
+        0.3, ge=0.0, le=1.0, description="Visible fraction below which an undetected part gets the rest prior.",
+    )
     visible_fraction_full: float = Field(
         0.5, gt=0.0, le=1.0, description="Visible fraction from which a part gets its full motion noise.",
     )
@@ -294,5 +305,6 @@ PRESETS["default"] = {
     "detected_full_noise": True,
     "color_term_dead_zone": 1.0,
     "occluded_evidence_cap": 3.0,
+    "rest_prior_sigma": 0.003,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
