@@ -7,7 +7,6 @@ Run: ``.venv/bin/python benchmarks/bench_recording.py``.
 from __future__ import annotations
 
 import json
-import os
 import tempfile
 import time
 from pathlib import Path
@@ -17,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from tracker.camera import Intrinsics
 from tracker.frame import Frame
-from tracker.machine_info import cpu_model
+from tracker.machine_info import machine_info
 from tracker.sources.depth_registration import register_depth
 from tracker.sources.recording import RecordingSource, RecordingWriter
 
@@ -72,8 +71,7 @@ def main() -> None:
         out[f"register_depth_{name}_to_640x480_ms"] = timed(lambda d=d, dint=dint: register_depth(
             d, dint, Intrinsics(640, 480, 615.0, 615.0, 320.0, 240.0), T), 10)
 
-    out["nproc"] = os.cpu_count() or 0
-    out["cpu"] = cpu_model()
+    out.update(machine_info())
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "recording.json").write_text(json.dumps(out, indent=2) + "\n")
     lines = [

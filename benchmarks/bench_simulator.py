@@ -12,27 +12,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 
-from tracker.machine_info import cpu_model
+from tracker.machine_info import machine_info
 from tracker.sources.simulator import SimulatedTable, list_scenarios
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-
-
-def nproc() -> int:
-    try:
-        return int(subprocess.check_output(["nproc"], text=True).strip())
-    except (OSError, subprocess.CalledProcessError, ValueError):
-        return os.cpu_count() or 0
 
 
 def bench_scenario(name: str, n_frames: int, seed: int = 1) -> dict:
@@ -107,8 +97,8 @@ def main() -> int:
     br = breakdown()
     print(f"breakdown ({br['scenario']}): render {br['render_clean_ms']} ms, depth model {br['depth_model_ms']} ms, "
           f"colour model {br['color_model_ms']} ms")  # fmt: skip
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    machine = {"nproc": nproc(), "cpu": cpu_model(), "python": platform.python_version(), "load_avg_1min": load}
+    machine = machine_info()
+    load = machine["load_avg_1min"] if machine["load_avg_1min"] is not None else float("nan")
     out = {"machine": machine, "resolution": "640x480", "threads": 1, "scenarios": rows, "breakdown": br}
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "simulator.json").write_text(json.dumps(out, indent=2) + "\n")

@@ -185,8 +185,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="90 frames per sequence, fewer configurations")
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite tracker.md from tracker.json and exit")
-    ap.add_argument("--only", default=None, help="setting labels to run, comma-separated (semicolon-separated "
-                    "if a label contains a comma); others skipped, no ICP; "
+    ap.add_argument("--only", default=None, help="setting labels to run, separated by ';' (labels contain commas, e.g. "
+                    "'ours (default), N=225'); others skipped, no ICP; "
                     "with --merge the rows are added to the existing tracker.json")
     ap.add_argument("--merge", action="store_true", help="merge the rows into benchmarks/results/tracker.json")
     args = ap.parse_args(argv)
@@ -214,7 +214,7 @@ def main(argv=None) -> int:
         if seq in abl:
             todo.update(ABLATIONS)
         if args.only:
-            wanted = {x.strip() for x in args.only.split(";" if ";" in args.only else ",")}
+            wanted = {x.strip() for x in args.only.split(";") if x.strip()}
             todo = {k: v for k, v in todo.items() if k in wanted}
         for label, (preset, ov) in todo.items():
             res[label] = run_tracker(src, frames, preset, ov)

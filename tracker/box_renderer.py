@@ -20,6 +20,24 @@ _EPS = 1e-12
 
 
 @nb.njit(cache=True, inline="always")
+def _slab(d, o, h, tnear, tfar):
+    """Clip the ray interval ``[tnear, tfar]`` by one slab ``|o + t d| <= h`` of a box (one body axis).
+
+    A ray parallel to the slab (``|d| < eps``) either stays inside it or misses (returns an empty interval).
+    """
+    if abs(d) < _EPS:
+        if abs(o) > h:
+            return np.inf, -np.inf
+        return tnear, tfar
+    inv = 1.0 / d
+    t1 = (-h - o) * inv
+    t2 = (h - o) * inv
+    if t1 > t2:
+        t1, t2 = t2, t1
+    return max(tnear, t1), min(tfar, t2)
+
+
+@nb.njit(cache=True, inline="always")
 def _slab_depth(r00, r01, r02, r10, r11, r12, r20, r21, r22, ox, oy, oz, hx, hy, hz, rx, ry, rz):
     """Depth of the first hit of ray ``(rx, ry, rz)`` from the origin with a box.
 
@@ -31,40 +49,9 @@ def _slab_depth(r00, r01, r02, r10, r11, r12, r20, r21, r22, ox, oy, oz, hx, hy,
     dz = r20 * rx + r21 * ry + r22 * rz
     tnear = -np.inf
     tfar = np.inf
-    # x slab
-    if abs(dx) < _EPS:
-        if abs(ox) > hx:
-            return np.inf
-    else:
-        inv = 1.0 / dx
-        t1 = (-hx - ox) * inv
-        t2 = (hx - ox) * inv
-        if t1 > t2:
-            t1, t2 = t2, t1
-        tnear = max(tnear, t1)
-        tfar = min(tfar, t2)
-    if abs(dy) < _EPS:
-        if abs(oy) > hy:
-            return np.inf
-    else:
-        inv = 1.0 / dy
-        t1 = (-hy - oy) * inv
-        t2 = (hy - oy) * inv
-        if t1 > t2:
-            t1, t2 = t2, t1
-        tnear = max(tnear, t1)
-        tfar = min(tfar, t2)
-    if abs(dz) < _EPS:
-        if abs(oz) > hz:
-            return np.inf
-    else:
-        inv = 1.0 / dz
-        t1 = (-hz - oz) * inv
-        t2 = (hz - oz) * inv
-        if t1 > t2:
-            t1, t2 = t2, t1
-        tnear = max(tnear, t1)
-        tfar = min(tfar, t2)
+    tnear, tfar = _slab(dx, ox, hx, tnear, tfar)
+    tnear, tfar = _slab(dy, oy, hy, tnear, tfar)
+    tnear, tfar = _slab(dz, oz, hz, tnear, tfar)
     if tnear > tfar or tfar <= 0.0:
         return np.inf
     return tnear if tnear > 0.0 else 1e-6
