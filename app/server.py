@@ -231,10 +231,15 @@ class AppState:
             self.scene.stop()
 
 
+def _no_task(task_id: int) -> HTTPException:
+    """The 404 for a task id the store does not have."""
+    return HTTPException(404, f"no task with id {task_id}")
+
+
 def _found(record, task_id: int):
     """``record`` itself, or a 404 naming the task id when the store had no such task."""
     if record is None:
-        raise HTTPException(404, f"no task with id {task_id}")
+        raise _no_task(task_id)
     return record
 
 
@@ -598,7 +603,8 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
         responses={401: {"model": m.Message}, 403: {"model": m.Message}, 404: {"model": m.Message}},
     )
     def delete_task(task_id: int) -> m.Message:
-        _found(state.storage.delete_task(task_id) or None, task_id)
+        if not state.storage.delete_task(task_id):
+            raise _no_task(task_id)
         return m.Message(detail=f"task {task_id} deleted")
 
     # ---------------------------------------------------------------- websocket
