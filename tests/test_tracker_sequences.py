@@ -273,3 +273,32 @@ def test_rest_prior_holds_a_hidden_undetected_part(sigma, pulled):
         assert err < 0.0005, err
     else:
         assert err > 0.0015, err
+
+
+@pytest.mark.parametrize("blob_reported_missing", [True, False])
+def test_undetected_coloured_part_is_not_pulled_onto_a_hand(blob_reported_missing):
+    """A hand 3 cm in front of a red cube covers it entirely. When the colour detector reports that it found no red
+    blob, the part shows nowhere, so depth that fits it (the hand's surface) is no evidence and the cube stays put;
+    with no detector output for the part (depth only, the spec) the hand's surface attracts it."""
+    from tracker.color_detection import ColorDetection
+
+    intr = Intrinsics.default(160, 120)
+    tr = MultiObjectTracker([PartSpec.cube("red", "red")], intr, _cfg(n_particles=100), seed=0)
+    pose = Pose([0, 0, 0.6], [0, 0, 0, 1])
+    tr.initialize({"red": pose})
+    depth = np.full((120, 160), 0.9, np.float32)
+    uv = intr.project(pose.transform_points(np.array([[-0.018, -0.018, -0.018], [0.018, 0.018, -0.018]])))
+    (u0, v0), (u1, v1) = np.floor(uv[0]).astype(int), np.ceil(uv[1]).astype(int)
+    depth[v0:v1, u0:u1] = 0.582  # first frame: the cube's front face in view, and its red blob
+    box = np.array([[u0, v0], [u1, v0], [u1, v1], [u0, v1]], np.int32)
+    seen = ColorDetection("red", ((u0 + u1) / 2, (v0 + v1) / 2), 1.0, float((u1 - u0) * (v1 - v0)), None, box)
+    tr.step(_frame(depth, intr, 0), {"red": seen}, None)
+    depth[30:90, 40:120] = 0.57  # then a hand in front of the whole cube
+    dets = {"red": ColorDetection("red", None, 0.0, 0.0, None)} if blob_reported_missing else {}
+    for i in range(1, 21):
+        st = tr.step(_frame(depth, intr, i), dets, None)
+    err = st.poses["red"].translation_error(pose)
+    if blob_reported_missing:
+        assert err < 0.002, err
+    else:
+        assert err > 0.008, err

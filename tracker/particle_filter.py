@@ -187,6 +187,7 @@ class MultiObjectTracker:
         self._icp_last = [None] * k
         self._rest_t = np.array([poses[name].t for name in self.names], np.float64)  # rest-prior anchors
         self._rest_on = np.zeros(k, bool)
+        self._blob_seen = np.zeros(k, bool)  # has the colour detector found the part's blob since initialize?
         self.n_reseeded = 0  # re-seeding events since initialize (diagnostics, tests)
         self._last_time: float | None = None
         self._initialized = True
@@ -654,9 +655,19 @@ class MultiObjectTracker:
         grid = (self._vs.size, self._us.size)
         for i, name in enumerate(self.names):
             det = detections.get(name)
-            contour = getattr(det, "contour", None) if det is not None else None
+            if det is None or self.parts[i].color is None:
+                continue
+            if getattr(det, "center", None) is None:
+                if self._blob_seen[i]:
+                    # the detector, which has found this part's colour before, finds no blob now: the part shows
+                    # nowhere (empty mask), so depth that fits it (a hand over it) is no evidence for it
+                    cmask[i] = 0
+                    cvalid[i] = 1
+                continue
+            contour = getattr(det, "contour", None)
             if contour is None or float(getattr(det, "score", 0.0) or 0.0) < cfg.color_mask_min_score:
                 continue
+            self._blob_seen[i] = True
             pts = (np.asarray(contour, np.float64).reshape(-1, 2) - self._off) / f
             if pts.shape[0] < 3:
                 continue
