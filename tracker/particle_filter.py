@@ -40,6 +40,7 @@ from tracker.depth_likelihood import (
     update_log_likelihood,
 )
 from tracker.frame import Frame
+from tracker.hand_carry import HandCarry
 from tracker.icp_refinement import PartSurfaceModel, icp_refine, part_points
 from tracker.mesh_renderer import MeshModel, render_mesh_at_pixels
 from tracker.motion_model import color_input, mean_pose, propagate, sample_noise
@@ -60,6 +61,7 @@ class TrackerState:
     * ``timings``: milliseconds per stage (``total``, ``predict``, ``render``, ``likelihood``, ``resample``…).
     * ``depth_used``: False when the update was skipped (no valid depth near the parts); ``message`` says why.
     * ``resampled``: how many of the N_obj passes resampled.
+    * ``carried``: hidden parts taken to be in a hand and moved with it (:mod:`tracker.hand_carry`).
     """
 
     index: int
@@ -71,6 +73,7 @@ class TrackerState:
     depth_used: bool = True
     message: str = ""
     resampled: int = 0
+    carried: list[str] = field(default_factory=list)
 
     @property
     def particle_weights(self) -> np.ndarray:
@@ -188,6 +191,7 @@ class MultiObjectTracker:
         self._rest_t = np.array([poses[name].t for name in self.names], np.float64)  # rest-prior anchors
         self._rest_on = np.zeros(k, bool)
         self._blob_seen = np.zeros(k, bool)  # has the colour detector found the part's blob since initialize?
+        self._carry = HandCarry(k, self.config, self.intrinsics, np.asarray(self._radius, np.float64))
         self.n_reseeded = 0  # re-seeding events since initialize (diagnostics, tests)
         self._last_time: float | None = None
         self._initialized = True
@@ -250,10 +254,15 @@ class MultiObjectTracker:
                 offset = float(est.t[2] - hit) if np.isfinite(hit) else self._surface_fallback(i)
                 u[i] = color_input(center, min(score, 1.0), est, depth, intr, cfg.lambda_z, cfg.depth_radius_px,
                                    offset)
+        if cfg.carry_follow:
+            self._follow_hands(depth, detected, table)
         noise_scale = self._noise_scale.copy()
         self._rest_on = np.zeros(k, bool)
         if cfg.rest_prior_sigma > 0 and cfg.use_color_input and detections is not None:
             self._rest_on = ~detected & (self.visibility < cfg.rest_prior_max_visibility)
+            for i in np.nonzero(self._rest_on)[0]:
+                if self._blob_left_rest(i, detections.get(self.names[i])):
+                    self._rest_on[i] = False  # a sliver of the part shows where it was not: it is moving
             if self._rest_on.any():
                 self.v[:, self._rest_on] = 0.0
         if cfg.detected_full_noise:
@@ -405,6 +414,9 @@ class MultiObjectTracker:
         if cfg.icp_refinement:
             self._refine(state, depth, detections, table)
         t_icp = time.perf_counter() - tg
+        if cfg.carry_follow:
+            self._carry.record(now, np.array([state.poses[nm].t for nm in self.names]))
+            state.carried = [nm for nm, c in zip(self.names, self._carry.carried, strict=True) if c]
         timings.update(render=t_render * 1e3, likelihood=t_lik * 1e3, penalties=t_pen * 1e3,
                        resample=t_res * 1e3, occlusion=t_occ * 1e3, icp=t_icp * 1e3)
         timings["total"] = (time.perf_counter() - t0) * 1e3
@@ -496,6 +508,43 @@ class MultiObjectTracker:
             hmin = lowest_heights(R, p, self.hulls, plane[0], plane[1])
             out += table_log_penalty(hmin, cfg.lambda_h, cfg.table_tolerance)
         return out
+
+    def _follow_hands(self, depth, detected: np.ndarray, table) -> None:
+        """Hand carry (:mod:`tracker.hand_carry`): shift hidden carried parts with the hand that holds them."""
+        cfg = self.config
+        plane = _table_normal_offset(table)
+        k = len(self.parts)
+        pos = np.array([self.estimates[nm].t for nm in self.names])
+        heights = np.full(k, np.inf)
+        if plane is not None:
+            for i, nm in enumerate(self.names):
+                est = self.estimates[nm]
+                heights[i] = float((self.hulls[i] @ est.R.T @ plane[0]).min() + est.t @ plane[0] + plane[1])
+        hidden = ~detected & (self.visibility < cfg.rest_prior_max_visibility)
+        delta = self._carry.update(depth, pos, hidden, detected, heights, plane)
+        for i in np.nonzero(np.abs(delta).sum(1) > 0)[0]:
+            nm = self.names[i]
+            self.p[:, i] += delta[i]
+            self.v[:, i] = 0.0
+            est = self.estimates[nm]
+            self.estimates[nm] = Pose.from_rt(est.R, est.t + delta[i])
+            self._rest_t[i] = self._rest_t[i] + delta[i]
+
+    def _blob_left_rest(self, obj: int, det) -> bool:
+        """Does the colour blob of part ``obj`` reach more than ``rest_release_px`` beyond the part's projected
+        bounding rectangle at its rest anchor? (A resting part partly hidden by a hand shows a blob inside it.)"""
+        bbox = getattr(det, "bbox", None) if det is not None else None
+        if bbox is None or getattr(det, "center", None) is None or self.config.rest_release_px <= 0:
+            return False
+        est = self.estimates[self.names[obj]]
+        pts = self.corners[obj] @ est.R.T + self._rest_t[obj]
+        if np.any(pts[:, 2] < 0.01):
+            return False
+        uv = self.intrinsics.project(pts)
+        x, y, w, h = (float(v) for v in bbox)
+        m = self.config.rest_release_px
+        return bool(x < uv[:, 0].min() - m or x + w > uv[:, 0].max() + m or y < uv[:, 1].min() - m
+                    or y + h > uv[:, 1].max() + m)
 
     def _log_rest_prior(self, p) -> np.ndarray | float:
         """Rest prior (TrackerConfig.rest_prior_sigma): Gaussian pull of resting hidden parts to their anchors."""

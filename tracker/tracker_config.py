@@ -56,6 +56,31 @@ class TrackerConfig(BaseModel):
     rest_prior_max_visibility: float = Field(
         0.3, ge=0.0, le=1.0, description="Visible fraction below which an undetected part gets the rest prior.",
     )
+    rest_release_px: float = Field(
+        4.0, ge=0.0, description="The rest prior is off for a part whose colour blob (however small) reaches more "
+        "than this many pixels beyond the part's projected bounding rectangle at its rest position: it is moving "
+        "(0 = never released this way).",
+    )
+    carry_follow: bool = Field(
+        False, description="Hand carry (not in the spec; tracker/hand_carry.py): a hidden part (no reliable blob, "
+        "visible fraction below rest_prior_max_visibility) that was moving or in the air when it disappeared is "
+        "in the hand that hides it and follows the hand's depth points above the table (translation ICP).",
+    )
+    carry_min_motion: float = Field(
+        0.015, gt=0.0, description="Distance (m) the estimate must travel in carry_window_s to count as moving.",
+    )
+    carry_window_s: float = Field(0.4, gt=0.0, description="Window (s) of the hand-carry motion test.")
+    carry_min_height: float = Field(
+        0.01, ge=0.0, description="Height (m) above the table from which a part is in the air (hand carry), and "
+        "from which depth points count as hand points.",
+    )
+    carry_radius: float = Field(0.06, gt=0.0, description="Radius (m) of the hand patch around a carried part.")
+    carry_min_points: int = Field(
+        15, ge=1, description="Fewest hand points in the window; fewer ends the carry (the hand has gone).",
+    )
+    carry_iterations: int = Field(8, ge=1, description="ICP rounds per frame of the hand-patch registration.")
+    carry_max_step: float = Field(0.03, gt=0.0, description="Largest hand motion (m) per frame a carried part follows.")
+    carry_stride: int = Field(3, ge=1, description="Pixel stride (full resolution) of the hand points.")
     visible_fraction_full: float = Field(
         0.5, gt=0.0, le=1.0, description="Visible fraction from which a part gets its full motion noise.",
     )
@@ -308,5 +333,6 @@ PRESETS["default"] = {
     "color_term_dead_zone": 1.0,
     "occluded_evidence_cap": 3.0,
     "rest_prior_sigma": 0.003,
+    "carry_follow": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""

@@ -1,0 +1,177 @@
+"""Hidden parts carried by a hand follow the hand's depth points (not in the seed; an addition of the tracker).
+
+A part that vanishes inside a grasp gives the depth likelihood nothing to work with: every pixel over it shows the
+hand, and the colour detector finds no blob. Parts do not float and do not move on their own, so a hidden part is
+either at rest (the rest prior holds it, see :class:`~tracker.tracker_config.TrackerConfig.rest_prior_sigma`) or
+in the hand that hides it. It is taken to be in the hand when, as it disappeared, it was moving (its estimate
+travelled more than ``carry_min_motion`` in the last ``carry_window_s`` seconds) or it was in the air (its lowest
+point more than ``carry_min_height`` above the table with no other part under it).
+
+The hand is followed through its depth points above the table (camera frame, metres) near the part: every frame
+the patch of points within ``carry_radius`` of the part's previous position is registered to the current points
+by translation-only ICP (nearest neighbours, median residual, ``carry_iterations`` rounds), and the part moves by
+that translation. A registration rather than a centroid: a centroid slides up the arm as more of it enters the
+window. Points on other parts' estimates are left out, so a hand passing a resting part does not take it along.
+The carry ends when the part's colour blob is reliable again (the likelihood and re-seeding take over) or when
+fewer than ``carry_min_points`` hand points are left near the part (the hand is gone: the part was put down where
+it is).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracker.camera import Intrinsics
+
+
+@dataclass
+class Carry:
+    """One carried part: hand anchor ``anchor`` (camera frame, m) and the part's offset ``offset`` from it (m)."""
+
+    anchor: np.ndarray
+    offset: np.ndarray
+
+
+def above_table_points(depth: np.ndarray, intrinsics: Intrinsics, center: np.ndarray, radius: float,
+                       plane: tuple[np.ndarray, float] | None, min_height: float, stride: int,
+                       exclude: list[tuple[np.ndarray, float]]) -> np.ndarray:
+    """Camera-frame points (M, 3) of the depth image within ``radius`` m of ``center`` and more than ``min_height``
+    above the table plane (``(normal, offset)``, height = n·x + offset; no plane = no height test), every
+    ``stride``-th pixel, without points inside the spheres ``exclude`` [(centre, radius)]."""
+    z = float(center[2])
+    if not np.isfinite(z) or z <= 0.05:
+        return np.zeros((0, 3))
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    h, w = depth.shape
+    zmin = max(z - radius, 0.05)
+    u_c, v_c = fx * center[0] / z + cx, fy * center[1] / z + cy
+    ru, rv = fx * radius / zmin, fy * radius / zmin
+    u0, u1 = max(int(u_c - ru), 0), min(int(u_c + ru) + 1, w)
+    v0, v1 = max(int(v_c - rv), 0), min(int(v_c + rv) + 1, h)
+    if u0 >= u1 or v0 >= v1:
+        return np.zeros((0, 3))
+    d = depth[v0:v1:stride, u0:u1:stride].astype(np.float64)
+    vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
+    ok = np.isfinite(d) & (d > 0)
+    d, uu, vv = d[ok], uu[ok], vv[ok]
+    pts = np.stack([(uu - cx) / fx * d, (vv - cy) / fy * d, d], axis=1)
+    keep = ((pts - center) ** 2).sum(1) <= radius * radius
+    if plane is not None:
+        keep &= pts @ plane[0] + plane[1] > min_height
+    for c, r in exclude:
+        keep &= ((pts - c) ** 2).sum(1) > r * r
+    return pts[keep]
+
+
+class HandCarry:
+    """Decides which hidden parts are carried and moves them with the hand's depth points; see the module doc."""
+
+    def __init__(self, n_parts: int, config, intrinsics: Intrinsics, radii: np.ndarray):
+        self.config = config
+        self.intrinsics = intrinsics
+        self.radii = np.asarray(radii, np.float64)  # bounding radius per part (m)
+        self.patches: list[np.ndarray | None] = [None] * n_parts  # hand points near each carried part, last frame
+        self.last_step = np.zeros((n_parts, 3))  # last frame's hand translation per part (initial guess, m)
+        self.history: deque[tuple[float, np.ndarray]] = deque()  # (time s, positions (K, 3))
+
+    @property
+    def carried(self) -> np.ndarray:
+        """(K,) bool: which parts are being carried now."""
+        return np.array([p is not None for p in self.patches], bool)
+
+    def record(self, now: float, positions: np.ndarray) -> None:
+        """Remember the parts' estimated positions (K, 3) at time ``now`` (s) for the motion test."""
+        self.history.append((now, np.array(positions, np.float64)))
+        while self.history and now - self.history[0][0] > self.config.carry_window_s:
+            self.history.popleft()
+
+    def moved(self) -> np.ndarray:
+        """Per part, distance (m) travelled between the oldest and the newest remembered positions."""
+        if len(self.history) < 2:
+            return np.zeros(len(self.patches))
+        return np.linalg.norm(self.history[-1][1] - self.history[0][1], axis=1)
+
+    def in_air(self, obj: int, positions: np.ndarray, heights: np.ndarray) -> bool:
+        """Is part ``obj`` above the table by more than carry_min_height with no other part under it?"""
+        cfg = self.config
+        if not np.isfinite(heights[obj]) or heights[obj] <= cfg.carry_min_height:
+            return False
+        for o in range(len(self.patches)):
+            if o == obj:
+                continue
+            gap = np.linalg.norm(positions[obj] - positions[o])
+            if gap < (self.radii[obj] + self.radii[o]) * 1.05 and heights[o] < heights[obj]:
+                return False  # resting on (or leaning against) another part
+        return True
+
+    def update(self, depth: np.ndarray | None, positions: np.ndarray, hidden: np.ndarray, released: np.ndarray,
+               heights: np.ndarray, plane) -> np.ndarray:
+        """One frame. ``positions`` (K, 3) current estimates; ``hidden`` (K,) parts without a reliable blob and
+        with a low visible fraction; ``released`` (K,) parts whose blob is reliable again; ``heights`` (K,) lowest
+        point above the table (m, inf = unknown). Returns the displacement (K, 3) to apply to each part (m)."""
+        cfg = self.config
+        k = len(self.patches)
+        delta = np.zeros((k, 3))
+        if depth is None:
+            return delta
+        moved = self.moved()
+        carried = self.carried
+        for i in range(k):
+            if released[i] or not hidden[i]:
+                self.patches[i] = None
+                continue
+            exclude = [(positions[o], self.radii[o] + 0.005) for o in range(k) if o != i and not carried[o]]
+            if self.patches[i] is None:
+                if moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights):
+                    pts = self._points(depth, positions[i], cfg.carry_radius, plane, exclude)
+                    self.patches[i] = pts if pts.shape[0] >= cfg.carry_min_points else None
+                    self.last_step[i] = 0.0
+                continue
+            # search the current points in a window widened by the largest hand motion per frame
+            pts = self._points(depth, positions[i], cfg.carry_radius + cfg.carry_max_step, plane, exclude)
+            if pts.shape[0] < cfg.carry_min_points:
+                self.patches[i] = None  # the hand left: the part stays where it was put down
+                continue
+            t = register_translation(self.patches[i], pts, cfg.carry_iterations, cfg.carry_max_step,
+                                     self.last_step[i])
+            delta[i] = t
+            self.last_step[i] = t
+            near = ((pts - (positions[i] + t)) ** 2).sum(1) <= cfg.carry_radius**2
+            self.patches[i] = pts[near] if near.sum() >= cfg.carry_min_points else None
+        return delta
+
+    def _points(self, depth, center, radius, plane, exclude) -> np.ndarray:
+        cfg = self.config
+        return above_table_points(depth, self.intrinsics, center, radius, plane, cfg.carry_min_height,
+                                  cfg.carry_stride, exclude)
+
+
+def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float,
+                         guess: np.ndarray | None = None) -> np.ndarray:
+    """Translation t (m) that brings point set ``src`` (M, 3) onto ``dst`` (P, 3): ICP with nearest neighbours
+    and the median residual of the pairs closer than 2 cm, ``iterations`` rounds, started from 0 and from ``guess``
+    (e.g. last frame's motion); the start whose result leaves the smaller mean residual wins. |t| <= ``max_step``."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(dst)
+    best, best_cost = np.zeros(3), np.inf
+    starts = [np.zeros(3)] if guess is None or not np.any(guess) else [np.zeros(3), np.asarray(guess, np.float64)]
+    for t in starts:
+        for _ in range(max(iterations, 1)):
+            d, j = tree.query(src + t, distance_upper_bound=0.02)
+            ok = np.isfinite(d)
+            if ok.sum() < 3:
+                break
+            step = np.median(dst[j[ok]] - (src[ok] + t), axis=0)
+            t = t + step
+            if np.linalg.norm(step) < 2e-4:
+                break
+        d, _ = tree.query(src + t)
+        cost = float(np.mean(np.minimum(d, 0.02)))
+        if cost < best_cost:
+            best, best_cost = t, cost
+    norm = float(np.linalg.norm(best))
+    return best if norm <= max_step else best * (max_step / norm)
