@@ -48,7 +48,7 @@ def test_track_errors(recording, tmp_path, capsys):
     assert "missing.obj" in capsys.readouterr().err
     nopose = tmp_path / "nopose.json"
     nopose.write_text(json.dumps({"objects": [{"name": "a", "shape": {"box": [0.036, 0.036, 0.036]}}]}))
-    assert main(["track", str(recording), "--objects", str(nopose)]) == 1
+    assert main(["track", str(recording), "--objects", str(nopose), "--init", "given"]) == 1
     assert "no first-frame pose" in capsys.readouterr().err
     assert main(["track", str(recording), "--preset", "bogus"]) == 1
     assert "unknown tracker preset" in capsys.readouterr().err

@@ -1,7 +1,11 @@
 """``assembly-agent track RECORDING``: run the 6-DoF multi-object depth tracker over a recording.
 
 Tracks the parts of the recording's ``objects.json`` (or ``--objects FILE`` in the same format) from their
-first-frame poses; colour detection is used for parts with a colour (depth only otherwise), the table plane
+first-frame poses. ``--init given`` uses the poses of objects.json (an error when one is missing); ``--init auto``
+finds every part's pose in the first frame (:func:`tracker.pose_initialization.initialize_poses`: table plane,
+objects above it, colour blob or footprint/height match, ICP); without ``--init`` the given poses are used and
+only the missing ones are found automatically. Each automatically initialised part is reported on stderr with its
+pose and ICP residual. Colour detection is used for parts with a colour (depth only otherwise), the table plane
 when it can be found in the first frames. Writes one JSON line per frame to ``--out`` (default: stdout is left
 for the report)::
 
@@ -32,6 +36,9 @@ def register(subparsers) -> None:
     p.add_argument("--frames", type=int, default=None, help="stop after this many frames")
     p.add_argument("--seed", type=int, default=0, help="random seed of the particle filter")
     p.add_argument("--no-color", action="store_true", help="depth only (ignore part colours)")
+    p.add_argument("--init", default=None, choices=("given", "auto"),
+                   help="first-frame poses: 'given' (objects.json) or 'auto' (found in the first frame); "
+                        "default: the given ones, missing ones found automatically")
     p.set_defaults(func=run)
 
 
@@ -60,6 +67,32 @@ def _find_table(frame, intrinsics):
         return None
 
 
+def _auto_poses(src, parts, auto, poses, use_color: bool):
+    """Find the first-frame poses of the ``auto`` parts; returns (all poses, the table plane used)."""
+    from tracker.pose_initialization import initialize_poses
+
+    if len(src) == 0:
+        raise RuntimeError(f"{src.root}: the recording has no frames")
+    frame = src.read(0)
+    if frame.depth is None:
+        raise ValueError(f"{src.root}: frame {frame.index} has no depth; cannot initialise "
+                         f"{[p.name for p in auto]} automatically (give 'pose' in objects.json)")
+    table = _find_table(frame, src.intrinsics)
+    if table is None:
+        raise ValueError(f"{src.root}: no table plane in frame {frame.index}; cannot initialise "
+                         f"{[p.name for p in auto]} automatically (give 'pose' in objects.json)")
+    by_name = {p.name: p for p in parts}
+    known = {n: (by_name[n], pose) for n, pose in poses.items() if n in by_name and n not in {p.name for p in auto}}
+    results = initialize_poses(frame, auto, table=table, use_color=use_color, known=known)
+    for name, r in results.items():
+        poses[name] = r.pose
+        t = ", ".join(f"{v:.4f}" for v in r.pose.t)
+        q = ", ".join(f"{v:.4f}" for v in r.pose.q)
+        print(f"auto-initialised {name!r} in frame {frame.index}: t = [{t}] m, q = [{q}], residual "
+              f"{r.residual_mm:.2f} mm over {r.n_points} points ({r.method})", file=sys.stderr)
+    return poses, table
+
+
 def run(args: argparse.Namespace) -> int:
     from tracker.particle_filter import MultiObjectTracker
     from tracker.pose_errors import PoseErrorLog, format_summary
@@ -80,8 +113,16 @@ def run(args: argparse.Namespace) -> int:
     if not parts:
         raise ValueError(f"{args.recording}: no objects to track (objects.json missing or empty; use --objects)")
     missing = [p.name for p in parts if p.name not in poses]
-    if missing:
-        raise ValueError(f"no first-frame pose for part(s) {missing} (give 'pose' in objects.json)")
+    if args.init == "given" and missing:
+        raise ValueError(f"no first-frame pose for part(s) {missing} (give 'pose' in objects.json or use --init auto)")
+    first_table = None
+    if args.init == "auto" or missing:
+        auto = [p for p in parts if args.init == "auto" or p.name in missing]
+        try:
+            poses, first_table = _auto_poses(src, parts, auto, dict(poses), not args.no_color)
+        except BaseException:
+            src.close()
+            raise
     tracker = MultiObjectTracker(parts, src.intrinsics, cfg, seed=args.seed)
     tracker.initialize(poses)
     detector = None
@@ -92,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
         detector = ColorDetector.from_parts(colored)
     errors = PoseErrorLog(parts) if src.has_groundtruth else None
     out = open(args.out, "w") if args.out else None  # noqa: SIM115
-    table = None
+    table = first_table
     table_tries = 0
     n = skipped = 0
     t_track = 0.0
