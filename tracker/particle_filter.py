@@ -259,7 +259,8 @@ class MultiObjectTracker:
         noise_scale = self._noise_scale.copy()
         self._rest_on = np.zeros(k, bool)
         if cfg.rest_prior_sigma > 0 and cfg.use_color_input and detections is not None:
-            self._rest_on = ~detected & (self.visibility < cfg.rest_prior_max_visibility)
+            # little depth evidence (hidden, or in the sensor's shadow next to a hand) and no sign of motion
+            self._rest_on = self.visibility < cfg.rest_prior_max_visibility
             for i in np.nonzero(self._rest_on)[0]:
                 if self._blob_left_rest(i, detections.get(self.names[i])):
                     self._rest_on[i] = False  # a sliver of the part shows where it was not: it is moving
@@ -520,8 +521,8 @@ class MultiObjectTracker:
             for i, nm in enumerate(self.names):
                 est = self.estimates[nm]
                 heights[i] = float((self.hulls[i] @ est.R.T @ plane[0]).min() + est.t @ plane[0] + plane[1])
-        hidden = ~detected & (self.visibility < cfg.rest_prior_max_visibility)
-        delta = self._carry.update(depth, pos, hidden, detected, heights, plane)
+        hidden = self.visibility < cfg.rest_prior_max_visibility  # little depth evidence (previous frame)
+        delta = self._carry.update(depth, pos, hidden, ~hidden, heights, plane)
         for i in np.nonzero(np.abs(delta).sum(1) > 0)[0]:
             nm = self.names[i]
             self.p[:, i] += delta[i]
@@ -779,7 +780,7 @@ class MultiObjectTracker:
         vals = depth[mask]
         vals = vals[np.isfinite(vals) & (vals > 0)]
         est = self.estimates[self.names[obj]]
-        if vals.size >= 5:
+        if vals.size >= max(5, 0.2 * mask.sum()):
             zc = float(np.median(vals)) + self._surface_fallback(obj)
         else:  # no valid depth on the blob (sensor shadow next to a hand): keep the estimate's depth
             zc = float((est.R @ self.center[obj] + est.t)[2])

@@ -74,13 +74,13 @@ class TrackerConfig(BaseModel):
         0.01, ge=0.0, description="Height (m) above the table from which a part is in the air (hand carry), and "
         "from which depth points count as hand points.",
     )
-    carry_radius: float = Field(0.06, gt=0.0, description="Radius (m) of the hand patch around a carried part.")
+    carry_radius: float = Field(0.08, gt=0.0, description="Radius (m) of the hand patch around a carried part.")
     carry_min_points: int = Field(
-        15, ge=1, description="Fewest hand points in the window; fewer ends the carry (the hand has gone).",
+        10, ge=1, description="Fewest hand points in the window; fewer ends the carry (the hand has gone).",
     )
     carry_iterations: int = Field(8, ge=1, description="ICP rounds per frame of the hand-patch registration.")
     carry_max_step: float = Field(0.03, gt=0.0, description="Largest hand motion (m) per frame a carried part follows.")
-    carry_stride: int = Field(3, ge=1, description="Pixel stride (full resolution) of the hand points.")
+    carry_stride: int = Field(2, ge=1, description="Pixel stride (full resolution) of the hand points.")
     visible_fraction_full: float = Field(
         0.5, gt=0.0, le=1.0, description="Visible fraction from which a part gets its full motion noise.",
     )
