@@ -9,12 +9,12 @@ point more than ``carry_min_height`` above the table with no other part under it
 
 The hand is followed through its depth points above the table (camera frame, metres) near the part: every frame
 the patch of points within ``carry_radius`` of the part's previous position is registered to the current points
-by translation-only ICP (nearest neighbours, median residual, ``carry_iterations`` rounds), and the part moves by
-that translation. A registration rather than a centroid: a centroid slides up the arm as more of it enters the
-window. Points on other parts' estimates are left out, so a hand passing a resting part does not take it along.
-The carry ends when the part's colour blob is reliable again (the likelihood and re-seeding take over) or when
-fewer than ``carry_min_points`` hand points are left near the part (the hand is gone: the part was put down where
-it is).
+by translation-only point-to-plane ICP (nearest neighbours closer than 2 cm, ``carry_iterations`` rounds), and the
+part moves by that translation. A registration rather than a centroid: a centroid slides up the arm as more of it
+enters the window. Points on other parts' estimates are left out, so a hand passing a resting part does not take
+it along. The carry ends when the part is seen again in depth (visible fraction back above
+``rest_prior_max_visibility``; the likelihood and re-seeding take over) or when fewer than ``carry_min_points`` hand
+points are left near the part (the hand is gone: the part was put down where it is).
 """
 
 from __future__ import annotations
@@ -149,14 +149,30 @@ class HandCarry:
                                   cfg.carry_stride, exclude)
 
 
-def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float,
-                         guess: np.ndarray | None = None) -> np.ndarray:
-    """Translation t (m) that brings point set ``src`` (M, 3) onto ``dst`` (P, 3): ICP with nearest neighbours
-    and the median residual of the pairs closer than 2 cm, ``iterations`` rounds, started from 0 and from ``guess``
-    (e.g. last frame's motion); the start whose result leaves the smaller mean residual wins. |t| <= ``max_step``."""
+def point_normals(pts: np.ndarray, k: int = 8) -> np.ndarray:
+    """Unit normals (M, 3) of a point set from the covariance of each point's ``k`` nearest neighbours."""
     from scipy.spatial import cKDTree
 
+    k = min(k, pts.shape[0])
+    _, idx = cKDTree(pts).query(pts, k=k)
+    nb = pts[idx] - pts[idx].mean(axis=1, keepdims=True)
+    cov = np.einsum("mki,mkj->mij", nb, nb)
+    _, vecs = np.linalg.eigh(cov)
+    return vecs[:, :, 0]
+
+
+def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float,
+                         guess: np.ndarray | None = None) -> np.ndarray:
+    """Translation t (m) that brings point set ``src`` (M, 3) onto ``dst`` (P, 3): point-to-plane ICP (normals of
+    ``dst``) over the nearest-neighbour pairs closer than 2 cm, ``iterations`` rounds, started from 0 and from
+    ``guess`` (e.g. last frame's motion); the start leaving the smaller mean residual wins. |t| <= ``max_step``.
+    Directions the surface does not constrain (a flat patch sliding in its plane) are damped, not guessed."""
+    from scipy.spatial import cKDTree
+
+    if src.shape[0] < 3 or dst.shape[0] < 3:
+        return np.zeros(3)
     tree = cKDTree(dst)
+    normals = point_normals(dst)
     best, best_cost = np.zeros(3), np.inf
     starts = [np.zeros(3)] if guess is None or not np.any(guess) else [np.zeros(3), np.asarray(guess, np.float64)]
     for t in starts:
@@ -165,9 +181,13 @@ def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_
             ok = np.isfinite(d)
             if ok.sum() < 3:
                 break
-            step = np.median(dst[j[ok]] - (src[ok] + t), axis=0)
+            n = normals[j[ok]]
+            r = np.einsum("mi,mi->m", n, dst[j[ok]] - (src[ok] + t))
+            a = n.T @ n
+            a += 1e-3 * np.trace(a) * np.eye(3)
+            step = np.linalg.solve(a, n.T @ r)
             t = t + step
-            if np.linalg.norm(step) < 2e-4:
+            if np.linalg.norm(step) < 5e-5:
                 break
         d, _ = tree.query(src + t)
         cost = float(np.mean(np.minimum(d, 0.02)))

@@ -82,6 +82,7 @@ def color_input(
     radius_px: float,
     surface_offset: float,
     max_z_jump: float = 0.1,
+    mask: np.ndarray | None = None,
 ) -> np.ndarray:
     """Colour control input (u_x, u_y, u_z) of eqs 4.38–4.40, metres.
 
@@ -91,6 +92,9 @@ def color_input(
       of the visible surface, so ``surface_offset`` (distance from that surface to the part centre along z,
       from rendering the estimate) is added before comparing with r_z. When no depth is valid there or the
       correction is larger than ``max_z_jump`` metres (a hand in front, a wrong blob), u_z = 0.
+    * ``mask`` (H, W bool, optional): the part's colour blob. Then only pixels inside it count and their median is
+      used instead of the mean (not in the spec: next to a hand the window around the centroid of a partly hidden
+      blob also holds hand pixels, whose depth would pull the part toward the camera).
     """
     if center is None or score <= 0.0:
         return np.zeros(3)
@@ -110,9 +114,12 @@ def color_input(
             patch = depth[v0:v1, u0:u1]
             vv, uu = np.mgrid[v0:v1, u0:u1]
             inside = (uu - px) ** 2 + (vv - py) ** 2 <= max(radius_px, 0.5) ** 2
+            if mask is not None:
+                inside &= mask[v0:v1, u0:u1]
             vals = patch[inside & np.isfinite(patch) & (patch > 0)]
             if vals.size:
-                dz = float(vals.mean()) + surface_offset - r[2]
+                z_obs = float(np.median(vals)) if mask is not None else float(vals.mean())
+                dz = z_obs + surface_offset - r[2]
                 if abs(dz) <= max_z_jump:
                     uz = dz * lambda_z * score
     return np.array([ux, uy, uz])

@@ -252,8 +252,9 @@ class MultiObjectTracker:
                     self._color_targets.append((i, np.asarray(center, np.float64), wgt))
                 est = self.estimates[name]
                 offset = float(est.t[2] - hit) if np.isfinite(hit) else self._surface_fallback(i)
+                blob = self._blob_mask(det, depth.shape) if depth is not None and cfg.color_mask_likelihood else None
                 u[i] = color_input(center, min(score, 1.0), est, depth, intr, cfg.lambda_z, cfg.depth_radius_px,
-                                   offset)
+                                   offset, mask=blob)
         if cfg.carry_follow:
             self._follow_hands(depth, detected, table)
         noise_scale = self._noise_scale.copy()
@@ -708,7 +709,7 @@ class MultiObjectTracker:
             if det is None or self.parts[i].color is None:
                 continue
             if getattr(det, "center", None) is None:
-                if self._blob_seen[i]:
+                if self._blob_seen[i] and cfg.color_mask_when_missing:
                     # the detector, which has found this part's colour before, finds no blob now: the part shows
                     # nowhere (empty mask), so depth that fits it (a hand over it) is no evidence for it
                     cmask[i] = 0

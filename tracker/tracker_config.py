@@ -108,9 +108,12 @@ class TrackerConfig(BaseModel):
     color_mask_likelihood: bool = Field(
         False, description="Use the colour blobs in the depth likelihood: a pixel outside a part's detected blob "
         "cannot show that part, so it counts as occluded there (not in the spec; keeps a hand from being taken "
-        "for the part it holds). A coloured part whose blob the detector has found before but finds no longer shows "
-        "nowhere: every pixel counts as occluded for it (a hand over it is no evidence). Parts without colour or "
-        "detection stay depth only.",
+        "for the part it holds). Parts without colour or detection stay depth only.",
+    )
+    color_mask_when_missing: bool = Field(
+        False, description="With color_mask_likelihood: a coloured part whose blob the detector has found before "
+        "but finds no longer shows nowhere: every pixel counts as occluded for it (a hand over it is no evidence "
+        "for it). Off: such a part is tracked on depth alone.",
     )
     color_mask_min_score: float = Field(0.5, ge=0.0, le=1.0, description="Minimum score for using a blob mask.")
     color_area_weighting: bool = Field(
@@ -325,6 +328,7 @@ PRESETS["default"] = {
     "hidden_noise_scale": 0.1,
     "table_tolerance": 0.001,
     "color_mask_likelihood": True,
+    "color_mask_when_missing": True,
     "color_likelihood_px": 10.0,
     "icp_refinement": True,
     "icp_reuse_px": 0.5,
