@@ -6,9 +6,9 @@ the assembly package), so the editor and the task files accept exactly the same 
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from tracker.assembly import SentenceTask
 
@@ -132,6 +132,31 @@ class BoxList(BaseModel):
     boxes: list[BoxResponse]
 
 
+class AutoPlaceRequest(BaseModel):
+    """``POST /api/parts/auto-place``: which parts to find on the table (default: every part without a pose)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    names: list[Annotated[str, Field(min_length=1)]] | None = Field(
+        None, description="part names; a tracked part that is named is placed again"
+    )
+
+
+class AutoPlaceResult(BaseModel):
+    """One part's outcome: its camera-frame pose and fit residual, or why it was not found."""
+
+    t: list[float] | None = Field(None, description="[x, y, z] metres, camera frame")
+    q: list[float] | None = Field(None, description="[x, y, z, w]")
+    residual_mm: float | None = Field(None, description="median point-to-surface distance of its depth points")
+    method: str | None = None
+    error: str | None = Field(None, description="why the part was not found (it stays untracked)")
+
+
+class AutoPlaceResponse(BaseModel):
+    frame_index: int
+    results: dict[str, AutoPlaceResult] = Field(description="per part; empty when every part already had a pose")
+
+
 class SnapshotModel(BaseModel):
     """One processed frame, as sent on ``/ws`` (see :class:`tracker.snapshot.Snapshot`; camera-frame poses)."""
 
@@ -150,6 +175,7 @@ class SnapshotModel(BaseModel):
     timings: dict[str, float]
     source: dict[str, Any]
     errors: list[str]
+    carried: list[str] = Field([], description="parts currently hidden inside a hand and moved with it")
     image_size: list[int]
 
 

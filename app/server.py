@@ -178,6 +178,8 @@ class AppState:
                 initial_poses=poses,
                 table_recheck_s=self.settings.table_recheck_s,
                 source_info={"spec": self.source_spec, **_safe_metadata(src)},
+                auto_place=self.settings.auto_place,
+                auto_place_interval_s=self.settings.auto_place_interval_s,
             )
 
         try:
@@ -507,6 +509,36 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
         state.boxes.append(box)
         del state.boxes[:-50]
         return box
+
+    @app.post(
+        "/api/parts/auto-place",
+        response_model=m.AutoPlaceResponse,
+        tags=["stream"],
+        responses={409: {"model": m.Message}, 422: {"model": m.Message}, 503: {"model": m.Message}},
+    )
+    def auto_place(body: m.AutoPlaceRequest | None = None) -> m.AutoPlaceResponse:
+        """Find the parts (default: those without a pose) resting on the table in the latest frame and track
+        them from there; a part that is not found is reported in its result and stays untracked."""
+        names = None if body is None else body.names
+
+        def apply(pipeline: AssemblyPipeline | None, frame):
+            if pipeline is None or frame is None:
+                raise LookupError("no frame processed yet")
+            results = pipeline.auto_place(frame, names)
+            for name, r in results.items():
+                if "error" not in r:
+                    state.user_poses[name] = pipeline.poses[name]
+            return results, frame.index
+
+        try:
+            results, index = state.worker.submit(apply).result(timeout=COMMAND_TIMEOUT_S)
+        except FutureTimeout as exc:
+            raise HTTPException(503, "the pipeline is busy; try again") from exc
+        except LookupError as exc:
+            raise HTTPException(409, str(exc)) from exc
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from exc
+        return m.AutoPlaceResponse(frame_index=index, results={k: m.AutoPlaceResult(**v) for k, v in results.items()})
 
     @app.get("/api/boxes", response_model=m.BoxList, tags=["stream"])
     def list_boxes() -> m.BoxList:

@@ -10,6 +10,9 @@
   frame (stale frames are skipped, so latency does not pile up); ``loop``: restart a finished source.
 * ``source_process``: render the simulated table in a child process (parallel to the tracker; the
   simulator and the tracker both hold Python's interpreter lock while they compute).
+* ``auto_place``: find parts that have no pose (a live camera, a recording without poses in objects.json)
+  automatically on the table, trying again every ``auto_place_interval_s`` seconds while some are missing
+  (:meth:`tracker.pipeline.AssemblyPipeline.auto_place`); off: only a drawn box or "Find parts" places them.
 * ``tracker_config``: tracker preset name or YAML/TOML path; ``seed``: random seed of tracker and modes.
 * ``n_particles``: the tracker's particle count N. Default :data:`SERVER_PARTICLES` = 100 rather than the
   tracker preset's 225 (a ``tracker_config`` given without ``n_particles`` keeps its own N): on a 2-core
@@ -47,6 +50,8 @@ class Settings(BaseSettings):
     realtime: bool = True
     loop: bool = True
     source_process: bool = Field(True, description="render the simulator in a child process (parallel to tracking)")
+    auto_place: bool = Field(True, description="place parts without a pose automatically when found on the table")
+    auto_place_interval_s: float = Field(2.0, gt=0, description="seconds between automatic placement attempts")
     tracker_config: str | None = None
     n_particles: int | None = Field(
         SERVER_PARTICLES,

@@ -169,6 +169,29 @@ def test_drawn_rectangle_creates_box_on_server(server, page):
         httpx.post(server + "/api/sessions", json={"action": "start"})
 
 
+def test_find_parts_shows_results_and_part_list(server, page):
+    page.goto(server + "/?scene=off")
+    page.wait_for_function("() => document.querySelectorAll('#part-list li[data-part]').length === 5")
+    assert "red: " in page.locator("#part-list").text_content()  # tracked / in hand per part
+    page.click("#btn-pause")  # a still frame: find the part that is most clearly visible in it
+    page.wait_for_function("() => document.getElementById('worker-state').textContent === 'paused'")
+    try:
+        snap = httpx.get(server + "/api/snapshot").json()
+        assert isinstance(snap["carried"], list)
+        seen = {n: d for n, d in snap["detections"].items() if d["bbox"] is not None and d["score"] > 0.9}
+        name = max(seen, key=lambda n: seen[n]["area"])
+        page.wait_for_selector(f"#box-part option[value='{name}']", state="attached")
+        page.select_option("#box-part", name)
+        page.click("#btn-auto-place")
+        page.wait_for_function("() => document.getElementById('box-message').textContent.startsWith('found')")
+        assert page.locator("#box-message").text_content().startswith("found 1 of 1 part")
+        item = page.locator(f"#auto-place-results li[data-part='{name}']")
+        assert item.text_content().startswith(f"{name}: placed (fit ")
+    finally:
+        page.select_option("#box-part", "")
+        httpx.post(server + "/api/sessions", json={"action": "start"})
+
+
 def teacher_login(page, server, password=PASSWORD):
     page.goto(server + "/teacher")
     page.wait_for_function("() => document.getElementById('btn-login').textContent === 'Log in'")

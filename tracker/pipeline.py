@@ -13,7 +13,15 @@ depth (well under a millisecond); only when that check finds much less of the ta
 detection (the camera moved) is the full detection run again. Then colour detections of every
 coloured part; one step of the multi-object particle filter (with the mode's connection hints); the
 mode's update (instruction, connections, verdicts). A stage that fails on a frame is reported in
-``Snapshot.errors`` and the rest of the frame still runs. Poses are camera-frame (metres, quaternions ``[x, y, z, w]``).
+``Snapshot.errors`` and the rest of the frame still runs. Poses are camera-frame (metres, quaternions
+``[x, y, z, w]``).
+
+Parts without a pose are not tracked until they are placed: by a rectangle the user draws
+(:meth:`AssemblyPipeline.pose_from_rect` + :meth:`~AssemblyPipeline.set_part_pose`), by
+:meth:`AssemblyPipeline.auto_place` (automatic first-frame pose initialisation,
+:mod:`tracker.pose_initialization`), or, with ``auto_place=True``, automatically: while some part has no pose,
+``auto_place`` is tried on a frame with a table plane at most every ``auto_place_interval_s`` seconds (frame
+time); parts it cannot find are reported in ``Snapshot.errors`` (``"auto-place <part>: <reason>"``) until found.
 """
 
 from __future__ import annotations
@@ -93,6 +101,8 @@ class AssemblyPipeline:
       parts without one wait for :meth:`set_part_pose` (a box drawn by the user).
     * ``table_recheck_s``: seconds between table-plane re-detections.
     * ``source_info``: the source's metadata, copied into every snapshot.
+    * ``auto_place``: while some part has no pose, find the missing poses automatically (see the module
+      docstring) at most every ``auto_place_interval_s`` seconds of frame time.
     """
 
     def __init__(
@@ -106,6 +116,8 @@ class AssemblyPipeline:
         initial_poses: Mapping[str, Pose] | None = None,
         table_recheck_s: float = 3.0,
         source_info: dict[str, Any] | None = None,
+        auto_place: bool = False,
+        auto_place_interval_s: float = 2.0,
     ) -> None:
         if not parts:
             raise ValueError("pipeline: no parts to track")
@@ -120,6 +132,11 @@ class AssemblyPipeline:
         self.seed = int(seed)
         self.table_recheck_s = float(table_recheck_s)
         self.source_info = dict(source_info or {})
+        self.auto_place_enabled = bool(auto_place)
+        self.auto_place_interval_s = float(auto_place_interval_s)
+        self._auto_place_time: float | None = None  # frame time of the last automatic attempt
+        self._auto_place_errors: dict[str, str] = {}  # part -> why the last automatic attempt did not find it
+        self.carried: list[str] = []  # parts the tracker holds hidden in a hand (TrackerState.carried)
         self._initial_poses = {k: v for k, v in (initial_poses or {}).items() if k in names}
         self.poses: dict[str, Pose] = dict(self._initial_poses)
         self.table = None
@@ -234,6 +251,102 @@ class AssemblyPipeline:
         self.poses[name] = pose
         self._initialize_tracker()
 
+    def unplaced(self) -> list[str]:
+        """Names of the parts that have no pose yet (not tracked), in part order."""
+        return [p.name for p in self.parts if p.name not in self.poses]
+
+    def auto_place(
+        self, frame: Frame, names: list[str] | None = None, detections: Mapping | None = None
+    ) -> dict[str, dict[str, Any]]:
+        """Find the poses of parts resting on the table in ``frame`` and start tracking them there.
+
+        ``names``: the parts to place (default: every part without a pose; a tracked part that is named is
+        placed again). Uses the current table plane (detected from the frame when there is none yet), the
+        colour detections (``detections`` or the pipeline's detector on the frame) and leaves the image
+        regions of the other tracked parts out (``known``). Returns per part ``{"t": [3] m, "q": [x, y, z, w],
+        "residual_mm": float, "method": str}`` (camera frame) or ``{"error": message}`` for a part that was
+        not found; the found ones are set like :meth:`set_part_pose` (the tracker is re-initialised). Raises
+        ValueError only for an unknown part name.
+        """
+        from tracker.pose_initialization import initialize_poses
+
+        if names is None:
+            names = self.unplaced()
+        names = list(dict.fromkeys(names))
+        for n in names:
+            self.part(n)  # unknown name: ValueError
+        if not names:
+            return {}
+        out: dict[str, dict[str, Any]] = {}
+        table = self.table
+        if frame.depth is None:
+            return {n: {"error": f"frame {frame.index} has no depth image"} for n in names}
+        if table is None:
+            from tracker.table_plane import detect_table
+
+            try:
+                table = self.table = detect_table(frame.depth, frame.intrinsics)
+            except ValueError as exc:
+                return {n: {"error": f"no table plane in frame {frame.index}: {exc}"} for n in names}
+            self._table_time, self._table_rays = frame.timestamp, None
+            self._table_share = self._on_table_share(frame.depth, frame.intrinsics)
+        if detections is None and self.detector is not None:
+            try:
+                detections = self.detector.detect(frame.color)
+            except Exception as exc:  # noqa: BLE001 - initialize_poses detects the colours itself
+                log.warning("auto-place: colour detection failed: %s", exc)
+                detections = None
+        if detections is not None:  # parts the pipeline's detector does not know are detected by initialize_poses
+            coloured = {p.name for p in self.parts if p.color is not None}
+            if not all(n in detections for n in names if n in coloured):
+                detections = None
+        known = {n: (self.part(n), pose) for n, pose in self.poses.items() if n not in names}
+        parts = [self.part(n) for n in names]
+        try:
+            found = initialize_poses(frame, parts, table=table, detections=detections, known=known)
+        except ValueError:
+            # one part spoils the joint call: place them one by one, each leaving out the ones found before
+            found = {}
+            for p in parts:
+                try:
+                    found.update(initialize_poses(frame, [p], table=table, detections=detections, known=known))
+                except ValueError as exc:
+                    out[p.name] = {"error": str(exc)}
+                    continue
+                known[p.name] = (p, found[p.name].pose)
+        except Exception as exc:  # noqa: BLE001 - an unexpected failure is reported, never raised
+            log.exception("auto-place failed on frame %s", frame.index)
+            return {n: {"error": f"{type(exc).__name__}: {exc}"} for n in names}
+        for n in names:
+            if n in found:
+                r = found[n]
+                self.poses[n] = r.pose
+                out[n] = {**_pose_to_dict(r.pose), "residual_mm": float(r.residual_mm), "method": r.method}
+        if found:
+            self._initialize_tracker()
+        return {n: out[n] for n in names}
+
+    def _auto_place_step(self, frame: Frame, detections: Mapping | None, errors: list[str]) -> None:
+        """Automatic mode: try :meth:`auto_place` on the missing parts when due; report who is still missing."""
+        missing = self.unplaced()
+        if not missing:
+            self._auto_place_errors.clear()
+            return
+        last = self._auto_place_time
+        due = last is None or abs(frame.timestamp - last) >= self.auto_place_interval_s
+        if due and self.table is not None and frame.depth is not None:
+            self._auto_place_time = frame.timestamp
+            try:
+                results = self.auto_place(frame, missing, detections=detections or None)
+            except Exception as exc:  # noqa: BLE001 - reported, tried again later
+                results = {n: {"error": f"{type(exc).__name__}: {exc}"} for n in missing}
+            self._auto_place_errors = {n: r["error"] for n, r in results.items() if "error" in r}
+        missing = self.unplaced()
+        waiting = [n for n in missing if n not in self._auto_place_errors]
+        if waiting:
+            errors.append(f"auto-place: waiting for a frame with depth and a table to find {', '.join(waiting)}")
+        errors.extend(f"auto-place {n}: {self._auto_place_errors[n]}" for n in missing if n in self._auto_place_errors)
+
     def part(self, name: str) -> PartSpec:
         for p in self.parts:
             if p.name == name:
@@ -328,6 +441,7 @@ class AssemblyPipeline:
         self.poses = dict(self._initial_poses)
         self.table, self._table_time, self._table_rays = None, None, None
         self._fps, self._last_wall = 0.0, None
+        self._auto_place_time, self._auto_place_errors, self.carried = None, {}, []
         self.tracker = None
         self._initialize_tracker()
         self.set_mode(self.mode_name, self.task)
@@ -410,6 +524,15 @@ class AssemblyPipeline:
                 errors.append(f"colour detection: {type(exc).__name__}: {exc}")
         timings["detection"] = time.perf_counter() - t0
 
+        if self.auto_place_enabled:
+            t0 = time.perf_counter()
+            try:
+                self._auto_place_step(frame, detections, errors)
+            except Exception as exc:  # noqa: BLE001 - a failing stage is reported, the frame goes on
+                log.exception("automatic placement failed on frame %s", frame.index)
+                errors.append(f"auto-place: {type(exc).__name__}: {exc}")
+            timings["auto_place"] = time.perf_counter() - t0
+
         t0, c0 = time.perf_counter(), time.thread_time()
         particles: dict[str, np.ndarray] = {}
         if self.tracker is not None and self.poses:
@@ -420,12 +543,15 @@ class AssemblyPipeline:
                     self.tracker.set_connection_hints(hints)
                 state = self.tracker.step(frame, detections or None, self.table)
                 self.poses.update(state.poses)
+                self.carried = [str(n) for n in (getattr(state, "carried", None) or [])]
                 particles = {k: np.asarray(v, np.float32) for k, v in state.particles.items()}
                 for k, v in (getattr(state, "timings", None) or {}).items():
                     timings[f"tracker.{k}"] = float(v) / 1000.0  # the tracker reports milliseconds
             except Exception as exc:  # noqa: BLE001
                 log.exception("tracker failed on frame %s", frame.index)
                 errors.append(f"tracker: {type(exc).__name__}: {exc}")
+        if self.tracker is None:
+            self.carried = []
         timings["tracker"] = time.perf_counter() - t0
         timings["tracker_cpu"] = time.thread_time() - c0  # this thread's CPU time (wall time minus waiting for a core)
 
@@ -487,5 +613,6 @@ class AssemblyPipeline:
             timings=timings,
             source=self.source_info,
             errors=errors,
+            carried=list(self.carried),
             image_size=(frame.intrinsics.width, frame.intrinsics.height),
         )

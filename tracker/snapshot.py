@@ -42,7 +42,9 @@ class Snapshot:
       instruction or verdict to show in large type.
     * ``table``: ``{"normal": [3], "offset": float, "table_to_camera": Pose dict}`` or ``None``.
     * ``fps``: processed frames per second (moving average); ``timings``: seconds per stage.
-    * ``source``: the source's metadata; ``errors``: messages about this frame (a stage that failed).
+    * ``source``: the source's metadata; ``errors``: messages about this frame (a stage that failed, a part
+      automatic placement has not found yet).
+    * ``carried``: names of the parts currently hidden inside a hand and moved with it (``[]`` when none).
     """
 
     frame_index: int
@@ -61,6 +63,7 @@ class Snapshot:
     timings: dict[str, float] = field(default_factory=dict)
     source: dict[str, Any] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
+    carried: list[str] = field(default_factory=list)
     image_size: tuple[int, int] = (0, 0)
 
     def to_dict(self, include_particles: bool = False) -> dict[str, Any]:
@@ -81,6 +84,7 @@ class Snapshot:
             "timings": {k: round(float(v), 5) for k, v in self.timings.items()},
             "source": self.source,
             "errors": list(self.errors),
+            "carried": [str(n) for n in self.carried],
             "image_size": list(self.image_size),
         }
         if include_particles:

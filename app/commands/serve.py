@@ -44,6 +44,13 @@ def register(subparsers) -> None:
         default=None,
         help="process simulated/recorded frames as fast as possible instead of at their frame rate",
     )
+    p.add_argument(
+        "--no-auto-place",
+        dest="auto_place",
+        action="store_false",
+        default=None,
+        help="do not look for parts without a pose automatically (draw a box or press 'Find parts' instead)",
+    )
     p.set_defaults(func=run)
 
 
@@ -67,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
             "n_particles": args.n_particles,
             "seed": args.seed,
             "realtime": args.realtime,
+            "auto_place": getattr(args, "auto_place", None),
         }.items()
         if v is not None
     }

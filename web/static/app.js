@@ -205,10 +205,52 @@ function renderSnapshot(s) {
     const wItems = words.map((w) => el("li", `${w.cube}: ${w.word}${w.is_distractor ? " (distractor)" : ""}`));
     setList($("cube-words"), wItems, "");
   }
+  renderParts(s);
   const errs = (s.errors || []).map((e) => el("li", e));
   if (errs.length) setList($("error-list"), errs, "none");
   drawOverlay();
 }
+
+// Every part with its state: tracked, in hand (hidden in a hand and moved with it) or not placed yet.
+function renderParts(s) {
+  const poses = s.poses || {};
+  const carried = new Set(s.carried || []);
+  const names = state.parts.length ? state.parts : Object.keys(poses);
+  const items = names.map((name) => {
+    const st = carried.has(name) ? "in hand" : name in poses ? "tracked" : "not placed";
+    const li = el("li", `${name}: ${st}`, `part-${st.replace(" ", "-")}`);
+    li.dataset.part = name;
+    return li;
+  });
+  setList($("part-list"), items, "–");
+}
+
+$("btn-auto-place").addEventListener("click", async () => {
+  const btn = $("btn-auto-place");
+  btn.disabled = true;
+  showMessage("box-message", "looking for parts…");
+  $("auto-place-results").replaceChildren();
+  try {
+    const part = $("box-part").value;  // a chosen part is found again; "by colour": every untracked part
+    const body = part ? { names: [part] } : {};
+    const r = await api("/api/parts/auto-place", { method: "POST", body: JSON.stringify(body) });
+    const entries = Object.entries(r.results);
+    const found = entries.filter(([, v]) => !v.error).length;
+    showMessage("box-message", entries.length
+      ? `found ${found} of ${entries.length} part${entries.length === 1 ? "" : "s"} (frame ${r.frame_index})`
+      : "every part is already tracked", found < entries.length);
+    $("auto-place-results").replaceChildren(...entries.map(([name, v]) => {
+      const li = el("li", v.error ? `${name}: not found: ${v.error}` : `${name}: placed (fit ${v.residual_mm.toFixed(1)} mm)`,
+        v.error ? "error" : "ok");
+      li.dataset.part = name;
+      return li;
+    }));
+  } catch (e) {
+    showMessage("box-message", e.message, true);
+  } finally {
+    btn.disabled = false;
+  }
+});
 
 // ------------------------------------------------------------------ colour image and overlay
 const PART_COLORS = {
