@@ -376,3 +376,21 @@ def detect_table(depth: np.ndarray, intrinsics: Intrinsics, settings: TableSetti
         outline=outline,
         n_points=int(len(pts)),
     )
+
+
+def plane_share(
+    depth: np.ndarray, intrinsics: Intrinsics, plane: TablePlane, step: int = 8, tolerance: float = 0.005
+) -> float:
+    """Share (0..1) of a coarse grid of depth pixels (every ``step``-th row and column, missing ones included)
+    lying within ``tolerance`` metres of ``plane``: a cheap per-frame test that the plane still fits the depth.
+
+    Compare it with the share right after detection: when the camera (or the table) moves, it drops (a 1 cm
+    shift along the normal takes almost every pixel off the plane), and the plane should be detected again.
+    """
+    z = np.asarray(depth, np.float32)[::step, ::step]
+    v, u = np.mgrid[0 : depth.shape[0] : step, 0 : depth.shape[1] : step].astype(np.float32)
+    n = np.asarray(plane.normal, np.float32)
+    dots = n[0] * (u - intrinsics.cx) / intrinsics.fx + n[1] * (v - intrinsics.cy) / intrinsics.fy + n[2]
+    with np.errstate(invalid="ignore"):
+        on = np.abs(z * dots + np.float32(plane.offset)) < tolerance
+    return float(np.count_nonzero(on)) / max(1, on.size)

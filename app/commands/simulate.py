@@ -21,6 +21,9 @@ def register(subparsers) -> None:
     p.add_argument("--speed", type=float, default=1.0, help="hand motion speed factor (default 1.0)")
     p.add_argument("--occlusion", type=float, default=1.0, help="amount of hand occlusion 0..2 (default 1.0)")
     p.add_argument("--excursions", action="store_true", help="carry parts briefly out of view before placing")
+    p.add_argument("--camera-motion", default="none", choices=("none", "sway", "handheld"),
+                   help="camera motion: none (fixed), sway (slow, a few cm / degrees) or handheld (sway plus "
+                        "jitter); the ground truth of each frame is in its own camera frame (default none)")
     p.add_argument("--rod", action="store_true", help="add a grey 2×2×10 cm rod lying on the table")
     p.add_argument(
         "--mesh",
@@ -73,7 +76,11 @@ def run(args: argparse.Namespace) -> int:
     from tracker.sources.recording import RecordingWriter
 
     opts = SimOptions(
-        speed=args.speed, occlusion=args.occlusion, excursions=args.excursions, extra_parts=extra_parts(args)
+        speed=args.speed,
+        occlusion=args.occlusion,
+        excursions=args.excursions,
+        extra_parts=extra_parts(args),
+        camera_motion=getattr(args, "camera_motion", "none"),
     )
     src = SimulatedTable(args.scenario, seed=args.seed, options=opts, realtime=False, n_frames=args.frames)
     start = time.perf_counter()
@@ -99,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {args.out}: scenario {args.scenario} (seed {args.seed}), {n} frames "
         f"({n / 30.0:.1f} s at 30 fps) in {elapsed:.1f} s"
     )
-    print(f"  camera: {src.camera.distance:.3f} m from the table centre, {src.camera.elevation_deg:.1f}° down")
+    print(f"  camera: {src.camera.distance:.3f} m from the table centre, {src.camera.elevation_deg:.1f}° down"
+          + (f", moving ({src.camera_motion})" if src.camera_motion != "none" else ""))
     print(f"  parts ({len(src.parts)}): {', '.join(p.name for p in src.parts)}")
     print(f"  events ({len(events)}):")
     for e in events:

@@ -6,8 +6,12 @@ finds every part's pose in the first frame (:func:`tracker.pose_initialization.i
 objects above it, colour blob or footprint/height match, ICP); without ``--init`` the given poses are used and
 only the missing ones are found automatically. Each automatically initialised part is reported on stderr with its
 pose and ICP residual. Colour detection is used for parts with a colour (depth only otherwise), the table plane
-when it can be found in the first frames. Writes one JSON line per frame to ``--out`` (default: stdout is left
-for the report)::
+when it can be found in the first frames. For a moving camera the plane is re-detected when it no longer fits the
+depth: every frame the share of a coarse pixel grid within 5 mm of the plane is measured
+(:func:`tracker.table_plane.plane_share`, ~0.2 ms), and when it falls below 70 % of its value right after the
+last detection the plane is detected again; the number of re-detections is reported on stderr.
+
+Writes one JSON line per frame to ``--out`` (default: stdout is left for the report)::
 
     {"index": i, "poses": {"<name>": {"t": [x, y, z], "q": [x, y, z, w]}}}
 
@@ -65,6 +69,60 @@ def _find_table(frame, intrinsics):
         return detect_table(frame.depth, intrinsics)
     except TableNotFoundError:
         return None
+
+
+TABLE_SHARE_TOLERANCE = 0.005
+"""Metres: a grid pixel within this distance of the table plane counts as on it."""
+TABLE_SHARE_KEEP = 0.7
+"""Re-detect the plane when the on-plane share falls below this fraction of the share at the last detection."""
+TABLE_RETRY_FRAMES = 10
+"""After a failed re-detection, keep the old plane for this many frames before trying again."""
+
+
+class _TableFollower:
+    """The table plane of a recording whose camera may move (see the module docstring)."""
+
+    def __init__(self, intrinsics, table=None) -> None:
+        self.intrinsics = intrinsics
+        self.table = table
+        self.share = None
+        self.redetections = 0
+        self.failures = 0
+        self._tries = 0
+        self._wait = 0
+
+    def update(self, frame):
+        """The plane to use for ``frame`` (``None`` while none was found)."""
+        from tracker.table_plane import plane_share
+
+        depth = frame.depth
+        if depth is None:
+            return self.table
+        if self.table is None:
+            if self._tries < 5:
+                self._tries += 1
+                self.table = _find_table(frame, self.intrinsics)
+            if self.table is not None:
+                self.share = plane_share(depth, self.intrinsics, self.table, tolerance=TABLE_SHARE_TOLERANCE)
+            return self.table
+        if self.share is None:
+            self.share = plane_share(depth, self.intrinsics, self.table, tolerance=TABLE_SHARE_TOLERANCE)
+            return self.table
+        if self._wait > 0:
+            self._wait -= 1
+            return self.table
+        share = plane_share(depth, self.intrinsics, self.table, tolerance=TABLE_SHARE_TOLERANCE)
+        if share >= TABLE_SHARE_KEEP * self.share:
+            return self.table
+        new = _find_table(frame, self.intrinsics)
+        if new is None:
+            self.failures += 1
+            self._wait = TABLE_RETRY_FRAMES
+            return self.table
+        self.table = new
+        self.share = plane_share(depth, self.intrinsics, new, tolerance=TABLE_SHARE_TOLERANCE)
+        self.redetections += 1
+        return self.table
 
 
 def _auto_poses(src, parts, auto, poses, use_color: bool):
@@ -133,8 +191,8 @@ def run(args: argparse.Namespace) -> int:
         detector = ColorDetector.from_parts(colored)
     errors = PoseErrorLog(parts) if src.has_groundtruth else None
     out = open(args.out, "w") if args.out else None  # noqa: SIM115
+    follower = _TableFollower(src.intrinsics, first_table)
     table = first_table
-    table_tries = 0
     n = skipped = 0
     t_track = 0.0
     t_start = time.perf_counter()
@@ -142,9 +200,7 @@ def run(args: argparse.Namespace) -> int:
         for frame in src:
             if args.frames is not None and n >= args.frames:
                 break
-            if table is None and table_tries < 5:
-                table_tries += 1
-                table = _find_table(frame, src.intrinsics)
+            table = follower.update(frame)
             dets = detector.detect(frame.color) if detector is not None else None
             t0 = time.perf_counter()
             state = tracker.step(frame, dets, table)
@@ -170,6 +226,10 @@ def run(args: argparse.Namespace) -> int:
           f"colour: {'on' if detector is not None else 'off (depth only)'}")
     print(f"tracker: {n / max(t_track, 1e-9):.1f} fps ({1000 * t_track / n:.1f} ms/frame); "
           f"overall with decoding and perception: {n / max(wall, 1e-9):.1f} fps")
+    if table is not None:
+        print(f"table plane re-detected {follower.redetections} time(s) (camera or table moved)"
+              + (f"; {follower.failures} re-detection(s) failed, the previous plane was kept" if follower.failures
+                 else ""), file=sys.stderr)  # fmt: skip
     if skipped:
         print(f"warning: {skipped} frame(s) had no valid depth near the parts; the prediction was kept",
               file=sys.stderr)

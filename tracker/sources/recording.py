@@ -389,6 +389,11 @@ class RecordingSource(FrameSource):
                 raise SourceError(f"{where}: 'index' must be an integer frame index")
             rec = {k: v for k, v in obj.items() if k != "index"}
             rec["poses"] = _parse_poses(obj.get("poses"), where)
+            if isinstance(rec.get("camera_pose"), dict):  # the simulator's camera pose in its table frame
+                try:
+                    rec["camera_pose"] = Pose.from_dict(rec["camera_pose"])
+                except (KeyError, TypeError, ValueError) as exc:
+                    raise SourceError(f"{where}: bad 'camera_pose': {exc}") from exc
             out[idx] = rec
         return out
 

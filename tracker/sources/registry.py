@@ -3,7 +3,8 @@
 The same source names are used by every command, the web app and the tests:
 
 * ``sim:<scenario>``: the simulated table (:class:`tracker.sources.simulator.SimulatedTable`); options ``seed``,
-  ``realtime``, ``speed``, ``occlusion``, ``excursions``, ``n_frames``.
+  ``realtime``, ``speed``, ``occlusion``, ``excursions``, ``n_frames``, ``camera_motion`` (``none``, ``sway``,
+  ``handheld``).
 * ``recording:<dir>`` (or just ``<dir>``, an existing directory): a recording on disk
   (:class:`tracker.sources.recording.RecordingSource`); options ``loop``, ``realtime``.
 * ``camera:<colour>[,<depth>]``: live capture through OpenCV (:class:`tracker.sources.camera.CameraSource`);
@@ -29,7 +30,7 @@ SOURCE_FORMS = (
 
 SOURCE_HELP = "frame source: " + "; ".join(SOURCE_FORMS)
 
-SIM_OPTIONS = ("seed", "realtime", "speed", "occlusion", "excursions", "n_frames")
+SIM_OPTIONS = ("seed", "realtime", "speed", "occlusion", "excursions", "n_frames", "camera_motion")
 RECORDING_OPTIONS = ("loop", "realtime")
 CAMERA_OPTIONS = ("calibration", "fps", "pair_tolerance", "read_timeout", "retry_delay", "max_retry_delay")
 _ALL_OPTIONS = set(SIM_OPTIONS) | set(RECORDING_OPTIONS) | set(CAMERA_OPTIONS)
@@ -77,7 +78,7 @@ def _open_sim(scenario: str, given: dict[str, Any]) -> FrameSource:
     names = _scenario_names(list_scenarios())
     if names and scenario not in names:
         raise ValueError(f"unknown scenario {scenario!r} in sim:{scenario}; scenarios: {', '.join(names)}")
-    sim_opts = {k: given[k] for k in ("speed", "occlusion", "excursions") if k in given}
+    sim_opts = {k: given[k] for k in ("speed", "occlusion", "excursions", "camera_motion") if k in given}
     return SimulatedTable(
         scenario,
         seed=int(given.get("seed", 0)),

@@ -331,3 +331,77 @@ def shadow_polygon(pts, n, d, light, fx, fy, cx, cy):
         uv[i, 0] = fx * x / z + cx
         uv[i, 1] = fy * y / z + cy
     return uv, hsum / m
+
+
+@nb.njit(cache=True, fastmath=_FM)
+def _bilinear(tex, x, y, c):
+    """Bilinear sample of channel ``c`` of ``tex`` (H×W×C) at texel coordinates (x, y), clamped at the border."""
+    h, w = tex.shape[0], tex.shape[1]
+    x = min(max(x, 0.0), w - 1.0)
+    y = min(max(y, 0.0), h - 1.0)
+    i0 = min(int(y), h - 2) if h > 1 else 0
+    j0 = min(int(x), w - 2) if w > 1 else 0
+    ay = y - i0
+    ax = x - j0
+    i1 = min(i0 + 1, h - 1)
+    j1 = min(j0 + 1, w - 1)
+    return (1.0 - ay) * ((1.0 - ax) * tex[i0, j0, c] + ax * tex[i0, j1, c]) + ay * (
+        (1.0 - ax) * tex[i1, j0, c] + ax * tex[i1, j1, c]
+    )
+
+
+@nb.njit(cache=True, fastmath=_FM)
+def cast_background(depth, cosang, color, table, fx, fy, cx, cy, R, ct, tex, tpm, table_ext, floor_tex, fpm, floor_ext,
+                    floor_drop, grey, table_shade, floor_shade, spot):  # fmt: skip
+    """Ray-cast the textured table top (plane y = 0 of the table frame, ``table_ext`` = (x0, x1, z0, z1)) and the
+    floor (y = -``floor_drop``) for every pixel of a camera at pose (``R``, ``ct``) in the table frame.
+
+    Fills ``depth`` (inf where nothing), ``cosang``, ``color`` (albedo × shade: ``table_shade`` · (0.85 + 0.15 ·
+    a Gaussian spot at (``spot[0]``, ``spot[1]``) of σ ``spot[2]``) on the table, ``floor_shade`` · (1 + 0.08 ·
+    floor texture) · ``grey`` on the floor) and the ``table`` mask. Textures are indexed by table-frame (x, z):
+    ``tex`` (rows z, cols x, ``tpm`` texels per metre from (x0, z0)), ``floor_tex`` (H×W×1, ``fpm`` texels per
+    metre from (``floor_ext[0]``, ``floor_ext[1]``), repeated beyond its extent)."""
+    h, w = depth.shape
+    fh, fw = floor_tex.shape[0], floor_tex.shape[1]
+    s2 = 2.0 * spot[2] * spot[2]
+    for v in range(h):
+        yv = (v - cy) / fy
+        for u in range(w):
+            xu = (u - cx) / fx
+            d0 = R[0, 0] * xu + R[0, 1] * yv + R[0, 2]
+            d1 = R[1, 0] * xu + R[1, 1] * yv + R[1, 2]
+            d2 = R[2, 0] * xu + R[2, 1] * yv + R[2, 2]
+            dn = np.sqrt(xu * xu + yv * yv + 1.0)
+            depth[v, u] = np.inf
+            cosang[v, u] = 1.0
+            color[v, u, 0] = 0.0
+            color[v, u, 1] = 0.0
+            color[v, u, 2] = 0.0
+            table[v, u] = False
+            if abs(d1) < 1e-12:
+                continue
+            tt = -ct[1] / d1
+            if tt > 0.0:
+                px = ct[0] + tt * d0
+                pz = ct[2] + tt * d2
+                if table_ext[0] < px < table_ext[1] and table_ext[2] < pz < table_ext[3]:
+                    f = table_shade * (0.85 + 0.15 * np.exp(-((px - spot[0]) ** 2 + (pz - spot[1]) ** 2) / s2))
+                    mx = (px - table_ext[0]) * tpm
+                    my = (pz - table_ext[2]) * tpm
+                    for c in range(3):
+                        color[v, u, c] = _bilinear(tex, mx, my, c) * f
+                    depth[v, u] = tt
+                    cosang[v, u] = abs(d1) / dn
+                    table[v, u] = True
+                    continue
+            tf = (-floor_drop - ct[1]) / d1
+            if tf > 0.0:
+                px = ct[0] + tf * d0
+                pz = ct[2] + tf * d2
+                mx = ((px - floor_ext[0]) * fpm) % (fw - 1.0)
+                my = ((pz - floor_ext[1]) * fpm) % (fh - 1.0)
+                f = floor_shade * (1.0 + 0.08 * _bilinear(floor_tex, mx, my, 0))
+                for c in range(3):
+                    color[v, u, c] = grey[c] * f
+                depth[v, u] = tf
+                cosang[v, u] = abs(d1) / dn

@@ -17,6 +17,7 @@ import numpy as np
 
 from tracker.camera import Intrinsics
 from tracker.pose import Pose
+from tracker.sources.simulator.rasterizer import cast_background
 
 TABLE_X = (-0.75, 0.75)
 """Table extent along the table frame's x axis, metres."""
@@ -149,3 +150,40 @@ def render_background(intr: Intrinsics, cam: CameraPlacement, rng: np.random.Gen
     depth[on_table] = tt[on_table]
     cosang[on_table] = np.abs(dt[..., 1][on_table]) / dn[on_table]
     return Background(color=color, depth=depth, cosang=cosang, table=on_table)
+
+
+FLOOR_EXTENT = 16.0
+"""Side of the (repeated) square floor texture of :class:`BackgroundCaster`, metres."""
+FLOOR_TEXELS_PER_M = 100.0
+
+
+class BackgroundCaster:
+    """Ray-casts the table and the floor for any camera pose (the moving camera; see
+    :func:`tracker.sources.simulator.rasterizer.cast_background`). Unlike :func:`render_background`, whose floor
+    noise is drawn in image space for the one fixed camera, the floor texture here is fixed in the table frame
+    (drawn once from ``rng``), so it moves consistently with the scene. Shading is the same as there."""
+
+    def __init__(self, intr: Intrinsics, rng: np.random.Generator) -> None:
+        self.intr = intr
+        n = int(FLOOR_EXTENT * FLOOR_TEXELS_PER_M)
+        floor = 0.5 * _value_noise(rng, (n, n), (160, 160)) + 0.5 * _value_noise(rng, (n, n), (640, 640))
+        self.floor_tex = np.ascontiguousarray(floor[..., None], dtype=np.float32)
+        self.tex = wood_texture()
+        self.tpm = self.tex.shape[1] / (TABLE_X[1] - TABLE_X[0])
+        light = LIGHT_DIR_TABLE
+        self.table_shade = float(AMBIENT + DIFFUSE * light[1])
+        self.floor_shade = float(AMBIENT * 0.8 + DIFFUSE * 0.8 * light[1])
+        self.grey = np.array([120.0, 118.0, 112.0])
+        self.table_ext = np.array([TABLE_X[0], TABLE_X[1], TABLE_Z[0], TABLE_Z[1]])
+        self.floor_ext = np.array([-FLOOR_EXTENT / 2, -FLOOR_EXTENT / 2])
+        self.spot = np.array([-0.1, -0.05, 0.45])
+
+    def render(self, camera_to_table: Pose, depth: np.ndarray, cosang: np.ndarray, color: np.ndarray,
+               table: np.ndarray) -> None:  # fmt: skip
+        """Overwrite the buffers (H×W float32 depth / cosang, H×W×3 float32 colour, H×W bool table mask) with
+        the background seen from ``camera_to_table`` (the camera's pose in the table frame)."""
+        i = self.intr
+        cast_background(depth, cosang, color, table, i.fx, i.fy, i.cx, i.cy, np.ascontiguousarray(camera_to_table.R),
+                        np.asarray(camera_to_table.t, float), self.tex, self.tpm, self.table_ext, self.floor_tex,
+                        FLOOR_TEXELS_PER_M, self.floor_ext, FLOOR_DROP, self.grey, self.table_shade,
+                        self.floor_shade, self.spot)  # fmt: skip

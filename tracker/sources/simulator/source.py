@@ -6,7 +6,15 @@ scenario, seed and options. Each frame carries its ground truth in ``frame.meta[
 * ``"poses"``: ``{part name: Pose}`` in the camera frame (x right, y down, z forward, metres);
 * ``"hand_box"``: ``[u0, v0, u1, v1]`` pixel bounds of the visible hand (end-exclusive) or ``None``;
 * ``"visible"``: ``{part name: fraction 0..1}`` of the part's unoccluded projected area that is visible
-  (0 when it is out of the image or hidden by the hand or another part).
+  (0 when it is out of the image or hidden by the hand or another part);
+* ``"table_plane"``: ``{"normal": [3], "offset": d}``, the table plane ``n·p + d = 0`` in this frame's camera
+  frame (``n`` the upward unit normal);
+* ``"camera_pose"``: the camera's Pose in the simulator's table frame (the table frame of the nominal camera
+  placement, fixed in the scene; constant unless ``SimOptions.camera_motion`` moves the camera).
+
+With ``SimOptions.camera_motion`` ``"sway"`` or ``"handheld"`` (see :mod:`.camera_motion`) every frame is
+rendered from that frame's camera pose: the table and floor are ray-cast again for each frame (about 5–10 ms
+more per frame); with ``"none"`` they are rendered once and frames are bit-identical to a fixed camera.
 """
 
 from __future__ import annotations
@@ -25,6 +33,7 @@ from tracker.parts import PartSpec
 from tracker.pose import Pose, normalize_quat
 from tracker.sources.base import FrameSource
 from tracker.sources.simulator import rasterizer as rz
+from tracker.sources.simulator.camera_motion import CAMERA_MOTIONS, CameraMotion
 from tracker.sources.simulator.hand import Box, Capsule, hand_primitives
 from tracker.sources.simulator.scenarios import (
     ConnectionEvent,
@@ -34,7 +43,14 @@ from tracker.sources.simulator.scenarios import (
     Timeline,
     get_scenario,
 )
-from tracker.sources.simulator.scene import AMBIENT, DIFFUSE, LIGHT_DIR_TABLE, CameraPlacement, render_background
+from tracker.sources.simulator.scene import (
+    AMBIENT,
+    DIFFUSE,
+    LIGHT_DIR_TABLE,
+    BackgroundCaster,
+    CameraPlacement,
+    render_background,
+)
 from tracker.sources.simulator.sensor_model import ColorSensorModel, DepthSensorModel
 
 FPS = 30.0
@@ -60,6 +76,9 @@ class SimOptions:
     * ``shadows``: soft shadows of the parts and the hand on the table.
     * ``show_hand``: render the hand (False: parts move as if carried by an invisible hand).
     * ``depth_model`` / ``color_model``: the sensor models (see :mod:`.sensor_model`).
+    * ``camera_motion``: ``"none"`` (fixed camera), ``"sway"`` (slow seeded motion of a few cm and degrees
+      around the nominal placement, periods 4–14 s) or ``"handheld"`` (sway plus a small faster jitter);
+      see :mod:`.camera_motion`. The script (where parts lie and move) is the same for every value.
     """
 
     speed: float = 1.0
@@ -77,8 +96,12 @@ class SimOptions:
     show_hand: bool = True
     depth_model: DepthSensorModel = field(default_factory=DepthSensorModel)
     color_model: ColorSensorModel = field(default_factory=ColorSensorModel)
+    camera_motion: str = "none"
 
     def __post_init__(self) -> None:
+        if self.camera_motion not in CAMERA_MOTIONS:
+            raise ValueError(f"SimOptions.camera_motion must be one of {', '.join(CAMERA_MOTIONS)}, "
+                             f"got {self.camera_motion!r}")
         if not 0.05 <= self.speed <= 20:
             raise ValueError(f"SimOptions.speed must be within 0.05–20, got {self.speed}")
         if not 0.0 <= self.occlusion <= 2.0:
@@ -147,14 +170,25 @@ class SimulatedTable(FrameSource):
         self._phase = float(rng_misc.uniform(0, 2 * np.pi))
         self._meshes = {p.name: _MeshCache(p) for p in self._parts if p.box is None}
 
-        bg = render_background(self._intr, self.camera, rng_bg)
-        self._bg = bg
-        self._bg_table = bg.table
-        self._plane = self.camera.table_plane()
-        self._depth = bg.depth.copy()
-        self._cos = bg.cosang.copy()
-        self._color = bg.color.copy()
+        # the camera motion has its own random stream, so the others (and a fixed camera's frames) are unchanged
+        self._motion = CameraMotion(opts.camera_motion, np.random.default_rng([self.seed, 20261123, 77]))
         self._ids = np.full((h, w), -1, np.int16)
+        self._caster: BackgroundCaster | None = None
+        if self._motion.moving:
+            self._caster = BackgroundCaster(self._intr, rng_bg)
+            self._bg = None
+            self._depth = np.full((h, w), np.inf, np.float32)
+            self._cos = np.ones((h, w), np.float32)
+            self._color = np.zeros((h, w, 3), np.float32)
+            self._bg_table = np.zeros((h, w), np.bool_)
+        else:
+            bg = render_background(self._intr, self.camera, rng_bg)
+            self._bg = bg
+            self._bg_table = bg.table
+            self._depth = bg.depth.copy()
+            self._cos = bg.cosang.copy()
+            self._color = bg.color.copy()
+        self._plane = self.camera.table_plane()
         self._dirty: list[tuple[int, int, int, int]] = []
         self._closed = False
 
@@ -173,13 +207,40 @@ class SimulatedTable(FrameSource):
 
     @property
     def table_to_camera(self) -> Pose:
-        """Pose of the table frame in the camera frame."""
-        return self._T
+        """Pose of the table frame in the camera frame (at the first frame; see :meth:`table_to_camera_at`)."""
+        return self.table_to_camera_at(0)
 
     @property
     def table_plane(self) -> tuple[np.ndarray, float]:
-        """``(n, d)``: ``n·p + d = 0`` for camera-frame points on the table, ``n`` the upward unit normal."""
-        return self.camera.table_plane()
+        """``(n, d)``: ``n·p + d = 0`` for camera-frame points on the table, ``n`` the upward unit normal (at the
+        first frame; see :meth:`table_plane_at`)."""
+        return self.table_plane_at(0)
+
+    @property
+    def camera_motion(self) -> str:
+        """``"none"``, ``"sway"`` or ``"handheld"`` (``SimOptions.camera_motion``)."""
+        return self._motion.kind
+
+    def camera_pose_at(self, index: int) -> Pose:
+        """The camera's pose in the simulator's (fixed) table frame at frame ``index``."""
+        c2t = self.camera.camera_to_table()
+        if not self._motion.moving:
+            return c2t
+        return c2t @ self._motion.offset(index / FPS)
+
+    def table_to_camera_at(self, index: int) -> Pose:
+        """Pose of the simulator's table frame in the camera frame of frame ``index``."""
+        if not self._motion.moving:
+            return self._T
+        return self.camera_pose_at(index).inverse()
+
+    def table_plane_at(self, index: int) -> tuple[np.ndarray, float]:
+        """``(n, d)`` of the table plane in the camera frame of frame ``index`` (``n`` up, ``n·p + d = 0``)."""
+        if not self._motion.moving:
+            return self.camera.table_plane()
+        T = self.table_to_camera_at(index)
+        n = T.R[:, 1]
+        return n, -float(n @ T.t)
 
     @property
     def duration(self) -> float:
@@ -197,7 +258,8 @@ class SimulatedTable(FrameSource):
     def groundtruth(self, index: int) -> dict[str, Pose]:
         """Every part's pose in the camera frame at frame ``index``."""
         t = index / FPS
-        return {p.name: _stable(self._T @ self.timeline.part_pose(p.name, t)) for p in self._parts}
+        T = self.table_to_camera_at(index)
+        return {p.name: _stable(T @ self.timeline.part_pose(p.name, t)) for p in self._parts}
 
     def metadata(self) -> dict[str, Any]:
         md = super().metadata()
@@ -216,6 +278,7 @@ class SimulatedTable(FrameSource):
                     "speed": self.options.speed,
                     "occlusion": self.options.occlusion,
                     "excursions": self.options.excursions,
+                    "camera_motion": self._motion.kind,
                 },
             }
         )
@@ -244,28 +307,36 @@ class SimulatedTable(FrameSource):
         """The per-frame random key (uint64) of frame ``index``."""
         return int(np.random.SeedSequence([self.seed, int(index)]).generate_state(1, np.uint64)[0])
 
-    def _light(self, t: float) -> np.ndarray:
+    def _light(self, t: float, T: Pose) -> np.ndarray:
+        """Unit direction towards the light in the camera frame whose table-to-camera pose is ``T``."""
         wob = 0.15 * np.array([np.sin(t / 5.0 + self._phase), 0.0, np.cos(t / 7.0 + self._phase)])
         lt = LIGHT_DIR_TABLE + wob
-        return self._T.R @ (lt / np.linalg.norm(lt))
+        return T.R @ (lt / np.linalg.norm(lt))
 
     def render_clean(self, index: int) -> dict[str, Any]:
         """Render frame ``index`` without sensor noise. Returns a dict with ``color`` (float32 0..255),
         ``depth`` (float32, inf where nothing), ``cosang``, ``ids`` (int16: part index, hand = n_parts,
         -1 background; views of internal buffers, valid until the next render), ``poses``, ``hand_box``,
-        ``visible`` and ``t``."""
+        ``visible``, ``table_plane`` (n, d), ``camera_pose`` (in the table frame) and ``t``."""
         t = index / FPS
         intr = self._intr
         W, H = intr.width, intr.height
         fx, fy, cx, cy = intr.fx, intr.fy, intr.cx, intr.cy
         bg = self._bg
-        for u0, v0, u1, v1 in self._dirty:
-            self._depth[v0:v1, u0:u1] = bg.depth[v0:v1, u0:u1]
-            self._cos[v0:v1, u0:u1] = bg.cosang[v0:v1, u0:u1]
-            self._color[v0:v1, u0:u1] = bg.color[v0:v1, u0:u1]
-            self._ids[v0:v1, u0:u1] = -1
+        if self._caster is not None:  # moving camera: ray-cast the whole background again from this frame's pose
+            T = self.table_to_camera_at(index)
+            self._plane = self.table_plane_at(index)
+            self._caster.render(self.camera_pose_at(index), self._depth, self._cos, self._color, self._bg_table)
+            self._ids.fill(-1)
+        else:
+            T = self._T
+            for u0, v0, u1, v1 in self._dirty:
+                self._depth[v0:v1, u0:u1] = bg.depth[v0:v1, u0:u1]
+                self._cos[v0:v1, u0:u1] = bg.cosang[v0:v1, u0:u1]
+                self._color[v0:v1, u0:u1] = bg.color[v0:v1, u0:u1]
+                self._ids[v0:v1, u0:u1] = -1
         dirty: list[tuple[int, int, int, int]] = []
-        light = self._light(t)
+        light = self._light(t, T)
         n_parts = len(self._parts)
         hits = np.zeros(n_parts + 1, np.int64)
         poses: dict[str, Pose] = {}
@@ -274,7 +345,7 @@ class SimulatedTable(FrameSource):
         shapes: list[tuple[np.ndarray, float]] = []
 
         for pid, part in enumerate(self._parts):
-            pose = _stable(self._T @ self.timeline.part_pose(part.name, t))
+            pose = _stable(T @ self.timeline.part_pose(part.name, t))
             poses[part.name] = pose
             R, tt = pose.R, pose.t
             albedo = np.asarray(part.color if part.color is not None else (150, 150, 150), float)
@@ -308,8 +379,8 @@ class SimulatedTable(FrameSource):
         hp = self.timeline.active_pass(t) if self.options.show_hand else None
         if hp is not None:
             hpose, grip = hp.state(t)
-            hpose = self._T @ hpose
-            shoulder = self._T.transform_points(hp.shoulder[None])[0] if hp.shoulder is not None else None
+            hpose = T @ hpose
+            shoulder = T.transform_points(hp.shoulder[None])[0] if hp.shoulder is not None else None
             prims = hand_primitives(hpose.R, hpose.t, grip, hp.half_height, hp.half_height, hp.scale,
                                     shoulder=shoulder, mirror=hp.side < 0)  # fmt: skip
             for p in prims:
@@ -369,6 +440,8 @@ class SimulatedTable(FrameSource):
             "poses": poses,
             "hand_box": hand_box,
             "visible": visible,
+            "table_plane": self._plane,
+            "camera_pose": self.camera_pose_at(index),
         }
 
     def _shadow(self, shapes: list[tuple[np.ndarray, float]], light: np.ndarray) -> tuple[int, int, int, int] | None:
@@ -412,8 +485,15 @@ class SimulatedTable(FrameSource):
         key = self.frame_key(index)
         depth = self.options.depth_model.apply(clean["depth"], clean["cosang"], key, fx=self._intr.fx)
         color = self.options.color_model.apply(clean["color"], key, clean["t"], self._phase)
+        n, d = clean["table_plane"]
         meta = {
-            "groundtruth": {"poses": clean["poses"], "hand_box": clean["hand_box"], "visible": clean["visible"]},
+            "groundtruth": {
+                "poses": clean["poses"],
+                "hand_box": clean["hand_box"],
+                "visible": clean["visible"],
+                "table_plane": {"normal": [float(x) for x in n], "offset": float(d)},
+                "camera_pose": clean["camera_pose"],
+            },
             "scenario": self.info.name,
             "seed": self.seed,
         }
