@@ -64,7 +64,10 @@ PREVIOUS_DEFAULT = {
                    "wall_ms_median": 30.1},
 }
 # the same setting on simulator seeds that were never used for tuning, at commit 32ab8eb: (t p95 mm, parts lost)
-PREVIOUS_HELDOUT: dict[int, dict[str, tuple[float, int]]] = {}
+PREVIOUS_HELDOUT: dict[int, dict[str, tuple[float, int]]] = {
+    1: {"guess-1": (8.32, 1), "guess-2": (93.73, 1), "guess-3": (16.12, 1), "learning-5": (18.67, 1)},
+    2: {"guess-1": (30.06, 2), "guess-2": (7.00, 0), "guess-3": (9.29, 1), "learning-5": (11.58, 2)},
+}
 
 NO_COLOR = {"use_color_input": False, "color_mask_likelihood": False, "color_likelihood_px": 0.0}
 CONFIGS: dict[str, tuple[str, dict]] = {
@@ -186,7 +189,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=360, help="frames per guess-*/learning-5 sequence (30 fps)")
     ap.add_argument("--static-frames", type=int, default=150, help="frames of the static sequence")
     ap.add_argument("--sequences", default="static,guess-1,guess-2,guess-3,learning-5")
-    ap.add_argument("--ablation-sequences", default="guess-2,learning-5")
+    ap.add_argument("--ablation-sequences", default="guess-2,guess-3,learning-5")
     ap.add_argument("--seed", type=int, default=0, help="simulator seed")
     ap.add_argument("--quick", action="store_true", help="90 frames per sequence, fewer configurations")
     ap.add_argument("--no-write", action="store_true", help="print only")

@@ -82,6 +82,10 @@ class HandCarry:
         """(K,) bool: which parts are being carried now."""
         return np.array([p is not None for p in self.patches], bool)
 
+    def release(self, obj: int) -> None:
+        """End the carry of part ``obj`` (it was let go)."""
+        self.patches[obj] = None
+
     def record(self, now: float, positions: np.ndarray) -> None:
         """Remember the parts' estimated positions (K, 3) at time ``now`` (s) for the motion test."""
         self.history.append((now, np.array(positions, np.float64)))

@@ -191,6 +191,8 @@ class MultiObjectTracker:
         self._rest_t = np.array([poses[name].t for name in self.names], np.float64)  # rest-prior anchors
         self._rest_on = np.zeros(k, bool)
         self._blob_seen = np.zeros(k, bool)  # has the colour detector found the part's blob since initialize?
+        self._support_on = np.zeros(k, bool)
+        self._last_centers: dict[int, np.ndarray] = {}  # reliable blob centroids of the previous frame (px)
         self._carry = HandCarry(k, self.config, self.intrinsics, np.asarray(self._radius, np.float64))
         self.n_reseeded = 0  # re-seeding events since initialize (diagnostics, tests)
         self._last_time: float | None = None
@@ -217,6 +219,7 @@ class MultiObjectTracker:
         now = float(frame.timestamp)
         self._last_time = now
         plane = _table_normal_offset(table) if cfg.use_table_penalty else None
+        support_plane = _table_normal_offset(table) if cfg.support_prior_sigma > 0 else None
         timings: dict[str, float] = {}
         n, k = cfg.n_particles, len(self.parts)
 
@@ -256,7 +259,7 @@ class MultiObjectTracker:
                 u[i] = color_input(center, min(score, 1.0), est, depth, intr, cfg.lambda_z, cfg.depth_radius_px,
                                    offset, mask=blob)
         if cfg.carry_follow:
-            self._follow_hands(depth, detected, table)
+            self._follow_hands(depth, detected, table, detections)
         noise_scale = self._noise_scale.copy()
         self._rest_on = np.zeros(k, bool)
         if cfg.rest_prior_sigma > 0 and cfg.use_color_input and detections is not None:
@@ -370,7 +373,8 @@ class MultiObjectTracker:
             update_log_likelihood(D, loc, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
                                   lam, tail, use_occ, dirty, alpha, cmask, cvalid, occ_cap)
             tc = time.perf_counter()
-            ell_tot = ell + self._log_penalties(p_cur, R_cur, plane) + self._log_rest_prior(p_cur)
+            ell_tot = (ell + self._log_penalties(p_cur, R_cur, plane) + self._log_rest_prior(p_cur)
+                       + self._log_support_prior(p_cur, R_cur, support_plane))
             td = time.perf_counter()
             log_w += ell_tot - ell_prev
             ell_prev = ell_tot
@@ -511,8 +515,9 @@ class MultiObjectTracker:
             out += table_log_penalty(hmin, cfg.lambda_h, cfg.table_tolerance)
         return out
 
-    def _follow_hands(self, depth, detected: np.ndarray, table) -> None:
-        """Hand carry (:mod:`tracker.hand_carry`): shift hidden carried parts with the hand that holds them."""
+    def _follow_hands(self, depth, detected: np.ndarray, table, detections) -> None:
+        """Hand carry (:mod:`tracker.hand_carry`): shift hidden carried parts with the hand that holds them. A
+        carried part whose reliable colour blob stays put while the hand moves on has been let go: released."""
         cfg = self.config
         plane = _table_normal_offset(table)
         k = len(self.parts)
@@ -524,13 +529,43 @@ class MultiObjectTracker:
                 heights[i] = float((self.hulls[i] @ est.R.T @ plane[0]).min() + est.t @ plane[0] + plane[1])
         hidden = self.visibility < cfg.rest_prior_max_visibility  # little depth evidence (previous frame)
         delta = self._carry.update(depth, pos, hidden, ~hidden, heights, plane)
+        centers = {}
+        for i, nm in enumerate(self.names):
+            det = detections.get(nm) if detections else None
+            c = getattr(det, "center", None) if det is not None else None
+            if c is not None and detected[i]:
+                centers[i] = np.asarray(c, np.float64)
         for i in np.nonzero(np.abs(delta).sum(1) > 0)[0]:
             nm = self.names[i]
+            if i in centers and i in self._last_centers:
+                uv = self.intrinsics.project(np.array([pos[i], pos[i] + delta[i]]))
+                hand_px = float(np.linalg.norm(uv[1] - uv[0]))
+                blob_px = float(np.linalg.norm(centers[i] - self._last_centers[i]))
+                if hand_px > 3.0 and blob_px < 0.3 * hand_px:
+                    self._carry.release(i)
+                    continue
             self.p[:, i] += delta[i]
             self.v[:, i] = 0.0
             est = self.estimates[nm]
             self.estimates[nm] = Pose.from_rt(est.R, est.t + delta[i])
             self._rest_t[i] = self._rest_t[i] + delta[i]
+        self._last_centers = centers
+        # support prior: a part the depth camera cannot see, not in a hand and not on another part rests on the table
+        self._support_on = np.zeros(k, bool)
+        if plane is not None and cfg.support_prior_sigma > 0:
+            carried = self._carry.carried
+            for i in range(k):
+                if not hidden[i] or carried[i]:
+                    continue
+                on_other = any(o != i and heights[o] < heights[i] - 0.01
+                               and np.linalg.norm(pos[i] - pos[o]) < 1.05 * (self._radius[i] + self._radius[o])
+                               for o in range(k))
+                self._support_on[i] = not on_other
+                if not on_other:  # a rest anchor in the air (last seen in a hand) is set down on the table too
+                    est = self.estimates[self.names[i]]
+                    h = float((self.hulls[i] @ est.R.T @ plane[0]).min() + self._rest_t[i] @ plane[0] + plane[1])
+                    if h > cfg.carry_min_height:
+                        self._rest_t[i] = self._rest_t[i] - h * plane[0]
 
     def _blob_left_rest(self, obj: int, det) -> bool:
         """Does the colour blob of part ``obj`` reach more than ``rest_release_px`` beyond the part's projected
@@ -547,6 +582,20 @@ class MultiObjectTracker:
         m = self.config.rest_release_px
         return bool(x < uv[:, 0].min() - m or x + w > uv[:, 0].max() + m or y < uv[:, 1].min() - m
                     or y + h > uv[:, 1].max() + m)
+
+    def _log_support_prior(self, p, R, plane) -> np.ndarray | float:
+        """Support prior (TrackerConfig.support_prior_sigma): the lowest point of an unseen, unheld part that is not
+        on another part lies on the table; quadratic within 3σ, linear beyond (it still pulls a floating part)."""
+        if plane is None or not self._support_on.any():
+            return 0.0
+        sig = self.config.support_prior_sigma
+        out = np.zeros(p.shape[0])
+        n, d = plane
+        for i in np.nonzero(self._support_on)[0]:
+            nb = np.einsum("nji,j->ni", R[:, i], n)  # Rᵀ n per particle
+            h = np.abs((nb @ self.hulls[i].T).min(axis=1) + p[:, i] @ n + d) / sig
+            out -= np.where(h < 3.0, 0.5 * h * h, 3.0 * h - 4.5)
+        return out
 
     def _log_rest_prior(self, p) -> np.ndarray | float:
         """Rest prior (TrackerConfig.rest_prior_sigma): Gaussian pull of resting hidden parts to their anchors."""

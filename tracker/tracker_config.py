@@ -61,6 +61,12 @@ class TrackerConfig(BaseModel):
         "than this many pixels beyond the part's projected bounding rectangle at its rest position: it is moving "
         "(0 = never released this way).",
     )
+    support_prior_sigma: float = Field(
+        0.0, ge=0.0, description="Support prior (not in the spec; 0 = off; needs carry_follow and the table plane): a "
+        "part below rest_prior_max_visibility that is not carried and not on another part rests on the table: its "
+        "particles' weights get -h^2/(2 sigma^2) for the height h (m) of their lowest point above the table "
+        "(linear beyond 3 sigma). Keeps a part in the depth sensor's shadow from floating toward the camera.",
+    )
     carry_follow: bool = Field(
         False, description="Hand carry (not in the spec; tracker/hand_carry.py): a hidden part (no reliable blob, "
         "visible fraction below rest_prior_max_visibility) that was moving or in the air when it disappeared is "
@@ -338,5 +344,6 @@ PRESETS["default"] = {
     "occluded_evidence_cap": 3.0,
     "rest_prior_sigma": 0.003,
     "carry_follow": True,
+    "support_prior_sigma": 0.003,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
