@@ -275,7 +275,7 @@ def to_markdown(results: dict) -> str:
         "## Depth tracker (issue 4)",
         "",
         f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; 1-min load {m['load_1min_at_start']} at start "
-        "(above 1, other jobs shared the cores and wall times are pessimistic). Time = tracker `step` only, "
+        "(above 1: other jobs shared the cores, CPU p95 and wall times are pessimistic). Time = tracker `step` only, "
         "single thread (thread CPU time, and wall time), 640×480 input, 5 cubes. Simulator seed "
         f"{results['seed']}, {results['frames']} frames per guess/learning sequence, {results['static_frames']} "
         f"static; run took {results['elapsed_s']} s.",
@@ -338,7 +338,9 @@ def to_markdown(results: dict) -> str:
         "over it is no evidence); rest prior: a part < 30 % visible in depth whose blob (if any) stays within its "
         "rest silhouette is held at its last well-observed position, velocity 0, Gaussian pull σ = 3 mm in the "
         "weights; hand carry: a part < 30 % visible that was moving or in the air when it disappeared follows the "
-        "hand's depth points near it (point-to-plane translation ICP of the hand patch, tracker/hand_carry.py)); "
+        "hand's depth points near it (point-to-plane translation ICP of the hand patch, tracker/hand_carry.py) "
+        "until its blob stays put or the hand leaves; support prior: such a part, not carried and not on another "
+        "part, rests on the table (σ = 3 mm on its lowest point's height)); "
         "*seed-exp23* / *seed-exp1* = the thesis's parameter sets with the reference-code defaults (1/8 "
         "resolution, none of these extensions). learning-5 has 7 cubes (2 distractors), hence its longer times. "
         "Ablations switch one component of *ours* off (colour = control input, blob masks and colour term). "

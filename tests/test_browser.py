@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.browser
@@ -178,7 +179,11 @@ def test_find_parts_shows_results_and_part_list(server, page):
     try:
         snap = httpx.get(server + "/api/snapshot").json()
         assert isinstance(snap["carried"], list)
-        seen = {n: d for n, d in snap["detections"].items() if d["bbox"] is not None and d["score"] > 0.9}
+        # a part resting on the table, well seen, not in the hand (the paused frame may show one being carried)
+        n_up, off = np.asarray(snap["table"]["normal"]), float(snap["table"]["offset"])
+        resting = {n for n, p in snap["poses"].items() if abs(float(np.dot(n_up, p["t"]) + off) - 0.018) < 0.004}
+        seen = {n: d for n, d in snap["detections"].items()
+                if d["bbox"] is not None and d["score"] > 0.9 and n in resting and n not in snap["carried"]}
         name = max(seen, key=lambda n: seen[n]["area"])
         page.wait_for_selector(f"#box-part option[value='{name}']", state="attached")
         page.select_option("#box-part", name)
