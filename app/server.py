@@ -290,6 +290,18 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
     settings = settings or Settings()
     state = AppState(settings, open_source)
 
+    def _on_worker(apply: Callable[[Any, Any], Any]) -> Any:
+        """Run ``apply(pipeline, latest frame)`` on the worker thread and return its result; a busy worker is a 503,
+        a LookupError (nothing to act on yet) a 409, a ValueError (bad request) a 422."""
+        try:
+            return state.worker.submit(apply).result(timeout=COMMAND_TIMEOUT_S)
+        except FutureTimeout as exc:
+            raise HTTPException(503, "the pipeline is busy; try again") from exc
+        except LookupError as exc:
+            raise HTTPException(409, str(exc)) from exc
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from exc
+
     @contextlib.asynccontextmanager
     async def lifespan(_app: FastAPI):
         state.startup()
@@ -491,14 +503,7 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
             state.user_poses[name] = pose
             return name, pose, frame.index
 
-        try:
-            name, pose, index = state.worker.submit(apply).result(timeout=COMMAND_TIMEOUT_S)
-        except FutureTimeout as exc:
-            raise HTTPException(503, "the pipeline is busy; try again") from exc
-        except LookupError as exc:
-            raise HTTPException(409, str(exc)) from exc
-        except ValueError as exc:
-            raise HTTPException(422, str(exc)) from exc
+        name, pose, index = _on_worker(apply)
         box = m.BoxResponse(
             part=name,
             action=body.action,
@@ -530,14 +535,7 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
                     state.user_poses[name] = pipeline.poses[name]
             return results, frame.index
 
-        try:
-            results, index = state.worker.submit(apply).result(timeout=COMMAND_TIMEOUT_S)
-        except FutureTimeout as exc:
-            raise HTTPException(503, "the pipeline is busy; try again") from exc
-        except LookupError as exc:
-            raise HTTPException(409, str(exc)) from exc
-        except ValueError as exc:
-            raise HTTPException(422, str(exc)) from exc
+        results, index = _on_worker(apply)
         return m.AutoPlaceResponse(frame_index=index, results={k: m.AutoPlaceResult(**v) for k, v in results.items()})
 
     @app.get("/api/boxes", response_model=m.BoxList, tags=["stream"])
