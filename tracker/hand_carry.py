@@ -100,16 +100,9 @@ class HandCarry:
 
     def in_air(self, obj: int, positions: np.ndarray, heights: np.ndarray) -> bool:
         """Is part ``obj`` above the table by more than carry_min_height with no other part under it?"""
-        cfg = self.config
-        if not np.isfinite(heights[obj]) or heights[obj] <= cfg.carry_min_height:
+        if not np.isfinite(heights[obj]) or heights[obj] <= self.config.carry_min_height:
             return False
-        for o in range(len(self.patches)):
-            if o == obj:
-                continue
-            gap = np.linalg.norm(positions[obj] - positions[o])
-            if gap < (self.radii[obj] + self.radii[o]) * 1.05 and heights[o] < heights[obj]:
-                return False  # resting on (or leaning against) another part
-        return True
+        return not supported_by_other(obj, positions, heights, self.radii)
 
     def update(self, depth: np.ndarray | None, positions: np.ndarray, hidden: np.ndarray, released: np.ndarray,
                heights: np.ndarray, plane) -> np.ndarray:
@@ -147,10 +140,13 @@ class HandCarry:
             self.patches[i] = pts[near] if near.sum() >= cfg.carry_min_points else None
         return delta
 
-    def _points(self, depth, center, radius, plane, exclude) -> np.ndarray:
+    def _points(self, depth, center, radius, plane, exclude, max_points: int = 800) -> np.ndarray:
+        """Hand points near ``center``, thinned evenly to at most ``max_points`` (keeps the registration cheap)."""
         cfg = self.config
-        return above_table_points(depth, self.intrinsics, center, radius, plane, cfg.carry_min_height,
-                                  cfg.carry_stride, exclude)
+        pts = above_table_points(depth, self.intrinsics, center, radius, plane, cfg.carry_min_height,
+                                 cfg.carry_stride, exclude)
+        step = -(-pts.shape[0] // max_points)
+        return pts[::step] if step > 1 else pts
 
 
 def point_normals(pts: np.ndarray, k: int = 8) -> np.ndarray:
@@ -163,6 +159,19 @@ def point_normals(pts: np.ndarray, k: int = 8) -> np.ndarray:
     cov = np.einsum("mki,mkj->mij", nb, nb)
     _, vecs = np.linalg.eigh(cov)
     return vecs[:, :, 0]
+
+
+def supported_by_other(obj: int, positions: np.ndarray, heights: np.ndarray, radii: np.ndarray,
+                       margin: float = 0.0) -> bool:
+    """Does part ``obj`` rest on (or lean against) another part: one whose lowest point is lower by more than
+    ``margin`` (m) and whose centre is within 1.05 × the sum of the bounding radii (``radii``, m)?"""
+    for o in range(len(positions)):
+        if o == obj:
+            continue
+        gap = np.linalg.norm(positions[obj] - positions[o])
+        if gap < (radii[obj] + radii[o]) * 1.05 and heights[o] < heights[obj] - margin:
+            return True
+    return False
 
 
 def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float,

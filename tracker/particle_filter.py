@@ -40,7 +40,7 @@ from tracker.depth_likelihood import (
     update_log_likelihood,
 )
 from tracker.frame import Frame
-from tracker.hand_carry import HandCarry
+from tracker.hand_carry import HandCarry, supported_by_other
 from tracker.icp_refinement import PartSurfaceModel, icp_refine, part_points
 from tracker.mesh_renderer import MeshModel, render_mesh_at_pixels
 from tracker.motion_model import color_input, mean_pose, propagate, sample_noise
@@ -218,6 +218,7 @@ class MultiObjectTracker:
             )
         now = float(frame.timestamp)
         self._last_time = now
+        self._blobs: dict[int, tuple] = {}  # this frame's blob masks by detection (the detection is kept alive)
         plane = _table_normal_offset(table) if cfg.use_table_penalty else None
         support_plane = _table_normal_offset(table) if cfg.support_prior_sigma > 0 else None
         timings: dict[str, float] = {}
@@ -525,8 +526,7 @@ class MultiObjectTracker:
         heights = np.full(k, np.inf)
         if plane is not None:
             for i, nm in enumerate(self.names):
-                est = self.estimates[nm]
-                heights[i] = float((self.hulls[i] @ est.R.T @ plane[0]).min() + est.t @ plane[0] + plane[1])
+                heights[i] = self._lowest_height(i, self.estimates[nm].R, pos[i], plane)
         hidden = self.visibility < cfg.rest_prior_max_visibility  # little depth evidence (previous frame)
         delta = self._carry.update(depth, pos, hidden, ~hidden, heights, plane)
         centers = {}
@@ -550,22 +550,27 @@ class MultiObjectTracker:
             self.estimates[nm] = Pose.from_rt(est.R, est.t + delta[i])
             self._rest_t[i] = self._rest_t[i] + delta[i]
         self._last_centers = centers
-        # support prior: a part the depth camera cannot see, not in a hand and not on another part rests on the table
+        self._update_support(hidden & ~self._carry.carried, pos, heights, plane)
+
+    def _update_support(self, unseen: np.ndarray, pos: np.ndarray, heights: np.ndarray, plane) -> None:
+        """Which parts get the support prior: ``unseen`` (little depth evidence, not carried) and not on another
+        part. Their rest anchors, when in the air (last seen in a hand), are set down on the table too."""
+        k = len(self.parts)
         self._support_on = np.zeros(k, bool)
-        if plane is not None and cfg.support_prior_sigma > 0:
-            carried = self._carry.carried
-            for i in range(k):
-                if not hidden[i] or carried[i]:
-                    continue
-                on_other = any(o != i and heights[o] < heights[i] - 0.01
-                               and np.linalg.norm(pos[i] - pos[o]) < 1.05 * (self._radius[i] + self._radius[o])
-                               for o in range(k))
-                self._support_on[i] = not on_other
-                if not on_other:  # a rest anchor in the air (last seen in a hand) is set down on the table too
-                    est = self.estimates[self.names[i]]
-                    h = float((self.hulls[i] @ est.R.T @ plane[0]).min() + self._rest_t[i] @ plane[0] + plane[1])
-                    if h > cfg.carry_min_height:
-                        self._rest_t[i] = self._rest_t[i] - h * plane[0]
+        if plane is None or self.config.support_prior_sigma <= 0:
+            return
+        for i in np.nonzero(unseen)[0]:
+            if supported_by_other(i, pos, heights, self._carry.radii, margin=0.01):
+                continue
+            self._support_on[i] = True
+            h = self._lowest_height(i, self.estimates[self.names[i]].R, self._rest_t[i], plane)
+            if h > self.config.carry_min_height:
+                self._rest_t[i] = self._rest_t[i] - h * plane[0]
+
+    def _lowest_height(self, obj: int, R: np.ndarray, t: np.ndarray, plane) -> float:
+        """Height (m) above the table plane ``(n, d)`` of part ``obj``'s lowest vertex at pose (R, t)."""
+        n, d = plane
+        return float((self.hulls[obj] @ (R.T @ n)).min() + t @ n + d)
 
     def _blob_left_rest(self, obj: int, det) -> bool:
         """Does the colour blob of part ``obj`` reach more than ``rest_release_px`` beyond the part's projected
@@ -723,7 +728,14 @@ class MultiObjectTracker:
         return bool(intersection_flags(R, t, self.center, self.half, pairs, self.config.contact_tolerance)[0])
 
     def _blob_mask(self, det, shape) -> np.ndarray | None:
-        """Full-resolution mask of a detection's blob, eroded by 2 px (edges mix part and background)."""
+        """Full-resolution mask of a detection's blob, eroded by 2 px (edges mix part and background); computed
+        once per detection object and frame (colour input, re-seeding and ICP all use it)."""
+        key = id(det)
+        if key not in self._blobs:
+            self._blobs[key] = (det, self._make_blob_mask(det, shape))
+        return self._blobs[key][1]
+
+    def _make_blob_mask(self, det, shape) -> np.ndarray | None:
         if det is None or getattr(det, "contour", None) is None:
             return None
         if float(getattr(det, "score", 0.0) or 0.0) < self.config.color_mask_min_score:
