@@ -31,8 +31,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.bench_tracker import LostCounter, oracle_hints  # noqa: E402
 from tracker.color_detection import ColorDetector  # noqa: E402
-from tracker.connection_hint import ConnectionHint  # noqa: E402
 from tracker.machine_info import machine_info  # noqa: E402
 from tracker.particle_filter import MultiObjectTracker  # noqa: E402
 from tracker.pose import rotation_angle  # noqa: E402
@@ -55,16 +55,6 @@ NOTES = (
 MOTIONS = ("none", "sway", "handheld")
 
 
-def hints(events, t: float, gt: dict, n_k: int) -> list[ConnectionHint]:
-    """Locked hints with the ground-truth relative pose for every pair connected by time ``t``."""
-    state: dict[tuple[str, str], bool] = {}
-    for e in events:
-        if e.t <= t:
-            state[tuple(e.parts)] = e.type == "connected"
-    return [ConnectionHint(a, b, gt[a].inverse() @ gt[b], n_k, locked=True)
-            for (a, b), on in state.items() if on and a in gt and b in gt]  # fmt: skip
-
-
 def run(scenario: str, motion: str, n_frames: int, n_particles: int, seed: int) -> dict:
     src = SimulatedTable(scenario, seed=seed, options=SimOptions(camera_motion=motion), n_frames=n_frames)
     det = ColorDetector.from_parts([p for p in src.parts if p.color is not None])
@@ -72,8 +62,7 @@ def run(scenario: str, motion: str, n_frames: int, n_particles: int, seed: int) 
     tr = MultiObjectTracker(src.parts, src.intrinsics, cfg, seed=1)
     tr.initialize(src.initial_poses)
     errors = PoseErrorLog(src.parts)
-    run_len = dict.fromkeys((p.name for p in src.parts), 0)
-    lost = dict.fromkeys((p.name for p in src.parts), 0)
+    lost = LostCounter([p.name for p in src.parts])
     sim_ms, track_ms = [], []
     cam0 = src.camera_pose_at(0)
     cam_t, cam_r = [], []
@@ -87,24 +76,21 @@ def run(scenario: str, motion: str, n_frames: int, n_particles: int, seed: int) 
         cam_t.append(float(np.linalg.norm(cam.t - cam0.t)))
         cam_r.append(float(rotation_angle(cam0.q, cam.q)))
         plane = (np.asarray(g["table_plane"]["normal"]), float(g["table_plane"]["offset"]))
-        tr.set_connection_hints(hints(src.events, f.timestamp, g["poses"], cfg.n_max))
+        tr.set_connection_hints(oracle_hints(src, f.timestamp, g["poses"], cfg.n_max))
         dets = det.detect(f.color)
         t0 = time.perf_counter()
         st = tr.step(f, dets, plane)
         track_ms.append(1e3 * (time.perf_counter() - t0))
         errors.add(st.poses, g["poses"])
         for n, p in st.poses.items():
-            bad = np.linalg.norm(p.t - g["poses"][n].t) > 0.02 and g["visible"].get(n, 1.0) > 0.0
-            run_len[n] = run_len[n] + 1 if bad else 0
-            if run_len[n] == 31:
-                lost[n] += 1
+            lost.add(n, float(np.linalg.norm(p.t - g["poses"][n].t)), g["visible"].get(n, 1.0))
     s = errors.summary()
     a = s["all"]
     return {
         "scenario": scenario, "motion": motion, "frames": src.n_frames,
         "t_median_mm": round(a["t_median_mm"], 2), "t_p95_mm": round(a["t_p95_mm"], 2),
         "r_median_deg": round(a["r_median_deg"], 2), "r_p95_deg": round(a["r_p95_deg"], 2),
-        "lost": int(sum(lost.values())), "lost_parts": sorted(n for n, k in lost.items() if k),
+        "lost": int(sum(lost.lost.values())), "lost_parts": sorted(n for n, k in lost.lost.items() if k),
         "per_part_t_p95_mm": {n: round(v["t_p95_mm"], 2) for n, v in s.items() if n != "all"},
         "per_part_r_p95_deg": {n: round(v["r_p95_deg"], 2) for n, v in s.items() if n != "all"},
         "camera_max_shift_cm": round(100 * max(cam_t), 2),
