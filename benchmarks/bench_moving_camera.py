@@ -42,15 +42,14 @@ from tracker.tracker_config import TrackerConfig  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 NOTES = (
-    "What the moving camera does to the tracker (per-part runs of error > 6 mm or > 8°, guess-1 seed 0; tracker of "
-    "the working tree after commit b2af72f, with the lead's uncommitted tracker edits, so guess-1 figures vary by "
-    "~1 mm / a few degrees between runs): no part is lost, and resting visible parts follow the camera (static: "
-    "t p95 3.7 mm with and without motion). Errors grow where a part has no depth evidence: a part fully hidden by "
-    "the hand (visible = 0) keeps its camera-frame pose while the camera moves, so it drifts by the camera's motion "
-    "meanwhile (blue in frames 116–169, yellow 266–287: 7–12 mm with sway/handheld; no such run with the fixed "
-    "camera), and the error run of a carried part lasts longer (red: frames 77–199 up to 40 mm with handheld, "
-    "79–145 up to 21 mm with the fixed camera; green 234–301 up to 23–27 mm in every mode). The tracker has no "
-    "camera ego-motion estimate (e.g. from the table plane or the static parts); hidden parts would need one."
+    "What the moving camera does to the tracker: no part is lost, and resting visible parts follow the camera "
+    "(static: the same t p95 with and without motion). Errors grow where a part has no depth evidence: a part fully "
+    "hidden by the hand keeps its camera-frame pose (or follows the hand that carries it) while the camera moves, "
+    "so it drifts by the camera's own motion meanwhile; in an analysis at commit b2af72f (guess-1, seed 0, per-part "
+    "runs of error > 6 mm) such runs reached 7–12 mm with sway / handheld and did not occur with the fixed camera, "
+    "and a carried part's error run lasted longer (up to 40 mm with handheld against 21 mm fixed). The tracker has "
+    "no estimate of the camera's ego-motion (e.g. from the table plane or the static parts); hidden parts would "
+    "need one."
 )
 MOTIONS = ("none", "sway", "handheld")
 
