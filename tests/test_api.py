@@ -5,11 +5,8 @@ from __future__ import annotations
 import time
 
 import pytest
-from fastapi.testclient import TestClient
+from api_client import app_client, wait_frames
 from test_worker import SyntheticTable
-
-from app.server import create_app
-from app.settings import Settings
 
 PASSWORD = "profesora-1"
 TASK = {"source_sentence": "Μου αρέσει ο καφές", "words": ["Me", "gusta", "el", "café"], "distractors": ["leche"]}
@@ -17,27 +14,8 @@ TASK = {"source_sentence": "Μου αρέσει ο καφές", "words": ["Me", 
 
 @pytest.fixture()
 def client(tmp_path):
-    settings = Settings(
-        database=str(tmp_path / "agent.sqlite3"),
-        viser_port=0,
-        mode="none",
-        source="synthetic:",
-        max_fps=100,
-        n_particles=20,
-    )
-    app = create_app(settings, open_source=lambda spec: SyntheticTable(n_frames=100_000))
-    with TestClient(app) as c:
+    with app_client(tmp_path, lambda spec: SyntheticTable(n_frames=100_000), source="synthetic:", max_fps=100) as c:
         yield c
-
-
-def wait_frames(client, n=3, timeout=20.0):
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        st = client.get("/api/status").json()
-        if (st["worker"]["frame_index"] or 0) >= n:
-            return st
-        time.sleep(0.05)
-    raise AssertionError(f"no frames: {client.get('/api/status').json()}")
 
 
 def test_status_and_sources(client):
@@ -199,10 +177,8 @@ def test_websocket_without_frames_ends_when_client_leaves(tmp_path):
     def broken(_spec):
         raise OSError("camera 7 not found")
 
-    settings = Settings(database=str(tmp_path / "a.db"), viser_port=0, mode="none", source="camera:7")
-    app = create_app(settings, open_source=broken)
-    with TestClient(app) as c:
-        worker = app.state.assembly.worker
+    with app_client(tmp_path, broken, source="camera:7") as c:
+        worker = c.app.state.assembly.worker
         with c.websocket_connect("/ws"):
             t0 = time.time()
             while not worker._listeners and time.time() - t0 < 5:
@@ -219,15 +195,13 @@ def test_websocket_without_frames_ends_when_client_leaves(tmp_path):
 
 def test_drawn_box_survives_source_reopen(tmp_path):
     """A part placed by hand stays placed when the source ends and is reopened (loop) — until a reset."""
-    settings = Settings(database=str(tmp_path / "a.db"), viser_port=0, mode="none", source="synthetic:", max_fps=100)
 
     def no_poses(_spec):
         src = SyntheticTable(n_frames=15)
         src.initial_poses = {}
         return src
 
-    app = create_app(settings, open_source=no_poses)
-    with TestClient(app) as c:
+    with app_client(tmp_path, no_poses, source="synthetic:", max_fps=100) as c:
         wait_frames(c, 2)
         assert c.get("/api/snapshot").json()["poses"] == {}
         r = c.post("/api/boxes", json={"x": 38, "y": 58, "w": 14, "h": 14})

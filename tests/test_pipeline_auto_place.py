@@ -7,10 +7,8 @@ import time
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
+from api_client import app_client, wait_frames
 
-from app.server import create_app
-from app.settings import Settings
 from tracker.parts import PartSpec
 from tracker.pipeline import AssemblyPipeline
 from tracker.sources.simulator import SimulatedTable
@@ -119,32 +117,16 @@ def test_snapshot_carried_is_a_list(static_frames):
 
 @pytest.fixture()
 def client(tmp_path):
-    settings = Settings(
-        database=str(tmp_path / "agent.sqlite3"),
-        viser_port=0,
-        mode="none",
-        source="sim:static",
-        max_fps=30,
-        n_particles=20,
-        auto_place=False,  # the endpoint places them
-    )
+    def open_source(_spec):
+        return NoPosesWithCrate("static", 3, realtime=False, n_frames=200)
 
-    app = create_app(settings, open_source=lambda _spec: NoPosesWithCrate("static", 3, realtime=False, n_frames=200))
-    with TestClient(app) as c:
+    # auto_place off: the endpoint places the parts
+    with app_client(tmp_path, open_source, source="sim:static", max_fps=30, auto_place=False) as c:
         yield c
 
 
-def _wait_frames(client, n=2, timeout=30.0):
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        if (client.get("/api/status").json()["worker"]["frame_index"] or 0) >= n:
-            return
-        time.sleep(0.05)
-    raise AssertionError(client.get("/api/status").json())
-
-
 def test_auto_place_endpoint(client):
-    _wait_frames(client)
+    wait_frames(client, 2, 30.0)
     assert client.get("/api/snapshot").json()["poses"] == {}
     r = client.post("/api/parts/auto-place")
     assert r.status_code == 200, r.text
