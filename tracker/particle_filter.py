@@ -219,8 +219,9 @@ class MultiObjectTracker:
         now = float(frame.timestamp)
         self._last_time = now
         self._blobs: dict[int, tuple] = {}  # this frame's blob masks by detection (the detection is kept alive)
-        plane = _table_normal_offset(table) if cfg.use_table_penalty else None
-        support_plane = _table_normal_offset(table) if cfg.support_prior_sigma > 0 else None
+        table_plane = _table_normal_offset(table)
+        plane = table_plane if cfg.use_table_penalty else None
+        support_plane = table_plane if cfg.support_prior_sigma > 0 else None
         timings: dict[str, float] = {}
         n, k = cfg.n_particles, len(self.parts)
 
@@ -260,7 +261,7 @@ class MultiObjectTracker:
                 u[i] = color_input(center, min(score, 1.0), est, depth, intr, cfg.lambda_z, cfg.depth_radius_px,
                                    offset, mask=blob)
         if cfg.carry_follow:
-            self._follow_hands(depth, detected, table, detections)
+            self._follow_hands(depth, detected, table_plane, detections)
         noise_scale = self._noise_scale.copy()
         self._rest_on = np.zeros(k, bool)
         if cfg.rest_prior_sigma > 0 and cfg.use_color_input and detections is not None:
@@ -516,11 +517,11 @@ class MultiObjectTracker:
             out += table_log_penalty(hmin, cfg.lambda_h, cfg.table_tolerance)
         return out
 
-    def _follow_hands(self, depth, detected: np.ndarray, table, detections) -> None:
-        """Hand carry (:mod:`tracker.hand_carry`): shift hidden carried parts with the hand that holds them. A
-        carried part whose reliable colour blob stays put while the hand moves on has been let go: released."""
+    def _follow_hands(self, depth, detected: np.ndarray, plane, detections) -> None:
+        """Hand carry (:mod:`tracker.hand_carry`): shift hidden carried parts with the hand that holds them
+        (``plane``: the table's (normal, offset) or None). A carried part whose reliable colour blob stays put while
+        the hand moves on has been let go: released."""
         cfg = self.config
-        plane = _table_normal_offset(table)
         k = len(self.parts)
         pos = np.array([self.estimates[nm].t for nm in self.names])
         heights = np.full(k, np.inf)
