@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from tracker.frame import Frame
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 from tracker.snapshot import Snapshot
 
 log = logging.getLogger(__name__)

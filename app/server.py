@@ -29,7 +29,7 @@ from app.settings import Settings
 from app.storage import Storage
 from app.worker import PipelineWorker
 from tracker.assembly import SentenceTask
-from tracker.parts import PartSpec
+from tracker.geometry.parts import PartSpec
 from tracker.pipeline import AssemblyPipeline
 from tracker.sources.base import FrameSource
 
@@ -158,7 +158,7 @@ class AppState:
         # config file keeps its own N unless --particles / ASSEMBLY_AGENT_N_PARTICLES is given as well
         explicit = "n_particles" in self.settings.model_fields_set
         if self.settings.n_particles is not None and (explicit or not config):
-            from tracker.tracker_config import TrackerConfig
+            from tracker.filter.tracker_config import TrackerConfig
 
             base = (
                 TrackerConfig.preset(config or "default")

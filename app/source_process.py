@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
+from tracker.geometry.camera import Intrinsics
 from tracker.sources.base import FrameSource, SourceError
 
 

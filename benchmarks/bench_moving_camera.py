@@ -2,7 +2,7 @@
 
 For ``static`` (150 frames) and ``guess-1`` (360 frames), seed 0, each camera motion ``none`` / ``sway`` /
 ``handheld`` renders the same script from the moving camera; the tracker (``default`` preset, N = 225, colour
-detections from :class:`tracker.color_detection.ColorDetector`, the table plane of each frame's ground truth,
+detections from :class:`tracker.perception.color_detection.ColorDetector`, the table plane of each frame's ground truth,
 oracle connection hints after each simulated "connected" event, as in bench_tracker.py) runs on the frames.
 
 Metrics: translation error median / p95 (mm), symmetry-aware rotation error median / p95 (deg), parts lost (runs of
@@ -32,13 +32,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.bench_tracker import LostCounter, oracle_hints  # noqa: E402
-from tracker.color_detection import ColorDetector  # noqa: E402
-from tracker.machine_info import machine_info  # noqa: E402
-from tracker.particle_filter import MultiObjectTracker  # noqa: E402
-from tracker.pose import rotation_angle  # noqa: E402
-from tracker.pose_errors import PoseErrorLog  # noqa: E402
+from tracker.evaluation.machine_info import machine_info  # noqa: E402
+from tracker.evaluation.pose_errors import PoseErrorLog  # noqa: E402
+from tracker.filter.particle_filter import MultiObjectTracker  # noqa: E402
+from tracker.filter.tracker_config import TrackerConfig  # noqa: E402
+from tracker.geometry.pose import rotation_angle  # noqa: E402
+from tracker.perception.color_detection import ColorDetector  # noqa: E402
 from tracker.sources.simulator import SimOptions, SimulatedTable  # noqa: E402
-from tracker.tracker_config import TrackerConfig  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 NOTES = (

@@ -32,16 +32,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tracker.machine_info import machine_info
+from tracker.evaluation.machine_info import machine_info
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tracker.color_detection import ColorDetector  # noqa: E402
-from tracker.hsv_range import preset_range, rgb_to_hsv_float  # noqa: E402
-from tracker.parts import PRESET_COLORS  # noqa: E402
-from tracker.same_color_tracking import SameColorSettings, SameColorTracker  # noqa: E402
-from tracker.table_plane import detect_table  # noqa: E402
+from tracker.geometry.parts import PRESET_COLORS  # noqa: E402
+from tracker.perception.color_detection import ColorDetector  # noqa: E402
+from tracker.perception.hsv_range import preset_range, rgb_to_hsv_float  # noqa: E402
+from tracker.perception.same_color_tracking import SameColorSettings, SameColorTracker  # noqa: E402
+from tracker.perception.table_plane import detect_table  # noqa: E402
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 RESULTS = ROOT / "benchmarks" / "results"

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from tracker.camera import Intrinsics
+from tracker.evaluation.machine_info import machine_info
 from tracker.frame import Frame
-from tracker.machine_info import machine_info
+from tracker.geometry.camera import Intrinsics
 from tracker.sources.depth_registration import register_depth
 from tracker.sources.recording import RecordingSource, RecordingWriter
 

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import httpx
 
-from tracker.machine_info import machine_info
+from tracker.evaluation.machine_info import machine_info
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

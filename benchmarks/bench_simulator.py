@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker.machine_info import machine_info
+from tracker.evaluation.machine_info import machine_info
 from tracker.sources.simulator import SimulatedTable, list_scenarios
 
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import os
 
-from tracker.machine_info import machine_info
+from tracker.evaluation.machine_info import machine_info
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")  # the tracker is single-threaded; keep numba from spawning threads
 
@@ -38,13 +38,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.icp_baseline import ICPTracker  # noqa: E402
-from tracker.color_detection import ColorDetector  # noqa: E402
-from tracker.connection_hint import ConnectionHint  # noqa: E402
+from tracker.evaluation.pose_errors import PoseErrorLog  # noqa: E402
+from tracker.filter.connection_hint import ConnectionHint  # noqa: E402
+from tracker.filter.particle_filter import MultiObjectTracker  # noqa: E402
+from tracker.filter.tracker_config import TrackerConfig  # noqa: E402
 from tracker.frame import Frame  # noqa: E402
-from tracker.particle_filter import MultiObjectTracker  # noqa: E402
-from tracker.pose_errors import PoseErrorLog  # noqa: E402
+from tracker.perception.color_detection import ColorDetector  # noqa: E402
 from tracker.sources.simulator import SimulatedTable  # noqa: E402
-from tracker.tracker_config import TrackerConfig  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -338,7 +338,7 @@ def to_markdown(results: dict) -> str:
         "over it is no evidence); rest prior: a part < 30 % visible in depth whose blob (if any) stays within its "
         "rest silhouette is held at its last well-observed position, velocity 0, Gaussian pull σ = 3 mm in the "
         "weights; hand carry: a part < 30 % visible that was moving or in the air when it disappeared follows the "
-        "hand's depth points near it (point-to-plane translation ICP of the hand patch, tracker/hand_carry.py) "
+        "hand's depth points near it (point-to-plane translation ICP of the hand patch, tracker/filter/hand_carry.py) "
         "until its blob stays put or the hand leaves; support prior: such a part, not carried and not on another "
         "part, rests on the table (σ = 3 mm on its lowest point's height)); "
         "*seed-exp23* / *seed-exp1* = the thesis's parameter sets with the reference-code defaults (1/8 "

@@ -1,10 +1,18 @@
 #!/usr/bin/env bash
-# Create .venv (if missing) and install the package with its test extras. Idempotent.
+# Create .venv (if missing) and install the package with its test extras. Idempotent and quick when nothing
+# changed: the install is skipped while pyproject.toml matches the stamp of the last successful install.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
+STAMP=.venv/.assembly-agent-installed
+WANT=$(sha256sum pyproject.toml | cut -d' ' -f1)
+if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$WANT" ] && .venv/bin/python -c "import app, tracker" 2>/dev/null; then
+  exit 0
+fi
+echo "setting up .venv (first run or pyproject.toml changed)..." >&2
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -e ".[test]"
+echo "$WANT" > "$STAMP"

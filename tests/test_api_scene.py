@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from app.scene import Scene, ghost_target, word_labels
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 from tracker.snapshot import Snapshot
 
 

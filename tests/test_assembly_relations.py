@@ -17,9 +17,9 @@ from tracker.assembly.relations import (
     table_to_camera_from_plane,
 )
 from tracker.assembly.synthetic import default_table_to_camera
-from tracker.parts import CUBE_EDGE, PartSpec
-from tracker.pose import Pose
-from tracker.symmetry import cube_group
+from tracker.geometry.parts import CUBE_EDGE, PartSpec
+from tracker.geometry.pose import Pose
+from tracker.geometry.symmetry import cube_group
 
 A = CUBE_EDGE
 

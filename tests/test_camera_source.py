@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tracker.camera import Intrinsics
+from tracker.geometry.camera import Intrinsics
 from tracker.sources import camera as camera_mod
 from tracker.sources.base import SourceError
 from tracker.sources.camera import (

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tracker.camera import Intrinsics
+from tracker.geometry.camera import Intrinsics
 from tracker.sources.depth_registration import register_depth
 
 COLOR = Intrinsics(160, 120, 150.0, 151.0, 79.5, 59.5)

@@ -2,17 +2,14 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
+from shared_data import REAL, needs_shared
 
-from tracker.color_detection import ColorDetection, ColorDetector, calibrate_range, clip_rect
-from tracker.hsv_range import PRESET_RANGES, HSVRange, circular_stats, preset_range, rgb_to_hsv_float
-from tracker.parts import PRESET_COLORS, PartSpec
-
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+from tracker.geometry.parts import PRESET_COLORS, PartSpec
+from tracker.perception.color_detection import ColorDetection, ColorDetector, calibrate_range, clip_rect
+from tracker.perception.hsv_range import PRESET_RANGES, HSVRange, circular_stats, preset_range, rgb_to_hsv_float
 
 
 def hsv_image_rgb(h_deg: np.ndarray, s: float, v: float) -> np.ndarray:
@@ -171,7 +168,7 @@ def test_presets_do_not_overlap_between_neighbouring_hues():
         ColorDetector.from_parts([PartSpec.cube("x", None)])
 
 
-@pytest.mark.skipif(not (REAL / "jenga").is_dir(), reason="real data folder not mounted")
+@needs_shared
 @pytest.mark.parametrize(
     "frame,rect",
     [(1, (300, 143, 40, 10)), (1, (285, 240, 25, 8)), (1, (332, 197, 14, 8)), (1, (360, 242, 10, 6))],
@@ -195,7 +192,7 @@ def test_real_jenga_calibration(frame, rect):
     assert r.contains(hsv[0], hsv[1], hsv[2]) or m[v - 2 : v + 3, u - 2 : u + 3].any()
 
 
-@pytest.mark.skipif(not (REAL / "jenga").is_dir(), reason="real data folder not mounted")
+@needs_shared
 def test_inspect_colors_cli(capsys):
     import json
 
@@ -242,7 +239,7 @@ def test_roi_detection_equals_full_image_detection():
     det = ColorDetector.from_parts(["blue", "red", "yellow"])
     fast = det.detect(img)
     for n, m in det.masks(img).items():
-        from tracker.color_detection import detect_in_mask
+        from tracker.perception.color_detection import detect_in_mask
 
         full = detect_in_mask(n, m)
         assert fast[n].score == pytest.approx(full.score) and fast[n].area == pytest.approx(full.area)

@@ -1,13 +1,13 @@
-"""Hand carry (tracker/hand_carry.py): hidden parts in a hand follow the hand's depth points; resting ones stay."""
+"""Hand carry (filter/hand_carry.py): hidden parts in a hand follow the hand's depth points; resting ones stay."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tracker.camera import Intrinsics
-from tracker.hand_carry import HandCarry, register_translation
-from tracker.tracker_config import TrackerConfig
+from tracker.filter.hand_carry import HandCarry, register_translation
+from tracker.filter.tracker_config import TrackerConfig
+from tracker.geometry.camera import Intrinsics
 
 CFG = TrackerConfig.preset("default")
 PLANE = (np.array([0.0, 0.0, -1.0]), 0.7)  # a fronto-parallel table 0.7 m away: height = 0.7 - z
@@ -74,8 +74,8 @@ def test_tracker_keeps_a_cube_carried_inside_the_hand(follow):
     """Simulated guess-2 (seed 1): the hand lifts the blue cube, carries it ~25 cm completely hidden in its grasp
     and puts it down. With the hand carry the estimate stays with the hand; without it, it stays where the cube
     vanished. Both find the cube again once it is put down and visible (re-seeding)."""
-    from tracker.color_detection import ColorDetector
-    from tracker.particle_filter import MultiObjectTracker
+    from tracker.filter.particle_filter import MultiObjectTracker
+    from tracker.perception.color_detection import ColorDetector
     from tracker.sources.simulator import SimulatedTable
 
     src = SimulatedTable("guess-2", seed=1, realtime=False)
@@ -108,11 +108,11 @@ def test_support_prior_sets_an_unseen_floating_part_down_on_the_table(sigma):
     """A red cube stands on a table 0.7 m away but its pixels have no depth (the sensor's shadow next to a hand);
     only its colour blob is seen. Started 2 cm too close to the camera (floating), the support prior brings its
     lowest point down to the table; without it nothing in the depth says where along the ray the cube is."""
-    from tracker.color_detection import ColorDetection
+    from tracker.filter.particle_filter import MultiObjectTracker
     from tracker.frame import Frame
-    from tracker.particle_filter import MultiObjectTracker
-    from tracker.parts import PartSpec
-    from tracker.pose import Pose
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+    from tracker.perception.color_detection import ColorDetection
 
     intr = Intrinsics.default(160, 120)
     cfg = CFG.with_overrides(n_particles=100, support_prior_sigma=sigma)

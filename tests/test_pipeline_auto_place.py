@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from api_client import app_client, wait_frames
 
-from tracker.parts import PartSpec
+from tracker.filter.tracker_config import TrackerConfig
+from tracker.geometry.parts import PartSpec
 from tracker.pipeline import AssemblyPipeline
 from tracker.sources.simulator import SimulatedTable
-from tracker.tracker_config import TrackerConfig
 
 CONFIG = TrackerConfig.preset("default").with_overrides(n_particles=30)
 CRATE = PartSpec(name="crate", box=(0.3, 0.3, 0.3))  # a 30 cm box that is not on the table

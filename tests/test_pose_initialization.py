@@ -1,27 +1,27 @@
-"""Automatic first-frame pose initialisation (tracker/pose_initialization.py) and ``track --init``."""
+"""Automatic first-frame pose initialisation (tracker/perception/pose_initialization.py) and ``track --init``."""
 
 from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_data import REAL, needs_shared
 
 from app.cli import main
-from tracker.box_renderer import render_box_depth
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
-from tracker.parts import PartSpec
-from tracker.pose import Pose
-from tracker.pose_initialization import InitResult, initialize_poses
+from tracker.geometry.box_renderer import render_box_depth
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+from tracker.geometry.symmetry import cube_group, symmetric_rotation_error
+from tracker.perception.pose_initialization import InitResult, initialize_poses
+from tracker.perception.table_plane import TablePlane, detect_table
 from tracker.sources.recording import RecordingSource
 from tracker.sources.simulator import SimulatedTable
-from tracker.symmetry import cube_group, symmetric_rotation_error
-from tracker.table_plane import TablePlane, detect_table
 
-VISP = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "visp-cube-desk"
+VISP = REAL / "visp-cube-desk"
 GROUP = cube_group()
 
 
@@ -155,6 +155,7 @@ def test_mesh_part_with_offset_origin(tmp_path):
     assert math.degrees(err) < 3.0 and r.residual_mm < 1.5
 
 
+@needs_shared
 def test_visp_cube_rests_on_table_and_matches_depth(visp):
     parts, frames = visp
     frame = frames[0]
@@ -180,6 +181,7 @@ def test_visp_cube_rests_on_table_and_matches_depth(visp):
     assert np.linalg.norm(uv - np.array([370.0, 275.0])) < 25
 
 
+@needs_shared
 def test_visp_frames_agree(visp):
     parts, frames = visp
     a = initialize_poses(frames[0], parts)["cube"].pose
@@ -188,6 +190,7 @@ def test_visp_frames_agree(visp):
     assert _rot_err_deg(a, b) < 3.0
 
 
+@needs_shared
 def test_track_cli_initialises_visp_automatically(tmp_path, capsys):
     out = tmp_path / "poses.jsonl"
     assert main(["track", str(VISP), "--out", str(out), "--particles", "50"]) == 0
@@ -204,6 +207,7 @@ def test_track_cli_initialises_visp_automatically(tmp_path, capsys):
     assert np.linalg.norm(t - t[0], axis=1).max() < 0.01
 
 
+@needs_shared
 def test_track_cli_init_errors(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["track", str(VISP), "--init", "bogus"])

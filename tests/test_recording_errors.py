@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
+from tracker.geometry.camera import Intrinsics
 from tracker.sources.base import SourceError
 from tracker.sources.recording import RecordingSource, RecordingWriter
 

@@ -8,12 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_data import REAL, needs_shared
 
-from tracker.camera import Intrinsics
-from tracker.events import ConnectionEvent
+from tracker.assembly.events import ConnectionEvent
 from tracker.frame import Frame
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 from tracker.sources.base import SourceError
 from tracker.sources.recording import (
     RecordingSource,
@@ -22,7 +23,6 @@ from tracker.sources.recording import (
     depth_units_to_metres,
 )
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 SMALL = Intrinsics(64, 48, 60.0, 61.0, 31.5, 23.5)
 
 
@@ -40,6 +40,7 @@ def synthetic_frame(i: int, rng: np.random.Generator, intr: Intrinsics = SMALL, 
     "name, n_frames, fx, has_depth",
     [("visp-cube-desk", 10, 614.9616699219, True), ("jenga", 2, 302.754, False), ("tum-desk", 1, 525.0, True)],
 )
+@needs_shared
 def test_real_recordings_read(name, n_frames, fx, has_depth):
     import cv2
 
@@ -70,6 +71,7 @@ def test_real_recordings_read(name, n_frames, fx, has_depth):
     assert src.metadata()["n_frames"] == n_frames
 
 
+@needs_shared
 def test_visp_objects_without_pose():
     src = RecordingSource(REAL / "visp-cube-desk")
     assert [p.name for p in src.parts] == ["cube"]
@@ -77,6 +79,7 @@ def test_visp_objects_without_pose():
     assert src.initial_poses == {}
 
 
+@needs_shared
 def test_rewriting_real_recording_reproduces_files(tmp_path):
     src = RecordingSource(REAL / "visp-cube-desk")
     with RecordingWriter(tmp_path / "a", src.intrinsics, src.depth_scale, parts=src.parts) as w:

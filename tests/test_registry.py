@@ -3,21 +3,22 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_data import REAL, needs_shared
 
 from app.cli import main
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
-from tracker.pose import Pose
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.pose import Pose
 from tracker.sources import camera as camera_mod
 from tracker.sources.base import SourceError
 from tracker.sources.recording import RecordingSource, RecordingWriter
 from tracker.sources.registry import open_source, parse_source_spec
 
-REAL = str(Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "visp-cube-desk")
+VISP = REAL / "visp-cube-desk"
+
 SMALL = Intrinsics(40, 30, 40.0, 40.0, 19.5, 14.5)
 
 
@@ -43,14 +44,15 @@ def test_unknown_scheme_is_named():
 
 def test_unknown_option():
     with pytest.raises(ValueError, match=r"unknown source option\(s\) sede"):
-        open_source(f"recording:{REAL}", sede=3)
+        open_source(f"recording:{VISP}", sede=3)
 
 
+@needs_shared
 def test_open_recording_both_ways():
-    for spec in (f"recording:{REAL}", REAL):
+    for spec in (f"recording:{VISP}", str(VISP)):
         with open_source(spec, seed=5, calibration=None) as src:  # options for other sources are ignored
             assert isinstance(src, RecordingSource) and len(src) == 10
-    src = open_source(REAL, loop=True)
+    src = open_source(str(VISP), loop=True)
     assert src.loop is True
 
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tracker.hsv_range import preset_range
-from tracker.parts import PRESET_COLORS
-from tracker.same_color_tracking import SameColorSettings, SameColorTracker
+from tracker.geometry.parts import PRESET_COLORS
+from tracker.perception.hsv_range import preset_range
+from tracker.perception.same_color_tracking import SameColorSettings, SameColorTracker
 
 RED = np.array(PRESET_COLORS["red"], float)
 
@@ -124,7 +124,7 @@ def test_simulated_same_colour_sequence_keeps_identities():
     """Five simulated cubes re-hued to one red (own shading kept) while the hand moves one of them."""
     import cv2
 
-    from tracker.hsv_range import rgb_to_hsv_float
+    from tracker.perception.hsv_range import rgb_to_hsv_float
     from tracker.sources.simulator import SimulatedTable
 
     src = SimulatedTable("guess-2", seed=3)

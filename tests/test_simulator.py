@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tracker.parts import CUBE_EDGE, PRESET_COLORS
-from tracker.pose import Pose
+from tracker.geometry.parts import CUBE_EDGE, PRESET_COLORS
+from tracker.geometry.pose import Pose
+from tracker.geometry.symmetry import cube_group
 from tracker.sources.simulator import (
     DepthSensorModel,
     SimOptions,
@@ -15,7 +16,6 @@ from tracker.sources.simulator import (
     list_scenarios,
 )
 from tracker.sources.simulator.scenarios import cube_yaw, rot_y
-from tracker.symmetry import cube_group
 
 A = CUBE_EDGE
 NAMES = ["static", "free", "guidance-demo", "guess-1", "guess-2", "guess-3", "learning-4", "learning-5"]

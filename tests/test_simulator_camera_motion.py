@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from tracker.color_detection import ColorDetector
-from tracker.particle_filter import MultiObjectTracker
-from tracker.pose import Pose, rotation_angle
+from tracker.filter.particle_filter import MultiObjectTracker
+from tracker.filter.tracker_config import TrackerConfig
+from tracker.geometry.pose import Pose, rotation_angle
+from tracker.perception.color_detection import ColorDetector
 from tracker.sources.recording import RecordingSource
 from tracker.sources.registry import open_source
 from tracker.sources.simulator import SimOptions, SimulatedTable
-from tracker.tracker_config import TrackerConfig
 
 MOVING = ("sway", "handheld")
 

@@ -9,8 +9,8 @@ import pytest
 import trimesh
 
 from app.cli import main as cli_main
-from tracker.parts import ROD_SIZE, PartSpec
-from tracker.pose import Pose
+from tracker.geometry.parts import ROD_SIZE, PartSpec
+from tracker.geometry.pose import Pose
 from tracker.sources.simulator import SimOptions, SimulatedTable
 from tracker.sources.simulator import rasterizer as rz
 from tracker.sources.simulator.scene import AMBIENT, DIFFUSE

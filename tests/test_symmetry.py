@@ -1,8 +1,8 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from tracker.parts import PartSpec
-from tracker.symmetry import box_group, cube_group, nearest_in_group, symmetric_rotation_error
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.symmetry import box_group, cube_group, nearest_in_group, symmetric_rotation_error
 
 
 def test_cube_group_is_a_group_of_24_distinct_rotations():

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_data import REAL, needs_shared
 
-from tracker.camera import Intrinsics
-from tracker.pose import Pose
-from tracker.table_plane import (
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.pose import Pose
+from tracker.perception.table_plane import (
     TableMonitor,
     TableNotFoundError,
     TablePlane,
@@ -18,8 +18,6 @@ from tracker.table_plane import (
     fit_plane_svd,
     table_changed,
 )
-
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
 def plane_from_camera_tilt(tilt_deg: float, height: float, roll_deg: float = 0.0) -> tuple[np.ndarray, float]:
@@ -191,7 +189,7 @@ def _real_depth(name: str, index: int = 0):
     return src.read(index)
 
 
-@pytest.mark.skipif(not (REAL / "visp-cube-desk").is_dir(), reason="real data folder not mounted")
+@needs_shared
 def test_real_visp_desk():
     f = _real_depth("visp-cube-desk")
     plane = detect_table(f.depth, f.intrinsics)
@@ -205,7 +203,7 @@ def test_real_visp_desk():
     assert np.nanmedian(h) > 0.01
 
 
-@pytest.mark.skipif(not (REAL / "tum-desk").is_dir(), reason="real data folder not mounted")
+@needs_shared
 def test_real_tum_desk_horizontal_surface():
     f = _real_depth("tum-desk")
     plane = detect_table(f.depth, f.intrinsics)
@@ -216,7 +214,7 @@ def test_real_tum_desk_horizontal_surface():
     assert 0.5 < plane.offset < 2.5
 
 
-@pytest.mark.skipif(not (REAL / "visp-cube-desk").is_dir(), reason="real data folder not mounted")
+@needs_shared
 def test_inspect_table_cli(capsys):
     import json
 

@@ -10,11 +10,9 @@ import pytest
 from scipy.integrate import quad
 from scipy.stats import norm
 
-from tracker.box_renderer import render_box_depth
-from tracker.camera import Intrinsics
-from tracker.connection_hint import ConnectionHint
-from tracker.connection_particles import apply_connections, resolve_hints
-from tracker.depth_likelihood import (
+from tracker.filter.connection_hint import ConnectionHint
+from tracker.filter.connection_particles import apply_connections, resolve_hints
+from tracker.filter.depth_likelihood import (
     LikelihoodParams,
     depth_sigma,
     finish_occlusion,
@@ -24,13 +22,15 @@ from tracker.depth_likelihood import (
     update_log_likelihood,
     visible_likelihood,
 )
-from tracker.mesh_renderer import MeshModel, render_mesh_at_pixels
-from tracker.motion_model import mean_rotation, propagate, rotvec_to_matrix
-from tracker.parts import CUBE_EDGE, PartSpec
-from tracker.penalties import boxes_intersect, lowest_heights, table_log_penalty
-from tracker.pose import Pose
-from tracker.resampling import kl_from_uniform, normalize_log_weights, systematic_resample
-from tracker.tracker_config import PRESETS, TrackerConfig
+from tracker.filter.motion_model import mean_rotation, propagate, rotvec_to_matrix
+from tracker.filter.penalties import boxes_intersect, lowest_heights, table_log_penalty
+from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, systematic_resample
+from tracker.filter.tracker_config import PRESETS, TrackerConfig
+from tracker.geometry.box_renderer import render_box_depth
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.mesh_renderer import MeshModel, render_mesh_at_pixels
+from tracker.geometry.parts import CUBE_EDGE, PartSpec
+from tracker.geometry.pose import Pose
 
 PRM = LikelihoodParams()
 
@@ -369,7 +369,7 @@ def test_presets_and_config_files(tmp_path):
 
 # ---------------------------------------------------------------- ICP refinement
 def test_icp_refinement_recovers_small_offset():
-    from tracker.icp_refinement import PartSurfaceModel, icp_refine, part_points
+    from tracker.refine.icp_refinement import PartSurfaceModel, icp_refine, part_points
 
     intr = Intrinsics.default()
     part = PartSpec.cube("c")
@@ -388,7 +388,7 @@ def test_icp_refinement_recovers_small_offset():
 
 def test_icp_surface_model_is_deterministic():
     """Two models of the same part sample the same surface points (trimesh needs an explicit seed)."""
-    from tracker.icp_refinement import PartSurfaceModel
+    from tracker.refine.icp_refinement import PartSurfaceModel
 
     part = PartSpec.cube("c")
     a, b = PartSurfaceModel(part), PartSurfaceModel(part)

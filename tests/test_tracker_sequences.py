@@ -8,16 +8,16 @@ import math
 import numpy as np
 import pytest
 
-from tracker.camera import Intrinsics
-from tracker.connection_hint import ConnectionHint
+from tracker.filter.connection_hint import ConnectionHint
+from tracker.filter.particle_filter import MultiObjectTracker
+from tracker.filter.penalties import boxes_intersect, lowest_heights
+from tracker.filter.tracker_config import TrackerConfig
 from tracker.frame import Frame
-from tracker.particle_filter import MultiObjectTracker
-from tracker.parts import PartSpec
-from tracker.penalties import boxes_intersect, lowest_heights
-from tracker.pose import Pose
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+from tracker.geometry.symmetry import cube_group, symmetric_rotation_error
 from tracker.sources.simulator import SimulatedTable
-from tracker.symmetry import cube_group, symmetric_rotation_error
-from tracker.tracker_config import TrackerConfig
 
 G = cube_group()
 
@@ -63,7 +63,7 @@ def test_static_cube_converges_from_perturbed_start(static_src):
 
 def test_same_seed_gives_identical_tracks(static_src):
     """The tracker is deterministic: same seed, same frames -> bit-identical poses (ICP refinement and colour on)."""
-    from tracker.color_detection import ColorDetector
+    from tracker.perception.color_detection import ColorDetector
 
     src = static_src
     parts = [p for p in src.parts if p.name in ("red", "green")]
@@ -82,7 +82,7 @@ def test_same_seed_gives_identical_tracks(static_src):
 def test_reseeding_recovers_a_teleported_part(static_src):
     """A part whose estimate is 6 cm away from its (reliable) colour blob is re-seeded there and recovers in the first
     frame; without re-seeding the colour input needs several frames."""
-    from tracker.color_detection import ColorDetector
+    from tracker.perception.color_detection import ColorDetector
 
     src = static_src
     parts = [p for p in src.parts if p.name in ("red", "green")]
@@ -189,7 +189,7 @@ def test_cube_carried_by_hand_is_not_lost():
     moved = {n: float(np.linalg.norm(gts[-1][n].t - gt0[n].t)) for n in gt0}
     carried = max(moved, key=moved.get)
     assert moved[carried] > 0.03  # the script really carries a part in this window
-    from tracker.color_detection import ColorDetector
+    from tracker.perception.color_detection import ColorDetector
 
     det = ColorDetector.from_parts(src.parts)
     tr = MultiObjectTracker(src.parts, src.intrinsics, _cfg(n_particles=150), seed=5)
@@ -280,7 +280,7 @@ def test_undetected_coloured_part_is_not_pulled_onto_a_hand(blob_reported_missin
     """A hand 3 cm in front of a red cube covers it entirely. When the colour detector reports that it found no red
     blob, the part shows nowhere, so depth that fits it (the hand's surface) is no evidence and the cube stays put;
     with no detector output for the part (depth only, the spec) the hand's surface attracts it."""
-    from tracker.color_detection import ColorDetection
+    from tracker.perception.color_detection import ColorDetection
 
     intr = Intrinsics.default(160, 120)
     tr = MultiObjectTracker([PartSpec.cube("red", "red")], intr, _cfg(n_particles=100), seed=0)

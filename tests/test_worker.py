@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from app.worker import PipelineWorker
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
-from tracker.parts import PartSpec
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 from tracker.pipeline import AssemblyPipeline
-from tracker.pose import Pose
 from tracker.sources.base import FrameSource
 
 TABLE_NORMAL = np.array([0.0, -0.8, -0.6])  # up, towards the camera
@@ -99,7 +99,7 @@ class StatefulFailing(FrameSource):
 
 
 def make_pipeline(src) -> AssemblyPipeline:
-    from tracker.tracker_config import TrackerConfig
+    from tracker.filter.tracker_config import TrackerConfig
 
     config = TrackerConfig.preset("default").with_overrides(n_particles=20)
     return AssemblyPipeline(src.parts, src.intrinsics, mode=None, config=config, initial_poses=src.initial_poses)
@@ -210,7 +210,7 @@ def test_pause_and_commands_run_on_worker_thread():
 def test_parts_without_pose_start_tracking_when_a_box_is_drawn():
     """Like a live camera: no initial poses; drawing a box over a part starts tracking just that part."""
     src = SyntheticTable(n_frames=4)
-    from tracker.tracker_config import TrackerConfig
+    from tracker.filter.tracker_config import TrackerConfig
 
     config = TrackerConfig.preset("default").with_overrides(n_particles=20)
     p = AssemblyPipeline(src.parts, src.intrinsics, mode=None, config=config, initial_poses=None)

@@ -98,7 +98,7 @@ def test_unpaced_source_loses_no_frame():
 
 
 def test_table_is_rechecked_cheaply_and_redetected_when_it_moves(monkeypatch):
-    import tracker.table_plane as tp
+    import tracker.perception.table_plane as tp
 
     calls = []
     real = tp.detect_table

@@ -8,9 +8,9 @@ Conventions used everywhere in this package:
 * Images: colour is RGB ``uint8`` H×W×3; depth is ``float32`` metres H×W with NaN where missing.
 """
 
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 
 __all__ = ["Frame", "Intrinsics", "PartSpec", "Pose"]

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.camera import Intrinsics
+from tracker.geometry.camera import Intrinsics
 
 
 class FrameError(ValueError):

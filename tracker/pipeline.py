@@ -19,7 +19,7 @@ mode's update (instruction, connections, verdicts). A stage that fails on a fram
 Parts without a pose are not tracked until they are placed: by a rectangle the user draws
 (:meth:`AssemblyPipeline.pose_from_rect` + :meth:`~AssemblyPipeline.set_part_pose`), by
 :meth:`AssemblyPipeline.auto_place` (automatic first-frame pose initialisation,
-:mod:`tracker.pose_initialization`), or, with ``auto_place=True``, automatically: while some part has no pose,
+`pose_initialization`), or, with ``auto_place=True``, automatically: while some part has no pose,
 ``auto_place`` is tried on a frame with a table plane at most every ``auto_place_interval_s`` seconds (frame
 time); parts it cannot find are reported in ``Snapshot.errors`` (``"auto-place <part>: <reason>"``) until found.
 """
@@ -33,10 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 from tracker.snapshot import Snapshot
 
 log = logging.getLogger(__name__)
@@ -158,7 +158,7 @@ class AssemblyPipeline:
     # ----------------------------------------------------------------- construction of the stages
     def _make_detector(self):
         try:
-            from tracker.color_detection import ColorDetector
+            from tracker.perception.color_detection import ColorDetector
         except ImportError as exc:
             self._setup_errors.append(f"colour detection unavailable: {exc}")
             return None
@@ -172,13 +172,13 @@ class AssemblyPipeline:
         if not tracked:
             return None
         try:
-            from tracker.particle_filter import MultiObjectTracker
+            from tracker.filter.particle_filter import MultiObjectTracker
         except ImportError as exc:
             self._setup_errors.append(f"depth tracker unavailable: {exc}")
             return None
         config = self.config
         if isinstance(config, str):
-            from tracker.tracker_config import TrackerConfig
+            from tracker.filter.tracker_config import TrackerConfig
 
             is_file = config.endswith((".yaml", ".yml", ".toml"))
             config = TrackerConfig.load(config) if is_file else TrackerConfig.preset(config)
@@ -268,7 +268,7 @@ class AssemblyPipeline:
         not found; the found ones are set like :meth:`set_part_pose` (the tracker is re-initialised). Raises
         ValueError only for an unknown part name.
         """
-        from tracker.pose_initialization import initialize_poses
+        from tracker.perception.pose_initialization import initialize_poses
 
         if names is None:
             names = self.unplaced()
@@ -282,7 +282,7 @@ class AssemblyPipeline:
         if frame.depth is None:
             return {n: {"error": f"frame {frame.index} has no depth image"} for n in names}
         if table is None:
-            from tracker.table_plane import detect_table
+            from tracker.perception.table_plane import detect_table
 
             try:
                 table = self.table = detect_table(frame.depth, frame.intrinsics)
@@ -427,7 +427,7 @@ class AssemblyPipeline:
 
     def calibrate_color(self, name: str, rgb: np.ndarray, rect: tuple[float, float, float, float]):
         """Re-learn part ``name``'s colour range from the pixels inside ``rect`` (perception's calibration)."""
-        from tracker.color_detection import ColorDetector, calibrate_range
+        from tracker.perception.color_detection import ColorDetector, calibrate_range
 
         self.part(name)
         rng = calibrate_range(rgb, rect=tuple(int(round(v)) for v in rect))
@@ -474,7 +474,7 @@ class AssemblyPipeline:
                 return  # still the same plane: no full detection
             log.info("table plane re-detected: %.0f %% of the grid on it, %.0f %% at detection",
                      100 * share, 100 * self._table_share)  # fmt: skip
-        from tracker.table_plane import detect_table
+        from tracker.perception.table_plane import detect_table
 
         try:
             self.table = detect_table(frame.depth, frame.intrinsics)

@@ -1,6 +1,6 @@
 """What the pipeline knows after one frame: a plain value handed to the web app, recorders and scripts.
 
-Units and frames: poses are camera-frame :class:`~tracker.pose.Pose` values (metres, Hamilton
+Units and frames: poses are camera-frame :class:`~tracker.geometry.pose.Pose` values (metres, Hamilton
 quaternions ``[x, y, z, w]``); particle positions are camera-frame metres (float32); pixel boxes are
 ``[u0, v0, u1, v1]`` in the colour image; times are seconds.
 """
@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from tracker.pose import Pose
+from tracker.geometry.pose import Pose
 
 
 def _finite_list(values: Any, ndigits: int = 5) -> list[float | None]:

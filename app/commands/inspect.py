@@ -13,8 +13,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from tracker.color_detection import ColorDetector, calibrate_range
-from tracker.parts import PRESET_COLORS
+from tracker.geometry.parts import PRESET_COLORS
+from tracker.perception.color_detection import ColorDetector, calibrate_range
 
 
 def register(subparsers) -> None:
@@ -59,7 +59,7 @@ def _parse_calibration(spec: str) -> tuple[str, tuple[int, ...]]:
 def run(args: argparse.Namespace) -> int:
     src, frame = _open_frame(args.recording, args.frame)
     if args.what == "table":
-        from tracker.table_plane import detect_table
+        from tracker.perception.table_plane import detect_table
 
         if frame.depth is None:
             raise ValueError(f"{args.recording}: frame {frame.index} has no depth image")

@@ -40,7 +40,7 @@ def extra_parts(args: argparse.Namespace) -> tuple:
     """PartSpecs of --rod and --mesh PATH[:SCALE]."""
     from pathlib import Path
 
-    from tracker.parts import ROD_SIZE, PartSpec
+    from tracker.geometry.parts import ROD_SIZE, PartSpec
 
     parts = []
     if getattr(args, "rod", False):

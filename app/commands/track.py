@@ -2,13 +2,13 @@
 
 Tracks the parts of the recording's ``objects.json`` (or ``--objects FILE`` in the same format) from their
 first-frame poses. ``--init given`` uses the poses of objects.json (an error when one is missing); ``--init auto``
-finds every part's pose in the first frame (:func:`tracker.pose_initialization.initialize_poses`: table plane,
+finds every part's pose in the first frame (``initialize_poses``: table plane,
 objects above it, colour blob or footprint/height match, ICP); without ``--init`` the given poses are used and
 only the missing ones are found automatically. Each automatically initialised part is reported on stderr with its
 pose and ICP residual. Colour detection is used for parts with a colour (depth only otherwise), the table plane
 when it can be found in the first frames. For a moving camera the plane is re-detected when it no longer fits the
 depth: every frame the share of a coarse pixel grid within 5 mm of the plane is measured
-(:func:`tracker.table_plane.plane_share`, ~0.2 ms), and when it falls below 70 % of its value right after the
+(:func:`tracker.perception.table_plane.plane_share`, ~0.2 ms), and when it falls below 70 % of its value right after the
 last detection the plane is detected again; the number of re-detections is reported on stderr.
 
 Writes one JSON line per frame to ``--out`` (default: stdout is left for the report)::
@@ -47,7 +47,7 @@ def register(subparsers) -> None:
 
 
 def _load_config(args):
-    from tracker.tracker_config import TrackerConfig
+    from tracker.filter.tracker_config import TrackerConfig
 
     if args.config:
         cfg = TrackerConfig.load(args.config, preset=args.preset)
@@ -61,7 +61,7 @@ def _load_config(args):
 
 
 def _find_table(frame, intrinsics):
-    from tracker.table_plane import TableNotFoundError, detect_table
+    from tracker.perception.table_plane import TableNotFoundError, detect_table
 
     if frame.depth is None:
         return None
@@ -93,7 +93,7 @@ class _TableFollower:
 
     def update(self, frame):
         """The plane to use for ``frame`` (``None`` while none was found)."""
-        from tracker.table_plane import plane_share
+        from tracker.perception.table_plane import plane_share
 
         depth = frame.depth
         if depth is None:
@@ -127,7 +127,7 @@ class _TableFollower:
 
 def _auto_poses(src, parts, auto, poses, use_color: bool):
     """Find the first-frame poses of the ``auto`` parts; returns (all poses, the table plane used)."""
-    from tracker.pose_initialization import initialize_poses
+    from tracker.perception.pose_initialization import initialize_poses
 
     if len(src) == 0:
         raise RuntimeError(f"{src.root}: the recording has no frames")
@@ -152,8 +152,8 @@ def _auto_poses(src, parts, auto, poses, use_color: bool):
 
 
 def run(args: argparse.Namespace) -> int:
-    from tracker.particle_filter import MultiObjectTracker
-    from tracker.pose_errors import PoseErrorLog, format_summary
+    from tracker.evaluation.pose_errors import PoseErrorLog, format_summary
+    from tracker.filter.particle_filter import MultiObjectTracker
     from tracker.sources.recording import RecordingSource, parse_objects
 
     cfg = _load_config(args)
@@ -186,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     detector = None
     colored = [p for p in parts if p.color is not None]
     if colored and not args.no_color:
-        from tracker.color_detection import ColorDetector
+        from tracker.perception.color_detection import ColorDetector
 
         detector = ColorDetector.from_parts(colored)
     errors = PoseErrorLog(parts) if src.has_groundtruth else None

@@ -1,7 +1,7 @@
 """Assembly reasoning: task files, relations, cube symmetry, connection monitoring and the three modes.
 
 Public entry points: :func:`load_task`, :func:`list_presets`, :class:`SentenceTask`, :func:`build_mode`
-(in :mod:`tracker.assembly.modes`). Poses handed in are camera-frame :class:`~tracker.pose.Pose` values.
+(in :mod:`tracker.assembly.modes`). Poses handed in are camera-frame :class:`~tracker.geometry.pose.Pose` values.
 """
 
 from tracker.assembly.presets import list_presets, load_preset, preset_path

@@ -29,9 +29,9 @@ from tracker.assembly.relations import (
     rotation_dot,
     table_rotation,
 )
-from tracker.connection_hint import ConnectionHint
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.filter.connection_hint import ConnectionHint
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 
 
 @dataclass

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.symmetry import cube_group, nearest_in_group
+from tracker.geometry.symmetry import cube_group, nearest_in_group
 
 UP_TIE_TOL = 1e-3
 DOT_TIE_TOL = 1e-6

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tracker.assembly.connection_monitor import ConnectionSpec
-from tracker.pose import Pose
+from tracker.geometry.pose import Pose
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """Relative poses and pose-equality tests (spec sections 6–7, eqs 5.1–5.14, eq. 5.8 corrected).
 
-All poses are camera-frame :class:`~tracker.pose.Pose` values (metres). The table frame follows the project
+All poses are camera-frame :class:`~tracker.geometry.pose.Pose` values (metres). The table frame follows the project
 convention: y = the table's upward unit normal, x = the camera x axis projected onto the table plane,
 z = x × y (pointing towards the user for a camera looking down at the table).
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker.pose import Pose, matrix_to_quat
+from tracker.geometry.pose import Pose, matrix_to_quat
 
 
 def table_rotation(table_to_camera: Pose) -> np.ndarray:

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from tracker.assembly.part_graph import PartGraph
-from tracker.parts import CUBE_EDGE
-from tracker.pose import Pose
-from tracker.symmetry import cube_group
+from tracker.geometry.parts import CUBE_EDGE
+from tracker.geometry.pose import Pose
+from tracker.geometry.symmetry import cube_group
 
 
 def default_table_to_camera(distance: float = 0.6, pitch_deg: float = 50.0) -> Pose:

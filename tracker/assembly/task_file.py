@@ -6,7 +6,7 @@ Format (``static/tasks/*.yaml``)::
     title: Guess which structure     # shown to the user
     mode: guess                      # guidance | guess | learning
     units: edges                     # unit of connection positions: "edges" (cube edges, default) or "m"
-    edge: 0.036                      # cube edge in metres (default tracker.parts.CUBE_EDGE)
+    edge: 0.036                      # cube edge in metres (default tracker.geometry.parts.CUBE_EDGE)
     parts:
       - {name: red, shape: box, colour: red}          # box size defaults to a cube of edge ``edge``
       - {name: rod, shape: mesh, mesh: rod.obj, colour: [200, 30, 30]}
@@ -34,8 +34,8 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from tracker.parts import CUBE_EDGE, PRESET_COLORS, PartSpec
-from tracker.pose import Pose
+from tracker.geometry.parts import CUBE_EDGE, PRESET_COLORS, PartSpec
+from tracker.geometry.pose import Pose
 
 
 class TaskFileError(ValueError):

@@ -16,11 +16,11 @@ import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tracker.evaluation.machine_info import machine_info
 from tracker.evaluation.metrics import summarize, timing_distribution
 from tracker.evaluation.report import markdown_table, plot_sweep, write_experiment
 from tracker.evaluation.runner import run_session
 from tracker.evaluation.sessions import GUESS_STRUCTURES, sessions_for
-from tracker.machine_info import machine_info
 
 log = logging.getLogger(__name__)
 
@@ -54,9 +54,9 @@ EXPERIMENTS: dict[str, Experiment] = {
 
 def tracked_available() -> bool:
     try:
-        import tracker.color_detection  # noqa: F401
-        import tracker.particle_filter  # noqa: F401
-        import tracker.table_plane  # noqa: F401
+        import tracker.filter.particle_filter  # noqa: F401
+        import tracker.perception.color_detection  # noqa: F401
+        import tracker.perception.table_plane  # noqa: F401
     except ImportError:
         return False
     return True

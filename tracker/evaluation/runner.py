@@ -25,7 +25,7 @@ from tracker.assembly.modes import build_mode
 from tracker.assembly.presets import load_preset
 from tracker.assembly.synthetic import jitter
 from tracker.evaluation.sessions import SessionSpec
-from tracker.pose import Pose
+from tracker.geometry.pose import Pose
 
 COMPLETE_GRACE = 1.0
 """A mode's "complete" counts as false when it comes more than this many seconds before the true completion
@@ -103,10 +103,10 @@ def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict |
     table_to_camera: Pose = src.table_to_camera
     tracker = detector = table = None
     if poses == "tracked":
-        from tracker.color_detection import ColorDetector
-        from tracker.particle_filter import MultiObjectTracker
-        from tracker.table_plane import detect_table
-        from tracker.tracker_config import TrackerConfig
+        from tracker.filter.particle_filter import MultiObjectTracker
+        from tracker.filter.tracker_config import TrackerConfig
+        from tracker.perception.color_detection import ColorDetector
+        from tracker.perception.table_plane import detect_table
 
         cfg = TrackerConfig.preset(tracker_preset)
         if n_particles is not None:

@@ -6,8 +6,8 @@ import abc
 from collections.abc import Iterator
 from typing import Any
 
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
+from tracker.geometry.camera import Intrinsics
 
 
 class SourceError(RuntimeError):

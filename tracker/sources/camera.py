@@ -39,8 +39,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
+from tracker.geometry.camera import Intrinsics
 from tracker.sources.base import FrameSource, SourceError
 from tracker.sources.depth_registration import register_depth
 

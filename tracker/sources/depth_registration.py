@@ -14,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from tracker.camera import Intrinsics
+from tracker.geometry.camera import Intrinsics
 
 MAX_SPLAT_PX = 8
 """Largest footprint (pixels per side) a single depth pixel may cover in the colour image."""

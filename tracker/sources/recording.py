@@ -30,11 +30,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from tracker.camera import Intrinsics
-from tracker.events import ConnectionEvent
+from tracker.assembly.events import ConnectionEvent
 from tracker.frame import Frame, FrameError
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 from tracker.sources.base import FrameSource, SourceError
 
 log = logging.getLogger(__name__)

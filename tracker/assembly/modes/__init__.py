@@ -15,7 +15,7 @@ from tracker.assembly.modes.guess import GuessMode
 from tracker.assembly.modes.guidance import GuidanceMode
 from tracker.assembly.modes.learning import LearningMode
 from tracker.assembly.task_file import TaskModel
-from tracker.parts import PartSpec
+from tracker.geometry.parts import PartSpec
 
 MODES = {"guidance": GuidanceMode, "guess": GuessMode, "learning": LearningMode}
 

@@ -10,9 +10,9 @@ from tracker.assembly.connection_monitor import AssemblyParams, ConnectionMonito
 from tracker.assembly.mode_state import ModeState
 from tracker.assembly.relations import table_rotation
 from tracker.assembly.task_file import TaskModel
-from tracker.connection_hint import ConnectionHint
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.filter.connection_hint import ConnectionHint
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 
 
 def resolve_parts(task: TaskModel, parts: Iterable[PartSpec] | None) -> list[PartSpec]:

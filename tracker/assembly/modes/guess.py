@@ -23,8 +23,8 @@ from tracker.assembly.connection_monitor import AssemblyParams, ConnectionMonito
 from tracker.assembly.mode_state import ModeState
 from tracker.assembly.modes.base import Mode
 from tracker.assembly.task_file import TaskModel
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 
 EVIDENCE_HYSTERESIS = 0.25
 """A tied candidate replaces the previous guess on evidence only when its evidence is larger by this much."""

@@ -27,9 +27,9 @@ from tracker.assembly.modes.base import Mode, direction_words
 from tracker.assembly.part_graph import PartGraph
 from tracker.assembly.sequence_graph import SequenceGraph
 from tracker.assembly.task_file import TaskModel
-from tracker.parts import PartSpec
-from tracker.pose import Pose
-from tracker.symmetry import cube_group
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+from tracker.geometry.symmetry import cube_group
 
 
 @dataclass

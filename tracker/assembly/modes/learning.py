@@ -25,8 +25,8 @@ from tracker.assembly.connection_monitor import AdjacencyDetector, AssemblyParam
 from tracker.assembly.mode_state import ModeState
 from tracker.assembly.modes.base import Mode
 from tracker.assembly.task_file import SentenceTask, TaskModel
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 
 
 def assign_words(sentence: SentenceTask, cubes: list[str], seed: int) -> dict[str, str]:

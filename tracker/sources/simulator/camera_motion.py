@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker.pose import Pose
+from tracker.geometry.pose import Pose
 
 CAMERA_MOTIONS = ("none", "sway", "handheld")
 """Valid values of ``SimOptions.camera_motion``."""

@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.camera import Intrinsics
-from tracker.events import ConnectionEvent
-from tracker.parts import CUBE_EDGE, PartSpec
-from tracker.pose import Pose
-from tracker.symmetry import cube_group
+from tracker.assembly.events import ConnectionEvent
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import CUBE_EDGE, PartSpec
+from tracker.geometry.pose import Pose
+from tracker.geometry.symmetry import cube_group
 
 A = CUBE_EDGE
 

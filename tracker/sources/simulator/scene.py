@@ -15,8 +15,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from tracker.camera import Intrinsics
-from tracker.pose import Pose
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.pose import Pose
 from tracker.sources.simulator.rasterizer import cast_background
 
 TABLE_X = (-0.75, 0.75)

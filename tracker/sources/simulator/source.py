@@ -27,10 +27,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from tracker.camera import Intrinsics
 from tracker.frame import Frame
-from tracker.parts import PartSpec
-from tracker.pose import Pose, normalize_quat
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose, normalize_quat
 from tracker.sources.base import FrameSource
 from tracker.sources.simulator import rasterizer as rz
 from tracker.sources.simulator.camera_motion import CAMERA_MOTIONS, CameraMotion

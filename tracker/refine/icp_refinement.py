@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tracker.camera import Intrinsics
-from tracker.parts import PartSpec
-from tracker.pose import Pose
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
 
 
 class PartSurfaceModel:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tracker.pose import Pose
+from tracker.geometry.pose import Pose
 
 
 @dataclass(frozen=True)

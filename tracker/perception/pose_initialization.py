@@ -5,7 +5,7 @@ its resting orientations, so that the depth tracker can start without a hand-wri
 
 Method (per frame):
 
-1. Table plane ``n·p + d = 0`` (:func:`tracker.table_plane.detect_table` unless given); heights above it
+1. Table plane ``n·p + d = 0`` (:func:`tracker.perception.table_plane.detect_table` unless given); heights above it
    ``h = n·p + d`` (positive toward the camera).
 2. Above-table mask: pixels with ``min_height < h < max_height`` (``min_height`` = max(``min_height``,
    ``rms_factor`` × the plane's RMS residual), so table noise and paper on the table are not objects), cleaned
@@ -27,7 +27,7 @@ Method (per frame):
    body's longer horizontal axis); position = footprint centre lifted so that the part's bounding box rests on
    the support. Boxes may rest on any face: the face whose height above the support matches the measured height
    best is chosen (body y up on ties).
-6. Refinement: point-to-plane ICP (:func:`tracker.icp_refinement.icp_refine`, box or mesh surface model),
+6. Refinement: point-to-plane ICP (:func:`tracker.refine.icp_refinement.icp_refine`, box or mesh surface model),
    coarse-to-fine correspondence distances. The refined pose is kept only when it stays close to resting
    (tilt < ``max_tilt``) and lowers the residual; otherwise it is snapped back to the nearest resting pose.
 
@@ -47,10 +47,10 @@ from scipy.cluster.vq import kmeans2
 from scipy.optimize import linear_sum_assignment
 
 from tracker.frame import Frame
-from tracker.icp_refinement import PartSurfaceModel, icp_refine
-from tracker.parts import PartSpec
-from tracker.pose import Pose
-from tracker.table_plane import TableNotFoundError, TablePlane, detect_table
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+from tracker.perception.table_plane import TableNotFoundError, TablePlane, detect_table
+from tracker.refine.icp_refinement import PartSurfaceModel, icp_refine
 
 
 @dataclass(frozen=True)
@@ -312,7 +312,7 @@ def initialize_poses(
     """First-frame poses (camera frame) of ``parts`` resting on the table in ``frame``.
 
     ``table``: the table plane (detected from the frame's depth when None). ``detections``: per-part
-    :class:`~tracker.color_detection.ColorDetection` (computed from the frame's colour image for the coloured
+    :class:`~tracker.perception.color_detection.ColorDetection` (computed from the frame's colour image for the coloured
     parts when None). ``use_color=False`` treats every part as uncoloured. Raises ValueError naming the part and
     the reason when a pose cannot be found (no depth, no table, no object above the table, no blob of the
     part's colour, fewer objects than parts). ``known``: parts whose poses are already known (name → (part,
@@ -350,7 +350,7 @@ def initialize_poses(
     taken = np.zeros_like(mask)
     if colored:
         if detections is None:
-            from tracker.color_detection import ColorDetector
+            from tracker.perception.color_detection import ColorDetector
 
             detections = ColorDetector.from_parts(colored).detect(frame.color)
         for p in colored:

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
-from tracker.parts import PRESET_COLORS
+from tracker.geometry.parts import PRESET_COLORS
 
 KAPPA = 2.5
 """Range half-width in standard deviations (thesis κ ≈ 2.5)."""
@@ -251,7 +251,7 @@ def rgb_to_hsv_float(rgb: np.ndarray) -> np.ndarray:
 
 
 def preset_range(color: str | tuple[int, int, int], **kwargs) -> HSVRange:
-    """Preset range of a colour name from :data:`tracker.parts.PRESET_COLORS` or of an RGB triple."""
+    """Preset range of a colour name from :data:`tracker.geometry.parts.PRESET_COLORS` or of an RGB triple."""
     if isinstance(color, str):
         if color not in PRESET_COLORS:
             raise ValueError(f"unknown colour name {color!r}; known: {', '.join(PRESET_COLORS)}")

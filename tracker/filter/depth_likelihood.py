@@ -29,7 +29,7 @@ _SQRT2PI = math.sqrt(2.0 * math.pi)
 
 @dataclass(frozen=True)
 class LikelihoodParams:
-    """Observation-model constants (see :class:`tracker.tracker_config.TrackerConfig`)."""
+    """Observation-model constants (see :class:`tracker.filter.tracker_config.TrackerConfig`)."""
 
     tail_weight: float = 0.01
     sigma_model: float = 0.003

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from tracker.camera import Intrinsics
+from tracker.geometry.camera import Intrinsics
 
 _EPS = 1e-12
 
@@ -144,7 +144,7 @@ def render_box_depth(
 ) -> np.ndarray:
     """Depth image (float32 metres, ``inf`` = background) of boxes with mutual occlusion (z-buffer).
 
-    ``poses``: :class:`~tracker.pose.Pose` of each box centre (camera frame); ``sizes``: full edge lengths.
+    ``poses``: :class:`~tracker.geometry.pose.Pose` of each box centre (camera frame); ``sizes``: full edge lengths.
     ``downsample`` renders every ``downsample``-th pixel (at the block centres used by the tracker).
     """
     f = int(downsample)

@@ -2,7 +2,7 @@
 
 A part that vanishes inside a grasp gives the depth likelihood nothing to work with: every pixel over it shows the
 hand, and the colour detector finds no blob. Parts do not float and do not move on their own, so a hidden part is
-either at rest (the rest prior holds it, see :class:`~tracker.tracker_config.TrackerConfig.rest_prior_sigma`) or
+either at rest (the rest prior holds it, see :class:`~tracker.filter.tracker_config.TrackerConfig.rest_prior_sigma`) or
 in the hand that hides it. It is taken to be in the hand when, as it disappeared, it was moving (its estimate
 travelled more than ``carry_min_motion`` in the last ``carry_window_s`` seconds) or it was in the air (its lowest
 point more than ``carry_min_height`` above the table with no other part under it).
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker.camera import Intrinsics
+from tracker.geometry.camera import Intrinsics
 
 
 @dataclass

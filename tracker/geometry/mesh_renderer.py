@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from tracker.parts import PartSpec
+from tracker.geometry.parts import PartSpec
 
 
 @dataclass(frozen=True)

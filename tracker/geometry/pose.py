@@ -128,5 +128,5 @@ class Pose:
         return float(np.linalg.norm(self.t - other.t))
 
     def rotation_error(self, other: Pose) -> float:
-        """Angle between orientations, radians (no symmetry; see tracker.symmetry for parts)."""
+        """Angle between orientations, radians (no symmetry; see tracker.geometry.symmetry for parts)."""
         return float(rotation_angle(self.q, other.q))

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from tracker.hsv_range import KAPPA, HSVRange, preset_range, rgb_to_hsv_float
-from tracker.parts import PRESET_COLORS, PartSpec
+from tracker.geometry.parts import PRESET_COLORS, PartSpec
+from tracker.perception.hsv_range import KAPPA, HSVRange, preset_range, rgb_to_hsv_float
 
 KERNEL_SIZE = 4
 """Side of the square structuring elements B1 (opening) and B2 (closing), pixels (thesis)."""
@@ -206,7 +206,7 @@ def clip_rect(rect, width: int, height: int) -> tuple[int, int, int, int]:
 def calibrate_range(rgb: np.ndarray, rect, kappa: float = KAPPA) -> HSVRange:
     """HSV range of the pixels in a user-drawn rectangle (x, y, w, h): mean ± κσ per channel (eqs 3.4–3.6).
 
-    Hue mean and spread are circular (see :mod:`tracker.hsv_range`); the hue interval wraps across 0° when
+    Hue mean and spread are circular (see :mod:`tracker.perception.hsv_range`); the hue interval wraps across 0° when
     needed. A rectangle partly outside the image is clipped; one fully outside or empty raises ValueError.
     """
     _check_rgb(rgb, "calibrate_range")

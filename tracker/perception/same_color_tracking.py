@@ -22,7 +22,7 @@ Per frame:
    ``reacquire_area_ratio`` × their typical area within ``reacquire_px``, nearest first (box centre to blob
    centroid); the velocity is reset (a jump is not a motion) and the score is halved.
 
-Output per part (:class:`~tracker.color_detection.ColorDetection`): ``center`` = the new box centre, ``bbox`` the
+Output per part (:class:`ColorDetection`): ``center`` = the new box centre, ``bbox`` the
 box, ``area`` the pixel area of its blob / cluster, ``score`` = the fraction of that blob's bounding box covered
 by the predicted box (1 = the part is exactly where it was predicted), halved for a split blob; occluded parts
 have ``center=None``, ``score=0`` and ``bbox`` = their grown box.
@@ -36,8 +36,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from tracker.color_detection import KERNEL_SIZE, ColorDetection, _check_rgb, clean_mask
-from tracker.hsv_range import HSVRange
+from tracker.perception.color_detection import KERNEL_SIZE, ColorDetection, _check_rgb, clean_mask
+from tracker.perception.hsv_range import HSVRange
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Symmetry-aware pose errors and their summaries (translation in metres, rotation in radians).
 
 Rotation error of a part is the smallest angle over its symmetry group (24 rotations for a cube, 4 for a box
-with distinct sides, see :mod:`tracker.symmetry`).
+with distinct sides, see :mod:`tracker.geometry.symmetry`).
 """
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.parts import PartSpec
-from tracker.pose import Pose
-from tracker.symmetry import symmetric_rotation_error, symmetry_group
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+from tracker.geometry.symmetry import symmetric_rotation_error, symmetry_group
 
 
 @dataclass

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker.camera import Intrinsics
-from tracker.pose import Pose, matrix_to_quat, quat_to_matrix
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.pose import Pose, matrix_to_quat, quat_to_matrix
 
 
 def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:

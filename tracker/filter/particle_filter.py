@@ -29,26 +29,26 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.box_renderer import pixel_rays, render_boxes_at_pixels
-from tracker.camera import Intrinsics
-from tracker.connection_particles import ResolvedConnection, apply_connections, resolve_hints
-from tracker.depth_likelihood import (
+from tracker.filter.connection_particles import ResolvedConnection, apply_connections, resolve_hints
+from tracker.filter.depth_likelihood import (
     LikelihoodParams,
     finish_occlusion,
     pixel_constants,
     predict_occlusion_rows,
     update_log_likelihood,
 )
+from tracker.filter.hand_carry import HandCarry, supported_by_other
+from tracker.filter.motion_model import color_input, mean_pose, propagate, sample_noise
+from tracker.filter.penalties import intersection_flags, intersection_log_penalty, lowest_heights, table_log_penalty
+from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, systematic_resample, take_rows
+from tracker.filter.tracker_config import TrackerConfig
 from tracker.frame import Frame
-from tracker.hand_carry import HandCarry, supported_by_other
-from tracker.icp_refinement import PartSurfaceModel, icp_refine, part_points
-from tracker.mesh_renderer import MeshModel, render_mesh_at_pixels
-from tracker.motion_model import color_input, mean_pose, propagate, sample_noise
-from tracker.parts import PartSpec
-from tracker.penalties import intersection_flags, intersection_log_penalty, lowest_heights, table_log_penalty
-from tracker.pose import Pose
-from tracker.resampling import kl_from_uniform, normalize_log_weights, systematic_resample, take_rows
-from tracker.tracker_config import TrackerConfig
+from tracker.geometry.box_renderer import pixel_rays, render_boxes_at_pixels
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.mesh_renderer import MeshModel, render_mesh_at_pixels
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+from tracker.refine.icp_refinement import PartSurfaceModel, icp_refine, part_points
 
 
 @dataclass
@@ -61,7 +61,7 @@ class TrackerState:
     * ``timings``: milliseconds per stage (``total``, ``predict``, ``render``, ``likelihood``, ``resample``…).
     * ``depth_used``: False when the update was skipped (no valid depth near the parts); ``message`` says why.
     * ``resampled``: how many of the N_obj passes resampled.
-    * ``carried``: hidden parts taken to be in a hand and moved with it (:mod:`tracker.hand_carry`).
+    * ``carried``: hidden parts taken to be in a hand and moved with it (:mod:`tracker.filter.hand_carry`).
     """
 
     index: int
@@ -199,7 +199,7 @@ class MultiObjectTracker:
         self._initialized = True
 
     def set_connection_hints(self, hints: list) -> None:
-        """Connections for Algorithm 6 (:class:`~tracker.connection_hint.ConnectionHint`); [] clears them."""
+        """Connections for Algorithm 6 (:class:`~tracker.filter.connection_hint.ConnectionHint`); [] clears them."""
         self._hints = resolve_hints(list(hints or []), self.names, self.config.n_particles,
                                     self.config.max_connection_fraction)
 
@@ -518,7 +518,7 @@ class MultiObjectTracker:
         return out
 
     def _follow_hands(self, depth, detected: np.ndarray, plane, detections) -> None:
-        """Hand carry (:mod:`tracker.hand_carry`): shift hidden carried parts with the hand that holds them
+        """Hand carry (:mod:`tracker.filter.hand_carry`): shift hidden carried parts with the hand that holds them
         (``plane``: the table's (normal, offset) or None). A carried part whose reliable colour blob stays put while
         the hand moves on has been let go: released."""
         cfg = self.config
@@ -656,7 +656,7 @@ class MultiObjectTracker:
         return pix, regions[:, pix]
 
     def _refine(self, state: TrackerState, depth, detections, table) -> None:
-        """ICP refinement of well-visible parts (see :mod:`tracker.icp_refinement`); shifts their particles."""
+        """ICP refinement of well-visible parts (see :mod:`tracker.refine.icp_refinement`); shifts their particles."""
         cfg = self.config
         plane = _table_normal_offset(table)
         for i, name in enumerate(self.names):

@@ -41,7 +41,7 @@ class ResolvedConnection:
 
 
 def resolve_hints(hints, names: list[str], n_particles: int, max_fraction: float) -> list[ResolvedConnection]:
-    """Turn :class:`~tracker.connection_hint.ConnectionHint` objects into index form (clear errors on bad names)."""
+    """Turn :class:`ConnectionHint` objects into index form (clear errors on bad names)."""
     index = {n: i for i, n in enumerate(names)}
     cap = int(np.floor(max_fraction * n_particles))
     out = []

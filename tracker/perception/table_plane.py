@@ -46,8 +46,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from tracker.camera import Intrinsics
-from tracker.pose import Pose
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.pose import Pose
 
 
 class TableNotFoundError(ValueError):

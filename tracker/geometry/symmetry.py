@@ -17,7 +17,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from tracker.parts import PartSpec
+from tracker.geometry.parts import PartSpec
 
 
 @lru_cache(maxsize=1)

@@ -68,7 +68,7 @@ class TrackerConfig(BaseModel):
         "(linear beyond 3 sigma). Keeps a part in the depth sensor's shadow from floating toward the camera.",
     )
     carry_follow: bool = Field(
-        False, description="Hand carry (not in the spec; tracker/hand_carry.py): a hidden part (no reliable blob, "
+        False, description="Hand carry (not in the spec; filter/hand_carry.py): a hidden part (no reliable blob, "
         "visible fraction below rest_prior_max_visibility) that was moving or in the air when it disappeared is "
         "in the hand that hides it and follows the hand's depth points above the table (translation ICP).",
     )

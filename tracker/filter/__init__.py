@@ -1,0 +1,1 @@
+"""The multi-object depth particle filter: motion model, likelihood, penalties, resampling, connections."""

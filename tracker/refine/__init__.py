@@ -1,0 +1,1 @@
+"""Pose refinement after the filter: dense-depth Gauss-Newton, ICP, loss detection and recovery."""
