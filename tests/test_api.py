@@ -105,6 +105,9 @@ def test_sessions_pause_start_reset(client):
         time.sleep(0.05)
     assert client.get("/api/status").json()["worker"]["paused"] is True
     client.post("/api/sessions", json={"action": "start"})
+    # a reset forgets placed parts: the teacher's control
+    assert client.post("/api/sessions", json={"action": "reset"}).status_code == 403  # no password set yet
+    client.post("/api/auth/setup", json={"password": PASSWORD})
     r = client.post("/api/sessions", json={"action": "reset"}).json()
     assert r["current"] != first
     assert [s["id"] for s in r["sessions"]][:2] == [r["current"], first]
@@ -201,7 +204,7 @@ def test_drawn_box_survives_source_reopen(tmp_path):
         src.initial_poses = {}
         return src
 
-    with app_client(tmp_path, no_poses, source="synthetic:", max_fps=100) as c:
+    with app_client(tmp_path, no_poses, source="synthetic:", max_fps=100, teacher_password=PASSWORD) as c:
         wait_frames(c, 2)
         assert c.get("/api/snapshot").json()["poses"] == {}
         r = c.post("/api/boxes", json={"x": 38, "y": 58, "w": 14, "h": 14})
@@ -212,7 +215,8 @@ def test_drawn_box_survives_source_reopen(tmp_path):
             time.sleep(0.05)
         wait_frames(c, 1)
         assert set(c.get("/api/snapshot").json()["poses"]) == {"red"}
-        c.post("/api/sessions", json={"action": "reset"})
+        assert c.post("/api/sessions", json={"action": "reset"}).status_code == 401
+        c.post("/api/sessions", json={"action": "reset"}, headers={"X-Teacher-Password": PASSWORD})
         t0 = time.time()
         while time.time() - t0 < 20:
             snap = c.get("/api/snapshot").json()

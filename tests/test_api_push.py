@@ -101,7 +101,9 @@ def test_simulator_runs_in_a_child_process_kept_until_the_source_changes(tmp_pat
         assert client.get("/api/sources").json()["metadata"]["process"] == "child"
         first = state._process_source[1]
         assert first.alive
-        client.post("/api/sources", json={"source": "sim:free"})
+        assert client.post("/api/sources", json={"source": "sim:free"}).status_code == 403  # teacher only
+        client.post("/api/auth/setup", json={"password": "teacher-password"})
+        assert client.post("/api/sources", json={"source": "sim:free"}).status_code == 200
         t0 = time.time()
         while state._process_source is None or state._process_source[0] != "sim:free":
             assert time.time() - t0 < 120

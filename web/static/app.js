@@ -129,7 +129,11 @@ $("btn-apply-mode").addEventListener("click", async () => {
 
 for (const action of ["start", "pause", "reset"]) {
   $(`btn-${action}`).addEventListener("click", async () => {
-    await api("/api/sessions", { method: "POST", body: JSON.stringify({ action }) });
+    try {
+      await api("/api/sessions", { method: "POST", body: JSON.stringify({ action }) });
+    } catch (e) {
+      showMessage("mode-message", e.message, true);  // e.g. a reset needs the teacher's login
+    }
     refreshStatus();
   });
 }

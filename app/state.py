@@ -1,0 +1,237 @@
+"""What the endpoints share: :class:`AppState` (settings, storage, auth, worker, scene, current selection).
+
+The pipeline worker thread runs the tracker; endpoints only read its latest snapshot or queue a command
+for it (:meth:`AppState.on_worker`), so HTTP handling never waits for a frame to be processed.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from app import api_models as m
+from app.auth import TeacherAuth
+from app.settings import Settings
+from app.storage import Storage
+from app.worker import PipelineWorker
+from tracker.assembly import SentenceTask
+from tracker.geometry.parts import PartSpec
+from tracker.pipeline import AssemblyPipeline
+from tracker.sources.base import FrameSource
+
+log = logging.getLogger(__name__)
+
+WEB_DIR = Path(__file__).resolve().parents[1] / "web"
+DEFAULT_CAMERA_PARTS = ("red", "green", "blue", "yellow", "orange")
+"""Parts assumed for a live camera (no objects.json): the five seed cubes."""
+COMMAND_TIMEOUT_S = 20.0
+
+
+def version() -> str:
+    try:
+        return metadata.version("assembly-agent")
+    except metadata.PackageNotFoundError:
+        return "0.0.0"
+
+
+def open_source_spec(spec: str, realtime: bool = False, seed: int = 0) -> FrameSource:
+    """Open ``sim:<scenario>``, ``recording:<dir>`` or ``camera:<n>`` through the sources registry.
+
+    The server opens simulated and recorded sources unpaced (``realtime=False``): the worker paces them
+    itself at their frame rate and skips frames that became stale (see :class:`app.worker.PipelineWorker`).
+    """
+    from tracker.sources.registry import open_source
+
+    return open_source(spec, realtime=realtime, seed=seed, loop=False)
+
+
+def available_sources() -> list[m.SourceInfo]:
+    out: list[m.SourceInfo] = []
+    try:
+        from tracker.sources.simulator import list_scenarios
+
+        for sc in list_scenarios():
+            name = sc if isinstance(sc, str) else getattr(sc, "name", str(sc))
+            desc = "" if isinstance(sc, str) else str(getattr(sc, "description", ""))
+            out.append(m.SourceInfo(spec=f"sim:{name}", kind="sim", description=desc))
+    except ImportError:
+        pass
+    out.append(m.SourceInfo(spec="camera:0", kind="camera", description="OpenCV capture device 0 (colour only)"))
+    return out
+
+
+class AppState:
+    """Everything the endpoints share: settings, storage, auth, worker, scene and the current selection."""
+
+    def __init__(self, settings: Settings, open_source: Callable[[str], FrameSource] | None = None) -> None:
+        self.settings = settings
+        self.storage = Storage(settings.database_path())
+        self.auth = TeacherAuth(self.storage, settings.teacher_password)
+        self.source_spec = settings.source_spec()
+        self.mode = settings.mode
+        self.task = settings.task
+        if self.task is not None:
+            self.resolve_task(self.mode, self.task)  # fail early on a bad --task
+        self._open = open_source or self._open_spec
+        self._process_source: tuple[str, Any] | None = None  # (spec, ProcessSource) kept across reopenings
+        self.worker = PipelineWorker(
+            self._open_current,
+            self._make_pipeline,
+            max_fps=settings.max_fps,
+            loop=settings.loop,
+            realtime=settings.realtime,
+        )
+        self.scene = None
+        self.scene_updater = None
+        self.session_id: int | None = None
+        self.boxes: list[m.BoxResponse] = []
+        self.user_poses: dict[str, Any] = {}  # parts placed by drawn boxes: kept when a source loops or reconnects
+        self._session_frames0 = 0
+        self._lock = threading.Lock()
+
+    # -------------------------------------------------------------- source and pipeline
+    def _open_current(self) -> FrameSource:
+        # A live camera keeps producing while the pipeline is busy: read it continuously and process the
+        # newest frame. Simulated and recorded frames are produced on demand, so none is rendered in vain.
+        self.worker.drop_stale = self.source_spec.startswith("camera:")
+        return self._open(self.source_spec)
+
+    def _open_spec(self, spec: str) -> FrameSource:
+        """The registry's source; the simulator renders in a child process that lives until the spec changes."""
+        if not (self.settings.source_process and spec.startswith("sim:")):
+            self._close_process_source()
+            return open_source_spec(spec, False, self.settings.seed)
+        from app.source_process import ProcessSource, SharedView, open_registry_source
+
+        cached = self._process_source
+        if cached is None or cached[0] != spec or not cached[1].alive:
+            self._close_process_source()
+            self._process_source = (spec, ProcessSource(open_registry_source, spec, self.settings.seed))
+        return SharedView(self._process_source[1])
+
+    def _close_process_source(self) -> None:
+        if self._process_source is not None:
+            proc, self._process_source = self._process_source[1], None
+            proc.close()
+
+    def resolve_task(self, mode: str, ref: str | None) -> Any:
+        """The task object for a reference: a preset id, or ``teacher:<n>`` (a stored sentence task)."""
+        if ref is None or mode == "none":
+            return None
+        if ref.startswith("teacher:"):
+            try:
+                task_id = int(ref.split(":", 1)[1])
+            except ValueError as exc:
+                raise ValueError(f"task {ref!r}: expected teacher:<number>") from exc
+            rec = self.storage.get_task(task_id)
+            if rec is None:
+                raise ValueError(f"task {ref!r}: no teacher task with id {task_id}")
+            if mode != "learning":
+                raise ValueError(f"task {ref!r} is a sentence task: select the learning mode for it")
+            return SentenceTask(**rec["data"])
+        from tracker.assembly import load_preset
+
+        task = load_preset(ref)
+        if task.mode != mode:
+            raise ValueError(f"task {ref!r} is a {task.mode} task, not a {mode} task")
+        return task
+
+    def _make_pipeline(self, src: FrameSource) -> AssemblyPipeline:
+        parts = getattr(src, "parts", None) or [PartSpec.cube(c, c) for c in DEFAULT_CAMERA_PARTS]
+        poses = {**(getattr(src, "initial_poses", None) or {}), **self.user_poses}
+        config = self.settings.tracker_config
+        # the server's default N (settings.SERVER_PARTICLES) applies to the default preset; a named preset or
+        # config file keeps its own N unless --particles / ASSEMBLY_AGENT_N_PARTICLES is given as well
+        explicit = "n_particles" in self.settings.model_fields_set
+        if self.settings.n_particles is not None and (explicit or not config):
+            from tracker.filter.tracker_config import TrackerConfig
+
+            base = (
+                TrackerConfig.preset(config or "default")
+                if not (config or "").endswith((".yaml", ".yml", ".toml"))
+                else TrackerConfig.load(config)
+            )
+            config = base.with_overrides(n_particles=self.settings.n_particles)
+
+        def build(mode: str, task: str | None) -> AssemblyPipeline:
+            return AssemblyPipeline(
+                list(parts),
+                src.intrinsics,
+                mode=None if mode == "none" else mode,
+                task=self.resolve_task(mode, task),
+                config=config,
+                seed=self.settings.seed,
+                initial_poses=poses,
+                table_recheck_s=self.settings.table_recheck_s,
+                source_info={"spec": self.source_spec, **safe_metadata(src)},
+                auto_place=self.settings.auto_place,
+                auto_place_interval_s=self.settings.auto_place_interval_s,
+            )
+
+        try:
+            return build(self.mode, self.task)
+        except ValueError as exc:
+            if self.mode == "none":
+                raise
+            # e.g. the task needs parts this source lacks: keep tracking and say why the mode is off
+            self.worker.report("mode", f"{self.mode} mode unavailable on {self.source_spec}: {exc}")
+            self.mode, self.task = "none", None
+            return build("none", None)
+
+    # -------------------------------------------------------------- sessions
+    def start_session(self) -> None:
+        with self._lock:
+            self.end_session()
+            self.session_id = self.storage.start_session(self.source_spec, self.mode, self.task)
+            self._session_frames0 = self.worker.frames_processed
+
+    def end_session(self) -> None:
+        if self.session_id is not None:
+            self.storage.end_session(self.session_id, self.worker.frames_processed - self._session_frames0)
+            self.session_id = None
+
+    def session_frames(self) -> int:
+        return self.worker.frames_processed - self._session_frames0
+
+    # -------------------------------------------------------------- life cycle
+    def startup(self) -> None:
+        s = self.settings
+        if s.viser_port:
+            try:
+                from app.scene import Scene, SceneUpdater
+
+                self.scene = Scene(host=s.host, port=s.viser_port)
+                self.scene_updater = SceneUpdater(self.scene, self.worker)
+                self.scene_updater.start()
+            except Exception as exc:  # noqa: BLE001 - the panel works without the 3D view
+                self.worker.report("scene", f"viser scene unavailable: {exc}")
+        if s.autostart:
+            self.worker.start()
+            self.start_session()
+
+    def shutdown(self) -> None:
+        self.end_session()
+        self.worker.stop()
+        self._close_process_source()
+        if self.scene_updater is not None:
+            self.scene_updater.stop()
+        if self.scene is not None:
+            self.scene.stop()
+
+
+def safe_metadata(src: FrameSource) -> dict[str, Any]:
+    try:
+        meta = src.metadata()
+    except Exception:  # noqa: BLE001
+        return {}
+    out = {}
+    for k, v in meta.items():
+        if isinstance(v, str | int | float | bool) or v is None:
+            out[k] = v
+        elif isinstance(v, dict | list):
+            out[k] = v
+    return out
