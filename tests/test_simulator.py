@@ -18,7 +18,8 @@ from tracker.sources.simulator import (
 from tracker.sources.simulator.scenarios import cube_yaw, rot_y
 
 A = CUBE_EDGE
-NAMES = ["static", "free", "guidance-demo", "guess-1", "guess-2", "guess-3", "learning-4", "learning-5"]
+NAMES = ["static", "free", "guidance-demo", "guess-1", "guess-2", "guess-3", "learning-4", "learning-5",
+         "hands-s1", "hands-s2", "hands-s3"]
 
 
 @pytest.fixture(scope="module")

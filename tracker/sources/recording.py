@@ -598,7 +598,9 @@ class RecordingWriter:
         """Append a frame; returns its index in the recording.
 
         ``groundtruth``: ``{name: Pose}`` (camera frame), or a simulator ground-truth dict ``{"poses": {...},
-        "hand_box": ..., "visible": ...}`` whose extra keys are stored alongside the poses.
+        "hand_box": ..., "visible": ...}`` whose extra keys are stored alongside the poses; an extra that is a
+        2-D uint8 array (a mask such as ``skin_mask``) is written as ``<key>/<index>.png`` and stored as that
+        relative path.
         """
         if self._closed:
             raise RuntimeError(f"{self.root}: recording writer is closed")
@@ -636,7 +638,15 @@ class RecordingWriter:
         if isinstance(gt.get("poses"), dict):
             rec: dict[str, Any] = {"index": index, "poses": {n: _pose_dict(p) for n, p in gt["poses"].items()}}
             for k, v in gt.items():
-                if k != "poses":
+                if k == "poses":
+                    continue
+                if isinstance(v, np.ndarray) and v.ndim == 2 and v.dtype == np.uint8:  # a mask: a PNG beside
+                    rel = f"{k}/{index:06d}.png"
+                    (self.root / k).mkdir(exist_ok=True)
+                    if not cv2.imwrite(str(self.root / rel), v):
+                        raise OSError(f"cannot write {self.root / rel}")
+                    rec[k] = rel
+                else:
                     rec[k] = _jsonable(v)
         else:
             rec = {"index": index, "poses": {n: _pose_dict(p) for n, p in gt.items()}}

@@ -93,9 +93,11 @@ class ScenarioInfo:
     structure: Structure | None = None
     order: str | None = None
     distractors: tuple[str, ...] = ()
+    hands: str | None = None
+    """Hand-tracking scenario style (``"s1"``, ``"s2"``, ``"s3"``; see :data:`HAND_STYLES`) or None."""
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "name": self.name,
             "description": self.description,
             "parts": list(self.parts),
@@ -103,6 +105,40 @@ class ScenarioInfo:
             "order": self.order,
             "distractors": list(self.distractors),
         }
+        if self.hands is not None:
+            d["hands"] = self.hands
+        return d
+
+
+@dataclass(frozen=True)
+class HandStyle:
+    """How the hands of a hand-tracking scenario look and move (hand-tracking spec, section 14.9).
+
+    ``n_hands`` 1 or 2; ``sleeves``: long sleeves (the forearm is cloth-coloured) or bare forearms (skin);
+    ``motion_blur``: directional blur of the moving hands; ``overlap``: the second hand is sent close to (and
+    above) the first one and both hands pass over the parts; ``speed``: factor on the hand speed;
+    ``duration``: seconds of wandering (whatever the speed) between entering and leaving.
+    """
+
+    n_hands: int
+    sleeves: bool
+    motion_blur: bool
+    overlap: bool
+    speed: float = 1.0
+    duration: float = 10.0
+
+
+HAND_STYLES: dict[str, HandStyle] = {
+    "s1": HandStyle(1, sleeves=True, motion_blur=False, overlap=False),
+    "s2": HandStyle(2, sleeves=True, motion_blur=False, overlap=True),
+    "s3": HandStyle(1, sleeves=False, motion_blur=True, overlap=True, speed=1.4),
+}
+
+SLEEVE_COLORS: tuple[tuple[float, float, float], ...] = ((45.0, 55.0, 95.0), (70.0, 70.0, 75.0), (30.0, 90.0, 70.0))
+"""Long-sleeve cloth colours (RGB) of the hand scenarios S1 and S2."""
+
+EXTRA_PART_COLORS: dict[str, tuple[int, int, int]] = {"wood": (192, 146, 98)}
+"""Part colours of the hand scenarios that are not colour-detection presets (natural wood, skin-like)."""
 
 
 SCENARIOS: dict[str, ScenarioInfo] = {
@@ -128,6 +164,18 @@ SCENARIOS: dict[str, ScenarioInfo] = {
         ScenarioInfo(
             "learning-5", "5 word cubes put in a row (purple, cyan are distractors)",
             ("red", "green", "blue", "yellow", "orange", "purple", "cyan"), _row(FIVE), "random", ("purple", "cyan"),
+        ),
+        ScenarioInfo(
+            "hands-s1", "hand tracking S1: one hand with a long sleeve wanders over 4 parts, no overlap (10 s)",
+            ("green", "blue", "purple", "cyan"), hands="s1",
+        ),
+        ScenarioInfo(
+            "hands-s2", "hand tracking S2: two hands with long sleeves overlap each other and the parts (10 s)",
+            ("green", "blue", "purple", "cyan"), hands="s2",
+        ),
+        ScenarioInfo(
+            "hands-s3", "hand tracking S3: bare forearm, motion blur, skin-like red/orange/yellow/wood parts (10 s)",
+            ("red", "orange", "yellow", "wood"), hands="s3",
         ),
     )
 }  # fmt: skip
@@ -244,6 +292,17 @@ class HandPass:
 
 
 @dataclass
+class WanderingHand:
+    """A hand of a hand-tracking scenario: its path (a part-less :class:`HandPass`), its ``albedos`` (palm,
+    fingers, arm RGB; the arm is a sleeve colour with long sleeves) and whether the forearm is bare skin."""
+
+    path: HandPass
+    albedos: tuple[tuple[float, float, float], ...]
+    bare_forearm: bool
+    motion_blur: bool
+
+
+@dataclass
 class Timeline:
     """Everything that happens in a scenario, in the table frame."""
 
@@ -251,6 +310,7 @@ class Timeline:
     passes: list[HandPass] = field(default_factory=list)
     events: list[ConnectionEvent] = field(default_factory=list)
     duration: float = 10.0
+    hands: list[WanderingHand] = field(default_factory=list)
 
     def active_pass(self, t: float) -> HandPass | None:
         for p in self.passes:
@@ -509,6 +569,8 @@ class ScriptBuilder:
     def build(self) -> Timeline:
         info = self.info
         names = list(self.parts)
+        if info.hands is not None:
+            return self.build_hands(HAND_STYLES[info.hands])
         if info.structure is None:
             initial = self.scatter(names)
             for n in names:
@@ -543,6 +605,60 @@ class ScriptBuilder:
             self.move(n, target, first_of_pair)
             self.t += 0.3 / max(self.cfg.speed, 0.05)
         return Timeline(self.rests, self.passes, self.events, self.t + 1.5)
+
+    def build_hands(self, style: HandStyle) -> Timeline:
+        """Hand-tracking scenario: the parts rest, 1–2 hands enter from the bottom border, wander over the table
+        (smooth minimum-jerk moves between random key points, over the parts now and then, the second hand
+        close to and above the first one when ``style.overlap``) and leave at the end."""
+        from tracker.sources.simulator.skin_tones import hand_albedos
+
+        rng = self.rng
+        names = list(self.parts)
+        initial = self.scatter(names)
+        for n in names:
+            self.set_rest(n, initial[n], 0.0)
+        sp = max(self.cfg.speed * style.speed, 0.05)
+        # common key times: enter, wander, leave
+        times = [0.0, 0.6 / sp]
+        while times[-1] < style.duration:
+            times.append(times[-1] + float(rng.uniform(0.45, 1.1)) / sp)
+        times.append(times[-1] + 1.0 / sp)
+        rad = self.cfg.scatter_radius * 0.85
+        part_xz = [p.t[[0, 2]] for p in initial.values()]
+        sides = [1.0, -1.0][: style.n_hands]
+        hands: list[WanderingHand] = []
+        first_pos: list[np.ndarray] = []
+        for h, side in enumerate(sides):
+            shoulder = self.offscreen_point(side * 0.22, 0.20, margin=240)
+            keys: list[HandKey] = []
+            for i, t in enumerate(times):
+                if i == 0 or i == len(times) - 1:
+                    pos = self.offscreen_point(side * 0.12 + float(rng.uniform(-0.05, 0.05)), 0.14)
+                else:
+                    r = rng.random()
+                    if h == 1 and style.overlap and r < 0.45:  # close to and above the first hand
+                        pos = first_pos[i] + np.array([rng.uniform(-0.05, 0.05), rng.uniform(0.03, 0.06),
+                                                       rng.uniform(-0.05, 0.05)])  # fmt: skip
+                    elif style.overlap and r < 0.75 and part_xz:  # over a part
+                        xz = part_xz[int(rng.integers(len(part_xz)))] + rng.uniform(-0.03, 0.03, size=2)
+                        pos = np.array([xz[0], A + rng.uniform(0.015, 0.05), xz[1]])
+                    else:
+                        lo = 0.0 if side > 0 else -rad
+                        hi = rad if side > 0 else 0.0
+                        if style.n_hands == 1:
+                            lo, hi = -rad, rad
+                        pos = np.array([rng.uniform(lo, hi), A + rng.uniform(0.015, 0.09), rng.uniform(-rad, rad)])
+                to_sh = shoulder - pos
+                yaw = float(np.arctan2(to_sh[0], to_sh[2])) + side * float(np.radians(rng.uniform(5.0, 35.0)))
+                keys.append(HandKey(float(t), np.asarray(pos, float), yaw, float(rng.uniform(0.0, 0.8))))
+            if h == 0:
+                first_pos = [k.pos for k in keys]
+            path = HandPass(keys, part=None, side=side, shoulder=shoulder, scale=float(rng.uniform(0.9, 1.1)))
+            albedos = hand_albedos(rng)
+            if style.sleeves:
+                albedos = (albedos[0], albedos[1], SLEEVE_COLORS[int(rng.integers(len(SLEEVE_COLORS)))])
+            hands.append(WanderingHand(path, albedos, bare_forearm=not style.sleeves, motion_blur=style.motion_blur))
+        return Timeline(self.rests, [], [], times[-1] + 0.2, hands)
 
     def build_order(self, s: Structure) -> list[str]:
         """Plan order, or a random order in which every cube is supported and touches a placed cube."""

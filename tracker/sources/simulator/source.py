@@ -5,6 +5,11 @@ scenario, seed and options. Each frame carries its ground truth in ``frame.meta[
 
 * ``"poses"``: ``{part name: Pose}`` in the camera frame (x right, y down, z forward, metres);
 * ``"hand_box"``: ``[u0, v0, u1, v1]`` pixel bounds of the visible hand (end-exclusive) or ``None``;
+* hand-tracking scenarios only (``hands-s1``…``s3``): ``"hand_boxes"``, a list of ``[u0, v0, u1, v1]`` palm
+  boxes (end-exclusive pixels; the tight box of the visible palm and finger pixels, wrist outward, forearm
+  excluded), one per visible hand; ``"hand_box_ids"``, the index of each box's hand (stable over the scenario);
+  ``"skin_mask"``, uint8 H×W: 0 = no skin, ``k + 1`` = palm/fingers of hand k, ``128 + k + 1`` = the bare
+  forearm of hand k (the rendered geometry, before motion blur);
 * ``"visible"``: ``{part name: fraction 0..1}`` of the part's unoccluded projected area that is visible
   (0 when it is out of the image or hidden by the hand or another part);
 * ``"table_plane"``: ``{"normal": [3], "offset": d}``, the table plane ``n·p + d = 0`` in this frame's camera
@@ -34,8 +39,9 @@ from tracker.geometry.pose import Pose, normalize_quat
 from tracker.sources.base import FrameSource
 from tracker.sources.simulator import rasterizer as rz
 from tracker.sources.simulator.camera_motion import CAMERA_MOTIONS, CameraMotion
-from tracker.sources.simulator.hand import Box, Capsule, hand_primitives
+from tracker.sources.simulator.hand import N_ARM_PRIMS, Box, Capsule, hand_primitives
 from tracker.sources.simulator.scenarios import (
+    EXTRA_PART_COLORS,
     ConnectionEvent,
     ScenarioInfo,
     ScriptBuilder,
@@ -151,7 +157,7 @@ class SimulatedTable(FrameSource):
         )
         w, h = int(opts.width), int(opts.height)
         self._intr = Intrinsics(w, h, float(opts.focal), float(opts.focal), (w - 1) / 2.0, (h - 1) / 2.0)
-        self._parts = [PartSpec.cube(n, n) for n in self.info.parts] + list(opts.extra_parts)
+        self._parts = [PartSpec.cube(n, EXTRA_PART_COLORS.get(n, n)) for n in self.info.parts] + list(opts.extra_parts)
         names = [p.name for p in self._parts]
         if len(set(names)) != len(names):
             raise ValueError(f"simulator: part names must be unique, got {names}")
@@ -338,7 +344,7 @@ class SimulatedTable(FrameSource):
         dirty: list[tuple[int, int, int, int]] = []
         light = self._light(t, T)
         n_parts = len(self._parts)
-        hits = np.zeros(n_parts + 1, np.int64)
+        hits = np.zeros(n_parts + 1 + 2 * len(self.timeline.hands), np.int64)
         poses: dict[str, Pose] = {}
         rects: dict[str, tuple[int, int, int, int] | None] = {}
         hull_pts: dict[str, np.ndarray] = {}
@@ -404,6 +410,8 @@ class SimulatedTable(FrameSource):
                     hand_rects.append(rect)
                     dirty.append(rect)
 
+        palm_boxes, palm_ids, skin = self._render_wandering_hands(t, T, light, hits, hand_rects, dirty, shapes)
+
         if self.options.shadows and shapes:
             srect = self._shadow(shapes, light)
             if srect is not None:
@@ -430,8 +438,13 @@ class SimulatedTable(FrameSource):
             outside = _outside_area(hull_pts[part.name], intr)
             denom = hits[pid] + outside
             visible[part.name] = float(min(1.0, front / denom)) if denom > 0 else 0.0
+        if self.timeline.hands:
+            self._motion_blur(t, T, dirty)
         self._dirty = dirty
         return {
+            "hand_boxes": palm_boxes,
+            "hand_box_ids": palm_ids,
+            "skin_mask": skin,
             "t": t,
             "color": self._color,
             "depth": self._depth,
@@ -443,6 +456,103 @@ class SimulatedTable(FrameSource):
             "table_plane": self._plane,
             "camera_pose": self.camera_pose_at(index),
         }
+
+    def _render_wandering_hands(self, t, T, light, hits, hand_rects, dirty, shapes):
+        """Render the hands of a hand-tracking scenario; returns (palm boxes, their hand indices, skin mask or None).
+
+        Hand k is rendered with ids ``n_parts + 1 + 2k`` (palm, fingers) and ``n_parts + 2 + 2k`` (arm) so that its
+        palm box and skin mask can be read off the id buffer; the ids are then set back to ``n_parts`` (the hand id
+        of :meth:`render_clean`)."""
+        hands = self.timeline.hands
+        if not hands or not self.options.show_hand:
+            return [], [], None
+        intr = self._intr
+        W, H = intr.width, intr.height
+        fx, fy, cx, cy = intr.fx, intr.fy, intr.cx, intr.cy
+        n_parts = len(self._parts)
+        rects: list[tuple[int, int, int, int]] = []
+        for k, wh in enumerate(hands):
+            hp = wh.path
+            if not hp.t_start <= t <= hp.t_end:
+                continue
+            hpose, grip = hp.state(t)
+            hpose = T @ hpose
+            shoulder = T.transform_points(hp.shoulder[None])[0] if hp.shoulder is not None else None
+            prims = hand_primitives(hpose.R, hpose.t, grip, hp.half_height, hp.half_height, hp.scale,
+                                    shoulder=shoulder, mirror=hp.side < 0, albedos=wh.albedos)  # fmt: skip
+            for j, p in enumerate(prims):
+                assert isinstance(p, Capsule)
+                pid = n_parts + 1 + 2 * k + (1 if j >= len(prims) - N_ARM_PRIMS else 0)
+                corners = _SIGNS * p.radius
+                pts = np.concatenate([corners + p.a, corners + p.b])
+                rect = rz.points_rect(pts, fx, fy, cx, cy, W, H)
+                if rect is not None:
+                    rz.render_capsule(self._depth, self._cos, self._color, self._ids, hits, fx, fy, cx, cy, p.a,
+                                      p.b, p.radius, np.asarray(p.albedo, float), light, AMBIENT, DIFFUSE, pid,
+                                      *rect)  # fmt: skip
+                    rects.append(rect)
+                shapes.append((pts, 0.5))
+        boxes: list[list[int]] = []
+        box_ids: list[int] = []
+        skin = np.zeros((H, W), np.uint8)
+        if not rects:
+            return boxes, box_ids, skin
+        u0 = min(r[0] for r in rects)
+        v0 = min(r[1] for r in rects)
+        u1 = max(r[2] for r in rects)
+        v1 = max(r[3] for r in rects)
+        ids = self._ids[v0:v1, u0:u1]
+        for k, wh in enumerate(hands):
+            palm = ids == n_parts + 1 + 2 * k
+            if palm.any():
+                rows = np.flatnonzero(palm.any(axis=1))
+                cols = np.flatnonzero(palm.any(axis=0))
+                boxes.append([int(u0 + cols[0]), int(v0 + rows[0]), int(u0 + cols[-1] + 1), int(v0 + rows[-1] + 1)])
+                box_ids.append(k)
+                skin[v0:v1, u0:u1][palm] = k + 1
+            if wh.bare_forearm:
+                skin[v0:v1, u0:u1][ids == n_parts + 2 + 2 * k] = 128 + k + 1
+        ids[ids > n_parts] = n_parts
+        hand_rects.extend(rects)
+        dirty.extend(rects)
+        return boxes, box_ids, skin
+
+    def _motion_blur(self, t: float, T: Pose, dirty: list[tuple[int, int, int, int]]) -> None:
+        """Directional blur of each moving hand whose style asks for it: the hand's image velocity (its origin
+        projected at t and t + 1/FPS, px/frame) sets a line kernel of length 0.7·‖v‖ (open shutter for 70 % of the
+        frame); hand pixels and the background they smear over take the blurred colour."""
+        n_parts = len(self._parts)
+        intr = self._intr
+        for wh in self.timeline.hands:
+            hp = wh.path
+            if not wh.motion_blur or not hp.t_start <= t <= hp.t_end:
+                continue
+            p0 = (T @ hp.state(t)[0]).t
+            p1 = (T @ hp.state(t + 1.0 / FPS)[0]).t
+            uv = intr.project(np.stack([p0, p1]))
+            vel = uv[1] - uv[0]
+            length = 0.7 * float(np.linalg.norm(vel))
+            if length < 1.5 or not np.all(np.isfinite(vel)):
+                continue
+            ksz = int(np.ceil(length)) | 1
+            kern = np.zeros((ksz, ksz), np.float32)
+            c = ksz // 2
+            d = vel / np.linalg.norm(vel) * (length / 2.0)
+            cv2.line(kern, (int(round(c - d[0])), int(round(c - d[1]))), (int(round(c + d[0])), int(round(c + d[1]))),
+                     1.0, 1)  # fmt: skip
+            kern /= kern.sum()
+            mask = (self._ids == n_parts).astype(np.float32)
+            rows = np.flatnonzero(mask.any(axis=1))
+            cols = np.flatnonzero(mask.any(axis=0))
+            if len(rows) == 0:
+                continue
+            u0, v0 = max(0, int(cols[0]) - ksz), max(0, int(rows[0]) - ksz)
+            u1, v1 = min(intr.width, int(cols[-1]) + ksz + 1), min(intr.height, int(rows[-1]) + ksz + 1)
+            region = self._color[v0:v1, u0:u1]
+            blurred = cv2.filter2D(region, -1, kern, borderType=cv2.BORDER_REPLICATE)
+            spread = cv2.filter2D(mask[v0:v1, u0:u1], -1, kern, borderType=cv2.BORDER_CONSTANT) > 0.02
+            region[spread] = blurred[spread]
+            dirty.append((u0, v0, u1, v1))
 
     def _shadow(self, shapes: list[tuple[np.ndarray, float]], light: np.ndarray) -> tuple[int, int, int, int] | None:
         """Soft shadows on the table: each shape's sample points (camera frame) are projected along the light
@@ -497,6 +607,10 @@ class SimulatedTable(FrameSource):
             "scenario": self.info.name,
             "seed": self.seed,
         }
+        if self.timeline.hands:
+            meta["groundtruth"]["hand_boxes"] = clean["hand_boxes"]
+            meta["groundtruth"]["hand_box_ids"] = clean["hand_box_ids"]
+            meta["groundtruth"]["skin_mask"] = clean["skin_mask"].copy()
         return Frame(index=index, timestamp=clean["t"], color=color, depth=depth, intrinsics=self._intr, meta=meta)
 
 
