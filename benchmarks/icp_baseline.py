@@ -3,8 +3,9 @@
 For each part, each frame: take the depth points within a sphere around the previous estimate (radius =
 part bounding radius + ``crop_margin``), minus the table points (within ``table_band`` of the plane) when a
 table plane is given, register the part's surface model (points with normals sampled on its
-mesh) to them with point-to-plane ICP, starting from the previous estimate. Uses Open3D when it is installed
-(optional benchmark-only dependency), else a numpy/scipy implementation (``backend`` says which).
+mesh, seeded: a run is repeatable) to them with point-to-plane ICP, starting from the previous estimate. Uses
+Open3D when it is installed (optional benchmark-only dependency, the ``bench`` extra: ``pip install -e .[bench]``),
+else a numpy/scipy implementation (``backend`` says which).
 """
 
 from __future__ import annotations
@@ -25,9 +26,10 @@ except Exception:  # pragma: no cover - depends on the environment
     HAVE_OPEN3D = False
 
 
-def _surface_model(part: PartSpec, n: int = 1500) -> tuple[np.ndarray, np.ndarray]:
+def _surface_model(part: PartSpec, n: int = 1500, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` points (body frame, metres) sampled uniformly on the part's surface (seeded) and their face normals."""
     mesh = part.load_mesh()
-    pts, faces = mesh.sample(n, return_index=True)
+    pts, faces = mesh.sample(n, return_index=True, seed=seed)
     return np.asarray(pts, np.float64), np.asarray(mesh.face_normals[faces], np.float64)
 
 

@@ -9,7 +9,12 @@ pose and ICP residual. Colour detection is used for parts with a colour (depth o
 when it can be found in the first frames. For a moving camera the plane is re-detected when it no longer fits the
 depth: every frame the share of a coarse pixel grid within 5 mm of the plane is measured
 (:func:`tracker.perception.table_plane.plane_share`, ~0.2 ms), and when it falls below 70 % of its value right after the
-last detection the plane is detected again; the number of re-detections is reported on stderr.
+last detection the plane is detected again; the number of re-detections is reported on stderr. A detected plane
+is used only when it supports the parts: a plane whose on-plane pixels lie (almost) all within the parts'
+bounding spheres at their current estimates is a face of a part (e.g. the floor of a mesh object seen without a
+table), not a table, and is ignored (:func:`plane_is_table`); ``--no-table`` disables the plane altogether.
+The per-frame work (plane, colour detection, tracker step) is :class:`TrackSession`, which benchmarks reuse so
+that they measure exactly what ``track`` does.
 
 Writes one JSON line per frame to ``--out`` (default: stdout is left for the report)::
 
@@ -40,6 +45,8 @@ def register(subparsers) -> None:
     p.add_argument("--frames", type=int, default=None, help="stop after this many frames")
     p.add_argument("--seed", type=int, default=0, help="random seed of the particle filter")
     p.add_argument("--no-color", action="store_true", help="depth only (ignore part colours)")
+    p.add_argument("--no-table", action="store_true",
+                   help="do not look for a table plane (e.g. a recording with depth of the object only)")
     p.add_argument("--init", default=None, choices=("given", "auto"),
                    help="first-frame poses: 'given' (objects.json) or 'auto' (found in the first frame); "
                         "default: the given ones, missing ones found automatically")
@@ -60,19 +67,55 @@ def _load_config(args):
     return cfg
 
 
-def _find_table(frame, intrinsics):
+def _find_table(frame, intrinsics, parts=None, poses=None):
+    """The table plane of ``frame`` or ``None``; with ``parts``/``poses``, a plane that is not
+    :func:`plane_is_table` is rejected too."""
     from tracker.perception.table_plane import TableNotFoundError, detect_table
 
     if frame.depth is None:
         return None
     try:
-        return detect_table(frame.depth, intrinsics)
+        plane = detect_table(frame.depth, intrinsics)
     except TableNotFoundError:
         return None
+    if parts and poses and not plane_is_table(frame.depth, intrinsics, plane, parts, poses):
+        return None
+    return plane
 
 
 TABLE_SHARE_TOLERANCE = 0.005
 """Metres: a grid pixel within this distance of the table plane counts as on it."""
+TABLE_OUTSIDE_MIN = 0.25
+"""A plane is a table only when at least this share of its on-plane grid pixels lies outside every part's
+bounding sphere (grown by ``TABLE_PART_MARGIN``)."""
+TABLE_PART_MARGIN = 0.01
+"""Metres added to each part's bounding radius by :func:`plane_is_table`."""
+
+
+def plane_is_table(depth, intrinsics, plane, parts, poses, step: int = 8) -> bool:
+    """Whether ``plane`` is a support under the parts rather than a face of one of them.
+
+    Takes every ``step``-th depth pixel within ``TABLE_SHARE_TOLERANCE`` of the plane (camera frame, metres) and
+    counts those farther than ``bounding_radius + TABLE_PART_MARGIN`` from every part's estimated origin; the plane
+    is a table when that share is at least ``TABLE_OUTSIDE_MIN``. A recording of an object without a table (depth
+    of the object only) has all its on-plane pixels on the object.
+    """
+    import numpy as np
+
+    z = np.asarray(depth, np.float64)[::step, ::step]
+    v, u = np.mgrid[0 : depth.shape[0] : step, 0 : depth.shape[1] : step]
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(z) & (z > 0)
+    pts = intrinsics.backproject(u[ok], v[ok], z[ok])
+    on = pts[np.abs(pts @ np.asarray(plane.normal, np.float64) + float(plane.offset)) < TABLE_SHARE_TOLERANCE]
+    if on.shape[0] == 0:
+        return False
+    outside = np.ones(on.shape[0], bool)
+    for part in parts:
+        pose = poses.get(part.name)
+        if pose is not None:
+            outside &= np.linalg.norm(on - pose.t, axis=1) > part.bounding_radius() + TABLE_PART_MARGIN
+    return float(outside.mean()) >= TABLE_OUTSIDE_MIN
 TABLE_SHARE_KEEP = 0.7
 """Re-detect the plane when the on-plane share falls below this fraction of the share at the last detection."""
 TABLE_RETRY_FRAMES = 10
@@ -82,8 +125,9 @@ TABLE_RETRY_FRAMES = 10
 class _TableFollower:
     """The table plane of a recording whose camera may move (see the module docstring)."""
 
-    def __init__(self, intrinsics, table=None) -> None:
+    def __init__(self, intrinsics, table=None, parts=None) -> None:
         self.intrinsics = intrinsics
+        self.parts = parts
         self.table = table
         self.share = None
         self.redetections = 0
@@ -91,8 +135,9 @@ class _TableFollower:
         self._tries = 0
         self._wait = 0
 
-    def update(self, frame):
-        """The plane to use for ``frame`` (``None`` while none was found)."""
+    def update(self, frame, poses=None):
+        """The plane to use for ``frame`` (``None`` while none was found); ``poses``: the parts' latest estimates,
+        used to reject planes that are faces of the parts (:func:`plane_is_table`)."""
         from tracker.perception.table_plane import plane_share
 
         depth = frame.depth
@@ -101,7 +146,7 @@ class _TableFollower:
         if self.table is None:
             if self._tries < 5:
                 self._tries += 1
-                self.table = _find_table(frame, self.intrinsics)
+                self.table = _find_table(frame, self.intrinsics, self.parts, poses)
             if self.table is not None:
                 self.share = plane_share(depth, self.intrinsics, self.table, tolerance=TABLE_SHARE_TOLERANCE)
             return self.table
@@ -114,7 +159,7 @@ class _TableFollower:
         share = plane_share(depth, self.intrinsics, self.table, tolerance=TABLE_SHARE_TOLERANCE)
         if share >= TABLE_SHARE_KEEP * self.share:
             return self.table
-        new = _find_table(frame, self.intrinsics)
+        new = _find_table(frame, self.intrinsics, self.parts, poses)
         if new is None:
             self.failures += 1
             self._wait = TABLE_RETRY_FRAMES
@@ -151,27 +196,83 @@ def _auto_poses(src, parts, auto, poses, use_color: bool):
     return poses, table
 
 
-def run(args: argparse.Namespace) -> int:
-    from tracker.evaluation.pose_errors import PoseErrorLog, format_summary
-    from tracker.filter.particle_filter import MultiObjectTracker
+class TrackSession:
+    """The per-frame work of ``track``: table plane (followed, see :class:`_TableFollower`), colour detection, one
+    tracker step. Benchmarks use it to measure exactly what the command does.
+
+    ``parts``/``poses``: the parts and their first-frame poses (camera frame, metres); ``table``: the first frame's
+    plane when already known; ``use_table`` False: never look for one. ``step(frame)`` returns the tracker state and
+    the seconds spent in the tracker step (without decoding, plane and colour detection).
+    """
+
+    def __init__(self, parts, intrinsics, poses, cfg, seed: int = 0, use_color: bool = True, table=None,
+                 use_table: bool = True) -> None:
+        from tracker.filter.particle_filter import MultiObjectTracker
+
+        self.parts = list(parts)
+        self.config = cfg
+        self.tracker = MultiObjectTracker(self.parts, intrinsics, cfg, seed=seed)
+        self.tracker.initialize(poses)
+        self.poses = dict(poses)
+        self.detector = None
+        colored = [p for p in self.parts if p.color is not None]
+        if colored and use_color:
+            from tracker.perception.color_detection import ColorDetector
+
+            self.detector = ColorDetector.from_parts(colored)
+        self.follower = _TableFollower(intrinsics, table, self.parts) if use_table else None
+        self.table = table if use_table else None
+        self.frames = 0
+        self.skipped = 0
+        self.track_seconds = 0.0
+
+    def step(self, frame):
+        """Track one frame; returns ``(TrackerState, tracker seconds)``."""
+        if self.follower is not None:
+            self.table = self.follower.update(frame, self.poses)
+        dets = self.detector.detect(frame.color) if self.detector is not None else None
+        t0 = time.perf_counter()
+        state = self.tracker.step(frame, dets, self.table)
+        dt = time.perf_counter() - t0
+        self.track_seconds += dt
+        self.poses = dict(state.poses)
+        self.skipped += not state.depth_used
+        self.frames += 1
+        return state, dt
+
+
+def load_recording_parts(recording, objects=None):
+    """``(source, parts, first-frame poses)`` of a recording, with ``objects`` (a path to an objects.json) replacing
+    its own parts."""
     from tracker.sources.recording import RecordingSource, parse_objects
 
-    cfg = _load_config(args)
-    src = RecordingSource(args.recording)
+    src = RecordingSource(recording)
     parts, poses = src.parts, src.initial_poses
-    if args.objects:
-        path = Path(args.objects)
+    if objects:
+        path = Path(objects)
         if not path.is_file():
+            src.close()
             raise FileNotFoundError(f"objects file not found: {path}")
         try:
             data = json.loads(path.read_text())
         except json.JSONDecodeError as exc:
+            src.close()
             raise ValueError(f"{path}: not valid JSON: {exc}") from exc
         parts, poses = parse_objects(data, path.parent, where=str(path))
     if not parts:
-        raise ValueError(f"{args.recording}: no objects to track (objects.json missing or empty; use --objects)")
+        src.close()
+        raise ValueError(f"{recording}: no objects to track (objects.json missing or empty; use --objects)")
+    return src, parts, dict(poses)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tracker.evaluation.pose_errors import PoseErrorLog, format_summary
+
+    cfg = _load_config(args)
+    src, parts, poses = load_recording_parts(args.recording, args.objects)
     missing = [p.name for p in parts if p.name not in poses]
     if args.init == "given" and missing:
+        src.close()
         raise ValueError(f"no first-frame pose for part(s) {missing} (give 'pose' in objects.json or use --init auto)")
     first_table = None
     if args.init == "auto" or missing:
@@ -181,31 +282,17 @@ def run(args: argparse.Namespace) -> int:
         except BaseException:
             src.close()
             raise
-    tracker = MultiObjectTracker(parts, src.intrinsics, cfg, seed=args.seed)
-    tracker.initialize(poses)
-    detector = None
-    colored = [p for p in parts if p.color is not None]
-    if colored and not args.no_color:
-        from tracker.perception.color_detection import ColorDetector
-
-        detector = ColorDetector.from_parts(colored)
+    session = TrackSession(parts, src.intrinsics, poses, cfg, seed=args.seed, use_color=not args.no_color,
+                           table=first_table, use_table=not args.no_table)
     errors = PoseErrorLog(parts) if src.has_groundtruth else None
     out = open(args.out, "w") if args.out else None  # noqa: SIM115
-    follower = _TableFollower(src.intrinsics, first_table)
-    table = first_table
-    n = skipped = 0
-    t_track = 0.0
+    n = 0
     t_start = time.perf_counter()
     try:
         for frame in src:
             if args.frames is not None and n >= args.frames:
                 break
-            table = follower.update(frame)
-            dets = detector.detect(frame.color) if detector is not None else None
-            t0 = time.perf_counter()
-            state = tracker.step(frame, dets, table)
-            t_track += time.perf_counter() - t0
-            skipped += not state.depth_used
+            state, _ = session.step(frame)
             if out is not None:
                 out.write(json.dumps({"index": frame.index, "poses": {k: v.to_dict() for k, v in state.poses.items()}})
                           + "\n")
@@ -221,17 +308,22 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t_start
     if n == 0:
         raise RuntimeError(f"{args.recording}: the recording has no frames")
+    t_track, table, follower = session.track_seconds, session.table, session.follower
+    if args.no_table:
+        table_note = "off (--no-table)"
+    else:
+        table_note = "found" if table is not None else "not found (no table penalty)"
     print(f"tracked {n} frames of {len(parts)} part(s) with N = {cfg.n_particles} particles; "
-          f"table plane: {'found' if table is not None else 'not found (no table penalty)'}; "
-          f"colour: {'on' if detector is not None else 'off (depth only)'}")
+          f"table plane: {table_note}; "
+          f"colour: {'on' if session.detector is not None else 'off (depth only)'}")
     print(f"tracker: {n / max(t_track, 1e-9):.1f} fps ({1000 * t_track / n:.1f} ms/frame); "
           f"overall with decoding and perception: {n / max(wall, 1e-9):.1f} fps")
-    if table is not None:
+    if table is not None and follower is not None:
         print(f"table plane re-detected {follower.redetections} time(s) (camera or table moved)"
               + (f"; {follower.failures} re-detection(s) failed, the previous plane was kept" if follower.failures
                  else ""), file=sys.stderr)  # fmt: skip
-    if skipped:
-        print(f"warning: {skipped} frame(s) had no valid depth near the parts; the prediction was kept",
+    if session.skipped:
+        print(f"warning: {session.skipped} frame(s) had no valid depth near the parts; the prediction was kept",
               file=sys.stderr)
     if errors is not None:
         summary = errors.summary()
