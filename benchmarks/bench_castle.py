@@ -24,6 +24,7 @@ from __future__ import annotations
 import os
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # Open3D's ICP on one core too, so that thread CPU time is all of it
 
 import argparse
 import json
@@ -149,7 +150,7 @@ def markdown(res: dict) -> str:
     lines = [
         "## Castle-simu (external development set)",
         "",
-        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; NUMBA_NUM_THREADS=1. 1-minute load "
+        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; NUMBA_NUM_THREADS=1, OMP_NUM_THREADS=1 (one core each). 1-minute load "
         f"{m['load_1min_at_start']} at the start and {res['load_1min_at_end']} at the end"
         + (": the machine was shared with other jobs, so wall-clock times are pessimistic (CPU time is less "
            "affected)." if max(m["load_1min_at_start"] or 0, res["load_1min_at_end"] or 0) > 1.5 else ".")
