@@ -150,7 +150,8 @@ def markdown(res: dict) -> str:
     lines = [
         "## Castle-simu (external development set)",
         "",
-        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; NUMBA_NUM_THREADS=1, OMP_NUM_THREADS=1 (one core each). 1-minute load "
+        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; NUMBA_NUM_THREADS=1, OMP_NUM_THREADS=1 "
+        "(one core each). 1-minute load "
         f"{m['load_1min_at_start']} at the start and {res['load_1min_at_end']} at the end"
         + (": the machine was shared with other jobs, so wall-clock times are pessimistic (CPU time is less "
            "affected)." if max(m["load_1min_at_start"] or 0, res["load_1min_at_end"] or 0) > 1.5 else ".")
