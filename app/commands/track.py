@@ -202,7 +202,8 @@ class TrackSession:
 
     ``parts``/``poses``: the parts and their first-frame poses (camera frame, metres); ``table``: the first frame's
     plane when already known; ``use_table`` False: never look for one. ``step(frame)`` returns the tracker state and
-    the seconds spent in the tracker step (without decoding, plane and colour detection).
+    the seconds spent in the tracker step (without decoding, plane and colour detection); ``last_cpu`` is the
+    thread CPU seconds of that step.
     """
 
     def __init__(self, parts, intrinsics, poses, cfg, seed: int = 0, use_color: bool = True, table=None,
@@ -225,15 +226,17 @@ class TrackSession:
         self.frames = 0
         self.skipped = 0
         self.track_seconds = 0.0
+        self.last_cpu = 0.0
 
     def step(self, frame):
         """Track one frame; returns ``(TrackerState, tracker seconds)``."""
         if self.follower is not None:
             self.table = self.follower.update(frame, self.poses)
         dets = self.detector.detect(frame.color) if self.detector is not None else None
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         state = self.tracker.step(frame, dets, self.table)
         dt = time.perf_counter() - t0
+        self.last_cpu = time.thread_time() - c0
         self.track_seconds += dt
         self.poses = dict(state.poses)
         self.skipped += not state.depth_used

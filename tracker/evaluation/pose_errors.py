@@ -73,3 +73,27 @@ def format_summary(summary: dict[str, dict[str, float]]) -> str:
             f"{s['r_mean_deg']:7.2f} {s['r_median_deg']:7.2f} {s['r_p95_deg']:7.2f}"
         )
     return "\n".join(lines)
+
+
+LOST_T = 0.05
+"""Metres: a part whose translation error exceeds this (or whose rotation error exceeds ``LOST_R``) …"""
+LOST_R = float(np.radians(30.0))
+"""Radians (symmetry-aware rotation error)."""
+LOST_FRAMES = 10
+"""… for at least this many consecutive frames is lost."""
+
+
+def lost_runs(log: PoseErrorLog, t_max: float = LOST_T, r_max: float = LOST_R,
+              min_frames: int = LOST_FRAMES) -> dict[str, int]:
+    """Per part, the number of runs of ≥ ``min_frames`` consecutive logged frames with translation error >
+    ``t_max`` (m) or symmetry-aware rotation error > ``r_max`` (rad), whether the part is visible or not. A part
+    with at least one such run counts as lost."""
+    out: dict[str, int] = {}
+    for name in log.translation:
+        bad = (np.asarray(log.translation[name]) > t_max) | (np.asarray(log.rotation[name]) > r_max)
+        runs = run = 0
+        for b in bad:
+            run = run + 1 if b else 0
+            runs += run == min_frames
+        out[name] = runs
+    return out

@@ -1,0 +1,62 @@
+"""Held-out discipline (issue 11): seed lists, refusal of tuning seeds for reported figures, the "lost" rule, and
+the held-out benchmark's covering design."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+from tracker.evaluation.pose_errors import LOST_FRAMES, PoseErrorLog, lost_runs
+from tracker.evaluation.seeds import check_seeds, parse_seeds
+from tracker.geometry.parts import PartSpec
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks import bench_heldout  # noqa: E402
+
+
+def test_parse_seeds_ranges_and_lists():
+    assert parse_seeds("100-103") == [100, 101, 102, 103]
+    assert parse_seeds("100,105") == [100, 105]
+    assert parse_seeds(" 100-101, 120,100 ") == [100, 101, 120]
+    for bad in ("", "a", "5-3", "100-x", "-1"):
+        with pytest.raises(ValueError):
+            parse_seeds(bad)
+
+
+def test_tuning_seeds_are_refused_for_reporting_and_required_for_development():
+    assert check_seeds([100, 115]) == [100, 115]
+    with pytest.raises(ValueError, match="tuning seeds"):
+        check_seeds([100, 3])
+    with pytest.raises(ValueError, match="≥ 100"):
+        check_seeds([50])
+    assert check_seeds([0, 4], dev=True) == [0, 4]
+    with pytest.raises(ValueError, match="development"):
+        check_seeds([0, 100], dev=True)
+
+
+def test_lost_runs_count_long_runs_of_large_error_only():
+    log = PoseErrorLog([PartSpec("a", box=(0.036, 0.036, 0.036)), PartSpec("b", box=(0.036, 0.036, 0.036))])
+    n = LOST_FRAMES
+    # a: n frames 6 cm off (lost), n - 1 frames 40° off (too short), 2n frames 40° off (lost), with good gaps
+    big_r = math.radians(40)
+    segments = [(0.001, 0.0, 5), (0.06, 0.0, n), (0.001, 0.0, 3), (0.001, big_r, n - 1), (0.001, 0.0, 3),
+                (0.001, big_r, 2 * n), (0.001, 0.0, 2)]
+    log.translation["a"] = [t for t, _, k in segments for _ in range(k)]
+    log.rotation["a"] = [r for _, r, k in segments for _ in range(k)]
+    # b: errors just under both limits all the time
+    log.translation["b"] = [0.049] * (3 * n)
+    log.rotation["b"] = [math.radians(29.0)] * (3 * n)
+    assert lost_runs(log) == {"a": 2, "b": 0}
+
+
+def test_bench_heldout_design_covers_every_pair_and_refuses_tuning_seeds(capsys):
+    bench_heldout.check_design()
+    with pytest.raises(ValueError, match="speed 2.0"):
+        bench_heldout.check_design([d for d in bench_heldout.DESIGN if not (d[1] == "none" and d[3] == 2.0)])
+    assert bench_heldout.main(["--seeds", "0-4", "--no-write"]) == 2
+    assert "tuning seeds" in capsys.readouterr().err
+    assert bench_heldout.main(["--dev", "--seeds", "100", "--no-write"]) == 2
+    assert "development" in capsys.readouterr().err
