@@ -132,6 +132,17 @@ class BoxList(BaseModel):
     boxes: list[BoxResponse]
 
 
+class CalibrationInfo(BaseModel):
+    part: str
+    frame_index: int | None = Field(None, description="the frame whose pixels the range was learnt from")
+
+
+class CalibrationList(BaseModel):
+    """``GET /api/calibration``: the colour calibrations in force, oldest first (undo removes the last)."""
+
+    calibrations: list[CalibrationInfo]
+
+
 class AutoPlaceRequest(BaseModel):
     """``POST /api/parts/auto-place``: which parts to find on the table (default: every part without a pose)."""
 

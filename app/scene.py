@@ -112,7 +112,8 @@ class Scene:
         """Create one box (or mesh), particle cloud and word label per part (replacing earlier ones)."""
         if [p.name for p in parts] == [p.name for p in self.parts]:
             return
-        for handles in (self.part_nodes, self.particle_nodes, self.label_nodes):
+        # children first: removing a part's node removes its word label with it in viser
+        for handles in (self.label_nodes, self.part_nodes, self.particle_nodes):
             for h in handles.values():
                 h.remove()
             handles.clear()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -64,6 +65,15 @@ def available_sources() -> list[m.SourceInfo]:
     return out
 
 
+@dataclass
+class Calibration:
+    """A part's colour range learnt from a drawn box (``frame_index``: the frame it was learnt on)."""
+
+    part: str
+    range: Any
+    frame_index: int | None = None
+
+
 class AppState:
     """Everything the endpoints share: settings, storage, auth, worker, scene and the current selection."""
 
@@ -90,6 +100,7 @@ class AppState:
         self.session_id: int | None = None
         self.boxes: list[m.BoxResponse] = []
         self.user_poses: dict[str, Any] = {}  # parts placed by drawn boxes: kept when a source loops or reconnects
+        self.calibrations: list[Calibration] = []  # colour ranges learnt from boxes: kept like user_poses
         self._session_frames0 = 0
         self._lock = threading.Lock()
 
@@ -173,14 +184,27 @@ class AppState:
             )
 
         try:
-            return build(self.mode, self.task)
+            pipeline = build(self.mode, self.task)
         except ValueError as exc:
             if self.mode == "none":
                 raise
             # e.g. the task needs parts this source lacks: keep tracking and say why the mode is off
             self.worker.report("mode", f"{self.mode} mode unavailable on {self.source_spec}: {exc}")
             self.mode, self.task = "none", None
-            return build("none", None)
+            pipeline = build("none", None)
+        if self.calibrations:  # colours learnt from boxes outlive a source that loops or reconnects
+            pipeline.detector = self.detector_for(pipeline)
+        return pipeline
+
+    def detector_for(self, pipeline: AssemblyPipeline) -> Any:
+        """The colour detector of ``pipeline``'s parts: preset ranges, replaced by the calibrations in force."""
+        from tracker.perception.color_detection import ColorDetector
+
+        coloured = [p for p in pipeline.parts if p.color is not None]
+        ranges = dict(ColorDetector.from_parts(coloured).ranges) if coloured else {}
+        names = {p.name for p in pipeline.parts}
+        ranges.update({c.part: c.range for c in self.calibrations if c.part in names})
+        return ColorDetector(ranges) if ranges else None
 
     # -------------------------------------------------------------- sessions
     def start_session(self) -> None:

@@ -87,12 +87,39 @@ def test_drawn_box_places_part_on_table(client):
     assert box["part"] == "red"  # chosen by colour
     t = box["pose"]["t"]
     assert 0.5 < t[2] < 1.2  # on the table, in front of the camera
-    r = client.post("/api/boxes", json={"x": 78, "y": 58, "w": 14, "h": 14, "part": "green", "action": "calibrate"})
+    r = client.post("/api/boxes", json={"x": 81, "y": 61, "w": 8, "h": 8, "part": "green", "action": "calibrate"})
     assert r.status_code == 200 and r.json()["part"] == "green" and r.json()["pose"] is None
     r = client.post("/api/boxes", json={"x": 10, "y": 10, "w": 5, "h": 5, "part": "violet"})
     assert r.status_code == 422 and "unknown part" in r.json()["detail"]
     r = client.post("/api/boxes", json={"x": 10, "y": 10, "w": 0, "h": 5})
     assert r.status_code == 422
+
+
+def test_box_without_part_is_refused_and_calibration_undone(client):
+    wait_frames(client, 2)
+    # a box over bare (flat, grey) table: no part's colour, nothing standing there
+    r = client.post("/api/boxes", json={"x": 100, "y": 20, "w": 20, "h": 20})
+    assert r.status_code == 422 and "no part in the box" in r.json()["detail"]
+    r = client.post("/api/boxes", json={"x": 100, "y": 20, "w": 20, "h": 20, "part": "red"})
+    assert r.status_code == 422 and "no red part in the box" in r.json()["detail"]
+    # learning "green" from table pixels would make the whole table green
+    r = client.post("/api/boxes", json={"x": 100, "y": 20, "w": 20, "h": 20, "part": "green", "action": "calibrate"})
+    assert r.status_code == 422 and "covers" in r.json()["detail"] and "of the image" in r.json()["detail"]
+    assert client.get("/api/calibration").json()["calibrations"] == []
+    assert client.get("/api/boxes").json()["boxes"] == []  # nothing refused was kept
+    # a real calibration (the red square learnt as "green") is in force, then undone
+    r = client.post("/api/boxes", json={"x": 41, "y": 61, "w": 8, "h": 8, "part": "green", "action": "calibrate"})
+    assert r.status_code == 200, r.text
+    assert [c["part"] for c in client.get("/api/calibration").json()["calibrations"]] == ["green"]
+    n = wait_frames(client, 0)["worker"]["frame_index"]
+    wait_frames(client, n + 2)
+    assert client.get("/api/snapshot").json()["detections"]["green"]["bbox"][0] == 40  # now found on the red square
+    r = client.post("/api/calibration/undo")
+    assert r.status_code == 200 and r.json()["calibrations"] == []
+    n = wait_frames(client, 0)["worker"]["frame_index"]
+    wait_frames(client, n + 2)
+    assert client.get("/api/snapshot").json()["detections"]["green"]["bbox"][0] == 80  # its preset range again
+    assert client.post("/api/calibration/undo").status_code == 409
 
 
 def test_sessions_pause_start_reset(client):

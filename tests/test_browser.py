@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.browser
@@ -178,6 +179,54 @@ def best_seen(snap: dict) -> str:
     return max(seen, key=lambda n: seen[n]["area"])
 
 
+def drag_box(page, snap: dict, x: float, y: float, w: float, h: float) -> None:
+    """Press, drag and release the mouse over the image rectangle (x, y, w, h) in image pixels."""
+    iw, ih = snap["image_size"]
+    box = page.locator("#overlay").bounding_box()
+    sx, sy = box["width"] / iw, box["height"] / ih
+    page.mouse.move(box["x"] + x * sx, box["y"] + y * sy)
+    page.mouse.down()
+    page.mouse.move(box["x"] + (x + w / 2) * sx, box["y"] + (y + h / 2) * sy, steps=4)
+    page.mouse.move(box["x"] + (x + w) * sx, box["y"] + (y + h) * sy, steps=4)
+    page.mouse.up()
+
+
+def empty_spot(snap: dict, size: float = 24.0) -> tuple[float, float]:
+    """The top-left corner of a size×size square of the lower image half (the table) far from every part."""
+    iw, ih = snap["image_size"]
+    parts = [d["bbox"] for d in snap["detections"].values() if d["bbox"] is not None]
+    parts += [[b[0], b[1], b[2] - b[0], b[3] - b[1]] for b in snap["boxes"].values() if None not in b]
+    for y in np.arange(ih - size - 4, ih / 2, -8.0):
+        for x in np.arange(8.0, iw - size - 8, 8.0):
+            if all(x + size + 8 < bx or bx + bw + 8 < x or y + size + 8 < by or by + bh + 8 < y
+                   for bx, by, bw, bh in parts):
+                return float(x), float(y)
+    raise AssertionError(f"no empty table in view: {parts}")
+
+
+def test_box_over_empty_table_is_refused(still_table, page):
+    server = still_table
+    page.goto(server + "/?scene=off")
+    page.wait_for_function("() => document.getElementById('color-image').naturalWidth === 320")
+    snap = httpx.get(server + "/api/snapshot").json()
+    n_boxes = len(httpx.get(server + "/api/boxes").json()["boxes"])
+    x, y = empty_spot(snap)
+    drag_box(page, snap, x, y, 24, 24)
+    page.wait_for_function("() => document.getElementById('box-message').textContent.startsWith('box refused')")
+    message = page.locator("#box-message")
+    assert "no part in the box" in message.text_content()
+    assert "error" in message.get_attribute("class")
+    assert len(httpx.get(server + "/api/boxes").json()["boxes"]) == n_boxes  # nothing was placed
+    # a calibration learnt from bare table is refused too
+    page.select_option("#box-action", "calibrate")
+    page.select_option("#box-part", "red")
+    page.evaluate("document.getElementById('box-message').textContent = ''")
+    drag_box(page, snap, x, y, 24, 24)
+    page.wait_for_function("() => document.getElementById('box-message').textContent.startsWith('box refused')")
+    assert "of the image" in message.text_content()
+    assert page.locator("#btn-undo-calibration").is_disabled()  # nothing to undo
+
+
 def test_drawn_rectangle_creates_box_on_server(still_table, page):
     server = still_table
     page.goto(server + "/?scene=off")
@@ -188,14 +237,7 @@ def test_drawn_rectangle_creates_box_on_server(still_table, page):
         snap = httpx.get(server + "/api/snapshot").json()
         name = best_seen(snap)
         x, y, w, h = snap["detections"][name]["bbox"]
-        iw, ih = snap["image_size"]
-        box = page.locator("#overlay").bounding_box()
-        sx, sy = box["width"] / iw, box["height"] / ih
-        page.mouse.move(box["x"] + (x - 3) * sx, box["y"] + (y - 3) * sy)
-        page.mouse.down()
-        page.mouse.move(box["x"] + (x + w / 2) * sx, box["y"] + (y + h / 2) * sy, steps=4)
-        page.mouse.move(box["x"] + (x + w + 3) * sx, box["y"] + (y + h + 3) * sy, steps=4)
-        page.mouse.up()
+        drag_box(page, snap, x - 3, y - 3, w + 6, h + 6)
         page.wait_for_function("() => document.getElementById('box-message').textContent.startsWith('tracking')")
         assert name in page.locator("#box-message").text_content()
         boxes = httpx.get(server + "/api/boxes").json()["boxes"]

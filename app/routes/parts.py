@@ -1,11 +1,16 @@
-"""``/api/boxes`` and ``/api/parts/auto-place``: placing parts by a drawn rectangle or by a search on the table."""
+"""``/api/boxes``, ``/api/calibration`` and ``/api/parts/auto-place``: placing parts by a drawn rectangle or a
+search on the table, learning a part's colour from a rectangle (and undoing that)."""
 
 from __future__ import annotations
 
+import cv2
 from fastapi import APIRouter
 
 from app import api_models as m
 from app.routes.deps import State, on_worker
+from app.state import AppState, Calibration
+from tracker.perception.box_checks import check_calibration, check_track_box, raised_share
+from tracker.perception.color_detection import calibrate_range
 from tracker.pipeline import AssemblyPipeline
 
 router = APIRouter(tags=["stream"])
@@ -18,16 +23,25 @@ MAX_BOXES_KEPT = 50
     "/api/boxes", response_model=m.BoxResponse, responses={409: {"model": m.Message}, 422: {"model": m.Message}}
 )
 def draw_box(body: m.BoxRequest, state: State) -> m.BoxResponse:
+    """Track a part from a drawn rectangle, or learn its colour from it; a box with no part in it, or a
+    calibration that would cover most of the image, is refused (422) with what to do instead."""
     rect = (body.x, body.y, body.w, body.h)
 
     def apply(pipeline: AssemblyPipeline | None, frame):
         if pipeline is None or frame is None:
             raise LookupError("no frame processed yet")
-        name = body.part or pipeline.guess_part(frame.color, rect)
-        pipeline.part(name)
+        if body.part is not None:
+            pipeline.part(body.part)  # an unknown name: ValueError
         if body.action == "calibrate":
-            pipeline.calibrate_color(name, frame.color, rect)
+            name = body.part or pipeline.guess_part(frame.color, rect)
+            rng = calibrate_range(frame.color, rect)
+            check_calibration(rng, cv2.cvtColor(frame.color, cv2.COLOR_RGB2HSV))
+            state.calibrations.append(Calibration(name, rng, frame.index))
+            pipeline.detector = state.detector_for(pipeline)
             return name, None, frame.index
+        raised = raised_share(frame.depth, frame.intrinsics, pipeline.table, rect)
+        masks = pipeline.detector.masks(frame.color) if pipeline.detector is not None else {}
+        name = check_track_box(masks, rect, body.part, raised) or pipeline.guess_part(frame.color, rect)
         pose = pipeline.pose_from_rect(name, rect, frame.depth)
         pipeline.set_part_pose(name, pose)
         state.user_poses[name] = pose
@@ -40,6 +54,33 @@ def draw_box(body: m.BoxRequest, state: State) -> m.BoxResponse:
     state.boxes.append(box)
     del state.boxes[:-MAX_BOXES_KEPT]
     return box
+
+
+def calibration_list(state: AppState) -> m.CalibrationList:
+    return m.CalibrationList(
+        calibrations=[m.CalibrationInfo(part=c.part, frame_index=c.frame_index) for c in state.calibrations]
+    )
+
+
+@router.get("/api/calibration", response_model=m.CalibrationList)
+def calibrations(state: State) -> m.CalibrationList:
+    """The colour calibrations in force (oldest first); each replaced its part's preset range."""
+    return calibration_list(state)
+
+
+@router.post("/api/calibration/undo", response_model=m.CalibrationList, responses={409: {"model": m.Message}})
+def undo_calibration(state: State) -> m.CalibrationList:
+    """Undo the newest colour calibration: its part's range goes back to the one before it."""
+
+    def apply(pipeline: AssemblyPipeline | None, _frame):
+        if not state.calibrations:
+            raise LookupError("no colour calibration to undo")
+        state.calibrations.pop()
+        if pipeline is not None:
+            pipeline.detector = state.detector_for(pipeline)
+
+    on_worker(state, apply)
+    return calibration_list(state)
 
 
 @router.get("/api/boxes", response_model=m.BoxList)

@@ -32,6 +32,7 @@ def select_source(body: m.SourceSelect, state: State) -> m.SourcesResponse:
         raise HTTPException(422, f"source {body.source!r}: expected sim:<scenario>, recording:<dir> or camera:<n>")
     state.source_spec = body.source
     state.user_poses.clear()
+    state.calibrations.clear()  # colour ranges belong to the old camera and light
     state.worker.reset()
     state.start_session()
     return sources(state)

@@ -377,8 +377,33 @@ window.addEventListener("mouseup", async () => {
     const what = r.action === "track" ? "tracking" : "colour calibrated for";
     showMessage("box-message", `${what} ${r.part} (frame ${r.frame_index})`);
   } catch (e) {
+    state.lastBox = null;  // a refused box is not kept on the image
+    drawOverlay();
+    showMessage("box-message", `box refused: ${e.message}`, true);
+  }
+  refreshCalibrations();
+});
+
+// The colour calibrations in force: "Undo calibration" restores the range before the newest one.
+async function refreshCalibrations() {
+  try {
+    const r = await api("/api/calibration");
+    const btn = $("btn-undo-calibration");
+    const n = r.calibrations.length;
+    btn.disabled = n === 0;
+    btn.textContent = n ? `Undo calibration (${r.calibrations[n - 1].part})` : "Undo calibration";
+  } catch (_e) { /* the next refresh tries again */ }
+}
+
+$("btn-undo-calibration").addEventListener("click", async () => {
+  try {
+    const before = (await api("/api/calibration")).calibrations;
+    await api("/api/calibration/undo", { method: "POST" });
+    showMessage("box-message", `calibration of ${before[before.length - 1].part} undone`);
+  } catch (e) {
     showMessage("box-message", e.message, true);
   }
+  refreshCalibrations();
 });
 
 // ------------------------------------------------------------------ websocket
@@ -391,6 +416,7 @@ function connect() {
 window.addEventListener("resize", drawOverlay);
 refreshStatus();
 refreshSources().catch(() => {});
+refreshCalibrations();
 refreshModes().catch((e) => showMessage("mode-message", e.message, true));
 setInterval(refreshStatus, 2000);
 connect();
