@@ -13,6 +13,12 @@ from pydantic import BaseModel, ConfigDict, Field
 from tracker.assembly import SentenceTask
 
 ModeName = Literal["guidance", "guess", "learning", "none"]
+MAX_IMAGE_PX = 10_000
+"""Upper bound of box coordinates (pixels); the box must also lie inside the frame's image."""
+MAX_PARTS = 64
+MAX_PASSWORD_CHARS = 1024
+PartName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
+"""A part's name as the API accepts it (the parts of a source have such names)."""
 
 
 class ErrorEntry(BaseModel):
@@ -62,7 +68,7 @@ class SourcesResponse(BaseModel):
 
 
 class SourceSelect(BaseModel):
-    source: str = Field(min_length=3, description="sim:<scenario> | recording:<dir> | camera:<n>")
+    source: str = Field(min_length=3, max_length=1024, description="sim:<scenario> | recording:<dir> | camera:<n>")
 
 
 class TaskRef(BaseModel):
@@ -85,7 +91,7 @@ class ModeSelect(BaseModel):
     """``POST /api/modes``: switch the mode (and optionally its task; default: the mode's preset)."""
 
     mode: ModeName
-    task: str | None = Field(None, description="preset id or teacher:<n>")
+    task: str | None = Field(None, max_length=100, description="preset id or teacher:<n>")
 
 
 class SessionAction(BaseModel):
@@ -110,12 +116,12 @@ class SessionsResponse(BaseModel):
 class BoxRequest(BaseModel):
     """``POST /api/boxes``: a rectangle drawn on the colour image (pixels of the full-size image)."""
 
-    x: float = Field(ge=0)
-    y: float = Field(ge=0)
-    w: float = Field(gt=0)
-    h: float = Field(gt=0)
+    x: float = Field(ge=0, le=MAX_IMAGE_PX, allow_inf_nan=False)
+    y: float = Field(ge=0, le=MAX_IMAGE_PX, allow_inf_nan=False)
+    w: float = Field(gt=0, le=MAX_IMAGE_PX, allow_inf_nan=False)
+    h: float = Field(gt=0, le=MAX_IMAGE_PX, allow_inf_nan=False)
     action: Literal["track", "calibrate"] = "track"
-    part: str | None = Field(None, description="part name; default: the part whose colour matches the rectangle")
+    part: PartName | None = Field(None, description="part name; default: the part whose colour matches the rectangle")
 
 
 class BoxResponse(BaseModel):
@@ -148,8 +154,8 @@ class AutoPlaceRequest(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    names: list[Annotated[str, Field(min_length=1)]] | None = Field(
-        None, description="part names; a tracked part that is named is placed again"
+    names: list[PartName] | None = Field(
+        None, max_length=MAX_PARTS, description="part names; a tracked part that is named is placed again"
     )
 
 
@@ -205,7 +211,7 @@ class TaskList(BaseModel):
 
 
 class PasswordBody(BaseModel):
-    password: str = Field(min_length=1)
+    password: str = Field(min_length=1, max_length=MAX_PASSWORD_CHARS)
 
 
 class AuthStatus(BaseModel):

@@ -19,7 +19,19 @@ from app.storage import Storage
 _SCRYPT = {"n": 2**14, "r": 8, "p": 1, "dklen": 32}
 SECRET_KEY = "teacher_password"
 TOKEN_TTL_S = 12 * 3600.0
-MIN_PASSWORD_LENGTH = 4
+MIN_PASSWORD_LENGTH = 10
+MAX_PASSWORD_LENGTH = 1024
+
+
+def password_problem(password: str) -> str | None:
+    """Why ``password`` is too weak to become the teacher password, or ``None`` when it will do."""
+    if len(password) < MIN_PASSWORD_LENGTH:
+        return f"use at least {MIN_PASSWORD_LENGTH} characters"
+    if len(password) > MAX_PASSWORD_LENGTH:
+        return f"use at most {MAX_PASSWORD_LENGTH} characters"
+    if len(set(password)) < 4:
+        return "use at least 4 different characters"
+    return None
 
 
 def hash_password(password: str, salt: bytes | None = None) -> str:
@@ -56,6 +68,9 @@ class TeacherAuth:
         self._tokens: dict[str, float] = {}
         self._lock = threading.Lock()
         if env_password:
+            problem = password_problem(env_password)
+            if problem is not None:
+                raise ValueError(f"the teacher password from ASSEMBLY_AGENT_TEACHER_PASSWORD is too weak: {problem}")
             stored = storage.get_secret(SECRET_KEY)
             if stored is None or not verify_password(env_password, stored):
                 storage.set_secret(SECRET_KEY, hash_password(env_password))
@@ -66,8 +81,9 @@ class TeacherAuth:
 
     def setup(self, password: str) -> None:
         """Set the first password; refused once one exists."""
-        if len(password) < MIN_PASSWORD_LENGTH:
-            raise ValueError(f"password: use at least {MIN_PASSWORD_LENGTH} characters")
+        problem = password_problem(password)
+        if problem is not None:
+            raise ValueError(f"password: {problem}")
         with self._lock:
             if self.is_configured:
                 raise PermissionError("a teacher password is already set")
@@ -81,9 +97,16 @@ class TeacherAuth:
         """A new session token, or ``None`` for a wrong password."""
         if not self.check_password(password):
             return None
+        return self.new_token()
+
+    def new_token(self) -> str:
+        """A fresh session token (for a teacher whose password was just checked)."""
         token = secrets.token_urlsafe(32)
         with self._lock:
-            self._tokens[token] = time.time() + TOKEN_TTL_S
+            now = time.time()
+            for stale in [t for t, expiry in self._tokens.items() if expiry < now]:
+                del self._tokens[stale]
+            self._tokens[token] = now + TOKEN_TTL_S
         return token
 
     def check_token(self, token: str | None) -> bool:

@@ -12,20 +12,31 @@ import contextlib
 from collections.abc import Callable
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
+from app.middleware import LOOPBACK_NAMES, BodyLimit, HostGuard, SecurityHeaders, panel_csp
 from app.routes import auth, modes, pages, parts, sessions, sources, status, tasks, ws
+from app.routes.deps import api_limit
 from app.settings import Settings
 from app.state import WEB_DIR, AppState, open_source_spec, version
 from tracker.sources.base import FrameSource
 
 __all__ = ["AppState", "create_app", "open_source_spec"]
 
-ROUTERS = (pages, status, sources, modes, sessions, parts, auth, tasks, ws)
-"""Router modules, each with a ``router`` for one resource."""
+API_ROUTERS = (status, sources, modes, sessions, parts, auth, tasks)
+"""Router modules of ``/api``, each with a ``router`` for one resource (requests count against ``api_rate``)."""
+OTHER_ROUTERS = (pages, ws)
+
+
+def trusted_hosts(settings: Settings) -> list[str]:
+    """Host names the server answers to: loopback names, ``--host`` (unless a wildcard address), ``allowed_hosts``."""
+    hosts = [*LOOPBACK_NAMES, *settings.allowed_hosts]
+    if settings.host not in ("0.0.0.0", "::", ""):
+        hosts.append(settings.host)
+    return hosts
 
 
 def friendly(err: dict[str, Any]) -> str:
@@ -73,6 +84,12 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
     app.state.assembly = state
     app.add_exception_handler(RequestValidationError, validation_error)
     app.mount("/static", StaticFiles(directory=WEB_DIR / "static"), name="static")
-    for module in ROUTERS:
+    for module in API_ROUTERS:
+        app.include_router(module.router, dependencies=[Depends(api_limit)])
+    for module in OTHER_ROUTERS:
         app.include_router(module.router)
+    # the last added is the outermost: headers on every answer, then Host/Origin, then the body limit
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(HostGuard, hosts=trusted_hosts(settings), origins=settings.allowed_origins)
+    app.add_middleware(SecurityHeaders, csp=panel_csp(settings.viser_port))
     return app

@@ -13,6 +13,11 @@
 * ``auto_place``: find parts that have no pose (a live camera, a recording without poses in objects.json)
   automatically on the table, trying again every ``auto_place_interval_s`` seconds while some are missing
   (:meth:`tracker.pipeline.AssemblyPipeline.auto_place`); off: only a drawn box or "Find parts" places them.
+* Security: ``allowed_hosts``/``allowed_origins`` (Host and Origin checks against DNS rebinding and cross-site
+  use; localhost, 127.0.0.1, ::1 and ``host`` are always allowed), ``recording_dirs`` (the only folders whose
+  recordings the API may open), ``max_body_bytes`` (413 above), ``api_rate``/``api_burst`` and
+  ``learner_rate``/``learner_burst`` (429 with ``Retry-After`` above, per client address),
+  ``login_burst``/``login_refill_s`` (wrong teacher passwords allowed per client).
 * ``tracker_config``: tracker preset name or YAML/TOML path; ``seed``: random seed of tracker and modes.
 * ``n_particles``: the tracker's particle count N. Default :data:`SERVER_PARTICLES` = 100 rather than the
   tracker preset's 225 (a ``tracker_config`` given without ``n_particles`` keeps its own N): on a 2-core
@@ -62,6 +67,28 @@ class Settings(BaseSettings):
     max_fps: float = Field(30.0, gt=0, description="upper bound on processed frames per second")
     jpeg_quality: int = Field(75, ge=10, le=100)
     autostart: bool = True
+    # ---- security (see README "Security settings")
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        description="Host names (or addresses) the server answers to besides localhost/127.0.0.1/::1 and --host; "
+        "'*' answers any (turns the DNS-rebinding protection off)",
+    )
+    allowed_origins: list[str] = Field(
+        default_factory=list,
+        description="extra page origins (scheme://host:port) allowed to open /ws and send changes; the allowed "
+        "hosts are always allowed",
+    )
+    recording_dirs: list[str] = Field(
+        default_factory=lambda: ["data"],
+        description="folders whose recordings POST /api/sources may open (the --source of the command line is free)",
+    )
+    max_body_bytes: int = Field(256 * 1024, ge=1024, description="largest request body; larger ones get 413")
+    api_rate: float = Field(100.0, gt=0, description="API requests per second per client (average)")
+    api_burst: int = Field(200, ge=1, description="API requests per client at once")
+    learner_rate: float = Field(2.0, gt=0, description="learner actions (mode, boxes, auto-place, start/pause) per s")
+    learner_burst: int = Field(10, ge=1, description="learner actions per client at once")
+    login_burst: int = Field(5, ge=1, description="wrong teacher passwords per client before waiting")
+    login_refill_s: float = Field(10.0, gt=0, description="seconds until one more wrong password is allowed")
 
     def source_spec(self) -> str:
         """``source``, or the simulated scenario that suits ``mode`` (guidance-demo, guess-1, learning-4)."""

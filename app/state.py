@@ -16,8 +16,10 @@ from typing import Any
 
 from app import api_models as m
 from app.auth import TeacherAuth
+from app.limits import Limits
 from app.settings import Settings
 from app.storage import Storage
+from app.validation import check_preset_id, teacher_task_id
 from app.worker import PipelineWorker
 from tracker.assembly import SentenceTask
 from tracker.geometry.parts import PartSpec
@@ -84,6 +86,8 @@ class AppState:
         self.source_spec = settings.source_spec()
         self.mode = settings.mode
         self.task = settings.task
+        self._preset_ids: list[str] | None = None
+        self.limits = Limits(settings)
         if self.task is not None:
             self.resolve_task(self.mode, self.task)  # fail early on a bad --task
         self._open = open_source or self._open_spec
@@ -129,15 +133,22 @@ class AppState:
             proc, self._process_source = self._process_source[1], None
             proc.close()
 
+    def preset_ids(self) -> list[str]:
+        """The ids of the task presets (read once: presets ship with the program)."""
+        if self._preset_ids is None:
+            from tracker.assembly import list_presets
+
+            self._preset_ids = [p["id"] for p in list_presets()]
+        return self._preset_ids
+
     def resolve_task(self, mode: str, ref: str | None) -> Any:
-        """The task object for a reference: a preset id, or ``teacher:<n>`` (a stored sentence task)."""
+        """The task object for a reference: a preset id, or ``teacher:<n>`` (a stored sentence task).
+
+        Only known preset ids and bounded teacher ids are accepted (:mod:`app.validation`); ValueError otherwise."""
         if ref is None or mode == "none":
             return None
-        if ref.startswith("teacher:"):
-            try:
-                task_id = int(ref.split(":", 1)[1])
-            except ValueError as exc:
-                raise ValueError(f"task {ref!r}: expected teacher:<number>") from exc
+        task_id = teacher_task_id(ref)
+        if task_id is not None:
             rec = self.storage.get_task(task_id)
             if rec is None:
                 raise ValueError(f"task {ref!r}: no teacher task with id {task_id}")
@@ -146,7 +157,7 @@ class AppState:
             return SentenceTask(**rec["data"])
         from tracker.assembly import load_preset
 
-        task = load_preset(ref)
+        task = load_preset(check_preset_id(ref, self.preset_ids()))
         if task.mode != mode:
             raise ValueError(f"task {ref!r} is a {task.mode} task, not a {mode} task")
         return task

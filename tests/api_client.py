@@ -11,14 +11,35 @@ from fastapi.testclient import TestClient
 from app.server import create_app
 from app.settings import Settings
 
+TEST_HOST = "testserver"
+"""The Host of TestClient requests (allowed in :func:`app_settings`)."""
+LOCAL_CLIENT = ("127.0.0.1", 50000)
+"""TestClient requests come from this address: the server machine itself, as a local browser would."""
+
+
+def app_settings(tmp_path, **settings) -> Settings:
+    """Settings for a test app: database under ``tmp_path``, viser off, no mode, 20 particles, TestClient's host
+    allowed; ``settings`` override any of these."""
+    base = {
+        "database": str(tmp_path / "agent.sqlite3"),
+        "viser_port": 0,
+        "mode": "none",
+        "n_particles": 20,
+        "allowed_hosts": [TEST_HOST],
+    }
+    return Settings(**{**base, **settings})
+
+
+def local_client(app, **kwargs) -> TestClient:
+    """A TestClient whose requests come from the loopback address (as a browser on the server machine)."""
+    return TestClient(app, client=LOCAL_CLIENT, **kwargs)
+
 
 @contextlib.contextmanager
 def app_client(tmp_path, open_source: Callable, **settings) -> Iterator[TestClient]:
-    """The web app with its database under ``tmp_path``, viser off, no mode, 20 particles, frames from
-    ``open_source(spec)``; ``settings`` override any of these."""
-    base = {"database": str(tmp_path / "agent.sqlite3"), "viser_port": 0, "mode": "none", "n_particles": 20}
-    app = create_app(Settings(**{**base, **settings}), open_source=open_source)
-    with TestClient(app) as client:
+    """The web app on :func:`app_settings`, frames from ``open_source(spec)``, requests from loopback."""
+    app = create_app(app_settings(tmp_path, **settings), open_source=open_source)
+    with local_client(app) as client:
         yield client
 
 

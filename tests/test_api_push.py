@@ -12,7 +12,7 @@ import threading
 import time
 
 import pytest
-from fastapi.testclient import TestClient
+from api_client import app_settings, local_client
 from test_worker import SyntheticTable
 
 from app.server import create_app
@@ -41,11 +41,8 @@ class GatedTable(SyntheticTable):
 @pytest.fixture()
 def gated(tmp_path):
     src = GatedTable()
-    settings = Settings(
-        database=str(tmp_path / "agent.sqlite3"), viser_port=0, mode="none", source="synthetic:", n_particles=20
-    )
-    app = create_app(settings, open_source=lambda spec: src)
-    with TestClient(app) as client:
+    app = create_app(app_settings(tmp_path, source="synthetic:"), open_source=lambda spec: src)
+    with local_client(app) as client:
         yield client, src, app.state.assembly.worker
 
 
@@ -90,10 +87,9 @@ def test_snapshot_json_is_encoded_once_for_all_clients(gated):
 
 
 def test_simulator_runs_in_a_child_process_kept_until_the_source_changes(tmp_path):
-    settings = Settings(database=str(tmp_path / "a.db"), viser_port=0, mode="none", source="sim:static", n_particles=20)
-    app = create_app(settings)  # the real registry: the simulator renders in a child process
+    app = create_app(app_settings(tmp_path, source="sim:static"))  # the real registry: a child process renders
     state = app.state.assembly
-    with TestClient(app) as client:
+    with local_client(app) as client:
         t0 = time.time()
         while (client.get("/api/status").json()["worker"]["frame_index"] or 0) < 2:
             assert time.time() - t0 < 120, client.get("/api/status").json()

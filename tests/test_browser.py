@@ -120,6 +120,8 @@ def frame_number(page) -> int:
 
 def test_page_loads_and_updates(server, page):
     page.set_viewport_size({"width": 1280, "height": 800})  # a common laptop screen: the screenshot's size
+    console: list[str] = []
+    page.on("console", lambda msg: console.append(msg.text))
     page.goto(server + "/")
     page.wait_for_function("() => /^\\d+$/.test(document.getElementById('frame-index').textContent)")
     first = frame_number(page)
@@ -130,6 +132,10 @@ def test_page_loads_and_updates(server, page):
     page.wait_for_function("() => document.getElementById('instruction').textContent.startsWith('Step')")
     page.wait_for_function("() => document.getElementById('color-image').naturalWidth === 320")
     assert page.locator("#viser-frame").get_attribute("src").startswith("http://127.0.0.1:")
+    # the page's Content-Security-Policy lets the viser scene load in its frame, and blocks nothing of ours
+    scene = page.frame_locator("#viser-frame")
+    scene.locator("canvas").first.wait_for(state="attached")
+    assert not [m for m in console if "Content Security Policy" in m], console
     page.wait_for_timeout(2500)  # let the 3D scene draw before the screenshot
     ARTIFACTS.mkdir(exist_ok=True)
     page.screenshot(path=str(ARTIFACTS / "browser-panel.png"), full_page=True)

@@ -74,15 +74,15 @@ def test_password_hash_is_salted_and_not_plaintext(tmp_path):
     assert not auth.is_configured
     with pytest.raises(ValueError, match="at least"):
         auth.setup("ab")
-    auth.setup("lehrer123")
+    auth.setup("lehrer-1234")
     with pytest.raises(PermissionError):
-        auth.setup("another")
+        auth.setup("another-password")
     stored = s.get_secret("teacher_password")
-    assert "lehrer123" not in stored and stored.startswith("scrypt$")
+    assert "lehrer-1234" not in stored and stored.startswith("scrypt$")
     raw = (tmp_path / "a.db").read_bytes()
-    assert b"lehrer123" not in raw
+    assert b"lehrer-1234" not in raw
     assert auth.login("nope") is None
-    token = auth.login("lehrer123")
+    token = auth.login("lehrer-1234")
     assert auth.check_token(token) and not auth.check_token("forged")
     auth.logout(token)
     assert not auth.check_token(token)
@@ -90,6 +90,6 @@ def test_password_hash_is_salted_and_not_plaintext(tmp_path):
 
 def test_env_password_replaces_stored_one(tmp_path):
     s = Storage(tmp_path / "a.db")
-    TeacherAuth(s).setup("first-pw")
-    auth = TeacherAuth(s, env_password="from-env")
-    assert auth.check_password("from-env") and not auth.check_password("first-pw")
+    TeacherAuth(s).setup("first-password")
+    auth = TeacherAuth(s, env_password="from-the-env")
+    assert auth.check_password("from-the-env") and not auth.check_password("first-password")

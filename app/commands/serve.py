@@ -51,6 +51,28 @@ def register(subparsers) -> None:
         default=None,
         help="do not look for parts without a pose automatically (draw a box or press 'Find parts' instead)",
     )
+    p.add_argument(
+        "--allowed-host",
+        action="append",
+        dest="allowed_hosts",
+        metavar="NAME",
+        help="a host name or address browsers may use to reach the server besides localhost/127.0.0.1 and --host "
+        "(repeatable; e.g. the machine's LAN address with --host 0.0.0.0; '*' turns the Host check off)",
+    )
+    p.add_argument(
+        "--allowed-origin",
+        action="append",
+        dest="allowed_origins",
+        metavar="URL",
+        help="an extra page origin (scheme://host:port) allowed to open /ws and send changes (repeatable)",
+    )
+    p.add_argument(
+        "--recording-dir",
+        action="append",
+        dest="recording_dirs",
+        metavar="DIR",
+        help="a folder whose recordings the panel/API may open (repeatable; default: data)",
+    )
     p.set_defaults(func=run)
 
 
@@ -75,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
             "seed": args.seed,
             "realtime": args.realtime,
             "auto_place": getattr(args, "auto_place", None),
+            "allowed_hosts": args.allowed_hosts,
+            "allowed_origins": args.allowed_origins,
+            "recording_dirs": args.recording_dirs,
         }.items()
         if v is not None
     }

@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException
 from pydantic import ValidationError
 
 from app import api_models as m
-from app.routes.deps import State, on_worker
+from app.routes.deps import Learner, State, on_worker
 from app.state import AppState
 
 log = logging.getLogger(__name__)
@@ -43,7 +43,12 @@ def modes(state: State) -> m.ModesResponse:
     )
 
 
-@router.post("/api/modes", response_model=m.ModesResponse, responses={422: {"model": m.Message}})
+@router.post(
+    "/api/modes",
+    response_model=m.ModesResponse,
+    dependencies=[Learner],
+    responses={422: {"model": m.Message}, 429: {"model": m.Message}},
+)
 def select_mode(body: m.ModeSelect, state: State) -> m.ModesResponse:
     try:
         task_obj = state.resolve_task(body.mode, body.task)

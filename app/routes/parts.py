@@ -7,7 +7,7 @@ import cv2
 from fastapi import APIRouter
 
 from app import api_models as m
-from app.routes.deps import State, on_worker
+from app.routes.deps import Learner, State, on_worker
 from app.state import AppState, Calibration
 from tracker.perception.box_checks import check_calibration, check_track_box, raised_share
 from tracker.perception.color_detection import calibrate_range
@@ -19,17 +19,37 @@ MAX_BOXES_KEPT = 50
 """``GET /api/boxes`` lists the newest this many boxes."""
 
 
+def inside_image(rect: tuple[float, float, float, float], width: int, height: int) -> tuple[float, float, float, float]:
+    """``rect`` = (x, y, w, h) pixels cut to the ``width`` × ``height`` image; ValueError when less than half of it
+    lies inside the image (a box drawn off the image, or coordinates of another image size)."""
+    x, y, w, h = rect
+    x1, y1 = min(x + w, float(width)), min(y + h, float(height))
+    inside = max(0.0, x1 - x) * max(0.0, y1 - y)
+    if inside < 0.5 * w * h or inside < 1.0:
+        raise ValueError(
+            f"the box [{x:.0f}, {y:.0f}, {w:.0f}, {h:.0f}] lies mostly outside the {width}×{height} image; "
+            "draw it on the image"
+        )
+    return (x, y, x1 - x, y1 - y)
+
+
 @router.post(
-    "/api/boxes", response_model=m.BoxResponse, responses={409: {"model": m.Message}, 422: {"model": m.Message}}
+    "/api/boxes",
+    response_model=m.BoxResponse,
+    dependencies=[Learner],
+    responses={409: {"model": m.Message}, 422: {"model": m.Message}, 429: {"model": m.Message}},
 )
 def draw_box(body: m.BoxRequest, state: State) -> m.BoxResponse:
     """Track a part from a drawn rectangle, or learn its colour from it; a box with no part in it, or a
-    calibration that would cover most of the image, is refused (422) with what to do instead."""
+    calibration that would cover most of the image, is refused (422) with what to do instead. A rectangle
+    that overhangs the image is cut to it, one lying mostly outside is refused (422)."""
     rect = (body.x, body.y, body.w, body.h)
 
     def apply(pipeline: AssemblyPipeline | None, frame):
+        nonlocal rect
         if pipeline is None or frame is None:
             raise LookupError("no frame processed yet")
+        rect = inside_image(rect, frame.color.shape[1], frame.color.shape[0])
         if body.part is not None:
             pipeline.part(body.part)  # an unknown name: ValueError
         if body.action == "calibrate":
@@ -68,7 +88,12 @@ def calibrations(state: State) -> m.CalibrationList:
     return calibration_list(state)
 
 
-@router.post("/api/calibration/undo", response_model=m.CalibrationList, responses={409: {"model": m.Message}})
+@router.post(
+    "/api/calibration/undo",
+    response_model=m.CalibrationList,
+    dependencies=[Learner],
+    responses={409: {"model": m.Message}, 429: {"model": m.Message}},
+)
 def undo_calibration(state: State) -> m.CalibrationList:
     """Undo the newest colour calibration: its part's range goes back to the one before it."""
 
@@ -91,7 +116,13 @@ def list_boxes(state: State) -> m.BoxList:
 @router.post(
     "/api/parts/auto-place",
     response_model=m.AutoPlaceResponse,
-    responses={409: {"model": m.Message}, 422: {"model": m.Message}, 503: {"model": m.Message}},
+    dependencies=[Learner],
+    responses={
+        409: {"model": m.Message},
+        422: {"model": m.Message},
+        429: {"model": m.Message},
+        503: {"model": m.Message},
+    },
 )
 def auto_place(state: State, body: m.AutoPlaceRequest | None = None) -> m.AutoPlaceResponse:
     """Find the parts (default: those without a pose) resting on the table in the latest frame and track

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Header
 from starlette.requests import HTTPConnection
 
 from app import api_models as m
-from app.routes.deps import State, require_teacher
+from app.routes.deps import Learner, State, require_teacher
 from app.state import AppState
 
 router = APIRouter(tags=["sessions"])
@@ -30,14 +30,15 @@ def sessions(state: State) -> m.SessionsResponse:
 @router.post(
     "/api/sessions",
     response_model=m.SessionsResponse,
-    responses={401: {"model": m.Message}, 403: {"model": m.Message}},
+    dependencies=[Learner],
+    responses={401: {"model": m.Message}, 403: {"model": m.Message}, 429: {"model": m.Message}},
 )
 def session_action(
     body: m.SessionAction,
     state: State,
     conn: HTTPConnection,
-    x_teacher_password: Annotated[str | None, Header()] = None,
-    authorization: Annotated[str | None, Header()] = None,
+    x_teacher_password: Annotated[str | None, Header(max_length=1024)] = None,
+    authorization: Annotated[str | None, Header(max_length=1024)] = None,
 ) -> m.SessionsResponse:
     """``start`` and ``pause`` hold or resume the stream; ``reset`` forgets placed parts and starts a new
     session, so it needs the teacher."""

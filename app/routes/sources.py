@@ -5,8 +5,9 @@ from __future__ import annotations
 from fastapi import APIRouter, HTTPException
 
 from app import api_models as m
-from app.routes.deps import State, Teacher
+from app.routes.deps import SettingsDep, State, Teacher
 from app.state import available_sources, safe_metadata
+from app.validation import check_source_spec
 
 router = APIRouter(tags=["sources"])
 
@@ -25,12 +26,17 @@ def sources(state: State) -> m.SourcesResponse:
     dependencies=[Teacher],
     responses={401: {"model": m.Message}, 403: {"model": m.Message}, 422: {"model": m.Message}},
 )
-def select_source(body: m.SourceSelect, state: State) -> m.SourcesResponse:
-    """Switch the frame source (the teacher's control); the worker reopens and a new session starts."""
-    kind = body.source.split(":", 1)[0]
-    if kind not in ("sim", "recording", "camera"):
-        raise HTTPException(422, f"source {body.source!r}: expected sim:<scenario>, recording:<dir> or camera:<n>")
-    state.source_spec = body.source
+def select_source(body: m.SourceSelect, state: State, settings: SettingsDep) -> m.SourcesResponse:
+    """Switch the frame source (the teacher's control); the worker reopens and a new session starts.
+
+    A simulated scenario must exist, a camera is given by device numbers, and a recording must lie inside one of
+    the data folders of ``settings.recording_dirs`` (422 otherwise)."""
+    scenarios = [s.spec.split(":", 1)[1] for s in available_sources() if s.kind == "sim"]
+    try:
+        spec = check_source_spec(body.source, scenarios, settings.recording_dirs)
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from exc
+    state.source_spec = spec
     state.user_poses.clear()
     state.calibrations.clear()  # colour ranges belong to the old camera and light
     state.worker.reset()

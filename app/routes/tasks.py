@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException
+from fastapi import APIRouter, HTTPException, Path
 
 from app import api_models as m
 from app.routes.deps import StorageDep, Teacher
+from app.validation import MAX_TEACHER_TASK_ID
 from tracker.assembly import SentenceTask
 
 router = APIRouter(tags=["tasks"])
 
 TEACHER_ONLY = {401: {"model": m.Message}, 403: {"model": m.Message}}
+TaskId = Annotated[int, Path(ge=1, le=MAX_TEACHER_TASK_ID, description="the task's id (teacher:<id>)")]
 
 
 def no_task(task_id: int) -> HTTPException:
@@ -48,7 +50,7 @@ def create_task(body: SentenceTask, storage: StorageDep) -> m.TaskRecord:
 
 
 @router.get("/api/tasks/{task_id}", response_model=m.TaskRecord, responses={404: {"model": m.Message}})
-def get_task(task_id: int, storage: StorageDep) -> m.TaskRecord:
+def get_task(task_id: TaskId, storage: StorageDep) -> m.TaskRecord:
     return task_record(found(storage.get_task(task_id), task_id))
 
 
@@ -58,7 +60,7 @@ def get_task(task_id: int, storage: StorageDep) -> m.TaskRecord:
     dependencies=[Teacher],
     responses={**TEACHER_ONLY, 404: {"model": m.Message}},
 )
-def update_task(task_id: int, body: SentenceTask, storage: StorageDep) -> m.TaskRecord:
+def update_task(task_id: TaskId, body: SentenceTask, storage: StorageDep) -> m.TaskRecord:
     return task_record(found(storage.update_task(task_id, body.model_dump(mode="json")), task_id))
 
 
@@ -68,7 +70,7 @@ def update_task(task_id: int, body: SentenceTask, storage: StorageDep) -> m.Task
     dependencies=[Teacher],
     responses={**TEACHER_ONLY, 404: {"model": m.Message}},
 )
-def delete_task(task_id: int, storage: StorageDep) -> m.Message:
+def delete_task(task_id: TaskId, storage: StorageDep) -> m.Message:
     if not storage.delete_task(task_id):
         raise no_task(task_id)
     return m.Message(detail=f"task {task_id} deleted")

@@ -27,8 +27,9 @@ are :class:`TaskFileError` (a ``ValueError``) whose message names the file, the 
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
@@ -127,6 +128,13 @@ class StructureModel(_Strict):
     plan: list[str] | None = None
 
 
+MAX_SENTENCE_CHARS = 500
+MAX_WORD_CHARS = 80
+MAX_WORDS = 40
+"""Bounds of a sentence task (characters of the sentence and of one word, words per list)."""
+_CONTROL_CHARS = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+
+
 class SentenceTask(_Strict):
     """A learning-mode sentence: the source sentence and the Spanish words in their correct order.
 
@@ -134,13 +142,24 @@ class SentenceTask(_Strict):
     are words put on extra cubes (ignored by the evaluation). Used by the teacher editor as well.
     """
 
-    id: str | None = None
-    source_sentence: str = Field(min_length=1)
-    source_language: str = "el"
-    target_language: str = "es"
-    words: list[str] = Field(min_length=2)
-    alternatives: list[list[str]] = Field(default_factory=list)
-    distractors: list[str] = Field(default_factory=list)
+    id: str | None = Field(None, max_length=80)
+    source_sentence: str = Field(min_length=1, max_length=MAX_SENTENCE_CHARS)
+    source_language: str = Field("el", max_length=16)
+    target_language: str = Field("es", max_length=16)
+    words: list[Annotated[str, Field(max_length=MAX_WORD_CHARS)]] = Field(min_length=2, max_length=MAX_WORDS)
+    alternatives: list[list[str]] = Field(default_factory=list, max_length=MAX_WORDS)
+    distractors: list[Annotated[str, Field(max_length=MAX_WORD_CHARS)]] = Field(
+        default_factory=list, max_length=MAX_WORDS
+    )
+
+    @field_validator("source_sentence")
+    @classmethod
+    def _sentence_is_text(cls, v: str) -> str:
+        if _CONTROL_CHARS.search(v):
+            raise ValueError("the sentence contains control characters (such as NUL)")
+        if not v.strip():
+            raise ValueError("the sentence is blank")
+        return v.strip()
 
     @field_validator("words", "distractors")
     @classmethod
@@ -148,6 +167,8 @@ class SentenceTask(_Strict):
         for i, w in enumerate(v):
             if not w.strip():
                 raise ValueError(f"word {i + 1} is empty")
+            if _CONTROL_CHARS.search(w):
+                raise ValueError(f"word {i + 1} contains control characters (such as NUL)")
         return [w.strip() for w in v]
 
     @model_validator(mode="after")

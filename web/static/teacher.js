@@ -43,7 +43,7 @@ async function refreshAuth() {
   $("login-title").textContent = auth.configured ? "Teacher login" : "Set the teacher password";
   $("login-hint").textContent = auth.configured
     ? "Enter the teacher password to create or edit tasks. Learners can only read them."
-    : "No teacher password exists yet. Choose one (at least 4 characters); it is stored hashed.";
+    : "No teacher password exists yet. Choose one (at least 10 characters; only on the server machine itself); it is stored hashed.";
   $("btn-login").textContent = auth.configured ? "Log in" : "Set password";
   $("login-form").classList.toggle("hidden", auth.loggedIn);
   $("btn-logout").classList.toggle("hidden", !auth.loggedIn);
