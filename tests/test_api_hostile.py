@@ -12,6 +12,7 @@ import pytest
 from api_client import app_client, app_settings, wait_frames
 from test_worker import SyntheticTable
 
+from app.routes.parts import inside_image
 from app.server import create_app
 from tracker.assembly.presets import PRESET_DIR
 
@@ -73,11 +74,14 @@ def test_non_finite_and_huge_box_numbers_are_refused(client):
     r = client.post("/api/boxes", json={"x": 500, "y": 400, "w": 20, "h": 20})
     assert r.status_code == 422 and "outside the 160×120 image" in detail(r)
     assert client.get("/api/boxes").json()["boxes"] == []  # nothing was placed
-    # a box overhanging the edge a little (as a drag past the image ends) is cut to the image
-    r = client.post("/api/boxes", json={"x": 38, "y": 58, "w": 14, "h": 14, "action": "calibrate", "part": "red"})
-    assert r.status_code == 200 and r.json()["rect"] == [38, 58, 14, 14]
-    r = client.post("/api/boxes", json={"x": 150, "y": 100, "w": 14, "h": 24, "action": "calibrate", "part": "red"})
-    assert r.status_code == 200 and r.json()["rect"] == [150, 100, 10, 20], r.text
+
+
+def test_box_overhanging_the_image_is_cut_to_it():
+    assert inside_image((38, 58, 14, 14), 160, 120) == (38, 58, 14, 14)
+    assert inside_image((150, 100, 14, 24), 160, 120) == (150, 100, 10, 20)  # a drag that ended past the edge
+    for off in ((150, 100, 30, 30), (200, 10, 5, 5), (0, 119.5, 4, 4)):
+        with pytest.raises(ValueError, match="outside the 160×120 image"):
+            inside_image(off, 160, 120)
 
 
 def test_strings_and_lists_are_bounded(client, caplog):
