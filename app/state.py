@@ -14,6 +14,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from app import api_models as m
 from app.auth import TeacherAuth
 from app.limits import Limits
@@ -105,6 +107,7 @@ class AppState:
         self.boxes: list[m.BoxResponse] = []
         self.user_poses: dict[str, Any] = {}  # parts placed by drawn boxes: kept when a source loops or reconnects
         self.calibrations: list[Calibration] = []  # colour ranges learnt from boxes: kept like user_poses
+        self.round = 0  # pipelines built so far: each opening of the source (a loop, a reset, a switch) is a round
         self._session_frames0 = 0
         self._lock = threading.Lock()
 
@@ -162,7 +165,25 @@ class AppState:
             raise ValueError(f"task {ref!r} is a {task.mode} task, not a {mode} task")
         return task
 
+    def task_for_round(self, mode: str, task: Any) -> Any:
+        """The task of this round: a learning task with several sentences gets one of them per round, in turn
+        (starting from a seeded draw), so every round of a looping source asks for a new sentence."""
+        if mode != "learning" or isinstance(task, SentenceTask):
+            return task
+        if task is None:
+            from tracker.assembly import load_preset
+            from tracker.pipeline import DEFAULT_TASKS
+
+            task = load_preset(DEFAULT_TASKS["learning"])
+        sentences = list(getattr(task, "sentences", None) or [])
+        if len(sentences) < 2 or not hasattr(task, "model_copy"):
+            return task
+        first = int(np.random.default_rng(self.settings.seed).integers(len(sentences)))
+        pick = sentences[(first + max(0, self.round - 1)) % len(sentences)]
+        return task.model_copy(update={"sentences": [pick]})
+
     def _make_pipeline(self, src: FrameSource) -> AssemblyPipeline:
+        self.round += 1
         parts = getattr(src, "parts", None) or [PartSpec.cube(c, c) for c in DEFAULT_CAMERA_PARTS]
         poses = {**(getattr(src, "initial_poses", None) or {}), **self.user_poses}
         config = self.settings.tracker_config
@@ -184,12 +205,12 @@ class AppState:
                 list(parts),
                 src.intrinsics,
                 mode=None if mode == "none" else mode,
-                task=self.resolve_task(mode, task),
+                task=self.task_for_round(mode, self.resolve_task(mode, task)),
                 config=config,
                 seed=self.settings.seed,
                 initial_poses=poses,
                 table_recheck_s=self.settings.table_recheck_s,
-                source_info={"spec": self.source_spec, **safe_metadata(src)},
+                source_info={"spec": self.source_spec, "round": self.round, **safe_metadata(src)},
                 auto_place=self.settings.auto_place,
                 auto_place_interval_s=self.settings.auto_place_interval_s,
             )

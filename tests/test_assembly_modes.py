@@ -13,6 +13,7 @@ from tracker.assembly.part_graph import PartGraph
 from tracker.assembly.sequence_graph import SequenceGraph
 from tracker.assembly.synthetic import build_up_session, default_table_to_camera
 from tracker.assembly.task_file import SentenceTask
+from tracker.geometry.pose import Pose
 
 GOOD = """id: t
 mode: guess
@@ -115,7 +116,19 @@ def test_guess_mode_scripted_session(true_name):
              "tower-with-wings": ["red", "yellow", "green", "orange", "blue"]}[true_name]
     frames = build_up_session(g, order, T, np.random.default_rng(5), yaw=0.3)
     mode = build_mode(task)
-    state = _run(mode, frames, T).to_dict()
+    said = set()
+    for t, poses, _ in frames:  # a structure is named only while it leads alone
+        st = mode.update(t, poses, T).to_dict()
+        top = st["ranking"][0]["completed"]
+        if st["tied"] and top > 0 and not st["complete"]:
+            assert st["instruction"].startswith("Not sure yet"), st["instruction"]
+            said.add("not sure")
+        elif not st["tied"] and not st["complete"]:
+            assert st["instruction"].startswith("I think you are building the"), st["instruction"]
+            assert st["confidence"] > 0
+    if true_name != "tower-with-wings":  # the T-tower and the L begin with the same connections
+        assert "not sure" in said
+    state = mode.last_state.to_dict()
     assert state["guess"] == true_name and state["complete"]
     assert state["ranking"][0]["structure"] == true_name and state["ranking"][0]["completed"] == 4
     assert state["confidence"] > 0.4
@@ -146,7 +159,7 @@ def test_guidance_mode_steps_target_and_completion():
         seen_steps.append(state["progress"]["done"])
         if not state["complete"]:
             assert state["warning"] is None
-    assert state["complete"] and state["progress"] == {"done": 4, "total": 4}
+    assert state["complete"] and state["progress"] == {"done": 4, "total": 4, "unit": "steps"}
     assert seen_steps == sorted(seen_steps)
 
 
@@ -170,11 +183,23 @@ def test_learning_mode_verdicts(swap):
     state = mode.last_state.to_dict()
     assert state["row"] == row
     correct = [v["correct"] for v in state["verdicts"]]
+    assert state["progress"] == {"done": sum(correct), "total": 4, "unit": "words"}  # words, not connections
     if swap:
         assert correct == [True, False, False, True] and not any(completes)
     else:
         assert all(correct) and state["complete"] and completes[-1]
+        # taking the row apart afterwards keeps the verdict until the next round (reset)
+        t_end = frames[-1][0]
+        last = frames[-1][1].items()
+        apart = {n: Pose(p.t + T.R @ np.array([0.1 * i, 0.0, 0.0]), p.q) for i, (n, p) in enumerate(last)}
+        for k in range(8):
+            kept = mode.update(t_end + (k + 1) / 30, apart, T).to_dict()
+        assert kept["complete"] and kept["instruction"].startswith("¡Muy bien!")
+        mode.reset()
+        assert not mode.update(t_end + 1.0, apart, T).complete
     assert {w["word"] for w in state["words"] if w["is_distractor"]} == {"gusto", "leche"}
+    # the list shown to the user does not give the answer away: not in the sentence's order
+    assert [w["word"] for w in state["words"] if not w["is_distractor"]] != list(sentence.words)
 
 
 @pytest.mark.parametrize("ahead", [True, False])

@@ -51,7 +51,7 @@ def modes(state: State) -> m.ModesResponse:
 )
 def select_mode(body: m.ModeSelect, state: State) -> m.ModesResponse:
     try:
-        task_obj = state.resolve_task(body.mode, body.task)
+        task_obj = state.task_for_round(body.mode, state.resolve_task(body.mode, body.task))
     except (ValueError, ValidationError) as exc:
         raise HTTPException(422, str(exc)) from exc
     mode = None if body.mode == "none" else body.mode

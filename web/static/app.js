@@ -5,7 +5,11 @@
 const $ = (id) => document.getElementById(id);
 // "?scene=off" shows the panel and colour image without the embedded 3D scene (small screens, slow machines).
 const SHOW_SCENE = new URLSearchParams(location.search).get("scene") !== "off";
-const state = { snap: null, imageSize: [640, 480], parts: [], drag: null, lastBox: null, imgBusy: false, lastImg: 0 };
+const state = {
+  snap: null, imageSize: [640, 480], parts: [], drag: null, lastBox: null, imgBusy: false, lastImg: 0,
+  recent: new Map(), newest: null, round: null, roundTimer: null,
+};
+const RECENT_SNAPSHOTS = 90;  // ~3 s at 30 fps: the snapshot of the frame the image shows is among them
 
 function el(tag, text, cls) {
   const e = document.createElement(tag);
@@ -151,8 +155,26 @@ function progressOf(ms) {
   return null;
 }
 
+// A new round: the source started again (a loop, reset or switch) and every mode state with it.
+function noteRound(s) {
+  const round = s.source && s.source.round;
+  if (round === undefined || round === state.round) return;
+  const first = state.round === null;
+  state.round = round;
+  state.lastBox = null;
+  $("auto-place-results").replaceChildren();
+  const banner = $("round-banner");
+  banner.dataset.round = String(round);
+  if (first) return;
+  banner.textContent = `New round (${round}): the source started again, the assembly starts over.`;
+  banner.classList.remove("hidden");
+  clearTimeout(state.roundTimer);
+  state.roundTimer = setTimeout(() => banner.classList.add("hidden"), 4000);
+}
+
 function renderSnapshot(s) {
   state.snap = s;
+  noteRound(s);
   state.imageSize = s.image_size && s.image_size[0] ? s.image_size : state.imageSize;
   $("frame-index").textContent = s.frame_index;
   $("fps").textContent = (s.fps || 0).toFixed(1);
@@ -165,7 +187,7 @@ function renderSnapshot(s) {
   const frac = progressOf(ms);
   $("progress-bar").style.width = frac === null ? "0" : `${Math.round(Math.max(0, Math.min(1, frac)) * 100)}%`;
   const p = ms.progress || {};
-  $("progress-text").textContent = frac === null ? "" : `${p.done ?? ""} of ${p.total ?? ""} connections done`;
+  $("progress-text").textContent = frac === null ? "" : `${p.done ?? ""} of ${p.total ?? ""} ${p.unit || "connections"} done`;
 
   const conns = (s.connections || []).map((c) => {
     const st = String(c.state || c.status || "");
@@ -184,14 +206,17 @@ function renderSnapshot(s) {
     const name = r.title || r.structure || "?";
     const frac = Number(r.fraction ?? 0);
     const li = el("li", `${name}: ${r.completed ?? 0}/${r.total ?? "?"} connections`);
-    if (r.structure === ms.guess) li.classList.add("guess");
+    if (r.structure === ms.guess && !ms.tied) li.classList.add("guess");
     const bar = el("span", null, "bar");
     bar.style.width = `${Math.round(frac * 80)}px`;
     li.appendChild(bar);
     return li;
   });
   setList($("ranking-list"), rItems, "");
-  $("guess-text").textContent = ms.guess ? `best guess: ${ms.guess} (confidence ${Math.round((ms.confidence || 0) * 100)} %)` : "";
+  const leader = ranking.length ? (ranking[0].title || ranking[0].structure) : ms.guess;
+  $("guess-text").textContent = !ms.guess ? "" : ms.tied
+    ? "not sure yet: no structure leads"
+    : `best guess: ${leader} (confidence ${Math.round((ms.confidence || 0) * 100)} %)`;
 
   const isLearning = s.mode === "learning";
   $("learning-box").classList.toggle("hidden", !isLearning);
@@ -327,16 +352,32 @@ function drawLabels(ctx, labels, w, h) {
   }
 }
 
+// The image and everything drawn or listed beside it come from the same frame: the JPEG says which frame
+// it is (X-Frame-Index) and the panel is rendered from that frame's snapshot (kept among the recent ones).
 function refreshImage() {
   const now = performance.now();
-  if (state.imgBusy || now - state.lastImg < 66 || !state.snap) return;
+  if (state.imgBusy || now - state.lastImg < 66 || !state.newest) return;
+  if (state.snap && state.snap.frame_index === state.newest.frame_index && state.snap.round === state.newest.round) return;
   state.imgBusy = true;
   state.lastImg = now;
-  const img = $("color-image");
-  const next = new Image();
-  next.onload = () => { img.src = next.src; state.imgBusy = false; drawOverlay(); };
-  next.onerror = () => { state.imgBusy = false; };
-  next.src = `/api/frame.jpg?f=${state.snap.frame_index}`;
+  fetch(`/api/frame.jpg?f=${state.newest.frame_index}`, { cache: "no-store" }).then(async (res) => {
+    if (!res.ok) throw new Error(res.statusText);
+    const index = Number(res.headers.get("X-Frame-Index"));
+    const url = URL.createObjectURL(await res.blob());
+    const img = $("color-image");
+    img.onload = () => {
+      URL.revokeObjectURL(url);
+      img.classList.remove("loading");
+      $("image-wrap").classList.remove("loading");
+      renderSnapshot(state.recent.get(index) || state.newest);
+      state.imgBusy = false;
+    };
+    img.onerror = () => { URL.revokeObjectURL(url); state.imgBusy = false; };
+    img.src = url;
+  }).catch(() => {
+    renderSnapshot(state.newest);  // no image yet: the panel still shows the newest state
+    state.imgBusy = false;
+  });
 }
 setInterval(refreshImage, 33);
 
@@ -409,7 +450,17 @@ $("btn-undo-calibration").addEventListener("click", async () => {
 // ------------------------------------------------------------------ websocket
 function connect() {
   const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
-  ws.onmessage = (ev) => renderSnapshot(JSON.parse(ev.data));
+  ws.onmessage = (ev) => {
+    const s = JSON.parse(ev.data);
+    s.round = s.source && s.source.round;
+    const prev = state.newest;
+    if (prev && (s.round !== prev.round || s.frame_index < prev.frame_index)) state.recent.clear();
+    state.recent.set(s.frame_index, s);
+    if (state.recent.size > RECENT_SNAPSHOTS) state.recent.delete(state.recent.keys().next().value);
+    state.newest = s;
+    if (s.worker) $("worker-state").textContent = s.worker.state;
+    refreshImage();
+  };
   ws.onclose = () => { $("worker-state").textContent = "reconnecting"; setTimeout(connect, 1000); };
 }
 

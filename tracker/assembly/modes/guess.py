@@ -11,6 +11,9 @@ candidate with the largest summed connection score over its open connections (co
 connections about to be made), then the order in the task file; the previous guess is kept unless another
 tied candidate's evidence is larger by ``EVIDENCE_HYSTERESIS`` (no flicker between tied candidates).
 
+The instruction names a structure only while it leads alone; while the leaders are tied it says "not sure
+yet" and names them (``guess`` still holds the tie-break's choice, for the evaluation).
+
 Confidence: leader's fraction minus the best other candidate's fraction (0 while tied, 1 when the leader is
 complete and no other candidate has any connection).
 """
@@ -100,6 +103,10 @@ class GuessMode(Mode):
             instruction = f"You built the {guess.title or guess.name}."
         elif max(fractions) == 0:
             instruction = "Build one of the structures — I will guess which one."
+        elif tied:
+            leaders = [self.structures[i] for i in range(len(fractions)) if fractions[i] >= max(fractions) - 1e-9]
+            names = " and ".join(s.title or s.name for s in leaders)
+            instruction = f"Not sure yet — {names} fit equally well so far."
         else:
             instruction = f"I think you are building the {guess.title or guess.name}."
         conns: dict[frozenset, dict] = {}

@@ -146,6 +146,7 @@ class GuidanceMode(Mode):
             self.name, self.task.id, t, instruction, done, len(self.steps), complete,
             connections=self.monitor.to_list(), events=events,
             extra={"structure": self.structure.name, "step": i, "next_step": next_step, "warning": warning},
+            unit="steps",
         )
         self.last_state = state
         return state

@@ -12,7 +12,10 @@
   the user's left–right axis (|Δx| ≥ |Δz| in the table frame). The row is read with table x increasing,
   i.e. left → right for the user (image x increasing). The row containing the most word cubes is read.
 * Verdicts per word position against the accepted order that matches most positions; ``complete`` only when
-  the row reads exactly an accepted order and all of that order's connections are established.
+  the row reads exactly an accepted order and all of that order's connections are established. Progress
+  counts the words in their right place. Once complete, the state (with the verdict) is kept until
+  :meth:`LearningMode.reset` — the next round — even when the row is taken apart afterwards.
+* The word list shown to the user (``words``) is in a seeded shuffled order, never the sentence's own.
 """
 
 from __future__ import annotations
@@ -89,6 +92,20 @@ class LearningMode(Mode):
             self._monitors.append(ConnectionMonitor(self.parts, specs, self.params, detect_unexpected=False))
         self.adjacency = AdjacencyDetector([p for p in self.parts if p.is_cube], self.params)
         self.edge = edge
+        self.display_words = self._shuffled_words(seed)
+        self._completed: ModeState | None = None
+
+    def _shuffled_words(self, seed: int) -> list[dict]:
+        """``[{word, cube, is_distractor}]`` in a seeded order that is not the sentence's (when there is another)."""
+        words = [{"word": w, "cube": c, "is_distractor": False} for c, w in self.word_cubes]
+        words += [{"word": w, "cube": c, "is_distractor": True} for c, w in self.distractor_cubes.items()]
+        rng = np.random.default_rng(seed + 7919)  # not the assignment's stream
+        sentence = [w for _, w in self.word_cubes]
+        for _ in range(20):
+            order = [words[i] for i in rng.permutation(len(words))]
+            if [d["word"] for d in order if not d["is_distractor"]] != sentence:
+                return order
+        return order
 
     @staticmethod
     def _pick_sentence(task: TaskModel, sentence, seed: int) -> SentenceTask:
@@ -113,6 +130,7 @@ class LearningMode(Mode):
     def reset(self) -> None:
         super().reset()
         self.adjacency.reset()
+        self._completed = None
 
     # ------------------------------------------------------------------ reading the row
     def read_row(self) -> list[str]:
@@ -148,6 +166,12 @@ class LearningMode(Mode):
     def update(self, t: float, poses: dict[str, Pose], table_to_camera: Pose) -> ModeState:
         events = self._update_monitors(t, poses, table_to_camera)
         events += [e.to_dict() for e in self.adjacency.update(t, poses, table_to_camera)]
+        if self._completed is not None:  # the verdict stays until the next round (reset)
+            done = self._completed
+            state = ModeState(self.name, self.task.id, t, done.instruction, done.done, done.total, True,
+                              connections=done.connections, events=events, extra=done.extra, unit=done.unit)
+            self.last_state = state
+            return state
         row = self.read_row()
         placed_words = [self.assignment.get(c) for c in row]
         best_i, best_hits = 0, -1
@@ -171,15 +195,17 @@ class LearningMode(Mode):
             instruction = f"Not quite — check the word order for «{src}»."
         else:
             instruction = f"Build the Spanish sentence for «{src}»."
-        words = [{"word": w, "cube": c, "is_distractor": False} for c, w in self.word_cubes]
-        words += [{"word": w, "cube": c, "is_distractor": True} for c, w in self.distractor_cubes.items()]
         conns = mon.to_list()
+        n_right = sum(1 for v in verdicts if v["correct"])
         state = ModeState(
-            self.name, self.task.id, t, instruction, mon.n_established(), len(mon.connections), complete,
+            self.name, self.task.id, t, instruction, n_right, len(order), complete,
             connections=conns, events=events,
             extra={"sentence": src, "source_language": self.sentence.source_language, "sentence_id": self.sentence.id,
-                   "words": words, "assignment": dict(self.assignment), "row": row, "verdicts": verdicts,
-                   "accepted_order": best_i},
+                   "words": list(self.display_words), "assignment": dict(self.assignment), "row": row,
+                   "verdicts": verdicts, "accepted_order": best_i},
+            unit="words",
         )
+        if complete:
+            self._completed = state
         self.last_state = state
         return state
