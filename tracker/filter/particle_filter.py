@@ -48,7 +48,10 @@ from tracker.geometry.camera import Intrinsics
 from tracker.geometry.mesh_renderer import MeshModel, render_mesh_at_pixels
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
+from tracker.refine.dense_depth import RefineSettings
 from tracker.refine.icp_refinement import PartSurfaceModel, icp_refine, part_points
+from tracker.refine.part_refiner import PartRefiner
+from tracker.refine.recovery import CUBE_STARTS, MESH_STARTS, LossMonitor, reacquire
 
 
 @dataclass
@@ -160,6 +163,7 @@ class MultiObjectTracker:
         self._icp_last: list[tuple | None] = [None] * k  # (refined pose, blob centre, blob area, times reused)
         self._radius = [p.bounding_radius() if p.box is not None else float(np.linalg.norm(self.half[i]))
                         for i, p in enumerate(parts)]
+        self._refiner = self._make_refiner() if self.config.dense_refinement else None
         self._initialized = False
         self._store: dict[str, np.ndarray] = {}
         self.estimates: dict[str, Pose] = {}
@@ -195,6 +199,10 @@ class MultiObjectTracker:
         self._last_centers: dict[int, np.ndarray] = {}  # reliable blob centroids of the previous frame (px)
         self._carry = HandCarry(k, self.config, self.intrinsics, np.asarray(self._radius, np.float64))
         self.n_reseeded = 0  # re-seeding events since initialize (diagnostics, tests)
+        self.n_reacquired = 0  # re-acquisition attempts since initialize (diagnostics, tests)
+        self._loss = LossMonitor(k, self.config.loss_bad_frames)
+        self._was_carried = np.zeros(k, bool)
+        self._cooldown = np.zeros(k, np.int64)
         self._last_time: float | None = None
         self._initialized = True
 
@@ -312,8 +320,9 @@ class MultiObjectTracker:
         dirty = self._buffer("dirty", (n, npix), np.uint8, 0)
         all_particles = np.arange(n, dtype=np.int64)
         all_pix = np.arange(npix, dtype=np.int64)
-        for i in range(k):
-            self._render(i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, all_pix, D, loc, dirty)
+        if k > 1:  # with one part, its own pass below renders it everywhere it can be: no render needed here
+            for i in range(k):
+                self._render(i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, all_pix, D, loc, dirty)
         t2 = time.perf_counter()
         C = self._buffer("C0", (n, npix), np.float32, 0.0)
         Q = self._buffer("Q0", (n, npix), np.float32, -1.0)  # consistent with D = inf: nothing covered yet
@@ -419,7 +428,9 @@ class MultiObjectTracker:
                 self._rest_t[i] = self.estimates[self.names[i]].t
         state.resampled = n_resampled
         tg = time.perf_counter()
-        if cfg.icp_refinement:
+        if cfg.dense_refinement and depth is not None:
+            self._dense_refine(state, depth, detections)
+        elif cfg.icp_refinement:
             self._refine(state, depth, detections, table)
         t_icp = time.perf_counter() - tg
         if cfg.carry_follow:
@@ -650,7 +661,19 @@ class MultiObjectTracker:
                       + 3.0 * scale * (cfg.sigma_v + cfg.sigma_w * radius) * intr.fx / zc)
             regions[i] = ((self._pu >= rect[0] - margin) & (self._pu <= rect[1] + margin)
                           & (self._pv >= rect[2] - margin) & (self._pv <= rect[3] + margin))
-        pix = np.nonzero(regions.any(axis=0) & valid)[0].astype(np.int64)
+        budget = cfg.likelihood_pixels_per_part
+        if budget > 0:
+            # a part that covers many grid pixels (a large mesh, a part close to the camera) is evaluated on an even
+            # subset of at most ``budget`` of them: the likelihood's cost stays bounded, the refinement after the
+            # filter restores the precision
+            keep = np.zeros(z.size, bool)
+            for i in range(k):
+                idx = np.nonzero(regions[i] & valid)[0]
+                step = -(-idx.size // budget)
+                keep[idx[::step] if step > 1 else idx] = True
+        else:
+            keep = regions.any(axis=0) & valid
+        pix = np.nonzero(keep)[0].astype(np.int64)
         if not pix.size:
             return None
         return pix, regions[:, pix]
@@ -695,6 +718,74 @@ class MultiObjectTracker:
                 self._icp_last[i] = (ref, np.asarray(det.center, np.float64), float(getattr(det, "area", 0) or 0), 0)
             self.p[:, i] = (self.p[:, i] - est.t) @ Rd.T + ref.t
             self.R[:, i] = Rd @ self.R[:, i]
+            state.poses[name] = ref
+            state.particles[name] = self.p[:, i].astype(np.float32)
+            self.estimates[name] = ref
+
+    def _make_refiner(self) -> PartRefiner:
+        cfg = self.config
+        shapes = []
+        for i in range(len(self.parts)):
+            mesh = self.meshes[i]
+            if mesh is None:
+                shapes.append(("box", self.center[i].copy(), self.half[i].copy()))
+            else:
+                shapes.append(("mesh", np.ascontiguousarray(mesh.vertices, np.float64),
+                               np.ascontiguousarray(mesh.faces, np.int64)))
+        settings = RefineSettings(
+            thresholds=tuple(cfg.refine_thresholds), updates_per_iteration=cfg.refine_updates,
+            occlusion_m=cfg.refine_occlusion, lambda_rot=cfg.refine_lambda_rot, lambda_trans=cfg.refine_lambda_trans,
+            min_valid_fraction=cfg.refine_min_valid_fraction, max_points=cfg.refine_max_points,
+        )
+        return PartRefiner(self.intrinsics, shapes, list(self.center), self.corners, settings, cfg.refine_stride,
+                           cfg.refine_max_translation, cfg.refine_max_rotation)
+
+    def _dense_refine(self, state: TrackerState, depth: np.ndarray, detections) -> None:
+        """Dense-depth refinement of every visible part (:mod:`tracker.refine.part_refiner`) and re-acquisition of
+        lost or just released parts (:mod:`tracker.refine.recovery`); the particles move with each accepted
+        correction. A coloured part is refined only on the pixels of its colour blob (hands and other parts left out)
+        and not at all while its blob is missing."""
+        k = len(self.parts)
+        poses, active, allowed, visible = [], [], [], []
+        for i, name in enumerate(self.names):
+            est = state.poses[name]
+            poses.append((est.R, est.t))
+            mask = None
+            seen = bool(self.visibility[i] >= self.config.visible_fraction_full)
+            if self.parts[i].color is not None and detections:
+                det = detections.get(name)
+                mask = self._blob_mask(det, depth.shape) if det is not None else None
+                seen = mask is not None and int(mask.sum()) >= self.config.reseed_min_area_px
+            active.append(bool(self.visibility[i] > 0.05) and (mask is None or bool(mask.any()))
+                          and not (self.parts[i].color is not None and detections and mask is None))
+            allowed.append(mask)
+            visible.append(seen)
+        corrections = self._refiner.refine(depth, poses, active, allowed)
+        carried = np.asarray(self._carry.carried, bool).copy()
+        released = self._was_carried & ~carried
+        self._was_carried = carried
+        self._cooldown = np.maximum(self._cooldown - 1, 0)
+        for i in range(k):
+            res = self._refiner.last[i]
+            supported = res if corrections[i] is not None else None
+            need = self._loss.update(i, supported, visible[i] and not carried[i], bool(released[i]))
+            beyond = res is not None and corrections[i] is None and res.reason.startswith("correction beyond")
+            if (need or beyond) and self._cooldown[i] == 0 and visible[i] and active[i]:
+                starts = CUBE_STARTS if self.parts[i].box is not None else MESH_STARTS
+                corr = reacquire(self._refiner, depth, i, poses[i][0], poses[i][1], allowed[i], starts)
+                self._cooldown[i] = self.config.reacquire_cooldown
+                self.n_reacquired += 1
+                if corr is not None:
+                    corrections[i] = corr
+                    self._loss.reset(i)
+        for i, corr in enumerate(corrections):
+            if corr is None:
+                continue
+            name = self.names[i]
+            ref = Pose.from_rt(corr.R, corr.t)
+            if self._intersects_others(i, ref, state.poses):
+                continue
+            self.p[:, i], self.R[:, i] = corr.apply_to(self.p[:, i], self.R[:, i])
             state.poses[name] = ref
             state.particles[name] = self.p[:, i].astype(np.float32)
             self.estimates[name] = ref

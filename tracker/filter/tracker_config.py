@@ -174,6 +174,10 @@ class TrackerConfig(BaseModel):
         "truncated occluder density 1/(1 - exp(-lambda d)) otherwise pulls hidden parts toward the camera, into a "
         "hand). 0 = the spec.",
     )
+    likelihood_pixels_per_part: int = Field(
+        0, ge=0, description="Most likelihood pixels (downsampled grid) per part and frame; a part covering more is "
+        "evaluated on an even subset of them (0 = all). Bounds the cost of large parts; not in the spec.",
+    )
     roi_margin_px: int = Field(
         2, ge=0, description="Margin (downsampled pixels) around the parts' projections that is evaluated."
     )
@@ -194,6 +198,37 @@ class TrackerConfig(BaseModel):
         "frame. Parts without colour always run ICP.",
     )
     icp_max_skipped: int = Field(3, ge=0, description="With icp_reuse_px: run ICP at least every (this + 1)-th frame.")
+
+    # --- dense-depth refinement (spec depth-refinement.md; tracker/refine/dense_depth.py)
+    dense_refinement: bool = Field(
+        False, description="After the filter, refine every visible part by robust point-to-plane Gauss-Newton on the "
+        "full-resolution depth at its rendered silhouette (occlusion-aware: pixels of parts in front, outside the "
+        "part's colour blob or far in front of the model are left out) and move its particles with the correction. "
+        "Replaces icp_refinement when both are on.",
+    )
+    refine_stride: int = Field(2, ge=1, description="Pixel stride of the rendered model points (full resolution).")
+    refine_max_points: int = Field(600, ge=20, description="Model points per part and frame (thinned evenly).")
+    refine_thresholds: tuple[float, ...] = Field(
+        (0.03, 0.015, 0.008, 0.005), min_length=1,
+        description="Largest accepted model-to-measurement distance (m) per correspondence iteration.",
+    )
+    refine_updates: int = Field(2, ge=1, description="Gauss-Newton updates per correspondence iteration.")
+    refine_occlusion: float = Field(
+        0.03, gt=0.0, description="A measurement this far (m) in front of a model point means it is occluded.",
+    )
+    refine_lambda_rot: float = Field(25.0, ge=0.0, description="Tikhonov weight on each rotation update, 1/rad^2.")
+    refine_lambda_trans: float = Field(2500.0, ge=0.0, description="Tikhonov weight on each translation update, 1/m^2.")
+    refine_min_valid_fraction: float = Field(
+        0.35, ge=0.0, le=1.0, description="Share of visible model points that must find a valid depth pair for the "
+        "refinement to count as healthy (else the filter's estimate is kept).",
+    )
+    loss_bad_frames: int = Field(
+        3, ge=1, description="Frames in a row without a healthy refinement, while the part should be visible, after "
+        "which it is re-acquired from several starting rotations (tracker/refine/recovery.py).",
+    )
+    reacquire_cooldown: int = Field(5, ge=1, description="Fewest frames between two re-acquisitions of a part.")
+    refine_max_translation: float = Field(0.03, gt=0.0, description="Largest accepted refinement correction, metres.")
+    refine_max_rotation: float = Field(0.35, gt=0.0, description="Largest accepted refinement rotation, radians.")
 
     # --- penalties (spec 4.13-4.15)
     lambda_i: float = Field(0.01, gt=0.0, le=1.0, description="Intersection penalty factor lambda_i (not 0).")
@@ -336,8 +371,8 @@ PRESETS["default"] = {
     "color_mask_likelihood": True,
     "color_mask_when_missing": True,
     "color_likelihood_px": 10.0,
-    "icp_refinement": True,
-    "icp_reuse_px": 0.5,
+    "dense_refinement": True,
+    "likelihood_pixels_per_part": 250,
     "reseed_fraction": 0.3,
     "detected_full_noise": True,
     "color_term_dead_zone": 1.0,

@@ -1,0 +1,136 @@
+"""The refinement stage of the tracker: every visible part, every frame (spec ``depth-refinement.md``).
+
+Once per frame all parts are rendered at their filter estimates into one z-buffer (so a pixel counts for at most
+one part, the nearest); each part's visible surface points, with normals, become its model points for the frame,
+and :func:`~tracker.refine.dense_depth.refine_pose` polishes the parts nearest first. A correction is accepted
+when the refinement is healthy and the correction stays within bounds; the caller moves the part's particles by
+it (:meth:`Correction.apply_to`). Camera frame, metres, radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracker.geometry.camera import Intrinsics
+from tracker.refine.dense_depth import RefineResult, RefineSettings, refine_pose
+from tracker.refine.surface_render import render_surfaces
+
+
+@dataclass
+class Correction:
+    """Accepted refinement of one part: ``Rd``, ``td`` map the filter's pose onto the refined one
+    (``R_ref = Rd R_pf``, ``t_ref = Rd t_pf + td``)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    Rd: np.ndarray
+    td: np.ndarray
+    result: RefineResult
+
+    def apply_to(self, p: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Particles (positions (N, 3), rotations (N, 3, 3)) moved rigidly with the correction."""
+        return p @ self.Rd.T + self.td, np.einsum("ij,njk->nik", self.Rd, R)
+
+
+def rotation_angle(Rd: np.ndarray) -> float:
+    """Angle (rad) of a rotation matrix."""
+    return float(np.arccos(np.clip((np.trace(Rd) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+class PartRefiner:
+    """Dense-depth refinement of several parts at once (see module docstring).
+
+    ``shapes[k]``: ``("box", center (3,), half (3,))`` or ``("mesh", vertices (V, 3), faces (F, 3))``, body frame;
+    ``centers[k]``: the body-frame point a part's rotation update turns about; ``corners[k]``: (8, 3) body-frame
+    corners of its bounding box (for the image region to render).
+    """
+
+    def __init__(self, intrinsics: Intrinsics, shapes: list, centers: list[np.ndarray], corners: list[np.ndarray],
+                 settings: RefineSettings, stride: int = 2, max_translation: float = 0.03,
+                 max_rotation: float = 0.35) -> None:
+        self.intrinsics = intrinsics
+        self.shapes = shapes
+        self.centers = [np.asarray(c, np.float64) for c in centers]
+        self.corners = [np.asarray(c, np.float64) for c in corners]
+        self.settings = settings
+        self.stride = int(stride)
+        self.max_translation = float(max_translation)
+        self.max_rotation = float(max_rotation)
+        self.last: list[RefineResult | None] = [None] * len(shapes)
+
+    def _rect(self, poses: list) -> tuple[int, int, int, int] | None:
+        intr = self.intrinsics
+        lo = np.array([np.inf, np.inf])
+        hi = -lo
+        for corners, pose in zip(self.corners, poses, strict=True):
+            if pose is None:
+                continue
+            pts = corners @ pose[0].T + pose[1]
+            if np.any(pts[:, 2] < 0.02):
+                return (0, 0, intr.width, intr.height)
+            uv = intr.project(pts)
+            lo = np.minimum(lo, uv.min(axis=0))
+            hi = np.maximum(hi, uv.max(axis=0))
+        if not np.all(np.isfinite(lo)):
+            return None
+        u0, v0 = max(int(np.floor(lo[0])) - 1, 0), max(int(np.floor(lo[1])) - 1, 0)
+        u1, v1 = min(int(np.ceil(hi[0])) + 2, intr.width), min(int(np.ceil(hi[1])) + 2, intr.height)
+        if u0 >= u1 or v0 >= v1:
+            return None
+        return (u0, v0, u1, v1)
+
+    def refine_one(self, depth: np.ndarray, obj: int, R: np.ndarray, t: np.ndarray,
+                   allowed: np.ndarray | None = None) -> RefineResult:
+        """Refine part ``obj`` alone from the pose ``(R, t)`` (rendered without the other parts): used to try
+        several starting poses when a part is re-acquired (:mod:`tracker.refine.recovery`)."""
+        poses = [None] * len(self.shapes)
+        poses[obj] = (np.asarray(R, np.float64), np.asarray(t, np.float64))
+        rect = self._rect(poses)
+        if rect is None:
+            return RefineResult(poses[obj][0], poses[obj][1], False, 0, 0, 0.0, float("nan"), reason="off the image")
+        render = render_surfaces(self.intrinsics, self.shapes, poses, rect, self.stride)
+        pts, nrm = render.points_of(obj, self.intrinsics)
+        R0, t0 = poses[obj]
+        return refine_pose(depth, self.intrinsics, (pts - t0) @ R0, nrm @ R0, R0, t0, self.centers[obj],
+                           self.settings, allowed)
+
+    def correction(self, R0: np.ndarray, t0: np.ndarray, res: RefineResult) -> Correction:
+        """The correction that takes the pose ``(R0, t0)`` to the refined one."""
+        Rd = res.R @ np.asarray(R0, np.float64).T
+        return Correction(res.R, res.t, Rd, res.t - Rd @ np.asarray(t0, np.float64), res)
+
+    def refine(self, depth: np.ndarray, poses: list, active: list[bool],
+               allowed: list[np.ndarray | None] | None = None) -> list[Correction | None]:
+        """Refine the ``active`` parts at ``poses[k] = (R, t)`` (None: part not rendered, e.g. not tracked) against
+        ``depth``; ``allowed[k]``: optional H×W mask of the pixels part k may claim. Returns per part the accepted
+        correction or None (inactive, not visible, not healthy or out of bounds; ``self.last`` keeps each part's
+        :class:`RefineResult` for loss detection)."""
+        k = len(self.shapes)
+        out: list[Correction | None] = [None] * k
+        self.last = [None] * k
+        rect = self._rect(poses)
+        if rect is None:
+            return out
+        render = render_surfaces(self.intrinsics, self.shapes, poses, rect, self.stride)
+        order = sorted((i for i in range(k) if active[i] and poses[i] is not None), key=lambda i: poses[i][1][2])
+        for i in order:
+            R0, t0 = (np.asarray(a, np.float64) for a in poses[i])
+            pts, nrm = render.points_of(i, self.intrinsics)
+            body = (pts - t0) @ R0
+            nbody = nrm @ R0
+            res = refine_pose(depth, self.intrinsics, body, nbody, R0, t0, self.centers[i], self.settings,
+                              None if allowed is None else allowed[i])
+            self.last[i] = res
+            if not res.healthy:
+                continue
+            Rd = res.R @ R0.T
+            c0 = R0 @ self.centers[i] + t0
+            c1 = res.R @ self.centers[i] + res.t
+            if np.linalg.norm(c1 - c0) > self.max_translation or rotation_angle(Rd) > self.max_rotation:
+                res.healthy = False
+                res.reason = "correction beyond the accepted bounds"
+                continue
+            out[i] = Correction(res.R, res.t, Rd, res.t - Rd @ t0, res)
+        return out

@@ -1,0 +1,97 @@
+"""Loss detection and re-acquisition of a part's pose from the depth data (spec ``depth-refinement.md``, "Health
+and loss").
+
+:class:`LossMonitor` keeps, per part, how many frames in a row the dense-depth refinement could not support the
+estimate although the part should be visible (its colour blob is there, or the filter believes it visible). A part
+is *lost* after ``bad_frames`` such frames, and is *re-checked* in any case right after a hand releases it or when it
+reappears after being hidden. :func:`reacquire` then runs the refinement from several starting rotations about the
+part's centre (a fixed, deterministic set of axes on a Fibonacci sphere and angles: for a cube the largest useful
+angle is about 60°, beyond which a symmetric copy is nearer; for a mesh the whole of SO(3) up to 180°) and keeps
+the start whose refined pose the depth supports best (:attr:`RefineResult.score`: matched model points minus twice
+the free-space violations). It replaces the estimate only when that support clearly beats the current pose's.
+Camera frame, metres, radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from tracker.refine.dense_depth import RefineResult
+from tracker.refine.part_refiner import Correction, PartRefiner
+
+
+def fibonacci_axes(n: int) -> np.ndarray:
+    """``n`` unit vectors spread evenly on the sphere (deterministic)."""
+    i = np.arange(n) + 0.5
+    phi = np.arccos(1.0 - 2.0 * i / n)
+    theta = np.pi * (1.0 + 5.0**0.5) * i
+    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], axis=1)
+
+
+def start_rotations(angles_deg: tuple[float, ...], n_axes: int) -> np.ndarray:
+    """Rotation matrices (M, 3, 3): identity plus each angle about each of ``n_axes`` Fibonacci axes."""
+    mats = [np.eye(3)]
+    axes = fibonacci_axes(n_axes)
+    for a in angles_deg:
+        mats.extend(Rotation.from_rotvec(axes * np.radians(a)).as_matrix())
+    return np.asarray(mats)
+
+
+CUBE_STARTS = start_rotations((25.0, 50.0), 12)
+"""Starts for a part with the cube's symmetry (25 rotations)."""
+MESH_STARTS = start_rotations((30.0, 60.0, 90.0, 135.0, 180.0), 14)
+"""Starts for a part without symmetry (71 rotations)."""
+
+
+@dataclass
+class PartHealth:
+    """Per-part loss bookkeeping."""
+
+    bad: int = 0
+    hidden: bool = False
+
+
+class LossMonitor:
+    """Decides per part and frame whether to re-acquire (see module docstring)."""
+
+    def __init__(self, n_parts: int, bad_frames: int = 3) -> None:
+        self.health = [PartHealth() for _ in range(n_parts)]
+        self.bad_frames = int(bad_frames)
+
+    def update(self, obj: int, result: RefineResult | None, should_be_visible: bool, released: bool) -> bool:
+        """Record this frame's refinement of part ``obj`` (None: not refined); True when it must be re-acquired."""
+        h = self.health[obj]
+        if not should_be_visible:
+            h.hidden, h.bad = True, 0
+            return False
+        reappeared = h.hidden
+        h.hidden = False
+        supported = result is not None and result.healthy
+        h.bad = 0 if supported else h.bad + 1
+        return released or reappeared or h.bad >= self.bad_frames
+
+    def reset(self, obj: int) -> None:
+        self.health[obj] = PartHealth()
+
+
+def reacquire(refiner: PartRefiner, depth: np.ndarray, obj: int, R: np.ndarray, t: np.ndarray,
+              allowed: np.ndarray | None, starts: np.ndarray, margin: float = 10.0) -> Correction | None:
+    """Best-supported refinement of part ``obj`` over the starting rotations ``starts`` (about its centre, applied
+    to the current ``(R, t)``); None unless its score beats the current pose's refined score by ``margin``."""
+    R = np.asarray(R, np.float64)
+    t = np.asarray(t, np.float64)
+    c = R @ refiner.centers[obj] + t
+    current = refiner.refine_one(depth, obj, R, t, allowed)
+    best, best_score = None, current.score if current.healthy else -np.inf
+    for S in starts[1:]:
+        Rs = S @ R
+        ts = c - Rs @ refiner.centers[obj]
+        res = refiner.refine_one(depth, obj, Rs, ts, allowed)
+        if res.healthy and res.score > best_score + margin:
+            best, best_score = res, res.score
+    if best is None:
+        return refiner.correction(R, t, current) if current.healthy else None
+    return refiner.correction(R, t, best)

@@ -1,0 +1,187 @@
+"""One-pose z-buffer rendering of every part into a strided label/depth/normal buffer (numba).
+
+The dense-depth refinement (:mod:`tracker.refine.dense_depth`) needs, per part and frame, the surface points
+that the camera sees at the current estimate together with their normals, and which pixels belong to which part
+(a pixel counts for at most one part: the nearest at its estimate). This module renders all parts once per frame
+at their single estimated poses on a grid of pixels ``(u0 + i·s, v0 + j·s)`` (stride ``s`` px) over a rectangle of
+the image:
+
+* boxes are ray-cast exactly (slab test), giving the hit face's normal;
+* meshes are rasterised triangle by triangle (screen-space barycentric test, depth interpolated as 1/z, which is
+  exact for planar triangles under perspective), with the face normal turned toward the camera (meshes may be
+  open, double-sided surfaces with no consistent winding).
+
+Camera frame: x right, y down, z forward (metres); pixel ``(u, v)`` has the ray ``((u−cx)/fx, (v−cy)/fy, 1)`` so
+a hit's ray parameter is its depth ``z``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from tracker.geometry.camera import Intrinsics
+
+
+@nb.njit(cache=True)
+def _render_box(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, center, half, obj):
+    """Ray-cast one box (body → camera ``R``, ``t``; body-frame ``center`` and ``half`` extents) into the grid."""
+    nv, nu = zbuf.shape
+    # ray origin in the box frame (relative to the box centre): o = Rᵀ(0 − t) − center
+    o = np.empty(3)
+    for j in range(3):
+        o[j] = -(R[0, j] * t[0] + R[1, j] * t[1] + R[2, j] * t[2]) - center[j]
+    d = np.empty(3)
+    for jj in range(nv):
+        yv = (v0 + jj * s - cy) / fy
+        for ii in range(nu):
+            xu = (u0 + ii * s - cx) / fx
+            for j in range(3):
+                d[j] = R[0, j] * xu + R[1, j] * yv + R[2, j]
+            tnear = -1e30
+            tfar = 1e30
+            axis = -1
+            sign = 0.0
+            miss = False
+            for j in range(3):
+                if abs(d[j]) < 1e-12:
+                    if o[j] < -half[j] or o[j] > half[j]:
+                        miss = True
+                        break
+                    continue
+                ta = (-half[j] - o[j]) / d[j]
+                tb = (half[j] - o[j]) / d[j]
+                sg = -1.0
+                if ta > tb:
+                    ta, tb = tb, ta
+                    sg = 1.0
+                if ta > tnear:
+                    tnear = ta
+                    axis = j
+                    sign = sg
+                if tb < tfar:
+                    tfar = tb
+            if miss or axis < 0 or tnear > tfar or tnear <= 1e-4:
+                continue
+            if tnear < zbuf[jj, ii]:
+                zbuf[jj, ii] = tnear
+                label[jj, ii] = obj
+                # outward face normal: body axis ``axis`` with sign opposite to the ray's component
+                for r in range(3):
+                    normal[jj, ii, r] = R[r, axis] * sign
+
+
+@nb.njit(cache=True)
+def _render_mesh(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, vertices, faces, obj):
+    """Rasterise one triangle mesh (body → camera ``R``, ``t``) into the grid (normals facing the camera)."""
+    nv, nu = zbuf.shape
+    nvert = vertices.shape[0]
+    cam = np.empty((nvert, 3))
+    for a in range(nvert):
+        for r in range(3):
+            cam[a, r] = R[r, 0] * vertices[a, 0] + R[r, 1] * vertices[a, 1] + R[r, 2] * vertices[a, 2] + t[r]
+    for f in range(faces.shape[0]):
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        z0, z1, z2 = cam[i0, 2], cam[i1, 2], cam[i2, 2]
+        if z0 < 1e-3 or z1 < 1e-3 or z2 < 1e-3:
+            continue
+        # grid coordinates of the projected vertices
+        x0 = (fx * cam[i0, 0] / z0 + cx - u0) / s
+        y0 = (fy * cam[i0, 1] / z0 + cy - v0) / s
+        x1 = (fx * cam[i1, 0] / z1 + cx - u0) / s
+        y1 = (fy * cam[i1, 1] / z1 + cy - v0) / s
+        x2 = (fx * cam[i2, 0] / z2 + cx - u0) / s
+        y2 = (fy * cam[i2, 1] / z2 + cy - v0) / s
+        area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        if abs(area) < 1e-12:
+            continue
+        imin = max(int(np.ceil(min(x0, x1, x2))), 0)
+        imax = min(int(np.floor(max(x0, x1, x2))), nu - 1)
+        jmin = max(int(np.ceil(min(y0, y1, y2))), 0)
+        jmax = min(int(np.floor(max(y0, y1, y2))), nv - 1)
+        if imin > imax or jmin > jmax:
+            continue
+        # face normal (camera frame), turned toward the camera
+        ax, ay, az = cam[i1, 0] - cam[i0, 0], cam[i1, 1] - cam[i0, 1], cam[i1, 2] - cam[i0, 2]
+        bx, by, bz = cam[i2, 0] - cam[i0, 0], cam[i2, 1] - cam[i0, 1], cam[i2, 2] - cam[i0, 2]
+        nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if nn < 1e-15:
+            continue
+        nx, ny, nz = nx / nn, ny / nn, nz / nn
+        if nx * cam[i0, 0] + ny * cam[i0, 1] + nz * cam[i0, 2] > 0.0:
+            nx, ny, nz = -nx, -ny, -nz
+        iz0, iz1, iz2 = 1.0 / z0, 1.0 / z1, 1.0 / z2
+        for jj in range(jmin, jmax + 1):
+            for ii in range(imin, imax + 1):
+                w0 = ((x1 - ii) * (y2 - jj) - (x2 - ii) * (y1 - jj)) / area
+                w1 = ((x2 - ii) * (y0 - jj) - (x0 - ii) * (y2 - jj)) / area
+                w2 = 1.0 - w0 - w1
+                if w0 < -1e-9 or w1 < -1e-9 or w2 < -1e-9:
+                    continue
+                z = 1.0 / (w0 * iz0 + w1 * iz1 + w2 * iz2)
+                if z < zbuf[jj, ii]:
+                    zbuf[jj, ii] = z
+                    label[jj, ii] = obj
+                    normal[jj, ii, 0] = nx
+                    normal[jj, ii, 1] = ny
+                    normal[jj, ii, 2] = nz
+
+
+@dataclass
+class SurfaceRender:
+    """Strided render of several parts: grid pixel ``(i, j)`` is image pixel ``(u0 + i·stride, v0 + j·stride)``.
+
+    ``depth`` (nv, nu) metres (inf where nothing), ``label`` (nv, nu) part index (−1 where nothing), ``normal``
+    (nv, nu, 3) unit surface normals facing the camera (camera frame).
+    """
+
+    u0: int
+    v0: int
+    stride: int
+    depth: np.ndarray
+    label: np.ndarray
+    normal: np.ndarray
+
+    def points_of(self, obj: int, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+        """Visible surface points (camera frame, (M, 3)) of part ``obj`` and their normals (M, 3)."""
+        jj, ii = np.nonzero(self.label == obj)
+        z = self.depth[jj, ii].astype(np.float64)
+        u = self.u0 + ii * self.stride
+        v = self.v0 + jj * self.stride
+        pts = np.stack([(u - intrinsics.cx) / intrinsics.fx * z, (v - intrinsics.cy) / intrinsics.fy * z, z], axis=1)
+        return pts, self.normal[jj, ii].astype(np.float64)
+
+
+def render_surfaces(
+    intrinsics: Intrinsics,
+    shapes: list,
+    poses: list,
+    rect: tuple[int, int, int, int],
+    stride: int,
+) -> SurfaceRender:
+    """Render parts into one z-buffer over the image rectangle ``rect = (u0, v0, u1, v1)`` (end-exclusive) at
+    ``stride`` px. ``shapes[k]``: ``("box", center (3,), half (3,))`` or ``("mesh", vertices (V, 3), faces (F, 3))``
+    in the body frame; ``poses[k]``: ``(R (3, 3), t (3,))`` body → camera, or None to leave the part out."""
+    u0, v0, u1, v1 = (int(x) for x in rect)
+    s = max(int(stride), 1)
+    nu = max((u1 - u0 + s - 1) // s, 0)
+    nv = max((v1 - v0 + s - 1) // s, 0)
+    zbuf = np.full((nv, nu), np.inf)
+    label = np.full((nv, nu), -1, np.int32)
+    normal = np.zeros((nv, nu, 3))
+    if nu and nv:
+        fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+        for k, (shape, pose) in enumerate(zip(shapes, poses, strict=True)):
+            if pose is None:
+                continue
+            R = np.ascontiguousarray(pose[0], np.float64)
+            t = np.ascontiguousarray(pose[1], np.float64)
+            if shape[0] == "box":
+                _render_box(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t,
+                            np.asarray(shape[1], np.float64), np.asarray(shape[2], np.float64), k)
+            else:
+                _render_mesh(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, shape[1], shape[2], k)
+    return SurfaceRender(u0, v0, s, zbuf, label, normal)
