@@ -1,0 +1,200 @@
+"""Colour input stage (spec 4.11): each part's control input from its colour detection, re-seeding of parts whose
+reliable colour blob lies off their estimate, and the blob masks the likelihood, re-seeding and refinement use.
+
+Pixels are full-resolution image coordinates; poses camera frame, metres.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tracker.filter.motion_model import color_input
+from tracker.geometry.box_renderer import pixel_rays, render_boxes_at_pixels
+from tracker.geometry.pose import Pose
+
+if TYPE_CHECKING:
+    from tracker.filter.frame_context import FrameContext
+    from tracker.filter.particle_filter import MultiObjectTracker
+
+
+def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tuple[np.ndarray, np.ndarray]:
+    """The colour control input u (K, 3) of every part and which parts have a reliable blob (K,) bool."""
+    cfg = trk.config
+    intr = trk.intrinsics
+    depth = ctx.depth
+    k = len(trk.parts)
+    u = np.zeros((k, 3))
+    trk._color_targets = []  # (part index, (u, v), weight) for the optional colour likelihood term
+    detected = np.zeros(k, bool)
+    if cfg.use_color_input and detections:
+        for i, name in enumerate(trk.names):
+            det = detections.get(name)
+            if det is None:
+                continue
+            score = float(getattr(det, "score", 0.0) or 0.0)
+            center = getattr(det, "center", None)
+            if center is None or score < cfg.min_detection_score:
+                continue
+            area = getattr(det, "area", None)
+            reliable = (score >= cfg.reseed_min_score and area is not None and np.isfinite(area)
+                        and area >= cfg.reseed_min_area_px
+                        and area_ratio(trk, i, area) >= cfg.reseed_min_area_ratio)
+            detected[i] = reliable
+            hit = surface_depth(trk, i, center)
+            off_silhouette = reliable and not np.isfinite(hit)
+            if cfg.color_area_weighting and not off_silhouette:
+                score *= area_ratio(trk, i, area)
+            if off_silhouette and cfg.reseed_fraction > 0 and depth is not None:
+                reseed(trk, i, det, depth)
+                hit = surface_depth(trk, i, center)
+            if cfg.color_likelihood_px > 0:
+                # with a dead zone the term tolerates the centroid bias of a partly hidden blob: full score
+                wgt = min(float(det.score) if cfg.color_term_dead_zone > 0 else score, 1.0)
+                trk._color_targets.append((i, np.asarray(center, np.float64), wgt))
+            est = trk.estimates[name]
+            offset = float(est.t[2] - hit) if np.isfinite(hit) else surface_fallback(trk, i)
+            blob = blob_mask(trk, det, depth.shape) if depth is not None and cfg.color_mask_likelihood else None
+            u[i] = color_input(center, min(score, 1.0), est, depth, intr, cfg.lambda_z, cfg.depth_radius_px,
+                               offset, mask=blob)
+    return u, detected
+
+
+def blob_mask(trk, det, shape) -> np.ndarray | None:
+    """Full-resolution mask of a detection's blob, eroded by 2 px (edges mix part and background); computed
+    once per detection object and frame (colour input, re-seeding and ICP all use it)."""
+    key = id(det)
+    if key not in trk._blobs:
+        trk._blobs[key] = (det, make_blob_mask(trk, det, shape))
+    return trk._blobs[key][1]
+
+
+def make_blob_mask(trk, det, shape) -> np.ndarray | None:
+    if det is None or getattr(det, "contour", None) is None:
+        return None
+    if float(getattr(det, "score", 0.0) or 0.0) < trk.config.color_mask_min_score:
+        return None
+    import cv2
+
+    pts = np.asarray(det.contour, np.int32).reshape(-1, 2)
+    x0, y0 = max(int(pts[:, 0].min()) - 3, 0), max(int(pts[:, 1].min()) - 3, 0)
+    x1, y1 = min(int(pts[:, 0].max()) + 4, shape[1]), min(int(pts[:, 1].max()) + 4, shape[0])
+    m = np.zeros(shape, bool)
+    if x0 >= x1 or y0 >= y1:
+        return m
+    win = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillPoly(win, [pts - np.array([x0, y0], np.int32)], 1)
+    m[y0:y1, x0:x1] = cv2.erode(win, np.ones((5, 5), np.uint8)).astype(bool)
+    return m
+
+
+def color_masks(trk, detections, gi, gj) -> tuple[np.ndarray, np.ndarray]:
+    """Per part, which evaluated pixels lie inside its detected colour blob (dilated by one grid pixel)."""
+    k = len(trk.parts)
+    cmask = np.ones((k, gi.size), np.uint8)
+    cvalid = np.zeros(k, np.uint8)
+    cfg = trk.config
+    if not (cfg.color_mask_likelihood and detections):
+        return cmask, cvalid
+    import cv2
+
+    f = cfg.downsample
+    grid = (trk._vs.size, trk._us.size)
+    for i, name in enumerate(trk.names):
+        det = detections.get(name)
+        if det is None or trk.parts[i].color is None:
+            continue
+        if getattr(det, "center", None) is None:
+            if trk._blob_seen[i] and cfg.color_mask_when_missing:
+                # the detector, which has found this part's colour before, finds no blob now: the part shows
+                # nowhere (empty mask), so depth that fits it (a hand over it) is no evidence for it
+                cmask[i] = 0
+                cvalid[i] = 1
+            continue
+        contour = getattr(det, "contour", None)
+        if contour is None or float(getattr(det, "score", 0.0) or 0.0) < cfg.color_mask_min_score:
+            continue
+        trk._blob_seen[i] = True
+        pts = (np.asarray(contour, np.float64).reshape(-1, 2) - trk._off) / f
+        if pts.shape[0] < 3:
+            continue
+        m = np.zeros(grid, np.uint8)
+        cv2.fillPoly(m, [np.round(pts).astype(np.int32)], 1)
+        m = cv2.dilate(m, np.ones((3, 3), np.uint8))
+        cmask[i] = m[gj, gi]
+        cvalid[i] = 1
+    return cmask, cvalid
+
+
+def area_ratio(trk, obj: int, area) -> float:
+    """min(1, detected blob area / projected area of the part at its estimate); 1 when unknown.
+
+    A part partly hidden by a hand has a blob whose centroid is biased toward the visible part, so the colour
+    input is trusted in proportion to the visible fraction (an addition to eq. 3.7's score).
+    """
+    if area is None or not np.isfinite(area) or area <= 0:
+        return 1.0
+    est = trk.estimates[trk.names[obj]]
+    pts = est.transform_points(trk.hulls[obj])
+    if np.any(pts[:, 2] < 0.01):
+        return 1.0
+    uv = trk.intrinsics.project(pts).astype(np.float32)
+    import cv2
+
+    expected = float(cv2.contourArea(cv2.convexHull(uv)))
+    if expected <= 1.0:
+        return 1.0
+    return float(min(1.0, area / expected))
+
+
+def surface_fallback(trk, obj: int) -> float:
+    return float(trk.half[obj].min())
+
+
+def surface_depth(trk, obj: int, center) -> float:
+    """Depth (m) of the part's estimate at pixel ``center`` (inf = the pixel is off its silhouette; meshes: the
+    estimate's centre depth when the pixel is within its bounding radius, else inf)."""
+    est = trk.estimates[trk.names[obj]]
+    if trk.meshes[obj] is not None:
+        uv = trk.intrinsics.project(est.t[None])[0]
+        rpx = trk._radius[obj] * trk.intrinsics.fx / max(float(est.t[2]), 0.05)
+        inside = np.hypot(uv[0] - center[0], uv[1] - center[1]) <= rpx
+        return float(est.t[2]) - surface_fallback(trk, obj) if inside else np.inf
+    ray = pixel_rays(trk.intrinsics, np.array([center[0]]), np.array([center[1]]))
+    out = np.full((1, 1), np.inf, np.float32)
+    render_boxes_at_pixels(est.R[None, None], est.t[None, None], trk.center[obj:obj + 1],
+                           trk.half[obj:obj + 1], 0, np.zeros(1, np.int64), ray,
+                           np.array([float(center[0])]), np.array([float(center[1])]), np.zeros(1, np.int64),
+                           trk.intrinsics.fx, trk.intrinsics.fy, trk.intrinsics.cx, trk.intrinsics.cy, out,
+                           np.zeros((1, 1), np.int64), np.zeros((1, 1), np.uint8))
+    return float(out[0, 0])
+
+
+def reseed(trk, obj: int, det, depth: np.ndarray) -> bool:
+    """Re-draw ``reseed_fraction`` of part ``obj``'s particles (previous poses) around its colour blob: the
+    centroid's ray at the blob's median depth plus half the part's smallest extent (std ``reseed_sigma``),
+    velocity zero, orientation kept. The estimate is moved to the target as well. Returns whether it did."""
+    cfg = trk.config
+    mask = blob_mask(trk, det, depth.shape)
+    if mask is None:
+        return False
+    vals = depth[mask]
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    est = trk.estimates[trk.names[obj]]
+    if vals.size >= max(5, 0.2 * mask.sum()):
+        zc = float(np.median(vals)) + surface_fallback(trk, obj)
+    else:  # no valid depth on the blob (sensor shadow next to a hand): keep the estimate's depth
+        zc = float((est.R @ trk.center[obj] + est.t)[2])
+    ray = pixel_rays(trk.intrinsics, np.array([float(det.center[0])]), np.array([float(det.center[1])]))[0]
+    target = ray * zc - est.R @ trk.center[obj]  # body origin whose box centre lies on the ray
+    n = trk.p.shape[0]
+    m = int(round(cfg.reseed_fraction * n))
+    if m <= 0:
+        return False
+    sel = np.sort(trk.rng.choice(n, m, replace=False))
+    trk.p[sel, obj] = target + trk.rng.normal(0.0, cfg.reseed_sigma, (m, 3))
+    trk.v[sel, obj] = 0.0
+    trk.estimates[trk.names[obj]] = Pose.from_rt(est.R, target)
+    trk.n_reseeded += 1
+    return True

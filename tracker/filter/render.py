@@ -1,0 +1,96 @@
+"""Rendering stage: which pixels are evaluated this frame, and the depth of every particle's parts there.
+
+Boxes are ray-cast exactly (:mod:`tracker.geometry.box_renderer`), meshes rasterised
+(:mod:`tracker.geometry.mesh_renderer`), into the per-particle depth columns of the evaluated pixels of the
+downsampled grid (full-resolution pixel coordinates, camera frame, metres).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tracker.geometry.box_renderer import render_boxes_at_pixels
+from tracker.geometry.mesh_renderer import render_mesh_at_pixels
+
+if TYPE_CHECKING:
+    from tracker.filter.particle_filter import MultiObjectTracker
+
+
+def render(trk: MultiObjectTracker, obj, p, R, particles, rays, pu, pv, gi, gj, subset, D, loc, dirty) -> None:
+    """Depth of part ``obj`` for the listed ``particles`` at the evaluated pixels ``subset`` into ``D``."""
+    if particles.size == 0 or subset.size == 0:
+        return
+    intr = trk.intrinsics
+    mesh = trk.meshes[obj]
+    if mesh is None:
+        render_boxes_at_pixels(R, p, trk.center, trk.half, obj, particles, rays, pu, pv, subset,
+                               intr.fx, intr.fy, intr.cx, intr.cy, D, loc, dirty)
+    else:
+        render_mesh_at_pixels(R, p, mesh.vertices, mesh.faces, obj, particles, gi, gj, subset,
+                              float(trk.config.downsample), float(trk._off), intr.fx, intr.fy, intr.cx,
+                              intr.cy, D, loc, dirty)
+
+
+def bbox(trk, obj, p, R) -> tuple[float, float, float, float]:
+    """Full-resolution pixel rectangle (umin, umax, vmin, vmax) covering part ``obj`` for all given poses."""
+    if p.shape[0] == 0:
+        return (np.inf, -np.inf, np.inf, -np.inf)
+    pts = np.einsum("nij,cj->nci", R, trk.corners[obj]) + p[:, None, :]
+    zc = pts[..., 2]
+    if np.any(zc < 0.01):
+        return (-np.inf, np.inf, -np.inf, np.inf)
+    intr = trk.intrinsics
+    u = intr.fx * pts[..., 0] / zc + intr.cx
+    v = intr.fy * pts[..., 1] / zc + intr.cy
+    m = 1.0
+    return (u.min() - m, u.max() + m, v.min() - m, v.max() + m)
+
+
+def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
+    """Valid pixels near the parts: (indices into the downsampled grid (P,), per-part region masks (K, P)),
+    or None when there are none. A part's region is its projected rectangle over all particles (previous and
+    predicted poses) widened by the margin and the motion-noise spread (the mixture's std, 3σ)."""
+    if depth is None:
+        return None
+    cfg = trk.config
+    intr = trk.intrinsics
+    z = depth[np.ix_(trk._vs, trk._us)].reshape(-1)
+    valid = np.isfinite(z) & (z > 0) & (z < cfg.max_depth)
+    if not valid.any():
+        return None
+    k = len(trk.parts)
+    regions = np.zeros((k, z.size), bool)
+    f = cfg.wide_noise_fraction
+    spread = np.sqrt((1.0 - f) + f * cfg.wide_noise_scale**2)
+    for i in range(k):
+        rect = union(bbox(trk, i, p_prev[:, i], R_prev[:, i]), bbox(trk, i, p_det[:, i], R_det[:, i]))
+        zc = max(float(np.median(p_det[:, i, 2])), 0.05)
+        radius = float(np.linalg.norm(trk.half[i]) + np.linalg.norm(trk.center[i]))
+        scale = spread * trk._noise_scale[i]
+        margin = (cfg.roi_margin_px * cfg.downsample
+                  + 3.0 * scale * (cfg.sigma_v + cfg.sigma_w * radius) * intr.fx / zc)
+        regions[i] = ((trk._pu >= rect[0] - margin) & (trk._pu <= rect[1] + margin)
+                      & (trk._pv >= rect[2] - margin) & (trk._pv <= rect[3] + margin))
+    budget = cfg.likelihood_pixels_per_part
+    if budget > 0:
+        # a part that covers many grid pixels (a large mesh, a part close to the camera) is evaluated on an even
+        # subset of at most ``budget`` of them: the likelihood's cost stays bounded, the refinement after the
+        # filter restores the precision
+        keep = np.zeros(z.size, bool)
+        for i in range(k):
+            idx = np.nonzero(regions[i] & valid)[0]
+            step = -(-idx.size // budget)
+            keep[idx[::step] if step > 1 else idx] = True
+    else:
+        keep = regions.any(axis=0) & valid
+    pix = np.nonzero(keep)[0].astype(np.int64)
+    if not pix.size:
+        return None
+    return pix, regions[:, pix]
+
+
+def union(a, b):
+    """Smallest pixel rectangle (umin, umax, vmin, vmax) holding both."""
+    return (min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3]))

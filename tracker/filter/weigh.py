@@ -1,0 +1,175 @@
+"""Weighing stage: the coordinate passes of Algorithm 5 (spec sections 4 and 9).
+
+For each part k in turn: sample its noise and propagate it (:mod:`tracker.filter.predict`), force connection
+particles (Algorithm 6), re-render what changed (:mod:`tracker.filter.render`: z-buffer over all parts at the
+evaluated pixels), update the per-particle log-likelihood relative to the no-object hypothesis
+(:mod:`tracker.filter.depth_likelihood`) plus the log penalties and priors, multiply the carried weights by
+exp(ℓ_k − ℓ_{k−1}) and resample (:mod:`tracker.filter.resampling`) when D_KL(w‖U) exceeds D_KL,max, copying every
+per-particle buffer with the particles.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tracker.filter import hidden_parts, predict, render
+from tracker.filter.colour_input import color_masks
+from tracker.filter.connection_particles import apply_connections
+from tracker.filter.depth_likelihood import pixel_constants, predict_occlusion_rows, update_log_likelihood
+from tracker.filter.frame_context import FrameContext, PassResult
+from tracker.filter.penalties import intersection_log_penalty, lowest_heights, table_log_penalty
+from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, systematic_resample
+
+if TYPE_CHECKING:
+    from tracker.filter.particle_filter import MultiObjectTracker
+
+
+def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray, noise_scale: np.ndarray, detections,
+                      detected: np.ndarray, evaluated: tuple[np.ndarray, np.ndarray], pred) -> PassResult:
+    """Run the K coordinate passes on the evaluated pixels; ``pred``: the deterministic prediction (p, R, v)."""
+    cfg = trk.config
+    intr = trk.intrinsics
+    depth = ctx.depth
+    now = ctx.now
+    n, k = cfg.n_particles, len(trk.parts)
+    table_plane = ctx.table_plane
+    plane = table_plane if cfg.use_table_penalty else None
+    support_plane = table_plane if cfg.support_prior_sigma > 0 else None
+    p_prev, R_prev, v_prev = trk.p, trk.R, trk.v
+    p_cur, R_cur, v_cur = pred
+    pix, regions = evaluated
+    loc = np.full(regions.shape, -1, np.int64)
+    loc[regions] = np.arange(int(regions.sum()), dtype=np.int64)  # one depth column per (part, pixel)
+    z = depth.reshape(-1)[trk._vs[trk._gj[pix]] * intr.width + trk._us[trk._gi[pix]]].astype(np.float64)
+    s, e, log_po_inf = pixel_constants(z, trk.likelihood)
+    rays, pu, pv = trk._rays[pix], trk._pu[pix], trk._pv[pix]
+    gi, gj = trk._gi[pix], trk._gj[pix]
+    npix = pix.size
+    if cfg.use_occlusion_model:
+        last = trk.occ_time[pix]
+        dtp = np.where(np.isfinite(last), now - last, 0.0)
+        o_hat = np.ascontiguousarray(predict_occlusion_rows(trk.occ[pix], dtp, cfg.p_occ_given_vis,
+                                                            cfg.p_occ_given_occ).T)
+    else:
+        o_hat = np.zeros((n, npix), np.float32)
+
+    # full render + likelihood at the deterministic prediction
+    t1 = time.perf_counter()
+    m_cols = int(regions.sum())
+    D = trk._buffer("D0", (n, m_cols), np.float32, np.inf)
+    dirty = trk._buffer("dirty", (n, npix), np.uint8, 0)
+    all_particles = np.arange(n, dtype=np.int64)
+    all_pix = np.arange(npix, dtype=np.int64)
+    if k > 1:  # with one part, its own pass below renders it everywhere it can be: no render needed here
+        for i in range(k):
+            render.render(trk, i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, all_pix, D, loc, dirty)
+    t2 = time.perf_counter()
+    C = trk._buffer("C0", (n, npix), np.float32, 0.0)
+    Q = trk._buffer("Q0", (n, npix), np.float32, -1.0)  # consistent with D = inf: nothing covered yet
+    F = trk._buffer("F0", (n, npix), np.int8, -1)
+    spare = {"D": "D1", "C": "C1", "Q": "Q1", "F": "F1"}  # double buffers for resampling without allocation
+    ell = np.zeros(n)
+    anc = np.arange(n)
+    prm = trk.likelihood
+    beta, lam, tail = prm.tail_weight, prm.occluder_rate, prm.tail_weight / prm.max_depth
+    use_occ = bool(cfg.use_occlusion_model)
+    alpha = float(cfg.likelihood_exponent)
+    cmask, cvalid = color_masks(trk, detections, gi, gj)
+    occ_cap = float(cfg.occluded_evidence_cap)
+    update_log_likelihood(D, loc, all_pix, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
+                          dirty, alpha, cmask, cvalid, occ_cap)
+    t_render = t2 - t1
+    t_lik = time.perf_counter() - t2
+    t_res = 0.0
+    t_pen = 0.0
+    ell_prev = np.zeros(n)  # ℓ_0 = 0 at the start of each frame
+    log_w = trk.log_w.copy()
+    n_resampled = 0
+
+    # 3. coordinate passes (Algorithm 5); unlocked hints move only parts estimated visible enough
+    forceable = trk.visibility >= cfg.hint_min_visibility  # previous frame's occlusion estimate
+    if cfg.hint_min_visibility > 0 and cfg.use_color_input and detections:
+        forceable &= detected  # and a reliable colour blob now: the hand may have covered the part this frame
+    for i in range(k):
+        old_p, old_R = p_cur[:, i].copy(), R_cur[:, i].copy()
+        p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i],
+                                                              noise_scale[i])
+        changed_objs = {i}
+        forced = None
+        if trk._hints and cfg.use_connection_particles:
+            before_p = p_cur.copy()
+            before_R = R_cur.copy()
+            forced = apply_connections(p_cur, R_cur, trk._hints, forceable)
+            forced[:, i] = False
+            for o in range(k):
+                if forced[:, o].any():
+                    changed_objs.add(o)
+        # pixels whose depth may change: old and new projections of every changed part
+        rect = render.bbox(trk, i, old_p, old_R)
+        rect = render.union(rect, render.bbox(trk, i, p_cur[:, i], R_cur[:, i]))
+        for o in changed_objs - {i}:
+            sel = forced[:, o]
+            rect = render.union(rect, render.bbox(trk, o, before_p[sel, o], before_R[sel, o]))
+            rect = render.union(rect, render.bbox(trk, o, p_cur[sel, o], R_cur[sel, o]))
+        subset = np.nonzero((pu >= rect[0]) & (pu <= rect[1]) & (pv >= rect[2]) & (pv <= rect[3]))[0]
+        ta = time.perf_counter()
+        render.render(trk, i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, subset, D, loc, dirty)
+        for o in changed_objs - {i}:
+            render.render(trk, o, p_cur, R_cur, np.nonzero(forced[:, o])[0].astype(np.int64), rays, pu, pv, gi, gj,
+                         subset, D, loc, dirty)
+        tb = time.perf_counter()
+        update_log_likelihood(D, loc, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
+                              lam, tail, use_occ, dirty, alpha, cmask, cvalid, occ_cap)
+        tc = time.perf_counter()
+        ell_tot = (ell + log_penalties(trk, p_cur, R_cur, plane) + hidden_parts.log_rest_prior(trk, p_cur)
+                   + hidden_parts.log_support_prior(trk, p_cur, R_cur, support_plane))
+        td = time.perf_counter()
+        log_w += ell_tot - ell_prev
+        ell_prev = ell_tot
+        w = normalize_log_weights(log_w)
+        log_w = np.log(np.maximum(w, 1e-300))
+        if kl_from_uniform(w) > cfg.kl_max:
+            idx = systematic_resample(w, trk.rng)
+            p_prev, R_prev, v_prev = p_prev[idx], R_prev[idx], v_prev[idx]
+            p_cur, R_cur, v_cur = p_cur[idx], R_cur[idx], v_cur[idx]
+            # dirty flags are all clear; ô is reached through anc
+            D, C, Q, F = (trk._take(spare, key, arr, idx) for key, arr in (("D", D), ("C", C), ("Q", Q), ("F", F)))
+            ell, ell_prev, anc = ell[idx], ell_prev[idx], anc[idx]
+            log_w = np.full(n, -np.log(n))
+            n_resampled += 1
+        te = time.perf_counter()
+        t_render += tb - ta
+        t_lik += tc - tb
+        t_pen += td - tc
+        t_res += te - td
+
+    ctx.timings.update(render=t_render * 1e3, likelihood=t_lik * 1e3, penalties=t_pen * 1e3, resample=t_res * 1e3)
+    return PassResult(p_cur, R_cur, v_cur, log_w, ell_prev, pix, Q, F, o_hat, anc, n_resampled)
+
+
+def log_penalties(trk, p, R, plane) -> np.ndarray:
+    cfg = trk.config
+    out = np.zeros(p.shape[0])
+    if trk._color_targets:
+        intr = trk.intrinsics
+        sig2 = cfg.color_likelihood_px**2
+        for i, c, wgt in trk._color_targets:
+            ctr = np.einsum("nij,j->ni", R[:, i], trk.center[i]) + p[:, i]
+            z = np.maximum(ctr[:, 2], 1e-3)
+            du = intr.fx * ctr[:, 0] / z + intr.cx - c[0]
+            dv = intr.fy * ctr[:, 1] / z + intr.cy - c[1]
+            d2 = du * du + dv * dv
+            if cfg.color_term_dead_zone > 0:
+                r_in = cfg.color_term_dead_zone * float(trk.half[i].min()) * intr.fx / z
+                d2 = np.maximum(np.sqrt(d2) - r_in, 0.0) ** 2
+            out -= 0.5 * wgt * np.minimum(d2, 9.0 * sig2) / sig2
+    if cfg.use_intersection_penalty and len(trk.pairs):
+        out += intersection_log_penalty(R, p, trk.center, trk.half, trk.pairs, cfg.contact_tolerance,
+                                        cfg.lambda_i)
+    if plane is not None and cfg.lambda_h > 0:
+        hmin = lowest_heights(R, p, trk.hulls, plane[0], plane[1])
+        out += table_log_penalty(hmin, cfg.lambda_h, cfg.table_tolerance)
+    return out

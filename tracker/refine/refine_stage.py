@@ -1,0 +1,181 @@
+"""Refinement stage of the tracker, after the filter's estimate (spec ``depth-refinement.md``).
+
+With ``dense_refinement`` (the default preset) every visible part is refined by dense-depth Gauss-Newton
+(:mod:`tracker.refine.part_refiner`) and lost or just released parts are re-acquired
+(:mod:`tracker.refine.recovery`); with ``icp_refinement`` alone, well-visible parts get the older point-to-plane
+ICP (:mod:`tracker.refine.icp_refinement`). Either way the part's particles move rigidly with the accepted
+correction, so that the next prediction starts at the refined pose. Camera frame, metres.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tracker.filter.colour_input import blob_mask
+from tracker.filter.frame_context import table_normal_offset
+from tracker.filter.penalties import intersection_flags
+from tracker.geometry.pose import Pose
+from tracker.refine.dense_depth import RefineSettings
+from tracker.refine.icp_refinement import PartSurfaceModel, icp_refine, part_points
+from tracker.refine.part_refiner import PartRefiner
+from tracker.refine.recovery import CUBE_STARTS, MESH_STARTS, reacquire
+
+if TYPE_CHECKING:
+    from tracker.filter.particle_filter import MultiObjectTracker, TrackerState
+
+
+def refine(trk: MultiObjectTracker, state: TrackerState, depth, detections, table) -> None:
+    """Refine ``state``'s poses in place (and the tracker's particles) as the settings say (module docstring)."""
+    cfg = trk.config
+    if cfg.dense_refinement and depth is not None:
+        dense_refine(trk, state, depth, detections)
+    elif cfg.icp_refinement:
+        icp_refine_parts(trk, state, depth, detections, table)
+
+
+def icp_refine_parts(trk: MultiObjectTracker, state: TrackerState, depth, detections, table) -> None:
+    """ICP refinement of well-visible parts (see :mod:`tracker.refine.icp_refinement`); shifts their particles."""
+    cfg = trk.config
+    plane = table_normal_offset(table)
+    for i, name in enumerate(trk.names):
+        if trk.visibility[i] < cfg.icp_min_visibility:
+            continue
+        det = detections.get(name) if detections else None
+        coloured = trk.parts[i].color is not None and bool(detections)
+        est = state.poses[name]
+        ref = reuse_icp(trk, i, est, det) if coloured else None
+        fresh = ref is None
+        if fresh:
+            blob = None
+            if coloured:
+                blob = blob_mask(trk, det, depth.shape)
+                if blob is None:  # a coloured part that is not detected now: do not trust nearby points
+                    trk._icp_last[i] = None
+                    continue
+            if trk._surface[i] is None:
+                trk._surface[i] = PartSurfaceModel(trk.parts[i])
+            others = np.array([state.poses[n].t for n in trk.names if n != name]).reshape(-1, 3)
+            pts = part_points(depth, trk.intrinsics, est, trk._radius[i] + 0.005, blob, plane, cfg.icp_stride,
+                              others=others)
+            ref = icp_refine(trk._surface[i], pts, est, cfg.icp_iterations)
+            trk._icp_last[i] = None
+            if ref is None:
+                continue
+        Rd = ref.R @ est.R.T
+        angle = float(np.arccos(np.clip((np.trace(Rd) - 1.0) / 2.0, -1.0, 1.0)))
+        if np.linalg.norm(ref.t - est.t) > cfg.icp_max_translation or angle > cfg.icp_max_rotation:
+            trk._icp_last[i] = None
+            continue
+        if intersects_others(trk, i, ref, state.poses):
+            trk._icp_last[i] = None
+            continue
+        if fresh and det is not None and getattr(det, "center", None) is not None:
+            trk._icp_last[i] = (ref, np.asarray(det.center, np.float64), float(getattr(det, "area", 0) or 0), 0)
+        trk.p[:, i] = (trk.p[:, i] - est.t) @ Rd.T + ref.t
+        trk.R[:, i] = Rd @ trk.R[:, i]
+        state.poses[name] = ref
+        state.particles[name] = trk.p[:, i].astype(np.float32)
+        trk.estimates[name] = ref
+
+
+def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
+    cfg = trk.config
+    shapes = []
+    for i in range(len(trk.parts)):
+        mesh = trk.meshes[i]
+        if mesh is None:
+            shapes.append(("box", trk.center[i].copy(), trk.half[i].copy()))
+        else:
+            shapes.append(("mesh", np.ascontiguousarray(mesh.vertices, np.float64),
+                           np.ascontiguousarray(mesh.faces, np.int64)))
+    settings = RefineSettings(
+        thresholds=tuple(cfg.refine_thresholds), updates_per_iteration=cfg.refine_updates,
+        occlusion_m=cfg.refine_occlusion, lambda_rot=cfg.refine_lambda_rot, lambda_trans=cfg.refine_lambda_trans,
+        min_valid_fraction=cfg.refine_min_valid_fraction, max_points=cfg.refine_max_points,
+    )
+    return PartRefiner(trk.intrinsics, shapes, list(trk.center), trk.corners, settings, cfg.refine_stride,
+                       cfg.refine_max_translation, cfg.refine_max_rotation)
+
+
+def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray, detections) -> None:
+    """Dense-depth refinement of every visible part (:mod:`tracker.refine.part_refiner`) and re-acquisition of
+    lost or just released parts (:mod:`tracker.refine.recovery`); the particles move with each accepted
+    correction. A coloured part is refined only on the pixels of its colour blob (hands and other parts left out)
+    and not at all while its blob is missing."""
+    k = len(trk.parts)
+    poses, active, allowed, visible = [], [], [], []
+    for i, name in enumerate(trk.names):
+        est = state.poses[name]
+        poses.append((est.R, est.t))
+        mask = None
+        seen = bool(trk.visibility[i] >= trk.config.visible_fraction_full)
+        if trk.parts[i].color is not None and detections:
+            det = detections.get(name)
+            mask = blob_mask(trk, det, depth.shape) if det is not None else None
+            seen = mask is not None and int(mask.sum()) >= trk.config.reseed_min_area_px
+        active.append(bool(trk.visibility[i] > 0.05) and (mask is None or bool(mask.any()))
+                      and not (trk.parts[i].color is not None and detections and mask is None))
+        allowed.append(mask)
+        visible.append(seen)
+    corrections = trk._refiner.refine(depth, poses, active, allowed)
+    carried = np.asarray(trk._carry.carried, bool).copy()
+    released = trk._was_carried & ~carried
+    trk._was_carried = carried
+    trk._cooldown = np.maximum(trk._cooldown - 1, 0)
+    for i in range(k):
+        res = trk._refiner.last[i]
+        supported = res if corrections[i] is not None else None
+        need = trk._loss.update(i, supported, visible[i] and not carried[i], bool(released[i]))
+        beyond = res is not None and corrections[i] is None and res.reason.startswith("correction beyond")
+        if (need or beyond) and trk._cooldown[i] == 0 and visible[i] and active[i]:
+            starts = CUBE_STARTS if trk.parts[i].box is not None else MESH_STARTS
+            corr = reacquire(trk._refiner, depth, i, poses[i][0], poses[i][1], allowed[i], starts)
+            trk._cooldown[i] = trk.config.reacquire_cooldown
+            trk.n_reacquired += 1
+            if corr is not None:
+                corrections[i] = corr
+                trk._loss.reset(i)
+    for i, corr in enumerate(corrections):
+        if corr is None:
+            continue
+        name = trk.names[i]
+        ref = Pose.from_rt(corr.R, corr.t)
+        if intersects_others(trk, i, ref, state.poses):
+            continue
+        trk.p[:, i], trk.R[:, i] = corr.apply_to(trk.p[:, i], trk.R[:, i])
+        state.poses[name] = ref
+        state.particles[name] = trk.p[:, i].astype(np.float32)
+        trk.estimates[name] = ref
+
+
+def reuse_icp(trk: MultiObjectTracker, obj: int, est: Pose, det) -> Pose | None:
+    """The last ICP result of a part whose colour blob has not moved since (``icp_reuse_px``), else None: the
+    depth points ICP would use are the same, so would be its answer; saves the registration."""
+    cfg = trk.config
+    last = trk._icp_last[obj]
+    if cfg.icp_reuse_px <= 0.0 or last is None or det is None or last[3] >= cfg.icp_max_skipped:
+        return None
+    center = getattr(det, "center", None)
+    if (center is None or getattr(det, "contour", None) is None
+            or float(getattr(det, "score", 0.0) or 0.0) < cfg.color_mask_min_score):
+        return None
+    area = float(getattr(det, "area", 0) or 0)
+    if np.linalg.norm(np.asarray(center, np.float64) - last[1]) > cfg.icp_reuse_px:
+        return None
+    if last[2] <= 0 or abs(area / last[2] - 1.0) > 0.05:
+        return None
+    trk._icp_last[obj] = (last[0], last[1], last[2], last[3] + 1)
+    return last[0]
+
+
+def intersects_others(trk: MultiObjectTracker, obj: int, pose: Pose, poses: dict[str, Pose]) -> bool:
+    """Would part ``obj`` at ``pose`` interpenetrate another part's estimate (beyond the contact tolerance)?"""
+    k = len(trk.parts)
+    if k < 2:
+        return False
+    R = np.stack([pose.R if i == obj else poses[n].R for i, n in enumerate(trk.names)])[None]
+    t = np.stack([pose.t if i == obj else poses[n].t for i, n in enumerate(trk.names)])[None]
+    pairs = np.array([(obj, o) for o in range(k) if o != obj], np.int64)
+    return bool(intersection_flags(R, t, trk.center, trk.half, pairs, trk.config.contact_tolerance)[0])
