@@ -78,20 +78,35 @@ class TaskRef(BaseModel):
     origin: Literal["preset", "teacher"]
 
 
+class ModeChoice(BaseModel):
+    """One entry of the panel's task list: a task of a mode on a source (the current one, or a simulated
+    scenario built for the task: choosing it switches mode, task and source together)."""
+
+    mode: ModeName
+    task: str | None
+    title: str
+    source: str
+    switches_source: bool
+
+
 class ModesResponse(BaseModel):
-    """``GET /api/modes``."""
+    """``GET /api/modes``: the mode, task and source in force, every task, and the choices that fit."""
 
     modes: list[str]
     current: ModeName
     task: str | None
+    source: str = ""
     tasks: list[TaskRef]
+    choices: list[ModeChoice] = []
 
 
 class ModeSelect(BaseModel):
-    """``POST /api/modes``: switch the mode (and optionally its task; default: the mode's preset)."""
+    """``POST /api/modes``: switch the mode (and optionally its task; default: the mode's preset) and, with
+    ``source``, the simulated scene it runs on (from the mode's choices; other sources: ``/api/sources``)."""
 
     mode: ModeName
     task: str | None = Field(None, max_length=100, description="preset id or teacher:<n>")
+    source: str | None = Field(None, max_length=100, description="sim:<scenario> to switch to with the mode")
 
 
 class SessionAction(BaseModel):

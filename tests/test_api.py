@@ -150,6 +150,26 @@ def test_modes_reject_unknown_task(client):
     assert bad.status_code == 422
 
 
+def test_mode_choices_offer_the_scene_that_fits(client):
+    wait_frames(client, 1)
+    r = client.get("/api/modes").json()
+    assert r["source"] == "synthetic:"
+    learning = [c for c in r["choices"] if c["mode"] == "learning"]
+    # the synthetic table's two cubes carry no preset sentence: only the simulated learning scenes are offered
+    assert learning and all(c["switches_source"] and c["source"].startswith("sim:learning-") for c in learning)
+    assert {"mode": "none", "task": None, "title": "tracking only", "source": "synthetic:",
+            "switches_source": False} in r["choices"]
+    bad = client.post("/api/modes", json={"mode": "learning", "task": "learning-4-words"})
+    assert bad.status_code == 422
+    assert "needs the parts" in bad.json()["detail"] and "sim:learning-4" in bad.json()["detail"]
+    # leaving a non-simulated source is the teacher's choice
+    r = client.post("/api/modes", json={"mode": "learning", "task": "learning-4-words", "source": "sim:learning-4"})
+    assert r.status_code == 403
+    r = client.post("/api/modes", json={"mode": "guess", "source": "recording:/etc"})
+    assert r.status_code == 422 and "simulated scene" in r.json()["detail"]
+    assert client.get("/api/modes").json()["current"] == "none"  # nothing changed
+
+
 def test_teacher_tasks_need_password(client):
     assert client.post("/api/tasks", json=TASK).status_code == 403  # no password set yet
     assert client.get("/api/auth").json() == {"configured": False, "logged_in": False}

@@ -51,7 +51,9 @@ def small_sim(spec: str):
     from tracker.sources.simulator import SimOptions, SimulatedTable
 
     scenario = spec.split(":", 1)[1] if ":" in spec else "guidance-demo"
-    return SimulatedTable(scenario, seed=3, options=SimOptions(width=320, height=240, focal=262.5), realtime=True)
+    speed = 2.0 if scenario.startswith("learning") else 1.0  # a learning round ends within ~12 s
+    options = SimOptions(width=320, height=240, focal=262.5, speed=speed)
+    return SimulatedTable(scenario, seed=3, options=options, realtime=True)
 
 
 @pytest.fixture(scope="module")
@@ -306,6 +308,48 @@ def create_task(page, sentence, words, distractors=""):
     page.wait_for_function("() => document.getElementById('save-message').textContent.length > 0")
 
 
+def choose_task(page, mode: str, task: str, source: str) -> str:
+    """Pick ``mode`` and, in its task list, the entry running ``task`` on ``source``; returns the entry's text."""
+    page.wait_for_selector("body[data-modes-loaded='1']", state="attached")
+    page.select_option("#mode-select", mode)
+    find = """([t, s]) => { const o = [...document.querySelectorAll('#task-select option')]
+        .find((o) => o.dataset.task === t && o.dataset.source === s); return o ? o.value : null; }"""
+    value = page.wait_for_function(find, arg=[task, source]).json_value()
+    page.select_option("#task-select", value)
+    return page.locator(f"#task-select option[value='{value}']").text_content()
+
+
+def test_mode_switch_brings_its_scene_and_a_learning_round_ends(server, page):
+    """Choosing learning on the guidance demo offers the learning scene and switches both; when the scene's
+    round ends the panel says so and asks for another sentence."""
+    page.goto(server + "/?scene=off")
+    page.wait_for_function("() => document.body.dataset.source === 'sim:guidance-demo'")
+    try:
+        # a task that does not fit the scene is refused with what to choose instead, and nothing changes
+        r = httpx.post(server + "/api/modes", json={"mode": "learning", "task": "learning-4-words"})
+        assert r.status_code == 422 and "sim:learning-4" in r.json()["detail"]
+        label = choose_task(page, "learning", "learning-4-words", "sim:learning-4")
+        assert "switches to sim:learning-4" in label
+        page.click("#btn-apply-mode")
+        page.wait_for_function("() => document.body.dataset.source === 'sim:learning-4'")
+        page.wait_for_function("() => document.getElementById('source-select').value === 'sim:learning-4'")
+        assert page.locator("#mode-select").input_value() == "learning"
+        page.wait_for_function("() => document.getElementById('source-sentence').textContent.length > 0")
+        first = page.locator("#source-sentence").text_content()
+        words = page.locator("#cube-words li").all_text_contents()
+        assert len(words) == 6  # 4 words and 2 distractors
+        round0 = page.locator("#round-banner").get_attribute("data-round")
+        # the scene ends, starts again: a new round, visibly, with a new sentence
+        page.wait_for_function(f"() => document.getElementById('round-banner').dataset.round !== '{round0}'",
+                               timeout=120_000)
+        page.wait_for_function("() => !document.getElementById('round-banner').classList.contains('hidden')")
+        assert page.locator("#round-banner").text_content().startswith("New round")
+        page.wait_for_function(f"() => document.getElementById('source-sentence').textContent !== {first!r}")
+    finally:
+        r = httpx.post(server + "/api/modes", json={"mode": "guidance", "source": "sim:guidance-demo"})
+        assert r.status_code == 200, r.text
+
+
 def test_teacher_task_appears_in_learning_mode(server, page):
     teacher_login(page, server)
     page.wait_for_selector("#btn-logout", state="visible")
@@ -318,10 +362,7 @@ def test_teacher_task_appears_in_learning_mode(server, page):
     ref = httpx.get(server + "/api/tasks").json()["tasks"][-1]["ref"]
 
     page.goto(server + "/?scene=off")
-    page.wait_for_selector("body[data-modes-loaded='1']", state="attached")
-    page.select_option("#mode-select", "learning")
-    page.wait_for_selector(f"#task-select option[value='{ref}']", state="attached")
-    page.select_option("#task-select", ref)
+    choose_task(page, "learning", ref, "sim:guidance-demo")  # 3 words: the current scene's cubes carry them
     page.click("#btn-apply-mode")
     page.wait_for_function("() => document.getElementById('mode-message').textContent.startsWith('mode learning')")
     page.wait_for_function("() => document.getElementById('source-sentence').textContent === 'Ο σκύλος τρέχει'")

@@ -47,6 +47,11 @@ async function refreshStatus() {
   try {
     const s = await api("/api/status");
     $("source-name").textContent = s.source;
+    const shown = state.modes;
+    if (shown && !state.modeDirty && (s.mode !== shown.current || s.source !== shown.source)) {
+      refreshModes().catch(() => {});  // changed elsewhere (another panel, a source that lacks the task's parts)
+      refreshSources().catch(() => {});
+    }
     $("worker-state").textContent = s.worker.state;
     state.parts = s.parts;
     const sel = $("box-part");
@@ -82,53 +87,81 @@ async function refreshSources() {
 }
 
 $("source-select").addEventListener("change", async () => {
+  const spec = $("source-select").value;
   try {
-    await api("/api/sources", { method: "POST", body: JSON.stringify({ source: $("source-select").value }) });
-    showMessage("mode-message", `source ${$("source-select").value}`);
-    setTimeout(() => { refreshModes(); refreshStatus(); }, 1500);
+    await api("/api/sources", { method: "POST", body: JSON.stringify({ source: spec }) });
+    showMessage("mode-message", `source ${spec}`);
   } catch (e) {
     showMessage("mode-message", e.message, true);
   }
+  refreshSources().catch(() => {});  // the control shows the source in force, switched or not
+  refreshModes().catch(() => {});
+  refreshStatus();
 });
 
+// Mode and source are one choice: the task list offers, for the chosen mode, each task on the current source
+// (when it fits) and on the simulated scene built for it; Apply switches mode, task and scene together.
 async function refreshModes() {
   const m = await api("/api/modes");
-  $("mode-select").value = m.current;
-  fillTasks(m, m.current, m.task);
   state.modes = m;
+  state.modeDirty = false;
+  $("mode-select").value = m.current;
+  fillTasks(m, m.current, m.task, m.source);
   document.body.dataset.modesLoaded = "1";
+  document.body.dataset.mode = m.current;
+  document.body.dataset.source = m.source;
 }
 
-function fillTasks(m, mode, selected) {
+function choiceLabel(c) {
+  const title = c.mode === "none" ? "tracking only" : c.title;
+  return c.switches_source ? `${title} — switches to ${c.source}` : `${title} — this scene`;
+}
+
+function fillTasks(m, mode, task, source) {
   const sel = $("task-select");
   const opts = [];
-  const def = el("option", "default for the mode");
-  def.value = "";
-  opts.push(def);
-  for (const t of m.tasks) {
-    if (t.mode !== mode) continue;
-    const o = el("option", `${t.origin === "teacher" ? "teacher: " : ""}${t.title}`);
-    o.value = t.id;
+  m.choices.forEach((c, i) => {
+    if (c.mode !== mode) return;
+    const o = el("option", choiceLabel(c));
+    o.value = String(i);
+    o.dataset.task = c.task || "";
+    o.dataset.source = c.source;
+    opts.push(o);
+  });
+  if (!opts.length) {
+    const o = el("option", "no task fits: choose another mode");
+    o.value = "";
     opts.push(o);
   }
   sel.replaceChildren(...opts);
-  sel.value = selected && opts.some((o) => o.value === selected) ? selected : "";
+  sel.disabled = !opts[0].value;
+  const current = opts.find((o) => o.dataset.task === (task || "") && o.dataset.source === source);
+  sel.value = (current || opts[0]).value;
 }
 
 $("mode-select").addEventListener("change", () => {
-  if (state.modes) fillTasks(state.modes, $("mode-select").value, null);
+  state.modeDirty = true;
+  if (state.modes) fillTasks(state.modes, $("mode-select").value, null, state.modes.source);
 });
+$("task-select").addEventListener("change", () => { state.modeDirty = true; });
 
 $("btn-apply-mode").addEventListener("click", async () => {
-  const body = { mode: $("mode-select").value, task: $("task-select").value || null };
+  const choice = state.modes && state.modes.choices[Number($("task-select").value)];
+  if (!choice || $("task-select").value === "") {
+    showMessage("mode-message", "no task of this mode fits: choose another mode", true);
+    return;
+  }
+  const body = { mode: choice.mode, task: choice.task, source: choice.source };
   showMessage("mode-message", "switching…");
   try {
     const m = await api("/api/modes", { method: "POST", body: JSON.stringify(body) });
-    state.modes = m;
-    showMessage("mode-message", `mode ${m.current}${m.task ? " · " + m.task : ""}`);
+    showMessage("mode-message", `mode ${m.current}${m.task ? " · " + m.task : ""} on ${m.source}`);
   } catch (e) {
     showMessage("mode-message", e.message, true);
   }
+  await refreshModes().catch(() => {});  // the controls show what is in force, whether or not it switched
+  refreshSources().catch(() => {});
+  refreshStatus();
 });
 
 for (const action of ["start", "pause", "reset"]) {
