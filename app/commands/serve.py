@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import socket
 
 from pydantic import ValidationError
 
@@ -76,6 +77,47 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def port_free(host: str, port: int) -> bool:
+    """Whether a server could listen on ``host:port`` now (nothing else listening there)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn does: TIME_WAIT does not count
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def check_ports(settings) -> None:
+    """A port in use ends the start with the option that changes it (instead of uvicorn's ``Errno 98``)."""
+    if settings.port and not port_free(settings.host, settings.port):
+        raise ValueError(
+            f"port {settings.port} on {settings.host} is in use (another server is running there?): "
+            f"stop it or choose another port with --port, e.g. --port {settings.port + 1}"
+        )
+    if settings.viser_port and not port_free(settings.host, settings.viser_port):
+        raise ValueError(
+            f"the 3D scene's port {settings.viser_port} is in use: choose another with --viser-port, "
+            f"e.g. --viser-port {settings.viser_port + 1}, or turn the scene off with --viser-port 0"
+        )
+
+
+def check_source(settings) -> None:
+    """A ``--source`` given on the command line must open now (the panel may still switch sources later)."""
+    from app.state import open_source_spec
+
+    spec = settings.source_spec()
+    try:
+        src = open_source_spec(spec, False, settings.seed)
+    except Exception as exc:  # noqa: BLE001 - any failure to open is the user's to fix before starting
+        raise ValueError(f"cannot open --source {spec}: {exc}") from exc
+    try:
+        src.close()
+    except Exception:  # noqa: BLE001, S110 - it opened, which is what was checked
+        pass
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -108,6 +150,9 @@ def run(args: argparse.Namespace) -> int:
     except ValidationError as exc:
         msgs = "; ".join(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors())
         raise ValueError(f"invalid settings: {msgs}") from exc
+    check_ports(settings)
+    if args.source is not None:
+        check_source(settings)
     app = create_app(settings)
     print(f"Assembly Agent: http://{settings.host}:{settings.port}/  (teacher editor: /teacher, API: /docs)")
     uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning", timeout_graceful_shutdown=5)
