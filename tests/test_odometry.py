@@ -1,0 +1,168 @@
+"""Camera odometry (tracker.odometry): accuracy on short seeded simulated sequences with a moving camera, masks,
+frames that cannot be measured, the TUM trajectory format, the trajectory errors and the ``odometry`` command."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from tracker.evaluation.trajectory_errors import trajectory_errors
+from tracker.frame import Frame
+from tracker.geometry.pose import Pose
+from tracker.odometry import CameraOdometry, OdometryConfig, make_odometry
+from tracker.odometry.exclusion_mask import exclusion_mask
+from tracker.odometry.se3 import exp_se3, log_se3
+from tracker.odometry.tum_trajectory import read_tum, write_tum
+from tracker.sources.recording import RecordingWriter
+from tracker.sources.simulator import SimOptions, SimulatedTable
+
+
+def _run(src: SimulatedTable, odo, n: int, use_hand: bool = True, start: int = 0):
+    w0 = src.camera_pose_at(start).inverse()
+    times, est, truth, results = [], [], [], []
+    for i in range(start, start + n):
+        f = src.render(i)
+        hb = f.meta["groundtruth"]["hand_box"] if use_hand else None
+        res = odo.step(f, exclusion_mask(f.depth.shape, hb) if hb is not None else None)
+        results.append(res)
+        times.append(res.timestamp)
+        est.append(res.pose_world_camera)
+        truth.append(w0 @ src.camera_pose_at(i))
+    return trajectory_errors(np.array(times), est, truth, delta=0.5), results
+
+
+def test_dense_odometry_follows_a_swaying_camera_within_a_millimetre():
+    src = SimulatedTable("static", seed=1, options=SimOptions(camera_motion="sway"), n_frames=45)
+    errs, results = _run(src, CameraOdometry(src.intrinsics), 45)
+    assert all(r.ok for r in results)
+    moved = max(float(np.linalg.norm((src.camera_pose_at(0).inverse() @ src.camera_pose_at(i)).t)) for i in range(45))
+    assert moved > 0.005  # the camera really moved (several mm)
+    assert errs.ate_rmse < 0.0015, errs
+    assert errs.rot_rmse_deg < 0.15, errs
+    assert errs.rpe_trans_per_s < 0.003, errs
+
+
+def test_dense_odometry_with_a_hand_moving_parts_masks_the_hand():
+    src = SimulatedTable("guess-1", seed=2, options=SimOptions(camera_motion="handheld"))
+    # frames 40-84: the hand is in view, reaches for a part and carries it
+    boxes = [src.render_clean(i)["hand_box"] for i in (40, 60, 84)]
+    assert all(b is not None for b in boxes)
+    errs, results = _run(src, CameraOdometry(src.intrinsics), 45, start=40)
+    assert len(results) == 45 and all(r.ok for r in results)
+    assert errs.ate_rmse < 0.003, errs
+    assert errs.rot_rmse_deg < 0.3, errs
+
+
+def test_frame_without_depth_is_extrapolated_at_constant_velocity_and_flagged():
+    src = SimulatedTable("static", seed=0, options=SimOptions(camera_motion="handheld"), n_frames=8)
+    odo = CameraOdometry(src.intrinsics)
+    poses = [odo.step(src.render(i)).pose_world_camera for i in range(4)]
+    f = src.render(4)
+    blind = Frame(f.index, f.timestamp, f.color, None, f.intrinsics)
+    res = odo.step(blind)
+    assert not res.ok and "no depth" in res.message
+    # constant velocity: the same step as between the last two measured poses
+    step = poses[2].inverse() @ poses[3]
+    expect = poses[3] @ step
+    assert res.pose_world_camera.translation_error(expect) < 1e-9
+    assert res.pose_world_camera.translation_error(poses[3]) > 0  # not just the last pose
+    # the next frame with depth is measured again
+    assert odo.step(src.render(5)).ok
+    skipped = odo.skip(6 / 30.0, "unreadable")
+    assert not skipped.ok and skipped.message == "unreadable"
+
+
+def test_mask_of_wrong_shape_and_frame_of_wrong_size_are_refused():
+    src = SimulatedTable("static", seed=0, n_frames=2)
+    odo = CameraOdometry(src.intrinsics)
+    f = src.render(0)
+    with pytest.raises(ValueError, match="mask shape"):
+        odo.step(f, np.zeros((10, 10), bool))
+    small = src.intrinsics.scaled(0.5)
+    g = Frame(0, 0.0, np.zeros((small.height, small.width, 3), np.uint8), None, small)
+    with pytest.raises(ValueError, match="set up for 640x480"):
+        odo.step(g)
+
+
+def test_exclusion_mask_covers_hand_box_and_dilated_parts():
+    part = np.zeros((60, 80), np.uint8)
+    part[10:14, 10:14] = 255
+    m = exclusion_mask((60, 80), hand_box=[50, 30, 60, 40], part_masks=[part], margin=2)
+    assert m[12, 12] and m[12, 15] and not m[12, 17]  # dilated by 2 px
+    assert m[35, 55] and m[29, 49] and not m[26, 45]
+    with pytest.raises(ValueError):
+        exclusion_mask((60, 80), part_masks=[np.zeros((5, 5))])
+
+
+def test_se3_exp_log_round_trip():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        xi = rng.normal(size=6) * np.array([0.1, 0.1, 0.1, 0.5, 0.5, 0.5])
+        assert np.allclose(log_se3(exp_se3(xi)), xi, atol=1e-9)
+
+
+def test_tum_round_trip_and_errors(tmp_path):
+    rng = np.random.default_rng(3)
+    rows = [(i / 30.0, Pose.from_rotvec(rng.normal(size=3) * 0.1, rng.normal(size=3)), "note" if i == 2 else "")
+            for i in range(5)]
+    path = tmp_path / "t.tum"
+    assert write_tum(path, rows, header="test") == 5
+    text = path.read_text().splitlines()
+    assert text[0] == "# test" and "# note" in text
+    times, poses = read_tum(path)
+    assert np.allclose(times, [r[0] for r in rows], atol=1e-6)
+    for p, r in zip(poses, rows, strict=True):
+        assert p.translation_error(r[1]) < 1e-8 and p.rotation_error(r[1]) < 1e-7
+    bad = tmp_path / "bad.tum"
+    bad.write_text("0.0 1 2 3 0 0 0\n")
+    with pytest.raises(ValueError, match="line 1: expected 8 numbers"):
+        read_tum(bad)
+
+
+def test_trajectory_errors_of_a_known_offset():
+    times = np.arange(31) / 30.0
+    truth = [Pose.from_rotvec([0, 0.01 * i, 0], [0.001 * i, 0, 0]) for i in range(31)]
+    est = [p @ Pose(t=[0.002, 0, 0]) for p in truth]  # constant 2 mm offset in the camera frame
+    e = trajectory_errors(times, est, truth, delta=0.5)
+    assert abs(e.ate_rmse - 0.002) < 1e-9 and e.rot_rmse_deg < 1e-6
+    assert e.rpe_trans_per_s < 1e-3  # a constant offset is no relative error (up to the rotation's lever arm)
+    drift = [p @ Pose(t=[0.003 * i, 0, 0]) for i, p in enumerate(truth)]  # 3 mm per frame = 90 mm/s
+    assert abs(trajectory_errors(times, drift, truth, delta=1.0).rpe_trans_per_s - 0.09) < 1e-6
+    with pytest.raises(ValueError):
+        trajectory_errors(times[:3], est, truth)
+
+
+def test_make_odometry_refuses_unknown_method():
+    with pytest.raises(ValueError, match="default, fastslam"):
+        make_odometry("orb", SimulatedTable("static", n_frames=1).intrinsics)
+    with pytest.raises(ValueError, match="unknown setting"):
+        OdometryConfig().with_overrides(levels_=1)
+
+
+def test_odometry_command_writes_a_pose_per_frame_and_survives_bad_frames(tmp_path, capsys):
+    src = SimulatedTable("static", seed=0, options=SimOptions(camera_motion="sway"), n_frames=12)
+    rec = tmp_path / "rec"
+    with RecordingWriter(rec, src.intrinsics, parts=src.parts, initial_poses=src.initial_poses) as w:
+        for i in range(12):
+            f = src.render(i)
+            if i == 5:
+                f = Frame(f.index, f.timestamp, f.color, None, f.intrinsics, f.meta)
+            w.write(f, f.meta["groundtruth"])
+    (rec / "color" / "000008.png").write_bytes(b"not a png")
+    out = tmp_path / "traj.tum"
+    assert main(["odometry", str(rec), "--out", str(out), "--mask", "parts"]) == 0
+    captured = capsys.readouterr()
+    assert "wrote 12 poses" in captured.out and "(2 extrapolated)" in captured.out
+    assert "no depth" in captured.err and "000008.png" in captured.err
+    assert "ATE RMSE" in captured.out
+    times, poses = read_tum(out)
+    assert len(poses) == 12 and np.allclose(times, np.arange(12) / 30.0, atol=1e-6)
+    assert sum(1 for line in out.read_text().splitlines() if line.startswith("# extrapolated")) == 2
+    w0 = src.camera_pose_at(0).inverse()
+    assert max(p.translation_error(w0 @ src.camera_pose_at(i)) for i, p in enumerate(poses)) < 0.003
+
+
+def test_odometry_command_reports_a_missing_recording(tmp_path, capsys):
+    assert main(["odometry", str(tmp_path / "nope"), "--out", str(tmp_path / "t.tum")]) == 1
+    assert "recording directory not found" in capsys.readouterr().err

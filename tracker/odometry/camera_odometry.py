@@ -1,0 +1,151 @@
+"""``CameraOdometry``: frame-to-keyframe dense RGB-D odometry (the default ego-motion estimator).
+
+Each frame is aligned (:mod:`.dense_alignment`) to the stored keyframe nearest to the constant-velocity
+prediction of its pose; when the camera has moved far from every keyframe (or sees too little of the nearest one)
+the frame becomes a new keyframe. Because a camera that sways around one place keeps returning to the same
+keyframes, the error does not accumulate frame after frame (there is drift only along a chain of keyframes).
+
+World frame = the first frame's camera frame (x right, y down, z forward; metres). Pixels given in ``mask``
+(True = exclude: hands, moving parts) are ignored both in the frame and, when it becomes a keyframe, in the
+keyframe. Frames that cannot be measured (no depth, corrupt, alignment failed or implausible) get the
+constant-velocity pose with ``ok = False`` and a message, so the trajectory has a pose for every frame.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from tracker.frame import Frame
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.pose import Pose
+from tracker.odometry.dense_alignment import align
+from tracker.odometry.keyframe import Keyframe, make_keyframe_level
+from tracker.odometry.motion_prior import ConstantVelocity
+from tracker.odometry.odometry_config import OdometryConfig
+from tracker.odometry.odometry_result import OdometryResult
+from tracker.odometry.rgbd_pyramid import build_pyramid
+from tracker.odometry.se3 import invert, motion_size
+
+
+class CameraOdometry:
+    """Dense frame-to-keyframe RGB-D odometry. ``step(frame, mask)`` → :class:`OdometryResult`."""
+
+    method = "dense"
+
+    def __init__(self, intrinsics: Intrinsics, config: OdometryConfig | None = None, seed: int = 0) -> None:
+        self.intrinsics = intrinsics
+        self.config = config or OdometryConfig()
+        self._rng = np.random.default_rng(seed)
+        self.keyframes: list[Keyframe] = []
+        self._motion = ConstantVelocity()
+        self._active = 0
+        self._pose = Pose()
+
+    @property
+    def pose(self) -> Pose:
+        """The latest camera pose in the world frame."""
+        return self._pose
+
+    def reset(self) -> None:
+        """Forget everything: the next frame defines the world frame again."""
+        self.keyframes.clear()
+        self._motion = ConstantVelocity()
+        self._active = 0
+        self._pose = Pose()
+
+    # ------------------------------------------------------------------------------------------------------
+    def skip(self, timestamp: float, reason: str) -> OdometryResult:
+        """A frame that could not be read: the constant-velocity pose at ``timestamp``, flagged with ``reason``."""
+        res = self._skip(timestamp, reason)
+        self._pose = res.pose_world_camera
+        return res
+
+    def step(self, frame: Frame, mask: np.ndarray | None = None) -> OdometryResult:
+        """Estimate the camera pose of ``frame`` (colour RGB uint8 + registered depth in metres); ``mask`` (H×W
+        bool, True = exclude) marks hands and moving parts."""
+        res = self._step(frame, mask)
+        self._pose = res.pose_world_camera
+        return res
+
+    def _skip(self, timestamp: float, reason: str) -> OdometryResult:
+        t0 = time.perf_counter()
+        T = self._motion.predict(timestamp)
+        self._motion.update(timestamp, T, measured=False)
+        return OdometryResult(Pose.from_matrix(T), False, 0, 1e3 * (time.perf_counter() - t0), float(timestamp),
+                              message=reason)
+
+    def _step(self, frame: Frame, mask: np.ndarray | None) -> OdometryResult:
+        t0 = time.perf_counter()
+        ts = float(frame.timestamp)
+        if (frame.intrinsics.width, frame.intrinsics.height) != (self.intrinsics.width, self.intrinsics.height):
+            raise ValueError(f"odometry: frame {frame.index} is {frame.intrinsics.width}x{frame.intrinsics.height}, "
+                             f"the odometry was set up for {self.intrinsics.width}x{self.intrinsics.height}")
+        if mask is not None and np.shape(mask) != frame.color.shape[:2]:
+            raise ValueError(f"odometry: mask shape {np.shape(mask)} differs from the image {frame.color.shape[:2]}")
+        if not frame.has_depth:
+            return self._skip(ts, f"frame {frame.index}: no depth — pose extrapolated at constant velocity")
+        pyr = build_pyramid(frame.color, frame.depth, self.intrinsics, self.config.n_levels, mask)
+
+        if not self.keyframes:  # the first measured frame fixes the world frame (or continues the prediction)
+            T = self._motion.predict(ts)
+            self._add_keyframe(pyr, T, frame.index)
+            self._motion.update(ts, T, measured=True)
+            return OdometryResult(Pose.from_matrix(T), True, 0, 1e3 * (time.perf_counter() - t0), ts, keyframe=True)
+
+        pred = self._motion.predict(ts)
+        k = self._nearest_keyframe(pred)
+        kf = self.keyframes[k]
+        res = align(kf, pyr, invert(kf.pose) @ pred, self.config)
+        T = kf.pose @ res.T_kc
+        dt, dr = motion_size(invert(pred) @ T)
+        cfg = self.config
+        msg = ""
+        if res.inliers < cfg.min_inliers:
+            msg = f"frame {frame.index}: only {res.inliers} inliers (< {cfg.min_inliers})"
+        elif dt > cfg.max_step_m or np.degrees(dr) > cfg.max_step_deg:
+            msg = (f"frame {frame.index}: implausible jump {1e3 * dt:.0f} mm / {np.degrees(dr):.1f}° from the "
+                   "prediction")
+        if msg:
+            self._motion.update(ts, pred, measured=False)
+            return OdometryResult(Pose.from_matrix(pred), False, res.inliers, 1e3 * (time.perf_counter() - t0), ts,
+                                  message=msg + " — pose extrapolated at constant velocity")
+        self._active = k
+        new_kf = False
+        kd, kr = motion_size(invert(kf.pose) @ T)
+        if kd > cfg.keyframe_distance_m or np.degrees(kr) > cfg.keyframe_angle_deg or \
+                res.overlap < cfg.keyframe_min_overlap:
+            if self._nearest_keyframe(T) == k:  # no stored keyframe is closer: take this frame
+                self._add_keyframe(pyr, T, frame.index)
+                new_kf = True
+        self._motion.update(ts, T, measured=True)
+        return OdometryResult(Pose.from_matrix(T), True, res.inliers, 1e3 * (time.perf_counter() - t0), ts,
+                              keyframe=new_kf)
+
+    # ------------------------------------------------------------------------------------------------------
+    def _distance(self, A: np.ndarray, B: np.ndarray) -> float:
+        """Pose distance normalised by the keyframe thresholds (1 = at the threshold)."""
+        d, r = motion_size(invert(A) @ B)
+        return max(d / self.config.keyframe_distance_m, np.degrees(r) / self.config.keyframe_angle_deg)
+
+    def _nearest_keyframe(self, T: np.ndarray) -> int:
+        dists = [self._distance(kf.pose, T) for kf in self.keyframes]
+        best = int(np.argmin(dists))
+        # stay with the active keyframe unless another is clearly closer (avoids flicker between two)
+        if self._active < len(dists) and dists[self._active] <= 1.0 and dists[self._active] < dists[best] + 0.25:
+            return self._active
+        return best
+
+    def _add_keyframe(self, pyr, T: np.ndarray, index: int) -> None:
+        cfg = self.config
+        levels = []
+        for lv in range(cfg.n_levels):
+            if lv in cfg.levels:
+                levels.append(make_keyframe_level(pyr[lv], cfg.n_photo, cfg.n_geo, cfg.min_gradient, self._rng))
+            else:
+                levels.append(None)
+        self.keyframes.append(Keyframe(levels, np.array(T, dtype=np.float64), int(index)))
+        if len(self.keyframes) > cfg.max_keyframes:
+            del self.keyframes[1]
+        self._active = len(self.keyframes) - 1
