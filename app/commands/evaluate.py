@@ -52,10 +52,25 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise ValueError(f"--set {key}: value must be a number, got {value!r}") from None
     poses = args.poses or ("tracked" if tracked_available() else "groundtruth")
-    summary = run_experiment(args.experiment, args.out, sessions=args.sessions, poses=poses,
-                             frame_step=args.frame_step, n_particles=args.particles, progress=print,
-                             tracker_preset=args.tracker_preset, hints=not args.no_hints, overrides=overrides)
-    keys = ("sessions", "connections_total", "connections_within_1s", "connections_never", "false_completions",
+    from tqdm import tqdm
+
+    from tracker.evaluation.sessions import sessions_for
+
+    exp = EXPERIMENTS.get(args.experiment)
+    n_specs = len(sessions_for(exp.base)) if exp is not None else 0
+    total = min(args.sessions or n_specs, n_specs) * (len(exp.settings) if exp is not None else 0)
+    with tqdm(total=total, unit="session", desc=args.experiment, disable=None, dynamic_ncols=True,
+              bar_format="{l_bar}{bar}| {n:.1f}/{total} sessions [{elapsed}<{remaining}]") as bar:
+
+        def on_frame(i: int, n: int) -> None:  # fractions of a session: the ETA moves during a session
+            bar.update(min(args.frame_step, n - i) / max(1, n))
+
+        summary = run_experiment(args.experiment, args.out, sessions=args.sessions, poses=poses,
+                                 frame_step=args.frame_step, n_particles=args.particles, progress=bar.write,
+                                 tracker_preset=args.tracker_preset, hints=not args.no_hints, overrides=overrides,
+                                 on_frame=on_frame)
+    keys = ("sessions", "sessions_in_experiment",
+            "connections_total", "connections_within_1s", "connections_never", "false_completions",
             "guess_correct", "sentences_correct", "mean_deviation_s")
     print(json.dumps({k: summary[k] for k in keys if k in summary}))
     return 0

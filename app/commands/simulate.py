@@ -93,10 +93,13 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
     )
     n = 0
-    with writer, src:
+    from tqdm import tqdm
+
+    with writer, src, tqdm(total=len(src), unit="frame", desc=args.scenario, disable=None) as bar:
         for frame in src:
             writer.write(frame, groundtruth=frame.meta["groundtruth"])
             n += 1
+            bar.update(1)
         t_end = n / 30.0
         events = [e for e in src.events if e.t < t_end]
         for e in events:

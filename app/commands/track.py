@@ -291,11 +291,21 @@ def run(args: argparse.Namespace) -> int:
     out = open(args.out, "w") if args.out else None  # noqa: SIM115
     n = 0
     t_start = time.perf_counter()
+    from tqdm import tqdm
+
+    try:
+        total = len(src)
+    except TypeError:
+        total = None
+    if total is not None and args.frames is not None:
+        total = min(total, args.frames)
+    bar = tqdm(total=total, unit="frame", desc="track", disable=None)
     try:
         for frame in src:
             if args.frames is not None and n >= args.frames:
                 break
             state, _ = session.step(frame)
+            bar.update(1)
             if out is not None:
                 out.write(json.dumps({"index": frame.index, "poses": {k: v.to_dict() for k, v in state.poses.items()}})
                           + "\n")
@@ -305,6 +315,7 @@ def run(args: argparse.Namespace) -> int:
                     errors.add(state.poses, gt)
             n += 1
     finally:
+        bar.close()
         if out is not None:
             out.close()
         src.close()

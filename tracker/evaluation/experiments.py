@@ -70,16 +70,28 @@ def _label(setting: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in setting.items()) or "preset"
 
 
+def _ran(n: int, n_all: int) -> str:
+    """What was run, for the report's first line (a partial run says so)."""
+    if n == n_all:
+        return f"Ran all {n} sessions."
+    return f"Ran {n} of its {n_all} sessions (--sessions {n}): figures are for those only."
+
+
 def run_experiment(name: str, out: str | Path, sessions: int | None = None, poses: str = "groundtruth",
                    frame_step: int = 1, n_particles: int | None = None, progress=None,
-                   tracker_preset: str = "default", hints: bool = True, overrides: dict | None = None) -> dict:
-    """Run experiment ``name``, write its report into ``out`` and return the summary (also summary.json)."""
+                   tracker_preset: str = "default", hints: bool = True, overrides: dict | None = None,
+                   on_frame=None) -> dict:
+    """Run experiment ``name``, write its report into ``out`` and return the summary (also summary.json).
+
+    ``progress(text)``: one line per finished session; ``on_frame(i, n)``: after each frame ``i`` of a session's
+    ``n`` (a progress bar). The report says how many of the experiment's sessions were run."""
     if name not in EXPERIMENTS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {list(EXPERIMENTS)}")
     exp = EXPERIMENTS[name]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     specs = sessions_for(exp.base)
+    n_all = len(specs)
     if sessions is not None:
         if sessions < 1:
             raise ValueError("--sessions must be at least 1")
@@ -92,7 +104,7 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
         for spec in specs:
             r = run_session(spec, poses=poses, overrides={**(overrides or {}), **setting}, frame_step=frame_step,
                             n_particles=n_particles,
-                            tracker_preset=tracker_preset, hints=hints)
+                            tracker_preset=tracker_preset, hints=hints, on_frame=on_frame)
             results.append(r)
             if progress:
                 progress(f"{name} [{_label(setting)}] session {spec.index + 1} ({spec.scenario}, user {spec.user}): "
@@ -102,7 +114,7 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
         label = _label(setting)
         tag = name if len(exp.settings) == 1 else f"{name}_{len(per_setting) + 1}"
         write_experiment(out, tag, results, summary, structures,
-                         header=f"{exp.description}. Poses: {poses}; setting: {label}; "
+                         header=f"{exp.description}. {_ran(len(results), n_all)} Poses: {poses}; setting: {label}; "
                                 f"parameters: {results[0].params if results else {}}.\n")
         summary["setting"] = setting
         per_setting[label] = summary
@@ -115,13 +127,15 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
                  "total": v["connections_total"], "mean_dev_s": v["mean_deviation_s"],
                  "false_completions": v["false_completions"], "guess_correct": v.get("guess_correct")}
                 for k, v in per_setting.items()]
-        (out / f"{name}.md").write_text(f"## {name}\n\n{exp.description}. Poses: {poses}.\n\n" + markdown_table(rows))
+        (out / f"{name}.md").write_text(f"## {name}\n\n{exp.description}. {_ran(len(specs), n_all)} Poses: {poses}.\n\n"
+                                        + markdown_table(rows))
         first = next(iter(per_setting.values()))
         summary = {k: sum(s[k] for s in per_setting.values()) for k in
                    ("sessions", "connections_total", "connections_within_1s", "connections_never", "false_completions")}
         if "guess_correct" in first:
             summary["guess_correct"] = sum(s["guess_correct"] for s in per_setting.values())
         summary["settings"] = per_setting
+    summary.update({"sessions_run": len(specs), "sessions_in_experiment": n_all})
     summary.update({"experiment": name, "poses": poses, "frame_step": frame_step, "machine": machine(),
                     "tracker_preset": tracker_preset if poses == "tracked" else None, "hints": hints,
                     "overrides": overrides or {}})

@@ -17,6 +17,7 @@ tracker without the mode's connection hints (ablation of Algorithm 6).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,8 +82,10 @@ def _swapped(assignment: dict[str, str], sentence_words: list[str]) -> dict[str,
 def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict | None = None,
                 frame_step: int = 1, tracker_preset: str = "default", n_particles: int | None = None,
                 noise: tuple[float, float] = (0.003, 0.05), hints: bool = True,
-                max_time: float | None = None) -> SessionResult:
-    """Run ``spec`` and compare the mode's output with the simulator's ground truth."""
+                max_time: float | None = None, on_frame: Callable[[int, int], None] | None = None) -> SessionResult:
+    """Run ``spec`` and compare the mode's output with the simulator's ground truth.
+
+    ``on_frame(i, n)``: called after each processed frame ``i`` of the session's ``n`` (progress display)."""
     from tracker.sources.simulator import FPS, SimOptions, SimulatedTable
 
     if poses not in ("groundtruth", "tracked"):
@@ -132,6 +135,8 @@ def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict |
         if tracker is not None and hints:
             tracker.set_connection_hints(mode.connection_hints())
         n_frames += 1
+        if on_frame is not None:
+            on_frame(i, len(src))
         complete = state.complete
         if complete and not was_complete:
             wrong_structure = spec.experiment == "guess" and state.extra.get("guess") != spec.truth
