@@ -194,6 +194,12 @@ class SimulatedTable(FrameSource):
             self._depth = bg.depth.copy()
             self._cos = bg.cosang.copy()
             self._color = bg.color.copy()
+        if self.info.hands is not None:  # hand scenarios: a blue-grey cloth on the (skin-coloured) wooden table
+            if self._caster is not None:
+                self._caster.tex = np.ascontiguousarray(table_cloth(self._caster.tex))
+            else:
+                self._bg.color[self._bg.table] = table_cloth(self._bg.color[self._bg.table])
+                self._color = self._bg.color.copy()
         self._plane = self.camera.table_plane()
         self._dirty: list[tuple[int, int, int, int]] = []
         self._closed = False
@@ -612,6 +618,18 @@ class SimulatedTable(FrameSource):
             meta["groundtruth"]["hand_box_ids"] = clean["hand_box_ids"]
             meta["groundtruth"]["skin_mask"] = clean["skin_mask"].copy()
         return Frame(index=index, timestamp=clean["t"], color=color, depth=depth, intrinsics=self._intr, meta=meta)
+
+
+CLOTH_TINT = np.array([0.90, 1.0, 1.12], np.float32)
+"""RGB tint of the table cloth of the hand scenarios (luma-preserving: 0.299·0.90 + 0.587 + 0.114·1.12 ≈ 0.98)."""
+
+
+def table_cloth(color: np.ndarray) -> np.ndarray:
+    """The colours (…×3, RGB 0..255) as a blue-grey cloth of the same brightness and texture. The hand scenarios
+    use it because the wooden table has skin chrominance (measured Cr ≈ 150, Cb ≈ 104 in YCrCb, inside the skin
+    cluster), which no chrominance skin model can separate from a hand; the cloth has Cr ≈ 121, Cb ≈ 137."""
+    y = color[..., 0] * 0.299 + color[..., 1] * 0.587 + color[..., 2] * 0.114
+    return np.clip(y[..., None] * CLOTH_TINT, 0.0, 255.0).astype(np.float32)
 
 
 def _stable(pose: Pose) -> Pose:
