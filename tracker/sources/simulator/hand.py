@@ -50,6 +50,7 @@ def hand_primitives(
     shoulder: np.ndarray | None = None,
     mirror: bool = False,
     albedos: tuple[tuple[float, float, float], ...] | None = None,
+    wrist_taper: float = 0.8,
 ) -> list[Capsule | Box]:
     """Primitives of the hand in the parent frame of the hand pose ``(pose_R, pose_t)``.
 
@@ -58,7 +59,10 @@ def hand_primitives(
     ``shoulder`` (parent frame) is where the arm goes: the forearm (0.28 m) points from the wrist towards it
     and the upper arm joins the elbow to it; ``mirror`` makes a left hand (x → −x); ``albedos`` = RGB of (palm,
     fingers, arm) (default the built-in skin colours; a sleeve colour for the arm gives long sleeves). The last
-    :data:`N_ARM_PRIMS` primitives are the arm (forearm from the wrist, upper arm), the others palm and fingers.
+    :data:`N_ARM_PRIMS` primitives are the arm (forearm from the wrist, upper arm), the others palm and fingers;
+    ``wrist_taper`` scales the palm segments' lateral offset at the wrist end (0.8 by default; the hand-tracking
+    scenarios use 0.4 so that the palm stays within the forearm's width there and no palm sliver shows beside a
+    sleeve).
     """
     palm_rgb, finger_rgb, arm_rgb = albedos if albedos is not None else (SKIN_PALM, SKIN_FINGER, SKIN_ARM)
     s = float(scale)
@@ -69,7 +73,8 @@ def hand_primitives(
     r_p = 0.0145 * s
     y_p = top + r_p
     for x in (-0.024 * s, 0.0, 0.024 * s):
-        prims_local.append(Capsule(np.array([x, y_p, 0.004]), np.array([x * 0.8, y_p + 0.004, 0.068]), r_p, palm_rgb))
+        wrist_end = np.array([x * wrist_taper, y_p + 0.004, 0.068])
+        prims_local.append(Capsule(np.array([x, y_p, 0.004]), wrist_end, r_p, palm_rgb))
     # four fingers: from the knuckles forward over the object's top, then down its far face (−z)
     r_f = 0.0085 * min(s, 1.4)
     lengths = (0.030, 0.034, 0.032, 0.026)

@@ -628,6 +628,7 @@ class ScriptBuilder:
         sides = [1.0, -1.0][: style.n_hands]
         hands: list[WanderingHand] = []
         first_pos: list[np.ndarray] = []
+        skin = hand_albedos(rng)  # one person: both hands have the same skin tone
         for h, side in enumerate(sides):
             shoulder = self.offscreen_point(side * 0.22, 0.20, margin=240)
             keys: list[HandKey] = []
@@ -654,7 +655,7 @@ class ScriptBuilder:
             if h == 0:
                 first_pos = [k.pos for k in keys]
             path = HandPass(keys, part=None, side=side, shoulder=shoulder, scale=float(rng.uniform(0.9, 1.1)))
-            albedos = hand_albedos(rng)
+            albedos = skin
             if style.sleeves:
                 albedos = (albedos[0], albedos[1], SLEEVE_COLORS[int(rng.integers(len(SLEEVE_COLORS)))])
             hands.append(WanderingHand(path, albedos, bare_forearm=not style.sleeves, motion_blur=style.motion_blur))

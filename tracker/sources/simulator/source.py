@@ -485,7 +485,8 @@ class SimulatedTable(FrameSource):
             hpose = T @ hpose
             shoulder = T.transform_points(hp.shoulder[None])[0] if hp.shoulder is not None else None
             prims = hand_primitives(hpose.R, hpose.t, grip, hp.half_height, hp.half_height, hp.scale,
-                                    shoulder=shoulder, mirror=hp.side < 0, albedos=wh.albedos)  # fmt: skip
+                                    shoulder=shoulder, mirror=hp.side < 0, albedos=wh.albedos,
+                                    wrist_taper=0.4)  # fmt: skip
             for j, p in enumerate(prims):
                 assert isinstance(p, Capsule)
                 pid = n_parts + 1 + 2 * k + (1 if j >= len(prims) - N_ARM_PRIMS else 0)

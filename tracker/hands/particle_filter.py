@@ -1,0 +1,213 @@
+"""The thesis's particle filter for one hand (hand-tracking spec §4, Algorithm 10).
+
+State x = (x, y, w, h, x', y') in image pixels (centre, size, velocity in px/frame). Per step: for every particle
+the adaptive transition of eq. 6.11 (position eq. 6.14, size eq. 6.19, velocity eq. 6.13, built from the forward
+flows, their motion clusters and the particle's box at k−1) or, if it passes the section-6 test, the deterministic
+transition; weights ×= p(y_k | x_k) (eq. 6.20); normalise; systematic resampling when N_eff < N_T; MMSE estimate
+(eq. 6.9). Fallbacks of §14.8 (constant components when the box holds < n_min colour pixels or no cluster pixel;
+box size clamped to [4 px, image size]; weights reset if all vanish). The deterministic transition sets the state
+exactly (σ_δ = 1e-6 px of eq. 6.60 is below any pixel rounding).
+
+Statistics that depend only on a particle's rounded box at k−1 are computed once per distinct box (after
+resampling many particles share one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from tracker.hands.box_stats import box_observation, box_of, observation_likelihood, transition_stats
+from tracker.hands.certainty import TAU_D, certain_state
+from tracker.hands.features import HandFeatures
+
+
+@dataclass(frozen=True)
+class PFParams:
+    """``n_particles`` N_s (30), ``n_threshold`` N_T (None: ⌊N_s/2⌋), ``n_r`` ratio-set subsample (256), ``n_min``
+    (10 px), ``tau_d`` (0.8), σ_{p,0} = σ_{s,0} = 1 px, σ_{v,fb} = 1 px/frame, â_{c,1} (0.9), â_{m,1} (0.85), the
+    boundary-weight scale (80 px², eq. 6.22) and the velocity-agreement scale (7 (px/frame)², eq. 6.31) (thesis /
+    spec §16; pixel quantities in the tracker's working resolution)."""
+
+    n_particles: int = 30
+    n_threshold: int | None = None
+    n_r: int = 256
+    n_min: int = 10
+    tau_d: float = TAU_D
+    sigma_p0: float = 1.0
+    sigma_s0: float = 1.0
+    sigma_vfb: float = 1.0
+    ac_hat: float = 0.9
+    am_hat: float = 0.85
+    d2_scale: float = 80.0
+    v2_scale: float = 7.0
+
+    @property
+    def nt(self) -> int:
+        return self.n_threshold if self.n_threshold is not None else self.n_particles // 2
+
+
+@nb.njit(cache=True)
+def _gauss2(mx, my, s00, s01, s11, z0, z1):
+    """A draw of N((mx, my), [[s00, s01], [s01, s11]]) from two standard normals (Cholesky of the 2×2)."""
+    l00 = np.sqrt(max(s00, 1e-12))
+    l10 = s01 / l00
+    l11 = np.sqrt(max(s11 - l10 * l10, 1e-12))
+    return mx + l00 * z0, my + l10 * z0 + l11 * z1
+
+
+@nb.njit(cache=True)
+def _propagate(parts, stats, cent, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, W, H, u3, z, n_min, tau_d,
+               sp0, ss0, svfb):  # fmt: skip
+    """New particles [N, 6] and the section-6 flags [N]; ``stats`` [N, 2, 9] = transition_stats per particle and α,
+    ``cent`` [2, N_c, 2] forward centroids; ``u3`` [N, 3] uniforms, ``z`` [N, 3, 2] standard normals."""
+    n = parts.shape[0]
+    out = np.empty_like(parts)
+    det = np.zeros(n, np.bool_)
+    c = np.empty((2, 2))
+    ratio = np.empty((2, 2))
+    for i in range(n):
+        x, y, w, h, vx, vy = parts[i]
+        ok = stats[i, 0, 0] >= n_min
+        for a in range(2):
+            m = int(stats[i, a, 1])
+            if m < 0:
+                ok = False
+                c[a, 0] = np.nan
+                c[a, 1] = np.nan
+            else:
+                c[a, 0] = cent[a, m, 0]
+                c[a, 1] = cent[a, m, 1]
+            ratio[a, 0] = stats[i, a, 5]
+            ratio[a, 1] = stats[i, a, 6]
+        passed, st = certain_state(x, y, w, h, c, ratio, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, tau_d)
+        if passed:
+            out[i] = st
+            det[i] = True
+        elif not ok:
+            out[i, 0] = x + vx + sp0 * z[i, 0, 0]
+            out[i, 1] = y + vy + sp0 * z[i, 0, 1]
+            out[i, 2] = w + ss0 * z[i, 1, 0]
+            out[i, 3] = h + ss0 * z[i, 1, 1]
+            out[i, 4] = vx + svfb * z[i, 2, 0]
+            out[i, 5] = vy + svfb * z[i, 2, 1]
+        else:
+            # position: 0.4 constant velocity, 0.3 / 0.3 the two PMC centroids (eq. 6.14)
+            u = u3[i, 0]
+            if u < 0.4:
+                out[i, 0] = x + vx + sp0 * z[i, 0, 0]
+                out[i, 1] = y + vy + sp0 * z[i, 0, 1]
+            else:
+                a = 0 if u < 0.7 else 1
+                out[i, 0], out[i, 1] = _gauss2(x + c[a, 0], y + c[a, 1], stats[i, a, 2], stats[i, a, 3],
+                                               stats[i, a, 4], z[i, 0, 0], z[i, 0, 1])  # fmt: skip
+            # size: 0.3 constant, 0.35 / 0.35 scaled by the ratio means (eq. 6.19)
+            u = u3[i, 1]
+            if u < 0.3:
+                out[i, 2] = w + ss0 * z[i, 1, 0]
+                out[i, 3] = h + ss0 * z[i, 1, 1]
+            else:
+                a = 0 if u < 0.65 else 1
+                out[i, 2] = ratio[a, 0] * w + w * np.sqrt(stats[i, a, 7]) * z[i, 1, 0]
+                out[i, 3] = ratio[a, 1] * h + h * np.sqrt(stats[i, a, 8]) * z[i, 1, 1]
+            # velocity: 0.5 / 0.5 the two PMC centroids (eq. 6.13)
+            a = 0 if u3[i, 2] < 0.5 else 1
+            out[i, 4], out[i, 5] = _gauss2(c[a, 0], c[a, 1], stats[i, a, 2], stats[i, a, 3], stats[i, a, 4],
+                                           z[i, 2, 0], z[i, 2, 1])  # fmt: skip
+        out[i, 2] = min(max(out[i, 2], 4.0), W)
+        out[i, 3] = min(max(out[i, 3], 4.0), H)
+    return out, det
+
+
+def observe(parts: np.ndarray, feats: HandFeatures, n_clusters: int, prm: PFParams) -> tuple[np.ndarray, np.ndarray]:
+    """(p(y_k | x_k^i), a_{c,1}) of every particle; the box statistics once per distinct box."""
+    ox, oy = feats.roi[0], feats.roi[1]
+    boxes = np.array([box_of(p[0] - ox, p[1] - oy, p[2], p[3]) for p in parts], np.int64)
+    uniq, inv = np.unique(boxes, axis=0, return_inverse=True)
+    inv = np.asarray(inv).ravel()
+    obs = np.stack([box_observation(int(u0), int(v0), int(u1), int(v1), feats.mcur, feats.labb[0], feats.labb[1],
+                                    n_clusters, prm.d2_scale) for u0, v0, u1, v1 in uniq])  # fmt: skip
+    c1 = feats.centb[0].astype(np.float64)
+    c2 = feats.centb[1].astype(np.float64)
+    lik = np.array([observation_likelihood(obs[j], p[4], p[5], c1, c2, prm.ac_hat, prm.am_hat, prm.v2_scale)
+                    for j, p in zip(inv, parts, strict=True)])  # fmt: skip
+    return lik, obs[inv, 0]
+
+
+def box_stats_per_particle(parts: np.ndarray, feats: HandFeatures, n_clusters: int, n_r: int) -> np.ndarray:
+    """transition_stats [N, 2, 9] of every particle's box at k−1 on both forward flows (once per distinct box)."""
+    ox, oy = feats.roi[0], feats.roi[1]
+    boxes = np.array([box_of(p[0] - ox, p[1] - oy, p[2], p[3]) for p in parts], np.int64)
+    uniq, inv = np.unique(boxes, axis=0, return_inverse=True)
+    per = np.empty((len(uniq), 2, 9))
+    for j, (u0, v0, u1, v1) in enumerate(uniq):
+        for a in range(2):
+            per[j, a] = transition_stats(int(u0), int(v0), int(u1), int(v1), feats.mprev, feats.ff[a], feats.labf[a],
+                                         n_clusters, n_r)  # fmt: skip
+    return per[np.asarray(inv).ravel()]
+
+
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Indices drawn by systematic resampling (Algorithm 7 with erratum E2: cumulative sum starting at w^1)."""
+    n = len(weights)
+    c = np.cumsum(weights)
+    c[-1] = 1.0
+    u = rng.uniform(0.0, 1.0 / n) + np.arange(n) / n
+    return np.minimum(np.searchsorted(c, u, side="left"), n - 1)
+
+
+class HandParticleFilter:
+    """Particle filter of one hand track, initialised with all particles at ``x1`` (velocity 0)."""
+
+    def __init__(self, x1: np.ndarray, params: PFParams | None = None, n_clusters: int = 4,
+                 rng: np.random.Generator | None = None) -> None:  # fmt: skip
+        self.params = params or PFParams()
+        self.n_clusters = int(n_clusters)
+        self.rng = rng or np.random.default_rng(0)
+        n = self.params.n_particles
+        x1 = np.asarray(x1, float).copy()
+        x1[4:] = 0.0
+        self.particles = np.tile(x1, (n, 1))
+        self.weights = np.full(n, 1.0 / n)
+        self.estimate = x1.copy()
+        self.n_eff = float(n)
+        self.det_fraction = 0.0
+        self.resampled = False
+
+    def boxes_for_roi(self) -> np.ndarray:
+        """The particles' states (for the ROI of the next step)."""
+        return self.particles
+
+    def step(self, feats: HandFeatures, image_size: tuple[int, int]) -> np.ndarray:
+        """One step of Algorithm 10 on the frame's features; returns the MMSE estimate (6,)."""
+        prm = self.params
+        n = len(self.particles)
+        W, H = image_size
+        ox, oy = float(feats.roi[0]), float(feats.roi[1])
+        stats = box_stats_per_particle(self.particles, feats, self.n_clusters, prm.n_r)
+        cent = np.stack(feats.centf).astype(np.float64)
+        u3 = self.rng.random((n, 3))
+        z = self.rng.standard_normal((n, 3, 2))
+        new, det = _propagate(self.particles, stats, cent, feats.cc, feats.n_comp, feats.cc_area, feats.cc_box,
+                              feats.cc_cut, ox, oy, float(W), float(H), u3, z, prm.n_min, prm.tau_d, prm.sigma_p0,
+                              prm.sigma_s0, prm.sigma_vfb)  # fmt: skip
+        lik, _ = observe(new, feats, self.n_clusters, prm)
+        w = self.weights * lik
+        s = w.sum()
+        if not np.isfinite(s) or s <= 0:
+            w = np.full(n, 1.0 / n)
+        else:
+            w = w / s
+        self.n_eff = float(1.0 / np.sum(w**2))
+        self.det_fraction = float(det.mean())
+        self.resampled = self.n_eff < prm.nt
+        if self.resampled:
+            idx = systematic_resample(w, self.rng)
+            new = new[idx]
+            w = np.full(n, 1.0 / n)
+        self.particles = new
+        self.weights = w
+        self.estimate = (w[:, None] * new).sum(axis=0)
+        return self.estimate

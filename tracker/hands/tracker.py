@@ -1,0 +1,408 @@
+"""``HandTracker``: follows up to two hands in a colour stream (hand-tracking spec §14.3–14.4).
+
+Per frame (:meth:`HandTracker.process`): the ROI around all tracks' particles (§14.2: each box expanded by
+m_ROI = max(24 px, 0.5·max(w, h), 2‖v‖), clipped), the colour masks of frames k−1 and k inside it, the four flows
+and motion segmentations (:mod:`tracker.hands.features`), one filter step per track (particle filter or Kalman
+reference), track termination, then automatic initialisation of new tracks:
+
+* Candidates (§14.3): 4-connected components of the colour mask after an opening (disk radius 2 px),
+  computed at the working resolution over the whole frame (radius 2/scale there), with area ≥ A_min = 0.15 % of
+  the image, at most 50 % inside existing track boxes, seen on n_init = 3 consecutive frames (matched by
+  overlapping boxes). A candidate must touch the image border (within b = 2 px) when first seen; product
+  deviation: it need not touch it on the next two frames (a long-sleeved hand's skin touches the border only
+  briefly while it enters). The largest one starts a track; at most one new track per frame, at most
+  ``max_tracks``.
+* Initial box: the component's pixels farther than d_max − L_hand from its entry point e (mean of its border
+  pixels), L_hand = f_x · 0.19 m / Z̄ (Z̄ the component's median depth; without depth Z̄ = 0.75 m), their tight
+  box; velocity 0.
+* Termination: < 50 % of the estimate's box inside the image; a_{c,1} of the estimate < 0.2 for 10 consecutive
+  frames; two tracks with box F-score ≥ 0.8 for 10 consecutive frames (the younger ends).
+
+Skin model: the shipped generic model (:mod:`tracker.hands.skin_model`); with ``session_background`` its ω2 is
+refitted on the session's first frame (assumed hand-free, as thesis Application 2 trains ω2 on the first frames),
+and with ``adapt`` the skin means are MAP-adapted every ``adapt_every`` frames to the colour-mask pixels inside
+confident track boxes (a_{c,1} ≥ 0.5).
+
+Track ids are 1, 2, 3, … in order of creation and never reused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from tracker.hands.box_stats import box_observation, box_of
+from tracker.hands.features import HandFeatures, compute_features
+from tracker.hands.kalman import HandKalmanFilter
+from tracker.hands.motion_clusters import MotionClusters
+from tracker.hands.particle_filter import HandParticleFilter, PFParams
+from tracker.hands.skin_model import SkinModel
+
+METHODS = ("pf", "kalman")
+
+
+@dataclass(frozen=True)
+class HandTrackerConfig:
+    """``method`` "pf" | "kalman"; ``scale``: the tracker works on the image downscaled by this integer factor
+    (2: 320×240 for a 640×480 stream; pixel constants of the spec are converted, σ's of 1 px stay 1 working px);
+    ``n_particles`` N_s (N_T = ⌊N_s/2⌋); ``n_clusters`` N_c; ``flow`` "dis" | "dis-fast" | "farneback";
+    ``roi_limit`` L_ROI (full-resolution px); ``max_tracks``; ``auto_init``; ``session_background``; ``adapt`` /
+    ``adapt_every``; ``log_tau`` LRT threshold (None: the model's; −2 tuned on simulator seeds 0–4);
+    ``ac_hat`` / ``am_hat`` â_{c,1}, â_{m,1}; ``seed`` of the filters' random numbers."""
+
+    method: str = "pf"
+    scale: int = 2
+    n_particles: int = 30
+    n_clusters: int = 4
+    flow: str = "dis"
+    roi_limit: int = 192
+    max_tracks: int = 2
+    auto_init: bool = True
+    session_background: bool = True
+    adapt: bool = True
+    adapt_every: int = 15
+    log_tau: float | None = -2.0
+    seed: int = 0
+    min_area_frac: float = 0.0015
+    n_init: int = 3
+    n_lost: int = 10
+    hand_length_m: float = 0.19
+    ac_hat: float = 0.9
+    am_hat: float = 0.85
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"hand tracker method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.n_particles < 1:
+            raise ValueError(f"the particle count must be at least 1, got {self.n_particles}")
+        if not 1 <= self.n_clusters <= 8:
+            raise ValueError(f"the motion cluster count must be within 1–8, got {self.n_clusters}")
+
+
+@dataclass
+class HandEstimate:
+    """One hand at one frame: track ``id``, ``state`` (x, y, w, h, x', y') in px and px/frame, ``box`` [u0, v0,
+    u1, v1] (end-exclusive, clipped to the image), ``score`` = a_{c,1} (colour coverage of the box, 0..1),
+    ``n_eff`` N_eff/N_s and ``certain`` (fraction of particles in the section-6 mode)."""
+
+    id: int
+    state: np.ndarray
+    box: list[int]
+    score: float
+    n_eff: float
+    certain: float
+
+    def to_dict(self) -> dict:
+        return {"id": self.id, "box": list(self.box), "score": round(float(self.score), 4)}
+
+
+@dataclass
+class _Track:
+    id: int
+    filt: HandParticleFilter | HandKalmanFilter
+    age: int = 0
+    low: int = 0
+    dup: dict[int, int] = field(default_factory=dict)
+    score: float = 1.0
+
+
+@dataclass
+class _Candidate:
+    box: tuple[int, int, int, int]
+    seen: int
+
+
+def state_box(state: np.ndarray) -> tuple[int, int, int, int]:
+    """Inclusive integer box of a state (spec §2)."""
+    return box_of(float(state[0]), float(state[1]), float(state[2]), float(state[3]))
+
+
+def box_state(box_excl: list[int] | tuple[int, ...]) -> np.ndarray:
+    """State (velocity 0) of an end-exclusive pixel box [u0, v0, u1, v1]: x = (u0 + u1 − 1)/2, w = u1 − 1 − u0."""
+    u0, v0, u1, v1 = (float(b) for b in box_excl)
+    return np.array([(u0 + u1 - 1) / 2.0, (v0 + v1 - 1) / 2.0, u1 - 1 - u0, v1 - 1 - v0, 0.0, 0.0])
+
+
+def clipped_box(state: np.ndarray, size: tuple[int, int]) -> list[int]:
+    """End-exclusive box of a state clipped to the image (empty boxes have u1 ≤ u0 or v1 ≤ v0)."""
+    u0, v0, u1, v1 = state_box(state)
+    W, H = size
+    return [max(u0, 0), max(v0, 0), min(u1 + 1, W), min(v1 + 1, H)]
+
+
+def box_f_score(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> float:
+    """Dice coefficient of two inclusive boxes (areas in pixels)."""
+    iw = min(a[2], b[2]) - max(a[0], b[0]) + 1
+    ih = min(a[3], b[3]) - max(a[1], b[1]) + 1
+    inter = max(iw, 0) * max(ih, 0)
+    sa = (a[2] - a[0] + 1) * (a[3] - a[1] + 1)
+    sb = (b[2] - b[0] + 1) * (b[3] - b[1] + 1)
+    return 2.0 * inter / (sa + sb) if sa + sb > 0 else 0.0
+
+
+class HandTracker:
+    """Hand tracks over a colour stream; :meth:`process` one RGB frame at a time (uint8 H×W×3).
+
+    Internally everything runs on the frame downscaled by ``config.scale`` (working pixels); estimates are returned
+    in full-resolution pixels (a working pixel i covers full pixels s·i … s·i + s − 1)."""
+
+    def __init__(self, config: HandTrackerConfig | None = None, skin_model: SkinModel | None = None,
+                 focal: float | None = None) -> None:  # fmt: skip
+        self.config = config or HandTrackerConfig()
+        cfg = self.config
+        model = skin_model or SkinModel.load()
+        if cfg.log_tau is not None:
+            model = model.with_threshold(cfg.log_tau)
+        self.skin = model
+        self.focal = focal
+        self.s = max(1, int(cfg.scale))
+        s2 = float(self.s * self.s)
+        self.pf_params = PFParams(n_particles=cfg.n_particles, n_min=max(1, int(round(10 / s2))), ac_hat=cfg.ac_hat,
+                                  am_hat=cfg.am_hat, d2_scale=80.0 / s2, v2_scale=7.0 / s2)  # fmt: skip
+        self.rng = np.random.default_rng(cfg.seed)
+        self.clusters = MotionClusters(cfg.n_clusters, seed=cfg.seed)
+        self.tracks: list[_Track] = []
+        self.next_id = 1
+        self.frame_index = -1
+        self.full_size: tuple[int, int] | None = None
+        self._prev_rgb: np.ndarray | None = None
+        self._prev_grey: np.ndarray | None = None
+        self._candidates: list[_Candidate] = []
+        self._adapt_pixels: list[np.ndarray] = []
+        self.last_features: HandFeatures | None = None
+
+    # ------------------------------------------------------------------ resolution
+    def to_full(self, state: np.ndarray) -> np.ndarray:
+        """A working-resolution state in full-resolution pixels."""
+        s = self.s
+        out = np.asarray(state, float).copy()
+        out[:2] = s * out[:2] + (s - 1) / 2.0
+        out[2:4] = s * out[2:4] + (s - 1)
+        out[4:] = s * out[4:]
+        return out
+
+    def from_full_box(self, box_excl) -> np.ndarray:
+        """Working-resolution state (velocity 0) of a full-resolution end-exclusive box."""
+        s = self.s
+        u0, v0, u1, v1 = (int(b) for b in box_excl)
+        a0, b0, a1, b1 = u0 // s, v0 // s, (u1 - 1) // s, (v1 - 1) // s
+        return np.array([(a0 + a1) / 2.0, (b0 + b1) / 2.0, a1 - a0, b1 - b0, 0.0, 0.0])
+
+    # ------------------------------------------------------------------ tracks
+    def start_track(self, box_excl: list[int] | tuple[int, ...]) -> int:
+        """Start a track on a full-resolution end-exclusive box [u0, v0, u1, v1] of the last processed frame (manual
+        or ground-truth start); returns its id."""
+        if self._prev_rgb is None:
+            raise RuntimeError("hand tracker: process a frame before starting a track on it")
+        return self._start(self.from_full_box(box_excl))
+
+    def _start(self, x1: np.ndarray) -> int:
+        cfg = self.config
+        if cfg.method == "pf":
+            filt: HandParticleFilter | HandKalmanFilter = HandParticleFilter(
+                x1, self.pf_params, cfg.n_clusters, np.random.default_rng(self.rng.integers(1 << 62)))
+        else:
+            filt = HandKalmanFilter(x1, cfg.n_clusters, sigma_q=2.0 / self.s)
+        tid = self.next_id
+        self.next_id += 1
+        self.tracks.append(_Track(tid, filt))
+        return tid
+
+    # ------------------------------------------------------------------ frames
+    def process(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[HandEstimate]:
+        """Track the hands in the next frame (RGB uint8 H×W×3, optional registered depth in metres); returns one
+        estimate per live track after this frame's update, in full-resolution pixels."""
+        rgb = np.asarray(rgb)
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"hand tracker: expected an H×W×3 uint8 RGB image, got {rgb.dtype} {rgb.shape}")
+        H, W = rgb.shape[:2]
+        if self.full_size is not None and self.full_size != (W, H):
+            raise ValueError(f"hand tracker: frame size changed from {self.full_size} to {(W, H)}")
+        self.full_size = (W, H)
+        s = self.s
+        small = rgb if s == 1 else cv2.resize(rgb, (W // s, H // s), interpolation=cv2.INTER_AREA)
+        small = np.ascontiguousarray(small)
+        grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+        size = (small.shape[1], small.shape[0])
+        self.frame_index += 1
+        out: list[HandEstimate] = []
+        if self._prev_rgb is None:
+            if self.config.session_background:
+                self.skin = self.skin.with_background(small, step=2)
+        elif self.tracks:
+            out = self._step_tracks(small, grey, size)
+        if self.config.auto_init and len(self.tracks) < self.config.max_tracks:
+            new = self._auto_init(small, depth)
+            if new is not None:
+                self._start(new)
+                out.append(self._estimate(self.tracks[-1], size))
+        self._prev_rgb = small
+        self._prev_grey = grey
+        return out
+
+    def _roi(self, size: tuple[int, int]) -> tuple[int, int, int, int]:
+        W, H = size
+        x0, y0, x1, y1 = W, H, 0, 0
+        for tr in self.tracks:
+            e = tr.filt.estimate
+            margin = max(24.0 / self.s, 0.5 * max(e[2], e[3]), 2.0 * float(np.hypot(e[4], e[5])))
+            for p in tr.filt.boxes_for_roi():
+                u0, v0, u1, v1 = state_box(p)
+                x0 = min(x0, int(u0 - margin))
+                y0 = min(y0, int(v0 - margin))
+                x1 = max(x1, int(u1 + margin) + 1)
+                y1 = max(y1, int(v1 + margin) + 1)
+        return max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
+
+    def _step_tracks(self, rgb: np.ndarray, grey: np.ndarray, size: tuple[int, int]) -> list[HandEstimate]:
+        cfg = self.config
+        roi = self._roi(size)
+        x0, y0, x1, y1 = roi
+        if x1 - x0 < 8 or y1 - y0 < 8:
+            self.tracks = []
+            return []
+        assert self._prev_rgb is not None and self._prev_grey is not None
+        mprev = self.skin.mask(self._prev_rgb[y0:y1, x0:x1])
+        mcur = self.skin.mask(rgb[y0:y1, x0:x1])
+        feats = compute_features(self._prev_grey, grey, mprev, mcur, roi, size, self.clusters, cfg.flow,
+                                 max(8, cfg.roi_limit // self.s), backward=cfg.method == "pf")  # fmt: skip
+        self.last_features = feats
+        for tr in self.tracks:
+            tr.filt.step(feats, size)
+            tr.age += 1
+        ests = [self._estimate(tr, size, feats) for tr in self.tracks]
+        keep = self._terminate(size)
+        self.tracks = [tr for tr, k in zip(self.tracks, keep, strict=True) if k]
+        ests = [e for e, k in zip(ests, keep, strict=True) if k]
+        if cfg.adapt:
+            for tr in self.tracks:
+                if tr.score >= 0.5:
+                    u0, v0, u1, v1 = state_box(tr.filt.estimate)
+                    a0, b0 = max(u0 - x0, 0), max(v0 - y0, 0)
+                    a1, b1 = max(min(u1 + 1, x1) - x0, 0), max(min(v1 + 1, y1) - y0, 0)
+                    px = rgb[y0:y1, x0:x1][b0:b1, a0:a1][mcur[b0:b1, a0:a1].astype(bool)]
+                    if len(px):
+                        self._adapt_pixels.append(px[:: max(1, len(px) // 200)])
+            if self.frame_index % cfg.adapt_every == 0 and self._adapt_pixels:
+                self.skin = self.skin.adapted(np.concatenate(self._adapt_pixels))
+                self._adapt_pixels = []
+        return ests
+
+    def _estimate(self, tr: _Track, size: tuple[int, int], feats: HandFeatures | None = None) -> HandEstimate:
+        f = tr.filt
+        e = f.estimate
+        if feats is not None:
+            ox, oy = feats.roi[0], feats.roi[1]
+            u0, v0, u1, v1 = box_of(e[0] - ox, e[1] - oy, e[2], e[3])
+            obs = box_observation(u0, v0, u1, v1, feats.mcur, feats.labb[0], feats.labb[1], self.config.n_clusters,
+                                  self.pf_params.d2_scale)  # fmt: skip
+            tr.score = float(obs[0])
+        n = self.config.n_particles if isinstance(f, HandParticleFilter) else 1
+        full = self.to_full(e)
+        assert self.full_size is not None
+        return HandEstimate(tr.id, full, clipped_box(full, self.full_size), tr.score, f.n_eff / n, f.det_fraction)
+
+    def _terminate(self, size: tuple[int, int]) -> list[bool]:
+        cfg = self.config
+        keep = [True] * len(self.tracks)
+        boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
+        for i, (tr, b) in enumerate(zip(self.tracks, boxes, strict=True)):
+            full = (b[2] - b[0] + 1) * (b[3] - b[1] + 1)
+            iw = min(b[2], size[0] - 1) - max(b[0], 0) + 1
+            ih = min(b[3], size[1] - 1) - max(b[1], 0) + 1
+            inside = max(iw, 0) * max(ih, 0)
+            if full <= 0 or inside < 0.5 * full:
+                keep[i] = False
+            tr.low = tr.low + 1 if tr.score < 0.2 else 0
+            if tr.low >= cfg.n_lost:
+                keep[i] = False
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                a, b = self.tracks[i], self.tracks[j]
+                if box_f_score(boxes[i], boxes[j]) >= 0.8:
+                    a.dup[b.id] = a.dup.get(b.id, 0) + 1
+                    if a.dup[b.id] >= cfg.n_lost:
+                        keep[j if b.id > a.id else i] = False
+                else:
+                    a.dup.pop(b.id, None)
+        return keep
+
+    # ------------------------------------------------------------------ automatic initialisation
+    def _auto_init(self, rgb: np.ndarray, depth: np.ndarray | None) -> np.ndarray | None:
+        """A new track's initial working-resolution state, or None (see the module docstring)."""
+        cfg = self.config
+        h, w = rgb.shape[:2]
+        mask = self.skin.mask(rgb)
+        r = max(1, int(round(2.0 / self.s)))
+        disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk)
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4, ltype=cv2.CV_32S)
+        min_area = cfg.min_area_frac * w * h
+        b = max(1, int(round(2.0 / self.s)))
+        track_boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
+        found: list[tuple[int, tuple[int, int, int, int], int, bool]] = []
+        for i in range(1, n):
+            area = int(stats[i, cv2.CC_STAT_AREA])
+            if area < min_area:
+                continue
+            bx, by, bw, bh = (int(v) for v in stats[i, :4])
+            box = (bx, by, bx + bw - 1, by + bh - 1)
+            if track_boxes:
+                comp = lab[by : by + bh, bx : bx + bw] == i
+                covered = np.zeros_like(comp)
+                for tb in track_boxes:
+                    a0, b0 = max(tb[0] - bx, 0), max(tb[1] - by, 0)
+                    a1, b1 = min(tb[2] - bx + 1, bw), min(tb[3] - by + 1, bh)
+                    if a1 > a0 and b1 > b0:
+                        covered[b0:b1, a0:a1] = True
+                if np.count_nonzero(comp & covered) > 0.5 * area:
+                    continue
+            border = bx < b or by < b or bx + bw > w - b or by + bh > h - b
+            found.append((area, box, i, border))
+        cands: list[_Candidate] = []
+        best: tuple[int, int, _Candidate] | None = None
+        for area, box, i, border in found:
+            prev = [c for c in self._candidates if _overlap(c.box, box)]
+            if prev:
+                c = _Candidate(box, max(p.seen for p in prev) + 1)
+            elif border:
+                c = _Candidate(box, 1)
+            else:
+                continue
+            cands.append(c)
+            if c.seen >= cfg.n_init and (best is None or area > best[0]):
+                best = (area, i, c)
+        self._candidates = cands
+        if best is None:
+            return None
+        _, i, c = best
+        self._candidates = [x for x in cands if x is not c]
+        return self._initial_state(lab == i, depth)
+
+    def _initial_state(self, comp: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
+        """Palm box (working resolution) of a border-entering component: its pixels within L_hand of its far end."""
+        h, w = comp.shape
+        ys, xs = np.nonzero(comp)
+        b = max(1, int(round(2.0 / self.s)))
+        edge = (xs < b) | (ys < b) | (xs >= w - b) | (ys >= h - b)
+        e = np.array([xs[edge].mean(), ys[edge].mean()]) if edge.any() else np.array([xs.mean(), ys.mean()])
+        d = np.hypot(xs - e[0], ys - e[1])
+        z = 0.75
+        if depth is not None:
+            dmap = np.asarray(depth)
+            dz = dmap[np.minimum(ys * self.s, dmap.shape[0] - 1), np.minimum(xs * self.s, dmap.shape[1] - 1)]
+            dz = dz[np.isfinite(dz) & (dz > 0)]
+            if len(dz):
+                z = float(np.median(dz))
+        assert self.full_size is not None
+        focal = self.focal if self.focal else 0.82 * self.full_size[0]
+        l_hand = focal / self.s * self.config.hand_length_m / z
+        sel = d >= d.max() - l_hand if d.max() > l_hand else np.ones(len(d), bool)
+        u0, u1, v0, v1 = xs[sel].min(), xs[sel].max(), ys[sel].min(), ys[sel].max()
+        return np.array([(u0 + u1) / 2.0, (v0 + v1) / 2.0, float(u1 - u0), float(v1 - v0), 0.0, 0.0])
+
+
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    return min(a[2], b[2]) >= max(a[0], b[0]) and min(a[3], b[3]) >= max(a[1], b[1])
