@@ -27,8 +27,37 @@ def register(subparsers) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override an assembly parameter for every session (m_p, m_q_deg, yaw_tolerance_deg, K, "
                    "N_max, N_checks, N_break, break_factor); repeatable")
+    p.add_argument("--seeds", default=None, help="hands experiments: comma-separated simulator seeds (default: the "
+                   "held-out 100,101,102 for 'hands', 100 for 'hands-particles'; report only seeds >= 100)")
+    p.add_argument("--runs", type=int, default=5, help="hands experiments: runs per particle-filter configuration (5)")
+    p.add_argument("--frames", type=int, default=None, help="hands experiments: frames per sequence (default: all)")
     p.add_argument("--list", action="store_true", help="list the experiments and exit")
     p.set_defaults(func=run)
+
+
+HAND_EXPERIMENTS = {
+    "hands": "hand tracking Experiment 1: particle filter (5 runs) vs Kalman reference vs CamShift on S1-S3, plus "
+             "automatic track start (e_p, F_b, F_c, runtime, plots)",
+    "hands-particles": "hand tracking Experiment 2: particle count N_s in 10..150, 5 runs each, metrics and runtime",
+}
+
+
+def run_hands(args: argparse.Namespace) -> int:
+    from tracker.evaluation.hands import experiment_1, experiment_2
+
+    default = "100,101,102" if args.experiment == "hands" else "100"
+    try:
+        seeds = tuple(int(s) for s in (args.seeds or default).split(",") if s.strip())
+    except ValueError:
+        raise ValueError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
+    if not seeds or args.runs < 1:
+        raise ValueError("give at least one seed and --runs >= 1")
+    if args.experiment == "hands":
+        summary = experiment_1(args.out, seeds=seeds, runs=args.runs, n_frames=args.frames)
+    else:
+        summary = experiment_2(args.out, seeds=seeds, runs=args.runs, n_frames=args.frames)
+    print(f"wrote {args.out}: {', '.join(k for k in summary if not k.startswith('_'))}")
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -37,11 +66,15 @@ def run(args: argparse.Namespace) -> int:
     if args.list:
         for e in EXPERIMENTS.values():
             print(f"{e.name:16s} {e.description}")
+        for name, desc in HAND_EXPERIMENTS.items():
+            print(f"{name:16s} {desc}")
         return 0
     if not args.experiment:
         raise ValueError("name an experiment (see --list)")
     if not args.out:
         raise ValueError("--out DIR is required")
+    if args.experiment in HAND_EXPERIMENTS:
+        return run_hands(args)
     overrides = {}
     for item in args.set:
         key, sep, value = item.partition("=")
