@@ -39,6 +39,12 @@ class WorkerStatus(BaseModel):
     errors: list[ErrorEntry]
 
 
+class StorageStatus(BaseModel):
+    path: str = Field(description="the SQLite file")
+    read_only: bool = Field(description="served read-only (damaged or unwritable at start): changes get 503")
+    problem: str | None = Field(description="what is wrong with the database, or null when it works")
+
+
 class Status(BaseModel):
     """``GET /api/status``."""
 
@@ -51,6 +57,7 @@ class Status(BaseModel):
     session_id: int | None
     worker: WorkerStatus
     instruction: str
+    storage: StorageStatus
 
 
 class SourceInfo(BaseModel):

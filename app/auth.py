@@ -14,7 +14,7 @@ import secrets
 import threading
 import time
 
-from app.storage import Storage
+from app.storage import Storage, StorageError
 
 _SCRYPT = {"n": 2**14, "r": 8, "p": 1, "dklen": 32}
 SECRET_KEY = "teacher_password"
@@ -67,17 +67,28 @@ class TeacherAuth:
         self.storage = storage
         self._tokens: dict[str, float] = {}
         self._lock = threading.Lock()
+        self._memory_hash: str | None = None  # the environment's password when the database is read-only
         if env_password:
             problem = password_problem(env_password)
             if problem is not None:
                 raise ValueError(f"the teacher password from ASSEMBLY_AGENT_TEACHER_PASSWORD is too weak: {problem}")
-            stored = storage.get_secret(SECRET_KEY)
+            try:
+                stored = storage.get_secret(SECRET_KEY)
+            except StorageError:
+                stored = None
             if stored is None or not verify_password(env_password, stored):
-                storage.set_secret(SECRET_KEY, hash_password(env_password))
+                hashed = hash_password(env_password)
+                try:
+                    storage.set_secret(SECRET_KEY, hashed)
+                except StorageError:  # a read-only database: the password holds for this run
+                    self._memory_hash = hashed
+
+    def _stored_hash(self) -> str | None:
+        return self._memory_hash or self.storage.get_secret(SECRET_KEY)
 
     @property
     def is_configured(self) -> bool:
-        return self.storage.get_secret(SECRET_KEY) is not None
+        return self._stored_hash() is not None
 
     def setup(self, password: str) -> None:
         """Set the first password; refused once one exists."""
@@ -90,7 +101,7 @@ class TeacherAuth:
             self.storage.set_secret(SECRET_KEY, hash_password(password))
 
     def check_password(self, password: str | None) -> bool:
-        stored = self.storage.get_secret(SECRET_KEY)
+        stored = self._stored_hash()
         return bool(password) and stored is not None and verify_password(password, stored)
 
     def login(self, password: str) -> str | None:

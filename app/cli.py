@@ -7,7 +7,7 @@ import importlib
 import logging
 import sys
 
-COMMAND_MODULES = ("serve", "simulate", "record", "inspect", "track", "odometry", "hands", "evaluate", "demo")
+COMMAND_MODULES = ("serve", "simulate", "record", "inspect", "track", "odometry", "hands", "evaluate", "demo", "db")
 """Subcommand modules under ``app.commands``, in the order ``--help`` lists them."""
 
 

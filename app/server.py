@@ -9,6 +9,7 @@ so HTTP handling never waits for a frame to be processed.
 from __future__ import annotations
 
 import contextlib
+import logging
 from collections.abc import Callable
 from typing import Any
 
@@ -22,9 +23,12 @@ from app.routes import auth, modes, pages, parts, sessions, sources, status, tas
 from app.routes.deps import api_limit
 from app.settings import Settings
 from app.state import WEB_DIR, AppState, open_source_spec, version
+from app.storage import StorageError
 from tracker.sources.base import FrameSource
 
 __all__ = ["AppState", "create_app", "open_source_spec"]
+
+log = logging.getLogger(__name__)
 
 API_ROUTERS = (status, sources, modes, sessions, parts, auth, tasks)
 """Router modules of ``/api``, each with a ``router`` for one resource (requests count against ``api_rate``)."""
@@ -61,6 +65,12 @@ async def validation_error(_request: Request, exc: RequestValidationError) -> JS
     return JSONResponse({"detail": detail}, status_code=422)
 
 
+async def storage_error(_request: Request, exc: StorageError) -> JSONResponse:
+    """503 with the storage's message (it names the file and what to do); the change was not applied."""
+    log.error("%s", exc)
+    return JSONResponse({"detail": f"{exc} (nothing was changed)"}, status_code=503)
+
+
 def create_app(settings: Settings | None = None, open_source: Callable[[str], FrameSource] | None = None) -> FastAPI:
     """The web application. ``open_source(spec)`` replaces the source registry (tests use it)."""
     settings = settings or Settings()
@@ -83,6 +93,7 @@ def create_app(settings: Settings | None = None, open_source: Callable[[str], Fr
     )
     app.state.assembly = state
     app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(StorageError, storage_error)
     app.mount("/static", StaticFiles(directory=WEB_DIR / "static"), name="static")
     for module in API_ROUTERS:
         app.include_router(module.router, dependencies=[Depends(api_limit)])

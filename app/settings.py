@@ -82,6 +82,11 @@ class Settings(BaseSettings):
         default_factory=lambda: ["data"],
         description="folders whose recordings POST /api/sources may open (the --source of the command line is free)",
     )
+    on_damaged_database: Literal["refuse", "read-only"] = Field(
+        "refuse",
+        description="a damaged or unwritable database at start: refuse to start (naming the file) or serve it "
+        "read-only (changes get 503; the reason shows in /api/status and the panel)",
+    )
     max_body_bytes: int = Field(256 * 1024, ge=1024, description="largest request body; larger ones get 413")
     api_rate: float = Field(100.0, gt=0, description="API requests per second per client (average)")
     api_burst: int = Field(200, ge=1, description="API requests per client at once")

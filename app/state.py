@@ -20,7 +20,7 @@ from app import api_models as m
 from app.auth import TeacherAuth
 from app.limits import Limits
 from app.settings import Settings
-from app.storage import Storage
+from app.storage import Storage, StorageError
 from app.validation import check_preset_id, teacher_task_id
 from app.worker import PipelineWorker
 from tracker.assembly import SentenceTask
@@ -83,7 +83,7 @@ class AppState:
 
     def __init__(self, settings: Settings, open_source: Callable[[str], FrameSource] | None = None) -> None:
         self.settings = settings
-        self.storage = Storage(settings.database_path())
+        self.storage = Storage(settings.database_path(), on_damaged=settings.on_damaged_database)
         self.auth = TeacherAuth(self.storage, settings.teacher_password)
         self.source_spec = settings.source_spec()
         self.mode = settings.mode
@@ -239,15 +239,32 @@ class AppState:
         return ColorDetector(ranges) if ranges else None
 
     # -------------------------------------------------------------- sessions
-    def start_session(self) -> None:
+    def start_session(
+        self, apply: Callable[[], None] | None = None, source: str | None = None, mode_task: tuple | None = None
+    ) -> None:
+        """End the current session and start a new one in one database transaction, recorded with ``source`` and
+        ``mode_task`` = (mode, task) (default: those in force); only once it committed, run ``apply()`` (the change
+        that starts the session). A storage error (:class:`app.storage.StorageError`) leaves everything as it was.
+        A read-only database records no session."""
+        mode, task = mode_task if mode_task is not None else (self.mode, self.task)
         with self._lock:
-            self.end_session()
-            self.session_id = self.storage.start_session(self.source_spec, self.mode, self.task)
+            new_id = None
+            if not self.storage.read_only:
+                new_id = self.storage.switch_session(
+                    self.session_id, self.session_frames(), source or self.source_spec, mode, task
+                )
+            if apply is not None:
+                apply()
+            self.session_id = new_id
             self._session_frames0 = self.worker.frames_processed
 
     def end_session(self) -> None:
+        """Record the end of the current session (a storage error is logged: the server is stopping)."""
         if self.session_id is not None:
-            self.storage.end_session(self.session_id, self.worker.frames_processed - self._session_frames0)
+            try:
+                self.storage.end_session(self.session_id, self.session_frames())
+            except StorageError as exc:
+                log.error("%s", exc)
             self.session_id = None
 
     def session_frames(self) -> int:
@@ -267,7 +284,10 @@ class AppState:
                 self.worker.report("scene", f"viser scene unavailable: {exc}")
         if s.autostart:
             self.worker.start()
-            self.start_session()
+            try:
+                self.start_session()
+            except StorageError as exc:  # the stream runs without a recorded session; /api/status says why
+                log.error("%s", exc)
 
     def shutdown(self) -> None:
         self.end_session()

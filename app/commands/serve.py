@@ -74,6 +74,11 @@ def register(subparsers) -> None:
         metavar="DIR",
         help="a folder whose recordings the panel/API may open (repeatable; default: data)",
     )
+    p.add_argument(
+        "--on-damaged-database",
+        choices=["refuse", "read-only"],
+        help="a damaged or unwritable database at start: refuse to start (default) or serve it read-only",
+    )
     p.set_defaults(func=run)
 
 
@@ -142,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
             "allowed_hosts": args.allowed_hosts,
             "allowed_origins": args.allowed_origins,
             "recording_dirs": args.recording_dirs,
+            "on_damaged_database": args.on_damaged_database,
         }.items()
         if v is not None
     }

@@ -13,6 +13,7 @@ from app import api_models as m
 from app.mode_choices import misfit, mode_choices, scenario_parts, suggestion
 from app.routes.deps import Learner, State, on_worker, require_teacher
 from app.state import AppState
+from app.storage import StorageError
 from tracker.pipeline import DEFAULT_TASKS
 
 log = logging.getLogger(__name__)
@@ -30,7 +31,12 @@ def task_refs(state: AppState) -> list[m.TaskRef]:
             refs.append(m.TaskRef(id=p["id"], title=p["title"], mode=p["mode"], origin="preset"))
     except Exception as exc:  # noqa: BLE001 - a broken preset must not hide the teacher tasks
         log.warning("task presets: %s", exc)
-    for rec in state.storage.list_tasks():
+    try:
+        stored = state.storage.list_tasks()
+    except StorageError as exc:  # the presets still work; /api/status says what is wrong with the database
+        log.warning("teacher tasks unavailable: %s", exc)
+        stored = []
+    for rec in stored:
         data = rec["data"]
         refs.append(
             m.TaskRef(
@@ -95,12 +101,16 @@ def select_mode(
         if why is not None:
             raise HTTPException(422, f"cannot run {task_id} on {body.source}: {why}; "
                                 f"{suggestion(body.mode, task_id, task_obj)}")
-        state.mode, state.task, state.source_spec = body.mode, body.task, body.source
-        state.user_poses.clear()
-        state.calibrations.clear()
-        state.worker.reset()
-        state.worker.start()
-        state.start_session()
+
+        def switch() -> None:
+            state.mode, state.task, state.source_spec = body.mode, body.task, body.source
+            state.user_poses.clear()
+            state.calibrations.clear()
+            state.worker.reset()
+            state.worker.start()
+
+        # the new session is stored first: a storage error (503) changes nothing
+        state.start_session(switch, source=body.source, mode_task=(body.mode, body.task))
         return modes(state)
     why = misfit(task_obj, current_parts(state))
     if why is not None:

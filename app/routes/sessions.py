@@ -10,6 +10,7 @@ from starlette.requests import HTTPConnection
 from app import api_models as m
 from app.routes.deps import Learner, State, require_teacher
 from app.state import AppState
+from app.storage import StorageError
 
 router = APIRouter(tags=["sessions"])
 
@@ -44,15 +45,22 @@ def session_action(
     session, so it needs the teacher."""
     w = state.worker
     if body.action == "start":
-        w.start()
-        if state.session_id is None:
-            state.start_session()
+        if state.session_id is None and not state.storage.read_only:
+            state.start_session(w.start)
+        else:
+            w.start()
     elif body.action == "pause":
         w.pause()
     else:
         require_teacher(conn, state, x_teacher_password, authorization)
-        state.user_poses.clear()
-        w.reset()
-        w.start()
-        state.start_session()
-    return session_list(state)
+
+        def reset() -> None:
+            state.user_poses.clear()
+            w.reset()
+            w.start()
+
+        state.start_session(reset)  # the new session is stored first: a storage error changes nothing
+    try:
+        return session_list(state)
+    except StorageError:  # the action is done; only the list cannot be read (/api/status tells why)
+        return m.SessionsResponse(current=state.session_id, sessions=[])

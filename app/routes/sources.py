@@ -24,7 +24,12 @@ def sources(state: State) -> m.SourcesResponse:
     "/api/sources",
     response_model=m.SourcesResponse,
     dependencies=[Teacher],
-    responses={401: {"model": m.Message}, 403: {"model": m.Message}, 422: {"model": m.Message}},
+    responses={
+        401: {"model": m.Message},
+        403: {"model": m.Message},
+        422: {"model": m.Message},
+        503: {"model": m.Message},
+    },
 )
 def select_source(body: m.SourceSelect, state: State, settings: SettingsDep) -> m.SourcesResponse:
     """Switch the frame source (the teacher's control); the worker reopens and a new session starts.
@@ -36,9 +41,12 @@ def select_source(body: m.SourceSelect, state: State, settings: SettingsDep) -> 
         spec = check_source_spec(body.source, scenarios, settings.recording_dirs)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from exc
-    state.source_spec = spec
-    state.user_poses.clear()
-    state.calibrations.clear()  # colour ranges belong to the old camera and light
-    state.worker.reset()
-    state.start_session()
+
+    def switch() -> None:
+        state.source_spec = spec
+        state.user_poses.clear()
+        state.calibrations.clear()  # colour ranges belong to the old camera and light
+        state.worker.reset()
+
+    state.start_session(switch, source=spec)  # the new session is stored first: a storage error changes nothing
     return sources(state)

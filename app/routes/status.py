@@ -25,6 +25,7 @@ def status(state: State) -> m.Status:
         session_id=state.session_id,
         worker=m.WorkerStatus(**state.worker.status()),
         instruction=snap.instruction if snap else "",
+        storage=m.StorageStatus(**state.storage.status()),
     )
 
 

@@ -53,6 +53,9 @@ async function refreshStatus() {
       refreshSources().catch(() => {});
     }
     $("worker-state").textContent = s.worker.state;
+    const db = s.storage || {};
+    $("storage-message").textContent = db.problem ? `Storage: ${db.problem}` : "";
+    $("storage-message").classList.toggle("hidden", !db.problem);
     state.parts = s.parts;
     const sel = $("box-part");
     const current = sel.value;
