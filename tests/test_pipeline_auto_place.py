@@ -156,5 +156,5 @@ def test_auto_place_endpoint(client):
     assert r.status_code == 422 and "not a known field" in r.json()["detail"][0]["msg"]
     r = client.post("/api/parts/auto-place", content=b"{not json", headers={"Content-Type": "application/json"})
     assert r.status_code == 422
-    assert client.get("/api/status").json()["worker"]["state"] == "running"
+    assert client.get("/api/status").json()["worker"]["state"] in ("running", "starting")  # 200 frames: it loops
     assert "/api/parts/auto-place" in client.get("/openapi.json").json()["paths"]
