@@ -222,6 +222,11 @@ class TrackerConfig(BaseModel):
         0.35, ge=0.0, le=1.0, description="Share of visible model points that must find a valid depth pair for the "
         "refinement to count as healthy (else the filter's estimate is kept).",
     )
+    reacquire: bool = Field(
+        True, description="Re-acquire a part (several refinements from rotations around its estimate, the best "
+        "supported by the depth wins) when it is lost, right after a hand releases it and when it reappears; needs "
+        "dense_refinement.",
+    )
     loss_bad_frames: int = Field(
         3, ge=1, description="Frames in a row without a healthy refinement, while the part should be visible, after "
         "which it is re-acquired from several starting rotations (tracker/refine/recovery.py).",

@@ -129,7 +129,7 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         supported = res if corrections[i] is not None else None
         need = trk._loss.update(i, supported, visible[i] and not carried[i], bool(released[i]))
         beyond = res is not None and corrections[i] is None and res.reason.startswith("correction beyond")
-        if (need or beyond) and trk._cooldown[i] == 0 and visible[i] and active[i]:
+        if trk.config.reacquire and (need or beyond) and trk._cooldown[i] == 0 and visible[i] and active[i]:
             starts = CUBE_STARTS if trk.parts[i].box is not None else MESH_STARTS
             corr = reacquire(trk._refiner, depth, i, poses[i][0], poses[i][1], allowed[i], starts)
             trk._cooldown[i] = trk.config.reacquire_cooldown

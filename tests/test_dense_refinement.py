@@ -1,0 +1,189 @@
+"""Dense-depth refinement (tracker/refine): surface rendering, Gauss-Newton on depth, the multi-part refiner,
+loss detection and re-acquisition, on synthetic depth with exact ground truth (seeded, no ../shared needed)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from tracker.geometry.box_renderer import render_box_depth
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.pose import Pose
+from tracker.geometry.symmetry import cube_group, symmetric_rotation_error
+from tracker.refine.dense_depth import RefineResult, RefineSettings, refine_pose
+from tracker.refine.part_refiner import PartRefiner
+from tracker.refine.recovery import CUBE_STARTS, LossMonitor, reacquire
+from tracker.refine.surface_render import render_surfaces
+
+INTR = Intrinsics(320, 240, 300.0, 300.0, 159.5, 119.5)
+EDGE = 0.036
+HALF = np.full(3, EDGE / 2)
+SHAPE = ("box", np.zeros(3), HALF)
+CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float) * HALF
+
+
+def cube_pose(yaw_deg: float = 20.0, t=(0.01, 0.0, 0.45)) -> Pose:
+    """A cube seen from above at an angle (three faces visible)."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_euler("xyz", [35.0, yaw_deg, 10.0], degrees=True).as_matrix()
+    return Pose.from_rt(R, np.array(t, float))
+
+
+def depth_of(poses: list[Pose], noise: float = 0.0, seed: int = 0) -> np.ndarray:
+    d = render_box_depth(INTR, poses, [(EDGE, EDGE, EDGE)] * len(poses)).astype(np.float64)
+    d[~np.isfinite(d)] = np.nan
+    if noise:
+        d += np.random.default_rng(seed).normal(0.0, noise, d.shape)
+    return d.astype(np.float32)
+
+
+def perturb(pose: Pose, dt_mm: float, dr_deg: float, seed: int = 1) -> Pose:
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    dR = Pose.from_rotvec(axis * np.radians(dr_deg), np.zeros(3)).R
+    shift = rng.normal(size=3)
+    shift *= dt_mm / 1000.0 / np.linalg.norm(shift)
+    return Pose.from_rt(dR @ pose.R, pose.t + shift)
+
+
+def model_points(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    render = render_surfaces(INTR, [SHAPE], [(pose.R, pose.t)], (0, 0, INTR.width, INTR.height), 1)
+    pts, nrm = render.points_of(0, INTR)
+    return (pts - pose.t) @ pose.R, nrm @ pose.R
+
+
+def errors(est_R, est_t, truth: Pose) -> tuple[float, float]:
+    return (float(np.linalg.norm(est_t - truth.t)) * 1000.0,
+            float(np.degrees(symmetric_rotation_error(est_R, truth.R, cube_group()))))
+
+
+def test_box_surface_render_matches_the_reference_depth_renderer():
+    pose = cube_pose()
+    render = render_surfaces(INTR, [SHAPE], [(pose.R, pose.t)], (0, 0, INTR.width, INTR.height), 1)
+    ref = render_box_depth(INTR, [pose], [(EDGE, EDGE, EDGE)])
+    hit = np.isfinite(render.depth)
+    assert np.array_equal(hit, np.isfinite(ref))
+    assert np.max(np.abs(render.depth[hit] - ref[hit])) < 1e-6
+    # normals are unit, face the camera and are one of the cube's face normals
+    pts, nrm = render.points_of(0, INTR)
+    assert np.allclose(np.linalg.norm(nrm, axis=1), 1.0)
+    assert np.all(np.einsum("ij,ij->i", nrm, pts) < 0)
+    body = nrm @ pose.R
+    assert np.allclose(np.abs(body).max(axis=1), 1.0, atol=1e-9)
+
+
+def test_mesh_surface_render_matches_the_box_render():
+    pose = cube_pose(yaw_deg=-15.0)
+    mesh = trimesh.creation.box(extents=(EDGE, EDGE, EDGE))
+    shape = ("mesh", np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64))
+    rect = (0, 0, INTR.width, INTR.height)
+    a = render_surfaces(INTR, [SHAPE], [(pose.R, pose.t)], rect, 1)
+    b = render_surfaces(INTR, [shape], [(pose.R, pose.t)], rect, 1)
+    both = np.isfinite(a.depth) & np.isfinite(b.depth)
+    # same silhouette up to pixels exactly on an edge
+    assert np.count_nonzero(np.isfinite(a.depth) ^ np.isfinite(b.depth)) <= 0.02 * np.count_nonzero(both)
+    assert np.max(np.abs(a.depth[both] - b.depth[both])) < 1e-5
+    agree = np.einsum("ijk,ijk->ij", a.normal, b.normal)[both]
+    assert np.mean(agree > 0.999) > 0.97
+
+
+@pytest.mark.parametrize("dt_mm, dr_deg", [(4.0, 3.0), (8.0, 8.0)])
+def test_refinement_recovers_a_perturbed_pose(dt_mm, dr_deg):
+    truth = cube_pose()
+    depth = depth_of([truth], noise=0.0005, seed=3)
+    start = perturb(truth, dt_mm, dr_deg)
+    pts, nrm = model_points(start)
+    res = refine_pose(depth, INTR, pts, nrm, start.R, start.t, np.zeros(3))
+    assert res.healthy and res.valid_fraction > 0.8
+    t_err, r_err = errors(res.R, res.t, truth)
+    t0, r0 = errors(start.R, start.t, truth)
+    assert t_err < 0.6 and r_err < 0.5, (t_err, r_err)
+    assert t_err < t0 / 5 and r_err < r0 / 5
+
+
+def test_refinement_ignores_an_occluder_in_front():
+    truth = cube_pose()
+    depth = depth_of([truth])
+    hit = np.isfinite(depth)
+    vs, us = np.nonzero(hit)
+    cover = hit & (np.arange(INTR.width)[None, :] < np.median(us))  # a "hand" 6 cm in front of the left half
+    depth[cover] -= 0.06
+    start = perturb(truth, 4.0, 3.0, seed=5)
+    pts, nrm = model_points(start)
+    res = refine_pose(depth, INTR, pts, nrm, start.R, start.t, np.zeros(3))
+    t_err, r_err = errors(res.R, res.t, truth)
+    assert res.healthy and t_err < 1.0 and r_err < 1.0, (t_err, r_err)
+    assert res.valid_fraction < 0.75  # the occluded half did not vote
+
+
+def test_refinement_without_depth_is_not_healthy_and_keeps_the_pose():
+    start = cube_pose()
+    pts, nrm = model_points(start)
+    empty = np.full((INTR.height, INTR.width), np.nan, np.float32)
+    res = refine_pose(empty, INTR, pts, nrm, start.R, start.t, np.zeros(3))
+    assert not res.healthy and res.n_valid == 0
+    assert np.allclose(res.R, start.R) and np.allclose(res.t, start.t)
+    # an allowed-pixel mask that excludes the part has the same effect
+    depth = depth_of([start])
+    none = np.zeros(depth.shape, bool)
+    res = refine_pose(depth, INTR, pts, nrm, start.R, start.t, np.zeros(3), allowed=none)
+    assert not res.healthy
+
+
+def test_part_refiner_gives_each_pixel_to_the_nearest_part():
+    front = cube_pose(t=(0.0, 0.0, 0.40))
+    back = cube_pose(yaw_deg=40.0, t=(0.02, 0.005, 0.44))  # partly behind the front cube
+    depth = depth_of([front, back], noise=0.0003)
+    refiner = PartRefiner(INTR, [SHAPE, SHAPE], [np.zeros(3)] * 2, [CORNERS] * 2, RefineSettings(), stride=1)
+    starts = [perturb(front, 3.0, 2.0, seed=7), perturb(back, 3.0, 2.0, seed=8)]
+    corr = refiner.refine(depth, [(p.R, p.t) for p in starts], [True, True])
+    assert all(c is not None for c in corr)
+    for c, truth in zip(corr, (front, back), strict=True):
+        t_err, r_err = errors(c.R, c.t, truth)
+        assert t_err < 1.0 and r_err < 1.0, (t_err, r_err)
+    # the correction moves particles rigidly: a particle at the start pose lands on the refined pose
+    p, R = corr[0].apply_to(starts[0].t[None], starts[0].R[None])
+    assert np.allclose(p[0], corr[0].t, atol=1e-9) and np.allclose(R[0], corr[0].R, atol=1e-9)
+
+
+def test_part_refiner_rejects_corrections_beyond_its_bounds():
+    truth = cube_pose()
+    depth = depth_of([truth])
+    start = perturb(truth, 6.0, 2.0, seed=9)
+    refiner = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=1, max_translation=0.002)
+    corr = refiner.refine(depth, [(start.R, start.t)], [True])
+    assert corr[0] is None
+    assert refiner.last[0] is not None and "beyond" in refiner.last[0].reason
+
+
+def test_reacquire_finds_a_cube_turned_far_beyond_the_refinement_basin():
+    truth = cube_pose()
+    depth = depth_of([truth], noise=0.0005, seed=11)
+    start = perturb(truth, 3.0, 50.0, seed=13)
+    refiner = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=1)
+    plain = refiner.refine_one(depth, 0, start.R, start.t)
+    corr = reacquire(refiner, depth, 0, start.R, start.t, None, CUBE_STARTS)
+    assert corr is not None
+    t_err, r_err = errors(corr.R, corr.t, truth)
+    assert t_err < 1.0 and r_err < 1.0, (t_err, r_err)
+    # the plain refinement from the far start ends in a wrong local minimum that the depth supports less
+    assert errors(plain.R, plain.t, truth)[1] > 10.0
+    assert corr.result.score > plain.score + 100
+
+
+def test_loss_monitor_counts_bad_frames_and_rechecks_after_release_and_reappearance():
+    good = RefineResult(np.eye(3), np.zeros(3), True, 100, 90, 0.9, 0.001)
+    mon = LossMonitor(2, bad_frames=3)
+    assert not mon.update(0, good, True, False)
+    assert not mon.update(0, None, True, False)
+    assert not mon.update(0, None, True, False)
+    assert mon.update(0, None, True, False)  # third bad frame in a row while it should be visible
+    mon.reset(0)
+    assert not mon.update(0, good, True, False)
+    assert mon.update(0, good, True, True)  # released by the hand: always re-checked
+    assert not mon.update(1, None, False, False)  # hidden: not lost
+    assert mon.update(1, good, True, False)  # reappeared: re-checked
+    assert not mon.update(1, good, True, False)
