@@ -165,13 +165,13 @@ def test_reacquire_finds_a_cube_turned_far_beyond_the_refinement_basin():
     start = perturb(truth, 3.0, 50.0, seed=13)
     refiner = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=1)
     plain = refiner.refine_one(depth, 0, start.R, start.t)
-    corr = reacquire(refiner, depth, 0, start.R, start.t, None, CUBE_STARTS)
-    assert corr is not None
-    t_err, r_err = errors(corr.R, corr.t, truth)
+    res = reacquire(refiner, depth, 0, start.R, start.t, None, CUBE_STARTS)
+    assert res is not None and res.healthy
+    t_err, r_err = errors(res.R, res.t, truth)
     assert t_err < 1.0 and r_err < 1.0, (t_err, r_err)
     # the plain refinement from the far start ends in a wrong local minimum that the depth supports less
     assert errors(plain.R, plain.t, truth)[1] > 10.0
-    assert corr.result.score > plain.score + 100
+    assert res.score > plain.score + 100
 
 
 def test_loss_monitor_counts_bad_frames_and_rechecks_after_release_and_reappearance():

@@ -179,15 +179,8 @@ def reseed(trk, obj: int, det, depth: np.ndarray) -> bool:
     mask = blob_mask(trk, det, depth.shape)
     if mask is None:
         return False
-    vals = depth[mask]
-    vals = vals[np.isfinite(vals) & (vals > 0)]
     est = trk.estimates[trk.names[obj]]
-    if vals.size >= max(5, 0.2 * mask.sum()):
-        zc = float(np.median(vals)) + surface_fallback(trk, obj)
-    else:  # no valid depth on the blob (sensor shadow next to a hand): keep the estimate's depth
-        zc = float((est.R @ trk.center[obj] + est.t)[2])
-    ray = pixel_rays(trk.intrinsics, np.array([float(det.center[0])]), np.array([float(det.center[1])]))[0]
-    target = ray * zc - est.R @ trk.center[obj]  # body origin whose box centre lies on the ray
+    target = blob_target(trk, obj, det, depth, mask)
     n = trk.p.shape[0]
     m = int(round(cfg.reseed_fraction * n))
     if m <= 0:
@@ -198,3 +191,20 @@ def reseed(trk, obj: int, det, depth: np.ndarray) -> bool:
     trk.estimates[trk.names[obj]] = Pose.from_rt(est.R, target)
     trk.n_reseeded += 1
     return True
+
+
+def blob_target(trk: MultiObjectTracker, obj: int, det, depth: np.ndarray,
+                mask: np.ndarray | None = None) -> np.ndarray:
+    """Body origin (camera frame, m) that puts part ``obj``'s centre on the ray of its blob's centroid, at the blob's
+    median depth plus half the part's smallest extent (without enough valid depth on the blob, e.g. in the sensor's
+    shadow next to a hand: at the estimate's depth); the estimate's orientation is kept."""
+    mask = blob_mask(trk, det, depth.shape) if mask is None else mask
+    est = trk.estimates[trk.names[obj]]
+    vals = depth[mask] if mask is not None else np.zeros(0)
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    if mask is not None and vals.size >= max(5, 0.2 * mask.sum()):
+        zc = float(np.median(vals)) + surface_fallback(trk, obj)
+    else:
+        zc = float((est.R @ trk.center[obj] + est.t)[2])
+    ray = pixel_rays(trk.intrinsics, np.array([float(det.center[0])]), np.array([float(det.center[1])]))[0]
+    return ray * zc - est.R @ trk.center[obj]

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from tracker.refine.dense_depth import RefineResult
-from tracker.refine.part_refiner import Correction, PartRefiner
+from tracker.refine.part_refiner import PartRefiner
 
 
 def fibonacci_axes(n: int) -> np.ndarray:
@@ -78,20 +78,19 @@ class LossMonitor:
 
 
 def reacquire(refiner: PartRefiner, depth: np.ndarray, obj: int, R: np.ndarray, t: np.ndarray,
-              allowed: np.ndarray | None, starts: np.ndarray, margin: float = 10.0) -> Correction | None:
+              allowed: np.ndarray | None, starts: np.ndarray, margin: float = 10.0) -> RefineResult | None:
     """Best-supported refinement of part ``obj`` over the starting rotations ``starts`` (about its centre, applied
-    to the current ``(R, t)``); None unless its score beats the current pose's refined score by ``margin``."""
+    to ``(R, t)``): the refinement from ``(R, t)`` itself unless another start's score beats it by ``margin``; None
+    when no start gives a healthy refinement."""
     R = np.asarray(R, np.float64)
     t = np.asarray(t, np.float64)
     c = R @ refiner.centers[obj] + t
     current = refiner.refine_one(depth, obj, R, t, allowed)
-    best, best_score = None, current.score if current.healthy else -np.inf
+    best, best_score = (current, current.score) if current.healthy else (None, -np.inf)
     for S in starts[1:]:
         Rs = S @ R
         ts = c - Rs @ refiner.centers[obj]
         res = refiner.refine_one(depth, obj, Rs, ts, allowed)
         if res.healthy and res.score > best_score + margin:
             best, best_score = res, res.score
-    if best is None:
-        return refiner.correction(R, t, current) if current.healthy else None
-    return refiner.correction(R, t, best)
+    return best

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tracker.filter.colour_input import blob_mask
+from tracker.filter.colour_input import blob_mask, blob_target, surface_depth
 from tracker.filter.frame_context import table_normal_offset
 from tracker.filter.penalties import intersection_flags
 from tracker.geometry.pose import Pose
@@ -129,13 +129,25 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         supported = res if corrections[i] is not None else None
         need = trk._loss.update(i, supported, visible[i] and not carried[i], bool(released[i]))
         beyond = res is not None and corrections[i] is None and res.reason.startswith("correction beyond")
-        if trk.config.reacquire and (need or beyond) and trk._cooldown[i] == 0 and visible[i] and active[i]:
+        start = poses[i]
+        if visible[i] and allowed[i] is not None:
+            det = detections.get(trk.names[i])
+            if not np.isfinite(surface_depth(trk, i, det.center)):
+                # the part's blob lies off its estimate: start from the blob (its centroid's ray, its median depth)
+                need = True
+                start = (poses[i][0], blob_target(trk, i, det, depth))
+        if trk.config.reacquire and (need or beyond) and trk._cooldown[i] == 0 and visible[i]:
             starts = CUBE_STARTS if trk.parts[i].box is not None else MESH_STARTS
-            corr = reacquire(trk._refiner, depth, i, poses[i][0], poses[i][1], allowed[i], starts)
+            res = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts)
+            if start is not poses[i]:  # the estimate itself stays a candidate (a hand may bias the blob's centroid)
+                here = trk._refiner.refine_one(depth, i, poses[i][0], poses[i][1], allowed[i])
+                if here.healthy and (res is None or here.score >= res.score):
+                    res = here
             trk._cooldown[i] = trk.config.reacquire_cooldown
             trk.n_reacquired += 1
-            if corr is not None:
-                corrections[i] = corr
+            if res is not None:
+                corrections[i] = trk._refiner.correction(poses[i][0], poses[i][1], res)
+                trk.v[:, i] = 0.0
                 trk._loss.reset(i)
     for i, corr in enumerate(corrections):
         if corr is None:
