@@ -51,6 +51,9 @@ class RefineSettings:
     """Fewer valid pairs than this: the refinement is not healthy."""
     min_valid_fraction: float = 0.35
     """A smaller share of model points with a valid, unoccluded pair: not healthy."""
+    min_observed_fraction: float = 0.7
+    """Or healthy when at least this share of the observable model points (valid depth, allowed pixel, nothing in
+    front) matched, and at least twice ``min_points`` did: a part partly hidden by a hand."""
     max_points: int = 700
     """Model points used per part (evenly thinned when there are more)."""
     stop_step: float = 1e-6
@@ -112,7 +115,7 @@ def refine_pose(
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     prior = np.diag([cfg.lambda_rot] * 3 + [cfg.lambda_trans] * 3)
     info = np.zeros((6, 6))
-    n_valid, med = 0, float("nan")
+    n_valid, n_observable, med = 0, 0, float("nan")
     if m_total < cfg.min_points:
         return RefineResult(R, t, False, m_total, 0, 0.0, med, info, "too few visible model points")
     for thr in cfg.thresholds:
@@ -131,6 +134,7 @@ def refine_pose(
             if allowed is not None:
                 ok &= allowed[vc, uc]
             ok &= d >= z - cfg.occlusion_m
+            n_observable = int(ok.sum())  # depth there, the part may claim the pixel, nothing in front
             d = np.where(ok, d, 0.0)
             q = np.stack([(uc - cx) / fx * d, (vc - cy) / fy * d, d], axis=1)
             diff = x - q
@@ -160,7 +164,9 @@ def refine_pose(
                 break
     n_behind = _count_behind(depth, intrinsics, pts @ R.T + t, cfg.thresholds[-1] * 2.0)
     frac = n_valid / m_total
-    healthy = frac >= cfg.min_valid_fraction
+    # supported: enough of the model matched, or (partly hidden by a hand or another part) most of what can be seen
+    healthy = frac >= cfg.min_valid_fraction or (
+        n_valid >= 2 * cfg.min_points and n_valid >= cfg.min_observed_fraction * max(n_observable, 1))
     return RefineResult(R, t, healthy, m_total, n_valid, frac, med, info,
                         "" if healthy else f"only {frac:.0%} of the visible model points matched the depth", n_behind)
 
