@@ -503,11 +503,21 @@ class AssemblyPipeline:
         return out
 
     def process(self, frame: Frame, wall_time: float | None = None) -> Snapshot:
-        """Run every stage on ``frame``; ``wall_time`` is its capture time, ``time.time()`` (default: now)."""
+        """Run every stage on ``frame``; ``wall_time`` is its capture time, ``time.time()`` (default: now).
+
+        perceive (table plane, colour detections, automatic placement) → estimate (the tracker) → monitor (the
+        assembly mode) → snapshot. A stage that fails is reported in ``Snapshot.errors``; the frame goes on."""
         wall = time.time() if wall_time is None else float(wall_time)
         errors: list[str] = list(self._setup_errors)
         timings: dict[str, float] = {}
+        detections = self._perceive(frame, errors, timings)
+        particles = self._estimate(frame, detections, errors, timings)
+        mode_state = self._monitor(frame, errors, timings)
+        self._count_fps()
+        return self._snapshot(frame, wall, detections, particles, mode_state, errors, timings)
 
+    def _perceive(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> dict:
+        """Table plane (found, re-checked), colour detections and, when on, automatic placement of missing parts."""
         t0 = time.perf_counter()
         try:
             self._update_table(frame, errors)
@@ -532,7 +542,11 @@ class AssemblyPipeline:
                 log.exception("automatic placement failed on frame %s", frame.index)
                 errors.append(f"auto-place: {type(exc).__name__}: {exc}")
             timings["auto_place"] = time.perf_counter() - t0
+        return detections
 
+    def _estimate(self, frame: Frame, detections: dict, errors: list[str],
+                  timings: dict[str, float]) -> dict[str, np.ndarray]:
+        """One tracker step with the mode's connection hints; updates ``self.poses``; returns the particle clouds."""
         t0, c0 = time.perf_counter(), time.thread_time()
         particles: dict[str, np.ndarray] = {}
         if self.tracker is not None and self.poses:
@@ -554,7 +568,10 @@ class AssemblyPipeline:
             self.carried = []
         timings["tracker"] = time.perf_counter() - t0
         timings["tracker_cpu"] = time.thread_time() - c0  # this thread's CPU time (wall time minus waiting for a core)
+        return particles
 
+    def _monitor(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> dict[str, Any]:
+        """The assembly mode's update on the current poses (needs the table plane); its state as a JSON-able dict."""
         t0 = time.perf_counter()
         mode_state: dict[str, Any] = {}
         if self.mode is not None:
@@ -568,8 +585,11 @@ class AssemblyPipeline:
                     log.exception("mode failed on frame %s", frame.index)
                     errors.append(f"mode: {type(exc).__name__}: {exc}")
         timings["mode"] = time.perf_counter() - t0
+        return mode_state
 
-        done = time.time()  # processed-frame rate: from the ends of processing (capture times may be uneven)
+    def _count_fps(self) -> None:
+        """Processed-frame rate from the ends of processing (capture times may be uneven)."""
+        done = time.time()
         if self._last_wall is not None:
             dt = done - self._last_wall
             if dt > 0:
@@ -577,6 +597,8 @@ class AssemblyPipeline:
                 self._fps = inst if self._fps == 0.0 else 0.9 * self._fps + 0.1 * inst
         self._last_wall = done
 
+    def _snapshot(self, frame: Frame, wall: float, detections: dict, particles: dict[str, np.ndarray],
+                  mode_state: dict[str, Any], errors: list[str], timings: dict[str, float]) -> Snapshot:
         table = None
         if self.table is not None:
             table = {
