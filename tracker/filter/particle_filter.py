@@ -155,6 +155,7 @@ class MultiObjectTracker:
         self._icp_last: list[tuple | None] = [None] * k  # (refined pose, blob centre, blob area, times reused)
         self._radius = [p.bounding_radius() if p.box is not None else float(np.linalg.norm(self.half[i]))
                         for i, p in enumerate(parts)]
+        self._lattice = np.ones(k, np.int64)  # per part, the grid lattice its likelihood pixels were thinned to
         self._refiner = refine_stage.make_refiner(self) if self.config.dense_refinement else None
         self._initialized = False
         self._store: dict[str, np.ndarray] = {}

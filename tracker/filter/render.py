@@ -30,7 +30,7 @@ def render(trk: MultiObjectTracker, obj, p, R, particles, rays, pu, pv, gi, gj, 
     else:
         render_mesh_at_pixels(R, p, mesh.vertices, mesh.faces, obj, particles, gi, gj, subset,
                               float(trk.config.downsample), float(trk._off), intr.fx, intr.fy, intr.cx,
-                              intr.cy, D, loc, dirty)
+                              intr.cy, D, loc, dirty, int(trk._lattice[obj]))
 
 
 def bbox(trk, obj, p, R) -> tuple[float, float, float, float]:
@@ -78,11 +78,17 @@ def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
         # a part that covers many grid pixels (a large mesh, a part close to the camera) is evaluated on an even
         # subset of at most ``budget`` of them: the likelihood's cost stays bounded, the refinement after the
         # filter restores the precision
+        # subset is a coarser lattice of the grid (every c-th pixel in each axis), so that a mesh part can be
+        # rasterised on that lattice only
         keep = np.zeros(z.size, bool)
         for i in range(k):
-            idx = np.nonzero(regions[i] & valid)[0]
-            step = -(-idx.size // budget)
-            keep[idx[::step] if step > 1 else idx] = True
+            sel = regions[i] & valid
+            count = int(np.count_nonzero(sel))
+            c = max(int(np.ceil(np.sqrt(count / budget))), 1) if count > budget else 1
+            if c > 1:
+                sel &= (trk._gi % c == 0) & (trk._gj % c == 0)
+            trk._lattice[i] = c
+            keep |= sel
     else:
         keep = regions.any(axis=0) & valid
     pix = np.nonzero(keep)[0].astype(np.int64)

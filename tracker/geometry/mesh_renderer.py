@@ -54,7 +54,7 @@ class MeshModel:
 
 @nb.njit(cache=True)
 def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset, f, off, fx, fy, cx, cy, out, loc,
-                          dirty):
+                          dirty, lattice=1):
     """Render mesh ``obj`` for the listed particles at the listed pixels into ``out[j, loc[obj, i]]``.
 
     * ``R`` (N, K, 3, 3), ``t`` (N, K, 3): body→camera poses; ``vertices`` (V, 3), ``faces`` (F, 3).
@@ -62,6 +62,8 @@ def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset,
     * ``f``/``off``: downsampling factor and offset of the grid (full-res u = off + f·gi).
     * ``out`` (N, M) depth columns, ``loc`` (K, P) column of part k at pixel i or −1 (see the box renderer).
     * ``dirty`` (N, P) uint8: set to 1 where a written depth differs from the previous one.
+    * ``lattice``: rasterise only every ``lattice``-th grid pixel in each axis (a pixel off that lattice reads the
+      nearest lattice pixel's depth); for large parts whose evaluated pixels were thinned to that lattice.
     """
     if subset.shape[0] == 0:
         return
@@ -75,6 +77,12 @@ def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset,
         i1 = max(i1, gi[i])
         j0 = min(j0, gj[i])
         j1 = max(j1, gj[i])
+    lat = max(lattice, 1)
+    half_lat = lat // 2
+    i0 = (i0 + half_lat) // lat
+    i1 = (i1 + half_lat) // lat
+    j0 = (j0 + half_lat) // lat
+    j1 = (j1 + half_lat) // lat
     w = i1 - i0 + 1
     h = j1 - j0 + 1
     zbuf = np.empty((h, w), np.float64)
@@ -93,8 +101,8 @@ def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset,
             if Z < 1e-3:
                 Z = 1e-3
             # grid coordinates
-            sx[a] = ((fx * X / Z + cx) - off) / f
-            sy[a] = ((fy * Y / Z + cy) - off) / f
+            sx[a] = ((fx * X / Z + cx) - off) / (f * lat)
+            sy[a] = ((fy * Y / Z + cy) - off) / (f * lat)
             iz[a] = 1.0 / Z
         for fi in range(faces.shape[0]):
             a = faces[fi, 0]
@@ -129,7 +137,7 @@ def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset,
             col = loc[obj, i]
             if col < 0:
                 continue
-            d = zbuf[gj[i] - j0, gi[i] - i0]
+            d = zbuf[(gj[i] + half_lat) // lat - j0, (gi[i] + half_lat) // lat - i0]
             if out[p, col] != d:
                 out[p, col] = d
                 dirty[p, i] = 1
