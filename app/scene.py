@@ -23,10 +23,14 @@ from tracker.snapshot import Snapshot
 
 log = logging.getLogger(__name__)
 
-DEPTH_POINTS = 6000
-"""About this many depth pixels (a regular subsample) make the point cloud."""
-MAX_PARTICLES_SHOWN = 400
+DEPTH_POINTS = 3000
+"""About this many depth pixels (a regular subsample) make the point cloud (viser's native points)."""
+DEPTH_EVERY = 3
+"""The depth cloud is refreshed on every this-many scene updates (the table hardly changes)."""
+MAX_PARTICLES_SHOWN = 100
 """Particles per part sent to the browser (a random but fixed subset)."""
+SCENE_HZ = 10.0
+"""Scene updates per second at most: a browser drawing the scene in software (no GPU) keeps up."""
 
 
 def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
@@ -149,7 +153,7 @@ class Scene:
                 cam_in_table = Pose.from_dict(snap.table["table_to_camera"]).inverse()
                 self.camera_node.wxyz = _wxyz(cam_in_table.q)
                 self.camera_node.position = cam_in_table.t
-            if frame is not None and frame.depth is not None and self._frames % 3 == 1:
+            if frame is not None and frame.depth is not None and self._frames % DEPTH_EVERY == 1:
                 h, w = frame.depth.shape
                 k = max(1, int(round(np.sqrt(h * w / DEPTH_POINTS))))
                 d = frame.depth[::k, ::k]
@@ -203,7 +207,7 @@ class Scene:
 class SceneUpdater:
     """Feeds the newest snapshot of a worker to a :class:`Scene` from its own thread, at most ``max_hz``."""
 
-    def __init__(self, scene: Scene, worker, max_hz: float = 20.0) -> None:
+    def __init__(self, scene: Scene, worker, max_hz: float = SCENE_HZ) -> None:
         self.scene = scene
         self.worker = worker
         self.max_hz = max_hz

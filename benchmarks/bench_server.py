@@ -183,19 +183,91 @@ def run_case(name: str, realtime: bool, seconds: float, particles: int | None, d
     }
 
 
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync"]
+COUNT_PANEL_FRAMES = """() => { window.__panelFrames = 0; const el = document.getElementById('frame-index');
+  new MutationObserver(() => { window.__panelFrames += 1; }).observe(el, {childList: true, characterData: true,
+  subtree: true}); }"""
+
+
+def run_browser_case(name: str, scene: bool, seconds: float, particles: int | None, db: Path) -> dict:
+    """The server (realtime, viser scene on) with headless Chromium showing the panel, with the embedded 3D
+    scene (``scene``) or without it (``?scene=off``, the baseline): frames the panel shows per second (changes
+    of its frame number, counted in the page) and frames the server processes per second."""
+    from playwright.sync_api import sync_playwright
+
+    port, viser_port = free_port(), free_port()
+    cmd = [sys.executable, "-m", "app.cli", "serve", "--port", str(port), "--viser-port", str(viser_port),
+           "--database", str(db), "--source", "sim:guidance-demo", "--mode", "guidance"]
+    if particles:
+        cmd += ["--particles", str(particles)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    base = f"http://127.0.0.1:{port}"
+    chromium = os.environ.get("CHROMIUM_PATH") or "/usr/bin/chromium"
+    try:
+        t0 = time.time()
+        while True:
+            if proc.poll() is not None:
+                raise RuntimeError(f"server exited: {proc.stderr.read()[-2000:]}")
+            try:
+                if (httpx.get(f"{base}/api/status", timeout=2).json()["worker"]["frames_processed"] or 0) >= 10:
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.time() - t0 > 120:
+                raise RuntimeError("server did not start processing within 120 s")
+            time.sleep(0.2)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(base + ("/" if scene else "/?scene=off"))
+            page.wait_for_function("() => /^\\d+$/.test(document.getElementById('frame-index').textContent)",
+                                   timeout=60_000)
+            if scene:  # the 3D scene has connected and drawn
+                page.frame_locator("#viser-frame").locator("canvas").first.wait_for(timeout=60_000)
+            page.wait_for_timeout(3000)  # warm-up: the scene's first geometry
+            page.evaluate(COUNT_PANEL_FRAMES)
+            st0, cpu0, w0 = httpx.get(f"{base}/api/status").json()["worker"], cpu_seconds(proc.pid), time.time()
+            page.wait_for_timeout(seconds * 1000)
+            shown = page.evaluate("window.__panelFrames")
+            st1, cpu1, w1 = httpx.get(f"{base}/api/status").json()["worker"], cpu_seconds(proc.pid), time.time()
+            browser.close()
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    return {
+        "case": name,
+        "scene": scene,
+        "seconds": round(w1 - w0, 2),
+        "panel_fps": round(shown / (w1 - w0), 2),
+        "processed_fps": round((st1["frames_processed"] - st0["frames_processed"]) / (w1 - w0), 2),
+        "server_cpu_percent": round(100.0 * (cpu1 - cpu0) / (w1 - w0), 1),
+    }
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--particles", type=int, default=None, help="tracker particle count (default: the server's)")
     ap.add_argument("--no-jpeg", dest="jpeg", action="store_false", help="websocket only, no colour image fetches")
     ap.add_argument("--note", default="", help="a sentence appended to the markdown (e.g. earlier figures)")
+    ap.add_argument("--browser-only", action="store_true",
+                    help="only the server + headless browser runs (the other runs' figures are kept from server.json)")
     args = ap.parse_args()
     RESULTS.mkdir(parents=True, exist_ok=True)
     db = Path("/tmp") / f"bench-server-{os.getpid()}.sqlite3"
     mach = machine()
-    cases = [
+    earlier = RESULTS / "server.json"
+    cases = json.loads(earlier.read_text()).get("cases", []) if args.browser_only and earlier.exists() else [
         run_case("unpaced", False, args.seconds, args.particles, db, args.jpeg),
         run_case("realtime-30fps", True, args.seconds, args.particles, db, args.jpeg),
+    ]
+    browser_cases = [
+        run_browser_case("panel without 3-D scene (baseline)", False, args.seconds, args.particles, db),
+        run_browser_case("panel with 3-D scene", True, args.seconds, args.particles, db),
     ]
     db.unlink(missing_ok=True)
     result = {
@@ -205,7 +277,8 @@ def main() -> int:
         "particles": args.particles or f"{SERVER_PARTICLES} (server default)",
         "client": "websocket + colour image at ≤ 15 Hz" if args.jpeg else "websocket only",
         "cases": cases,
-        "targets": {"processed_fps": 25, "latency_ms_median": 100},
+        "browser_cases": browser_cases,
+        "targets": {"processed_fps": 25, "latency_ms_median": 100, "panel_fps": 25},
     }
     (RESULTS / "server.json").write_text(json.dumps(result, indent=2) + "\n")
     m = result["machine"]
@@ -237,6 +310,21 @@ def main() -> int:
             f"Median time per stage (ms, {c['case']} run): "
             + ", ".join(f"{k} {v}" for k, v in c["stage_ms_median"].items()),
         ]
+    base_fps = browser_cases[0]["panel_fps"]
+    lines += [
+        "",
+        "Server and a headless Chromium (Debian's, software WebGL) on the same machine, the panel open at 1280×800"
+        " (realtime source, viser scene on in the server): frames the panel shows per second (its frame number"
+        " changes, counted in the page) and frames the server processes; the baseline is the same panel without"
+        " the embedded 3-D scene (`?scene=off`).",
+        "",
+        "| run | panel fps (target ≥ 25) | ratio to the baseline | server processed fps | server CPU |",
+        "|---|---|---|---|---|",
+    ]
+    for c in browser_cases:
+        ratio = c["panel_fps"] / base_fps if base_fps else float("nan")
+        lines.append(f"| {c['case']} | {c['panel_fps']} | {ratio:.2f} | {c['processed_fps']} | "
+                     f"{c['server_cpu_percent']} % |")
     if args.note:
         lines += ["", args.note]
     lines.append("")

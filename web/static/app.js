@@ -392,7 +392,7 @@ function drawLabels(ctx, labels, w, h) {
 // it is (X-Frame-Index) and the panel is rendered from that frame's snapshot (kept among the recent ones).
 function refreshImage() {
   const now = performance.now();
-  if (state.imgBusy || now - state.lastImg < 66 || !state.newest) return;
+  if (state.imgBusy || now - state.lastImg < 30 || !state.newest) return;
   if (state.snap && state.snap.frame_index === state.newest.frame_index && state.snap.round === state.newest.round) return;
   state.imgBusy = true;
   state.lastImg = now;
