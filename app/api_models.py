@@ -160,6 +160,23 @@ class BoxList(BaseModel):
     boxes: list[BoxResponse]
 
 
+class IdenticalBox(BaseModel):
+    """``POST /api/identical-parts``: a box drawn around one of several parts of the same colour."""
+
+    colour: str = Field(min_length=1, max_length=40, description="the parts' colour (a part name or preset colour)")
+    x: float = Field(ge=0)
+    y: float = Field(ge=0)
+    w: float = Field(gt=0)
+    h: float = Field(gt=0)
+
+
+class IdenticalParts(BaseModel):
+    """The identical parts tracked in the image (their boxes per frame are in each snapshot's identical_parts)."""
+
+    colour: str | None
+    parts: list[str]
+
+
 class CalibrationInfo(BaseModel):
     part: str
     frame_index: int | None = Field(None, description="the frame whose pixels the range was learnt from")
@@ -216,6 +233,9 @@ class SnapshotModel(BaseModel):
     errors: list[str]
     carried: list[str] = Field([], description="parts currently hidden inside a hand and moved with it")
     image_size: list[int]
+    identical_parts: dict[str, dict[str, Any]] = Field(
+        {}, description="{name: {bbox [x,y,w,h], center, score, seen}}: same-colour parts told apart in the image"
+    )
 
 
 class TaskRecord(BaseModel):

@@ -107,6 +107,10 @@ class AppState:
         self.boxes: list[m.BoxResponse] = []
         self.user_poses: dict[str, Any] = {}  # parts placed by drawn boxes: kept when a source loops or reconnects
         self.calibrations: list[Calibration] = []  # colour ranges learnt from boxes: kept like user_poses
+        from app.identical_parts import IdenticalParts
+
+        self.identical = IdenticalParts()  # same-colour parts told apart in the image (Algorithm 2)
+        self.worker.frame_hooks.append(self.identical.on_frame)
         self.round = 0  # pipelines built so far: each opening of the source (a loop, a reset, a switch) is a round
         self._session_frames0 = 0
         self._lock = threading.Lock()

@@ -313,6 +313,9 @@ class PipelineWorker:
             queue.Queue()
         )
         self._listeners: list[Callable[[Snapshot], None]] = []
+        self.frame_hooks: list[Callable[[Snapshot, Frame], None]] = []
+        """``hook(snapshot, frame)`` runs on the worker thread after each frame, before the snapshot is published
+        (it may add to the snapshot, e.g. identical parts told apart in the image)."""
         self._lock = threading.Lock()
         self._jpeg_cache: tuple[int, int, bytes] | None = None
         self._json_cache: tuple[int, str] | None = None
@@ -568,6 +571,8 @@ class PipelineWorker:
                 snap.timings["source"] = read_s  # producing the frame (overlapped with the previous frame)
                 snap.timings["wait"] = waited  # from the end of the frame's production to the start of its processing
                 snap.timings["starved"] = self._reader.starved_s  # the worker waited this long for the frame
+                for hook in self.frame_hooks:
+                    hook(snap, frame)
             except Exception as exc:  # noqa: BLE001 - the frame is skipped, the worker goes on
                 self.frames_skipped += 1
                 self.report("frame", f"frame {getattr(frame, 'index', '?')} skipped: {type(exc).__name__}: {exc}")

@@ -271,3 +271,31 @@ def test_drawn_box_survives_source_reopen(tmp_path):
                 break
             time.sleep(0.05)
         assert c.get("/api/snapshot").json()["poses"] == {}
+
+
+class TwoRedCubes(SyntheticTable):
+    """The synthetic table with a second red square where the green one was: two identical parts."""
+
+    def __init__(self):
+        super().__init__(n_frames=100_000)
+        h, w = self.color.shape[:2]
+        self.color[h // 2 : h // 2 + 10, w // 2 : w // 2 + 10] = (210, 30, 35)
+
+
+def test_identical_parts_keep_their_names(tmp_path):
+    with app_client(tmp_path, lambda spec: TwoRedCubes(), source="synthetic:", max_fps=100) as c:
+        wait_frames(c, 2)
+        assert c.get("/api/identical-parts").json() == {"colour": None, "parts": []}
+        r = c.post("/api/identical-parts", json={"colour": "red", "x": 100, "y": 20, "w": 20, "h": 20})
+        assert r.status_code == 422 and "no part in the box" in r.json()["detail"]  # bare table
+        assert c.post("/api/identical-parts", json={"colour": "red", "x": 38, "y": 58, "w": 14, "h": 14}).json()[
+            "parts"] == ["red #1"]
+        r = c.post("/api/identical-parts", json={"colour": "red", "x": 78, "y": 58, "w": 14, "h": 14})
+        assert r.json() == {"colour": "red", "parts": ["red #1", "red #2"]}
+        n = wait_frames(c, 0)["worker"]["frame_index"]
+        wait_frames(c, n + 3)
+        parts = c.get("/api/snapshot").json()["identical_parts"]
+        assert set(parts) == {"red #1", "red #2"} and all(p["seen"] for p in parts.values())
+        # each keeps its own square: #1 the left one (x 40..49), #2 the right one (x 80..89)
+        assert 40 <= parts["red #1"]["center"][0] <= 50 and 80 <= parts["red #2"]["center"][0] <= 90
+        assert c.delete("/api/identical-parts").json()["parts"] == []

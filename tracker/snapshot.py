@@ -45,6 +45,8 @@ class Snapshot:
     * ``source``: the source's metadata; ``errors``: messages about this frame (a stage that failed, a part
       automatic placement has not found yet).
     * ``carried``: names of the parts currently hidden inside a hand and moved with it (``[]`` when none).
+    * ``identical_parts``: parts of one colour told apart in the image from user-drawn boxes (the web app's
+      :mod:`app.identical_parts`): per name ``{"bbox": [x, y, w, h], "center", "score", "seen"}``.
     """
 
     frame_index: int
@@ -65,6 +67,7 @@ class Snapshot:
     errors: list[str] = field(default_factory=list)
     carried: list[str] = field(default_factory=list)
     image_size: tuple[int, int] = (0, 0)
+    identical_parts: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def to_dict(self, include_particles: bool = False) -> dict[str, Any]:
         """A JSON-able dictionary (particle clouds only when ``include_particles``)."""
@@ -86,6 +89,7 @@ class Snapshot:
             "errors": list(self.errors),
             "carried": [str(n) for n in self.carried],
             "image_size": list(self.image_size),
+            "identical_parts": self.identical_parts,
         }
         if include_particles:
             d["particles"] = {name: np.asarray(p, np.float32).round(4).tolist() for name, p in self.particles.items()}

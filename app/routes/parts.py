@@ -10,7 +10,8 @@ from app import api_models as m
 from app.routes.deps import Learner, State, on_worker
 from app.state import AppState, Calibration
 from tracker.perception.box_checks import check_calibration, check_track_box, raised_share
-from tracker.perception.color_detection import calibrate_range
+from tracker.perception.color_detection import calibrate_range, clean_mask
+from tracker.perception.hsv_range import preset_range
 from tracker.pipeline import AssemblyPipeline
 
 router = APIRouter(tags=["stream"])
@@ -140,3 +141,49 @@ def auto_place(state: State, body: m.AutoPlaceRequest | None = None) -> m.AutoPl
 
     results, index = on_worker(state, apply)
     return m.AutoPlaceResponse(frame_index=index, results={k: m.AutoPlaceResult(**v) for k, v in results.items()})
+
+
+def identical_list(state: AppState) -> m.IdenticalParts:
+    return m.IdenticalParts(colour=state.identical.colour, parts=state.identical.names())
+
+
+@router.get("/api/identical-parts", response_model=m.IdenticalParts)
+def identical_parts(state: State) -> m.IdenticalParts:
+    """Parts of one colour told apart in the image (Algorithm 2); their boxes are in every snapshot."""
+    return identical_list(state)
+
+
+@router.post(
+    "/api/identical-parts",
+    response_model=m.IdenticalParts,
+    responses={409: {"model": m.Message}, 422: {"model": m.Message}},
+)
+def add_identical_part(body: m.IdenticalBox, state: State) -> m.IdenticalParts:
+    """One box per part of the same colour (``red #1``, ``red #2``, …, in drawing order); each keeps its name
+    through contacts and short occlusions. A box with none of that colour in it is refused; another colour
+    starts a new set."""
+    rect = (body.x, body.y, body.w, body.h)
+
+    def apply(pipeline: AssemblyPipeline | None, frame):
+        if pipeline is None or frame is None:
+            raise LookupError("no frame processed yet")
+        ranges = dict(getattr(pipeline.detector, "ranges", {}) or {})
+        rng = ranges.get(body.colour)
+        if rng is None:
+            try:
+                rng = preset_range(body.colour)
+            except ValueError as exc:
+                raise ValueError(f"colour {body.colour!r}: name a part or a preset colour") from exc
+        mask = clean_mask(rng.mask(cv2.cvtColor(frame.color, cv2.COLOR_RGB2HSV)))
+        check_track_box({body.colour: mask}, rect, None)
+        return state.identical.add(body.colour, rng, rect)
+
+    on_worker(state, apply)
+    return identical_list(state)
+
+
+@router.delete("/api/identical-parts", response_model=m.IdenticalParts)
+def clear_identical_parts(state: State) -> m.IdenticalParts:
+    """Stop telling identical parts apart."""
+    state.identical.clear()
+    return identical_list(state)

@@ -271,6 +271,7 @@ function renderSnapshot(s) {
     setList($("cube-words"), wItems, "");
   }
   renderParts(s);
+  renderIdentical(s);
   const errs = (s.errors || []).map((e) => el("li", e));
   if (errs.length) setList($("error-list"), errs, "none");
   drawOverlay();
@@ -354,6 +355,14 @@ function drawOverlay() {
         ctx.strokeRect(b[0] * sx, b[1] * sy, (b[2] - b[0]) * sx, (b[3] - b[1]) * sy);
         labels.push([name, b[0] * sx, b[1] * sy, b[3] * sy]);
       }
+      for (const [name, p] of Object.entries(s.identical_parts || {})) {
+        if (!p.bbox) continue;
+        ctx.setLineDash(p.seen ? [] : [3, 3]);
+        ctx.strokeStyle = PART_COLORS[name.split(" #")[0]] || "#fff";
+        ctx.lineWidth = 2;
+        ctx.strokeRect(p.bbox[0] * sx, p.bbox[1] * sy, p.bbox[2] * sx, p.bbox[3] * sy);
+        labels.push([name, p.bbox[0] * sx, p.bbox[1] * sy, (p.bbox[1] + p.bbox[3]) * sy]);
+      }
       drawLabels(ctx, labels, w, h);
     }
   }
@@ -381,7 +390,7 @@ function drawLabels(ctx, labels, w, h) {
     taken.push(r);
     ctx.fillStyle = "rgba(20, 20, 20, 0.75)";
     ctx.fillRect(r.x, r.y, r.w, r.h);
-    ctx.fillStyle = PART_COLORS[name] || "#fff";
+    ctx.fillStyle = PART_COLORS[name.split(" #")[0]] || "#fff";
     ctx.fillRect(r.x + 3, r.y + 4, 7, 7);
     ctx.fillStyle = "#fff";
     ctx.fillText(name, r.x + 13, r.y + r.h / 2 + 1);
@@ -448,6 +457,7 @@ window.addEventListener("mouseup", async () => {
   };
   state.lastBox = { x: d.x, y: d.y, w: d.w, h: d.h };
   drawOverlay();
+  if (body.action === "identical") { addIdentical(body); return; }
   showMessage("box-message", "sending box…");
   try {
     const r = await api("/api/boxes", { method: "POST", body: JSON.stringify(body) });
@@ -460,6 +470,46 @@ window.addEventListener("mouseup", async () => {
   }
   refreshCalibrations();
 });
+
+// Identical parts: one box per part of the chosen colour; the server tells them apart in every frame.
+async function addIdentical(body) {
+  if (!body.part) {
+    state.lastBox = null;
+    drawOverlay();
+    showMessage("box-message", "choose the identical parts' colour in the part list first", true);
+    return;
+  }
+  try {
+    const r = await api("/api/identical-parts", {
+      method: "POST", body: JSON.stringify({ colour: body.part, x: body.x, y: body.y, w: body.w, h: body.h }),
+    });
+    showMessage("box-message", `telling apart ${r.parts.join(", ")}`);
+  } catch (e) {
+    showMessage("box-message", `box refused: ${e.message}`, true);
+  }
+  state.lastBox = null;
+  drawOverlay();
+}
+
+$("btn-clear-identical").addEventListener("click", async () => {
+  try {
+    await api("/api/identical-parts", { method: "DELETE" });
+    showMessage("box-message", "identical parts no longer told apart");
+  } catch (e) {
+    showMessage("box-message", e.message, true);
+  }
+});
+
+function renderIdentical(s) {
+  const parts = Object.entries(s.identical_parts || {});
+  $("identical-box").classList.toggle("hidden", parts.length === 0);
+  const items = parts.map(([name, p]) => {
+    const li = el("li", `${name}: ${p.seen ? "seen" : "hidden (box grows where it was)"}`);
+    li.dataset.part = name;
+    return li;
+  });
+  setList($("identical-list"), items, "");
+}
 
 // The colour calibrations in force: "Undo calibration" restores the range before the newest one.
 async function refreshCalibrations() {
