@@ -7,7 +7,7 @@ import socket
 import numpy as np
 import pytest
 
-from app.scene import Scene, ghost_target, word_labels
+from app.scene import MAX_PARTICLES_SHOWN, Scene, ghost_target, word_labels
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
 from tracker.snapshot import Snapshot
@@ -53,7 +53,7 @@ def test_update_moves_handles_in_place(scene):
     assert np.allclose(red_node.position, [0.05, 0.0, 0.8]) and red_node.visible
     assert not scene.part_nodes["blue"].visible  # no pose yet
     cloud = scene.particle_nodes["red"].points
-    assert cloud.dtype == np.float32 and len(cloud) == 400  # a fixed subsample of the particles
+    assert cloud.dtype == np.float32 and len(cloud) == MAX_PARTICLES_SHOWN < 1000  # a fixed subsample of the particles
     assert scene.label_nodes["red"].text == "gusta" and scene.label_nodes["red"].visible
     assert np.allclose(scene.camera_node.position, [0.0, -0.1, -0.8])  # camera seen from the table frame
     assert not scene.ghost.visible
