@@ -51,3 +51,14 @@ def test_learning_session_on_groundtruth_verdicts_and_no_false_completion():
     r = run_session(spec, poses="groundtruth", frame_step=2)
     assert r.verdicts_correct and r.false_completions == 0  # the swapped-word twin mode never completes
     assert len(r.detected_events) == 3
+
+
+def test_evaluate_takes_simulator_seeds(tmp_path, capsys):
+    out = tmp_path / "ev"
+    assert main(["evaluate", "guess", "--out", str(out), "--sessions", "1", "--poses", "groundtruth",
+                 "--seeds", "105"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["seeds"] == [105] and summary["sessions"] == 1
+    assert summary["connections_total"] == 4  # the same structure (guess-1, T-tower), another random build
+    assert main(["evaluate", "guess", "--out", str(out), "--seeds", "1-x"]) == 1
+    assert "1-x" in capsys.readouterr().err

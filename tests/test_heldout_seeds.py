@@ -60,3 +60,16 @@ def test_bench_heldout_design_covers_every_pair_and_refuses_tuning_seeds(capsys)
     assert "tuning seeds" in capsys.readouterr().err
     assert bench_heldout.main(["--dev", "--seeds", "100", "--no-write"]) == 2
     assert "development" in capsys.readouterr().err
+
+
+def test_tracker_benchmarks_refuse_tuning_seeds_unless_dev(capsys):
+    from benchmarks import bench_moving_camera, bench_tracker
+
+    assert bench_tracker.main(["--seed", "0", "--no-write"]) == 2
+    assert "tuning seeds" in capsys.readouterr().err
+    assert bench_tracker.main(["--seeds", "1,2", "--no-write"]) == 2
+    assert "tuning seeds" in capsys.readouterr().err
+    assert bench_moving_camera.main(["--seed", "3", "--no-write"]) == 2
+    assert "tuning seeds" in capsys.readouterr().err
+    assert bench_moving_camera.main(["--dev", "--seed", "100", "--no-write"]) == 2
+    assert "development" in capsys.readouterr().err

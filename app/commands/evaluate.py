@@ -27,8 +27,11 @@ def register(subparsers) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override an assembly parameter for every session (m_p, m_q_deg, yaw_tolerance_deg, K, "
                    "N_max, N_checks, N_break, break_factor); repeatable")
-    p.add_argument("--seeds", default=None, help="hands experiments: comma-separated simulator seeds (default: the "
-                   "held-out 100,101,102 for 'hands', 100 for 'hands-particles'; report only seeds >= 100)")
+    p.add_argument("--seeds", default=None, help="simulator seeds, e.g. 100-115 or 100,105. Hands experiments: the "
+                   "seeds to run (default: the held-out 100,101,102 for 'hands', 100 for 'hands-particles'); the "
+                   "others: they replace the sessions' own seeds (session k takes the k-th, cycling; default: each "
+                   "session's built-in seed, >= 1011). Seeds 0-4 are for tuning only; report only seeds >= 100")
+    p.add_argument("--seed", type=int, default=None, help="one simulator seed (= --seeds S)")
     p.add_argument("--runs", type=int, default=5, help="hands experiments: runs per particle-filter configuration (5)")
     p.add_argument("--frames", type=int, default=None, help="hands experiments: frames per sequence (default: all)")
     p.add_argument("--list", action="store_true", help="list the experiments and exit")
@@ -42,14 +45,26 @@ HAND_EXPERIMENTS = {
 }
 
 
+def _seeds(args: argparse.Namespace) -> list[int] | None:
+    """The seeds of ``--seeds``/``--seed`` (None when neither is given); a note on stdout for tuning seeds."""
+    from tracker.evaluation.seeds import TUNING_SEEDS, parse_seeds
+
+    if args.seed is not None and args.seeds is not None:
+        raise ValueError("give --seed or --seeds, not both")
+    if args.seeds is None and args.seed is None:
+        return None
+    seeds = parse_seeds(args.seeds if args.seeds is not None else str(args.seed))
+    tuning = [s for s in seeds if s in TUNING_SEEDS]
+    if tuning:
+        print(f"note: seeds {tuning} are tuning seeds; do not report these figures (held-out seeds are >= 100)")
+    return seeds
+
+
 def run_hands(args: argparse.Namespace) -> int:
     from tracker.evaluation.hands import experiment_1, experiment_2
 
     default = "100,101,102" if args.experiment == "hands" else "100"
-    try:
-        seeds = tuple(int(s) for s in (args.seeds or default).split(",") if s.strip())
-    except ValueError:
-        raise ValueError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
+    seeds = tuple(_seeds(args) or [int(x) for x in default.split(",")])
     if not seeds or args.runs < 1:
         raise ValueError("give at least one seed and --runs >= 1")
     if args.experiment == "hands":
@@ -84,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
             overrides[key.strip()] = float(value)
         except ValueError:
             raise ValueError(f"--set {key}: value must be a number, got {value!r}") from None
+    seeds = _seeds(args)
     poses = args.poses or ("tracked" if tracked_available() else "groundtruth")
     from tqdm import tqdm
 
@@ -101,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         summary = run_experiment(args.experiment, args.out, sessions=args.sessions, poses=poses,
                                  frame_step=args.frame_step, n_particles=args.particles, progress=bar.write,
                                  tracker_preset=args.tracker_preset, hints=not args.no_hints, overrides=overrides,
-                                 on_frame=on_frame)
+                                 on_frame=on_frame, seeds=seeds)
     keys = ("sessions", "sessions_in_experiment",
             "connections_total", "connections_within_1s", "connections_never", "false_completions",
             "guess_correct", "sentences_correct", "mean_deviation_s")

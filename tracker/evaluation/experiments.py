@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from tracker.evaluation.machine_info import machine_info
@@ -80,11 +80,14 @@ def _ran(n: int, n_all: int) -> str:
 def run_experiment(name: str, out: str | Path, sessions: int | None = None, poses: str = "groundtruth",
                    frame_step: int = 1, n_particles: int | None = None, progress=None,
                    tracker_preset: str = "default", hints: bool = True, overrides: dict | None = None,
-                   on_frame=None) -> dict:
+                   on_frame=None, seeds: list[int] | None = None) -> dict:
     """Run experiment ``name``, write its report into ``out`` and return the summary (also summary.json).
 
     ``progress(text)``: one line per finished session; ``on_frame(i, n)``: after each frame ``i`` of a session's
-    ``n`` (a progress bar). The report says how many of the experiment's sessions were run."""
+    ``n`` (a progress bar). The report says how many of the experiment's sessions were run. ``seeds``: simulator
+    seeds replacing the sessions' own (session k of the run gets ``seeds[k mod len]``; user profile, scenario and
+    task are kept); default: each session's built-in seed (≥ 1011, see :mod:`tracker.evaluation.sessions`). Seeds
+    0–4 are tuning seeds (:mod:`tracker.evaluation.seeds`)."""
     if name not in EXPERIMENTS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {list(EXPERIMENTS)}")
     exp = EXPERIMENTS[name]
@@ -96,6 +99,10 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
         if sessions < 1:
             raise ValueError("--sessions must be at least 1")
         specs = _spread(specs, sessions)
+    if seeds is not None:
+        if not seeds:
+            raise ValueError("seeds: give at least one seed")
+        specs = [replace(spec, seed=int(seeds[k % len(seeds)])) for k, spec in enumerate(specs)]
     structures = list(GUESS_STRUCTURES.values()) if exp.base == "guess" else None
     per_setting = {}
     curves = {}
@@ -138,7 +145,7 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
     summary.update({"sessions_run": len(specs), "sessions_in_experiment": n_all})
     summary.update({"experiment": name, "poses": poses, "frame_step": frame_step, "machine": machine(),
                     "tracker_preset": tracker_preset if poses == "tracked" else None, "hints": hints,
-                    "overrides": overrides or {}})
+                    "overrides": overrides or {}, "seeds": [spec.seed for spec in specs]})
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
 
