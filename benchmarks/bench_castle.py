@@ -234,6 +234,7 @@ def main(argv=None) -> int:
     if not HAVE_OPEN3D:
         print("warning: Open3D is not installed (`pip install -e .[bench]`); the ICP baseline uses the numpy/scipy "
               "fallback and the report says so", file=sys.stderr)
+    commit = git_commit()  # before the run: the code that ran, even if the tree changes meanwhile
     info = machine_info()
     info["load_1min_at_start"] = info.pop("load_avg_1min")
     ours_rows, ours_info = run_ours(data, args.frames, args.particles, args.seed)
@@ -242,7 +243,7 @@ def main(argv=None) -> int:
         print(f"frame {a['index']:3d}: ours {a['t_mm']:7.2f} mm {a['r_deg']:7.3f}° {a['wall_ms']:7.1f} ms | "
               f"ICP {c['t_mm']:7.2f} mm {c['r_deg']:7.3f}° {c['wall_ms']:6.1f} ms")
     ours, icp = summarize(ours_rows), summarize(icp_rows)
-    res = {"machine": info, "commit": git_commit(), "note": args.note, "ours_info": ours_info,
+    res = {"machine": info, "commit": commit, "note": args.note, "ours_info": ours_info,
            "icp_backend": backend, "ours": ours, "icp": icp, "ratio": ratios(ours, icp),
            "frames_ours": ours_rows, "frames_icp": icp_rows,
            "load_1min_at_end": round(os.getloadavg()[0], 2)}

@@ -305,6 +305,7 @@ def main(argv=None) -> int:
     if not HAVE_OPEN3D:
         print("warning: Open3D is not installed (`pip install -e .[bench]`); the ICP baseline uses the numpy/scipy "
               "fallback and the report says so", file=sys.stderr)
+    commit = git_commit()  # before the run: the code that ran, even if the tree changes meanwhile
     info = machine_info()
     info["load_1min_at_start"] = info.pop("load_avg_1min")
     jobs = []
@@ -325,7 +326,7 @@ def main(argv=None) -> int:
         pool.close()
         pool.join()
     sessions.sort(key=lambda s: s["session"])
-    res = {"machine": info, "commit": git_commit(), "note": args.note, "dev": args.dev, "seeds_text": seeds_text,
+    res = {"machine": info, "commit": commit, "note": args.note, "dev": args.dev, "seeds_text": seeds_text,
            "frames": args.frames, "jobs": args.jobs, "sessions": sessions, "overall": overall(sessions),
            "load_1min_at_end": round(os.getloadavg()[0], 2)}
     md = markdown(res)
