@@ -55,7 +55,8 @@ def scenarios_for(task_id: str, task: Any) -> list[str]:
 
 def mode_choices(state: Any, refs: list[m.TaskRef], current_parts: list[str]) -> list[m.ModeChoice]:
     """Every (mode, task, source) the panel offers: each task on the current source when it fits, and on the
-    scenarios built for it; "none" (tracking only) on the current source."""
+    scenarios built for it (first when the current source is a scenario built for something else); "none"
+    (tracking only) on the current source."""
     out = [m.ModeChoice(mode="none", task=None, title="tracking only", source=state.source_spec, switches_source=False)]
     sims = scenario_parts()
     for ref in refs:
@@ -63,9 +64,14 @@ def mode_choices(state: Any, refs: list[m.TaskRef], current_parts: list[str]) ->
             task = state.resolve_task(ref.mode, ref.id)
         except Exception:  # noqa: BLE001 - a broken task is left out, not fatal
             continue
-        specs = ([state.source_spec] if misfit(task, current_parts) is None else []) + [
-            s for s in scenarios_for(ref.id, task) if s != state.source_spec and misfit(task, sims.get(s, [])) is None
-        ]
+        built = [s for s in scenarios_for(ref.id, task) if misfit(task, sims.get(s, [])) is None]
+        here = [state.source_spec] if misfit(task, current_parts) is None else []
+        # on a simulated scene built for another task (its scripted user builds that one), the scenes built for
+        # this task come first; on a camera or recording, the current source
+        if state.source_spec in sims and state.source_spec not in built:
+            specs = built + here
+        else:
+            specs = here + [s for s in built if s != state.source_spec]
         for spec in specs:
             out.append(
                 m.ModeChoice(mode=ref.mode, task=ref.id, title=ref.title, source=spec,

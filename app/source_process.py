@@ -17,6 +17,7 @@ so the worker reports it and reopens the source.
 from __future__ import annotations
 
 import multiprocessing as mp
+import signal
 import threading
 from collections.abc import Callable, Iterator
 from multiprocessing.connection import Connection
@@ -32,6 +33,9 @@ from tracker.sources.base import FrameSource, SourceError
 
 def _child(conn: Connection, factory: Callable[..., Any], args: tuple, kwargs: dict) -> None:
     """The child process: open the source, describe it, then render requested frames until told to stop."""
+    # Ctrl-C in a terminal reaches the whole process group: the parent stops the server and then closes this
+    # process (its pipe ends it in any case), so the child does not die under the running worker first.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     shm = None
     try:
         src = factory(*args, **kwargs)
