@@ -10,7 +10,8 @@ else its numpy/scipy fallback, which the report names), started from the same fr
 Per frame and as median / max: translation error ‖t_est − t_true‖ (mm), rotation error (degrees; the geodesic
 angle of R_estᵀ R_true, and ViSP's own measure ‖θu_true − θu_est‖, which its CI bounds), the share of frames
 within ViSP's CI bound (t ≤ 2 mm and r ≤ 0.4°, ViSP's measure), tracker time per frame (wall and thread CPU, ms)
-and frames per second (frames / total wall time of the steps); the ratios ours / ICP.
+and frames per second (from the mean wall time of the steps, and from their CPU time: what one free core would
+give); the ratios ours / ICP.
 
 Writes benchmarks/results/castle.json and castle.md (a BENCHMARKS.md section). Usage::
 
@@ -27,7 +28,6 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # Open3D's ICP on one core too, so that thread CPU time is all of it
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -39,11 +39,11 @@ sys.path.insert(0, str(ROOT))
 
 from app.commands.track import TrackSession, load_recording_parts  # noqa: E402
 from benchmarks.icp_baseline import HAVE_OPEN3D, ICPTracker  # noqa: E402
+from benchmarks.result_files import git_commit, rewrite_markdown, write_results  # noqa: E402
 from tracker.evaluation.machine_info import machine_info  # noqa: E402
 from tracker.filter.tracker_config import TrackerConfig  # noqa: E402
 from tracker.geometry.pose import Pose  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "external" / "castle-simu"
 VISP_T_MM = 2.0
 """ViSP's CI bound on this sequence (testGenericTrackerDepth): translation error, mm."""
@@ -167,7 +167,7 @@ def markdown(res: dict) -> str:
         "in every frame).",
         "",
         "| tracker | t median mm | t max mm | r median ° | r max ° | ViSP r median / max ° | frames within CI bound "
-        "| ms/frame (wall) | CPU ms/frame | fps |",
+        "| ms/frame (wall) | CPU ms/frame | fps (wall / CPU) |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for label, s in (("ours (`track`)", o), ("ICP baseline", b)):
@@ -175,7 +175,7 @@ def markdown(res: dict) -> str:
             f"| {label} | {s['t_median_mm']:.2f} | {s['t_max_mm']:.2f} | {s['r_median_deg']:.3f} | "
             f"{s['r_max_deg']:.3f} | {s['r_visp_median_deg']:.3f} / {s['r_visp_max_deg']:.3f} | "
             f"{s['within_ci_frames']}/{s['frames']} ({100 * s['within_ci']:.0f} %) | {s['ms_per_frame']:.1f} | "
-            f"{s['cpu_ms_per_frame']:.1f} | {s['fps']:.1f} |"
+            f"{s['cpu_ms_per_frame']:.1f} | {s['fps']:.1f} / {1000.0 / max(s['cpu_ms_per_frame'], 1e-9):.1f} |"
         )
     lines += [
         f"| ratio ours / ICP | {q['t_median_mm']:.2f}× | {q['t_max_mm']:.2f}× | {q['r_median_deg']:.2f}× | "
@@ -196,19 +196,6 @@ def markdown(res: dict) -> str:
     return "\n".join(lines)
 
 
-def git_commit() -> str:
-    import subprocess
-
-    try:
-        out = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                             text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, check=True).stdout.strip()
-        return out + (" (+ uncommitted changes)" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=str(DEFAULT_DATA), help="castle-simu recording directory")
@@ -220,9 +207,7 @@ def main(argv=None) -> int:
     ap.add_argument("--markdown-only", action="store_true", help="rewrite castle.md from castle.json and exit")
     args = ap.parse_args(argv)
     if args.markdown_only:
-        md = markdown(json.loads((RESULTS / "castle.json").read_text()))
-        (RESULTS / "castle.md").write_text(md)
-        print(md)
+        print(rewrite_markdown("castle", markdown))
         return 0
     data = Path(args.data)
     if not (data / "frames.jsonl").is_file():
@@ -250,9 +235,7 @@ def main(argv=None) -> int:
     md = markdown(res)
     print(md)
     if not args.no_write:
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "castle.json").write_text(json.dumps(res, indent=2) + "\n")
-        (RESULTS / "castle.md").write_text(md)
+        write_results("castle", res, md)
     return 0
 
 

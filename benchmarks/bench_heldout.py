@@ -48,12 +48,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.bench_castle import git_commit  # noqa: E402
 from benchmarks.icp_baseline import HAVE_OPEN3D  # noqa: E402
+from benchmarks.result_files import git_commit, rewrite_markdown, write_results  # noqa: E402
 from tracker.evaluation.machine_info import machine_info  # noqa: E402
 from tracker.evaluation.seeds import TUNING_SEEDS, check_seeds, parse_seeds  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 FRAMES = 300
 DEFAULT_SEEDS = "100-115"
 DESIGN: list[tuple[str, str, float, float]] = [
@@ -279,9 +278,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     stem = "heldout_dev" if args.dev else "heldout"
     if args.markdown_only:
-        md = markdown(json.loads((RESULTS / f"{stem}.json").read_text()))
-        (RESULTS / f"{stem}.md").write_text(md)
-        print(md)
+        print(rewrite_markdown(stem, markdown))
         return 0
     try:
         if args.seed is not None and args.seeds is not None:
@@ -332,10 +329,7 @@ def main(argv=None) -> int:
     md = markdown(res)
     print(md)
     if not args.no_write:
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / f"{stem}.json").write_text(json.dumps(res, indent=2) + "\n")
-        (RESULTS / f"{stem}.md").write_text(md)
-        print(f"wrote {RESULTS / stem}.md and .json")
+        write_results(stem, res, md)
     return 0
 
 

@@ -33,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.bench_tracker import LostCounter, oracle_hints  # noqa: E402
+from benchmarks.result_files import rewrite_markdown, write_results  # noqa: E402
 from tracker.evaluation.machine_info import machine_info  # noqa: E402
 from tracker.evaluation.pose_errors import PoseErrorLog  # noqa: E402
 from tracker.evaluation.seeds import check_seeds  # noqa: E402
@@ -42,7 +43,6 @@ from tracker.geometry.pose import rotation_angle  # noqa: E402
 from tracker.perception.color_detection import ColorDetector  # noqa: E402
 from tracker.sources.simulator import SimOptions, SimulatedTable  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 NOTES = (
     "What the moving camera does to the tracker: no part is lost, and resting visible parts follow the camera "
     "(static: the same t p95 with and without motion). Errors grow where a part has no depth evidence: a part fully "
@@ -148,9 +148,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     stem = "moving_camera_dev" if args.dev else "moving_camera"
     if args.markdown_only:
-        md = markdown(json.loads((RESULTS / f"{stem}.json").read_text()))
-        (RESULTS / f"{stem}.md").write_text(md)
-        print(md)
+        print(rewrite_markdown(stem, markdown))
         return 0
     try:
         check_seeds([args.seed], dev=args.dev)
@@ -172,9 +170,7 @@ def main(argv=None) -> int:
     md = markdown(res)
     print(md)
     if not args.no_write:
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / f"{stem}.json").write_text(json.dumps(res, indent=2) + "\n")
-        (RESULTS / f"{stem}.md").write_text(md)
+        write_results(stem, res, md)
     return 0
 
 
