@@ -51,8 +51,9 @@ class HandTrackerConfig:
     ``roi_limit`` L_ROI (full-resolution px); ``max_tracks``; ``auto_init``; ``session_background``; ``adapt`` /
     ``adapt_every``; ``log_tau`` LRT threshold (None: the model's; −2 tuned on simulator seeds 0–4);
     ``ac_hat`` / ``am_hat`` â_{c,1} (thesis 0.9; 0.55 = the mean colour coverage of the ground-truth palm boxes of
-    the rendered hands, measured on seeds 0–2: the fingers are spread), â_{m,1} (0.85); ``seed`` of the filters'
-    random numbers."""
+    the rendered hands, measured on seeds 0–2: the fingers are spread), â_{m,1} (thesis 0.85; 0.45 tuned on seeds 0
+    and 2 of S2, S3: the principal motion cluster covers at most the skin part of the box); ``seed`` of the
+    filters' random numbers."""
 
     method: str = "pf"
     scale: int = 2
@@ -72,7 +73,7 @@ class HandTrackerConfig:
     n_lost: int = 10
     hand_length_m: float = 0.19
     ac_hat: float = 0.55
-    am_hat: float = 0.85
+    am_hat: float = 0.45
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:

@@ -117,7 +117,9 @@ class HandStyle:
     ``n_hands`` 1 or 2; ``sleeves``: long sleeves (the forearm is cloth-coloured) or bare forearms (skin);
     ``motion_blur``: directional blur of the moving hands; ``overlap``: the second hand is sent close to (and
     above) the first one and both hands pass over the parts; ``speed``: factor on the hand speed;
-    ``duration``: seconds of wandering (whatever the speed) between entering and leaving.
+    ``duration``: seconds of wandering (whatever the speed) between entering (1 s) and leaving (1.2 s); moves
+    between key points take 0.8–1.6 s (÷ speed): at speed 1 the palm moves 5 px/frame (median) in the image,
+    up to about 25 px/frame.
     """
 
     n_hands: int
@@ -131,7 +133,7 @@ class HandStyle:
 HAND_STYLES: dict[str, HandStyle] = {
     "s1": HandStyle(1, sleeves=True, motion_blur=False, overlap=False),
     "s2": HandStyle(2, sleeves=True, motion_blur=False, overlap=True),
-    "s3": HandStyle(1, sleeves=False, motion_blur=True, overlap=True, speed=1.4),
+    "s3": HandStyle(1, sleeves=False, motion_blur=True, overlap=True, speed=1.25),
 }
 
 SLEEVE_COLORS: tuple[tuple[float, float, float], ...] = ((45.0, 55.0, 95.0), (70.0, 70.0, 75.0), (30.0, 90.0, 70.0))
@@ -619,10 +621,10 @@ class ScriptBuilder:
             self.set_rest(n, initial[n], 0.0)
         sp = max(self.cfg.speed * style.speed, 0.05)
         # common key times: enter, wander, leave
-        times = [0.0, 0.6 / sp]
+        times = [0.0, 1.0 / sp]
         while times[-1] < style.duration:
-            times.append(times[-1] + float(rng.uniform(0.45, 1.1)) / sp)
-        times.append(times[-1] + 1.0 / sp)
+            times.append(times[-1] + float(rng.uniform(0.8, 1.6)) / sp)
+        times.append(times[-1] + 1.2 / sp)
         rad = self.cfg.scatter_radius * 0.85
         part_xz = [p.t[[0, 2]] for p in initial.values()]
         sides = [1.0, -1.0][: style.n_hands]
