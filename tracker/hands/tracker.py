@@ -7,7 +7,8 @@ reference), track termination, then automatic initialisation of new tracks:
 
 * Candidates (§14.3): 4-connected components of the colour mask after an opening (disk radius 2 px),
   computed at the working resolution over the whole frame (radius 2/scale there), with area ≥ A_min = 0.15 % of
-  the image, at most 50 % inside existing track boxes, seen on n_init = 3 consecutive frames (matched by
+  the image, no pixel inside an existing track's box (spec: at most 50 %; a hand that enters grows faster than
+  its new track's box, which made a second track on it), seen on n_init = 3 consecutive frames (matched by
   overlapping boxes). A candidate must touch the image border (within b = 2 px) when first seen; product
   deviation: it need not touch it on the next two frames (a long-sleeved hand's skin touches the border only
   briefly while it enters). The largest one starts a track; at most one new track per frame, at most
@@ -16,7 +17,8 @@ reference), track termination, then automatic initialisation of new tracks:
   pixels), L_hand = f_x · 0.19 m / Z̄ (Z̄ the component's median depth; without depth Z̄ = 0.75 m), their tight
   box; velocity 0.
 * Termination: < 50 % of the estimate's box inside the image; a_{c,1} of the estimate < 0.2 for 10 consecutive
-  frames; two tracks with box F-score ≥ 0.8 for 10 consecutive frames (the younger ends).
+  frames; two tracks with box F-score ≥ 0.8 for 10 consecutive frames (the younger ends); product addition: the
+  box smaller than A_min for 10 consecutive frames (a lost track otherwise shrinks onto a speck of skin colour).
 
 Skin model: the shipped generic model (:mod:`tracker.hands.skin_model`); with ``session_background`` its ω2 is
 refitted on the session's first frame (assumed hand-free, as thesis Application 2 trains ω2 on the first frames),
@@ -107,6 +109,7 @@ class _Track:
     filt: HandParticleFilter | HandKalmanFilter
     age: int = 0
     low: int = 0
+    tiny: int = 0
     dup: dict[int, int] = field(default_factory=dict)
     score: float = 1.0
 
@@ -319,7 +322,8 @@ class HandTracker:
             if full <= 0 or inside < 0.5 * full:
                 keep[i] = False
             tr.low = tr.low + 1 if tr.score < 0.2 else 0
-            if tr.low >= cfg.n_lost:
+            tr.tiny = tr.tiny + 1 if full < cfg.min_area_frac * size[0] * size[1] else 0
+            if tr.low >= cfg.n_lost or tr.tiny >= cfg.n_lost:
                 keep[i] = False
         for i in range(len(boxes)):
             for j in range(i + 1, len(boxes)):
@@ -360,7 +364,7 @@ class HandTracker:
                     a1, b1 = min(tb[2] - bx + 1, bw), min(tb[3] - by + 1, bh)
                     if a1 > a0 and b1 > b0:
                         covered[b0:b1, a0:a1] = True
-                if np.count_nonzero(comp & covered) > 0.5 * area:
+                if np.count_nonzero(comp & covered) > 0:
                     continue
             border = bx < b or by < b or bx + bw > w - b or by + bh > h - b
             found.append((area, box, i, border))
