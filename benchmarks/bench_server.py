@@ -103,6 +103,22 @@ async def read_ws(url: str, seconds: float, base: str | None) -> tuple[list[dict
     return out, (await jpegs if jpegs else 0)
 
 
+def wait_until_processing(proc: subprocess.Popen, base: str, frames: int = 10, timeout_s: float = 120.0) -> None:
+    """Wait until the server subprocess has processed ``frames`` frames (RuntimeError if it exits or is too slow)."""
+    t0 = time.time()
+    while True:
+        if proc.poll() is not None:
+            raise RuntimeError(f"server exited: {proc.stderr.read()[-2000:]}")
+        try:
+            if (httpx.get(f"{base}/api/status", timeout=2).json()["worker"]["frames_processed"] or 0) >= frames:
+                return
+        except httpx.HTTPError:
+            pass
+        if time.time() - t0 > timeout_s:
+            raise RuntimeError(f"server did not start processing within {timeout_s:.0f} s")
+        time.sleep(0.2)
+
+
 def run_case(name: str, realtime: bool, seconds: float, particles: int | None, db: Path, jpeg: bool = True) -> dict:
     port = free_port()
     cmd = [
@@ -129,19 +145,7 @@ def run_case(name: str, realtime: bool, seconds: float, particles: int | None, d
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        t0 = time.time()
-        while True:
-            if proc.poll() is not None:
-                raise RuntimeError(f"server exited: {proc.stderr.read()[-2000:]}")
-            try:
-                st = httpx.get(f"{base}/api/status", timeout=2).json()
-                if (st["worker"]["frames_processed"] or 0) >= 10:
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.time() - t0 > 120:
-                raise RuntimeError("server did not start processing within 120 s")
-            time.sleep(0.2)
+        wait_until_processing(proc, base)
         cpu0, w0 = cpu_seconds(proc.pid), time.time()
         st0 = httpx.get(f"{base}/api/status").json()["worker"]
         msgs, n_jpeg = asyncio.run(read_ws(f"ws://127.0.0.1:{port}/ws", seconds, base if jpeg else None))
@@ -205,18 +209,7 @@ def run_browser_case(name: str, scene: bool, seconds: float, particles: int | No
     base = f"http://127.0.0.1:{port}"
     chromium = os.environ.get("CHROMIUM_PATH") or "/usr/bin/chromium"
     try:
-        t0 = time.time()
-        while True:
-            if proc.poll() is not None:
-                raise RuntimeError(f"server exited: {proc.stderr.read()[-2000:]}")
-            try:
-                if (httpx.get(f"{base}/api/status", timeout=2).json()["worker"]["frames_processed"] or 0) >= 10:
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.time() - t0 > 120:
-                raise RuntimeError("server did not start processing within 120 s")
-            time.sleep(0.2)
+        wait_until_processing(proc, base)
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
             page = browser.new_page(viewport={"width": 1280, "height": 800})
@@ -261,7 +254,8 @@ def main() -> int:
     db = Path("/tmp") / f"bench-server-{os.getpid()}.sqlite3"
     mach = machine()
     earlier = RESULTS / "server.json"
-    cases = json.loads(earlier.read_text()).get("cases", []) if args.browser_only and earlier.exists() else [
+    kept = json.loads(earlier.read_text()) if args.browser_only and earlier.exists() else {}
+    cases = kept.get("cases", []) if args.browser_only else [
         run_case("unpaced", False, args.seconds, args.particles, db, args.jpeg),
         run_case("realtime-30fps", True, args.seconds, args.particles, db, args.jpeg),
     ]
@@ -277,6 +271,7 @@ def main() -> int:
         "particles": args.particles or f"{SERVER_PARTICLES} (server default)",
         "client": "websocket + colour image at ≤ 15 Hz" if args.jpeg else "websocket only",
         "cases": cases,
+        "cases_machine": kept.get("cases_machine", kept.get("machine")) if args.browser_only else None,
         "browser_cases": browser_cases,
         "targets": {"processed_fps": 25, "latency_ms_median": 100, "panel_fps": 25},
     }
@@ -310,6 +305,9 @@ def main() -> int:
             f"Median time per stage (ms, {c['case']} run): "
             + ", ".join(f"{k} {v}" for k, v in c["stage_ms_median"].items()),
         ]
+    if result["cases_machine"]:
+        lines += ["", "The runs above are kept from an earlier run (`--browser-only` re-measured only the browser"
+                  f" runs below); its 1-minute load average was {result['cases_machine']['load_avg_1min']:.1f}."]
     base_fps = browser_cases[0]["panel_fps"]
     lines += [
         "",
