@@ -29,8 +29,10 @@ DEPTH_EVERY = 3
 """The depth cloud is refreshed on every this-many scene updates (the table hardly changes)."""
 MAX_PARTICLES_SHOWN = 100
 """Particles per part sent to the browser (a random but fixed subset)."""
-SCENE_HZ = 10.0
-"""Scene updates per second at most: a browser drawing the scene in software (no GPU) keeps up."""
+SCENE_HZ = 4.0
+"""Scene updates per second at most. The embedded scene shares the page's main thread (same site): a browser
+drawing it in software (no GPU) at 10 Hz starved the panel (0.07 panel fps against 1.8 processed under heavy
+load); at 4 Hz and half resolution the panel showed every processed frame (benchmarks/bench_server.py)."""
 
 
 def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
