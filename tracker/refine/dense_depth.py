@@ -21,8 +21,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba as nb
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from tracker.geometry.camera import Intrinsics
 
@@ -82,9 +82,76 @@ class RefineResult:
         return float(self.n_valid - 2 * self.n_behind)
 
 
-def _huber(r_over_s: np.ndarray, k: float) -> np.ndarray:
-    a = np.abs(r_over_s)
-    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
+def _rodrigues(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the rotation vector ``w`` (rad)."""
+    theta = float(np.linalg.norm(w))
+    if theta < 1e-12:
+        return np.eye(3)
+    k = w / theta
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+
+
+@nb.njit(cache=True)
+def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, fx, fy, cx, cy, sigma0, sigma_z2,
+                huber_k):
+    """One correspondence pass: the weighted normal equations ``H`` (6×6) and ``g`` (6) of the point-to-plane
+    residuals (twist about ``c``), the number of valid pairs, of observable model points, and the median |r|."""
+    h, w = depth.shape
+    H = np.zeros((6, 6))
+    g = np.zeros(6)
+    absr = np.empty(pts.shape[0])
+    n_valid = 0
+    n_obs = 0
+    J = np.empty(6)
+    for i in range(pts.shape[0]):
+        x0 = R[0, 0] * pts[i, 0] + R[0, 1] * pts[i, 1] + R[0, 2] * pts[i, 2] + t[0]
+        x1 = R[1, 0] * pts[i, 0] + R[1, 1] * pts[i, 1] + R[1, 2] * pts[i, 2] + t[1]
+        x2 = R[2, 0] * pts[i, 0] + R[2, 1] * pts[i, 1] + R[2, 2] * pts[i, 2] + t[2]
+        if x2 <= 1e-3:
+            continue
+        u = int(np.floor(fx * x0 / x2 + cx + 0.5))
+        v = int(np.floor(fy * x1 / x2 + cy + 0.5))
+        if u < 0 or u >= w or v < 0 or v >= h:
+            continue
+        d = depth[v, u]
+        if not (d > 0.0) or not np.isfinite(d):
+            continue
+        if use_allowed and not allowed[v, u]:
+            continue
+        if d < x2 - occlusion:
+            continue  # something in front of the model point
+        n_obs += 1
+        q0 = (u - cx) / fx * d
+        q1 = (v - cy) / fy * d
+        e0, e1, e2 = x0 - q0, x1 - q1, x2 - d
+        if e0 * e0 + e1 * e1 + e2 * e2 >= thr * thr:
+            continue
+        m0 = R[0, 0] * nrm[i, 0] + R[0, 1] * nrm[i, 1] + R[0, 2] * nrm[i, 2]
+        m1 = R[1, 0] * nrm[i, 0] + R[1, 1] * nrm[i, 1] + R[1, 2] * nrm[i, 2]
+        m2 = R[2, 0] * nrm[i, 0] + R[2, 1] * nrm[i, 1] + R[2, 2] * nrm[i, 2]
+        r = m0 * e0 + m1 * e1 + m2 * e2
+        a0, a1, a2 = x0 - c[0], x1 - c[1], x2 - c[2]
+        J[0] = a1 * m2 - a2 * m1
+        J[1] = a2 * m0 - a0 * m2
+        J[2] = a0 * m1 - a1 * m0
+        J[3] = m0
+        J[4] = m1
+        J[5] = m2
+        sig = sigma0 + sigma_z2 * x2 * x2
+        rs = abs(r) / sig
+        wgt = (1.0 if rs <= huber_k else huber_k / rs) / (sig * sig)
+        for a in range(6):
+            g[a] += wgt * r * J[a]
+            for b in range(a, 6):
+                H[a, b] += wgt * J[a] * J[b]
+        absr[n_valid] = abs(r)
+        n_valid += 1
+    for a in range(6):
+        for b in range(a):
+            H[a, b] = H[b, a]
+    med = np.median(absr[:n_valid]) if n_valid > 0 else np.nan
+    return H, g, n_valid, n_obs, med
 
 
 def refine_pose(
@@ -118,48 +185,26 @@ def refine_pose(
     n_valid, n_observable, med = 0, 0, float("nan")
     if m_total < cfg.min_points:
         return RefineResult(R, t, False, m_total, 0, 0.0, med, info, "too few visible model points")
+    mask = np.zeros((1, 1), np.bool_) if allowed is None else np.ascontiguousarray(allowed, np.bool_)
+    dep = np.ascontiguousarray(depth, np.float32)
+    center = np.asarray(center, np.float64)
     for thr in cfg.thresholds:
         for _ in range(cfg.updates_per_iteration):
-            x = pts @ R.T + t
-            m = nrm @ R.T
-            z = x[:, 2]
-            front = z > 1e-3
-            zs = np.where(front, z, 1.0)
-            u = np.rint(fx * x[:, 0] / zs + cx).astype(np.int64)
-            v = np.rint(fy * x[:, 1] / zs + cy).astype(np.int64)
-            ok = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-            uc, vc = np.where(ok, u, 0), np.where(ok, v, 0)
-            d = depth[vc, uc].astype(np.float64)
-            ok &= np.isfinite(d) & (d > 0)
-            if allowed is not None:
-                ok &= allowed[vc, uc]
-            ok &= d >= z - cfg.occlusion_m
-            n_observable = int(ok.sum())  # depth there, the part may claim the pixel, nothing in front
-            d = np.where(ok, d, 0.0)
-            q = np.stack([(uc - cx) / fx * d, (vc - cy) / fy * d, d], axis=1)
-            diff = x - q
-            ok &= np.einsum("ij,ij->i", diff, diff) < thr * thr
-            n_valid = int(ok.sum())
+            c = R @ center + t
+            info, g, n_valid, n_observable, med = _accumulate(
+                pts, nrm, R, t, c, dep, mask, allowed is not None, float(thr), cfg.occlusion_m, fx, fy, cx, cy,
+                cfg.sigma0, cfg.sigma_z2, cfg.huber_k)
             if n_valid < cfg.min_points:
                 return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info,
                                     f"only {n_valid} valid depth pairs")
-            xv, mv, dv = x[ok], m[ok], diff[ok]
-            r = np.einsum("ij,ij->i", mv, dv)
-            c = R @ center + t
-            J = np.hstack([np.cross(xv - c, mv), mv])
-            sig = cfg.sigma0 + cfg.sigma_z2 * xv[:, 2] ** 2
-            wgt = _huber(r / sig, cfg.huber_k) / sig**2
-            info = (J * wgt[:, None]).T @ J
-            g = J.T @ (wgt * r)
             try:
                 L = np.linalg.cholesky(info + prior)
                 xi = -np.linalg.solve(L.T, np.linalg.solve(L, g))
             except np.linalg.LinAlgError:
                 return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info, "singular system")
-            Rw = Rotation.from_rotvec(xi[:3]).as_matrix()
+            Rw = _rodrigues(xi[:3])
             t = c + Rw @ (t - c) + xi[3:]
             R = Rw @ R
-            med = float(np.median(np.abs(r)))
             if np.linalg.norm(xi) < cfg.stop_step:
                 break
     n_behind = _count_behind(depth, intrinsics, pts @ R.T + t, cfg.thresholds[-1] * 2.0)
