@@ -15,4 +15,10 @@ fi
 echo "setting up .venv (first run or pyproject.toml changed)..." >&2
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -e ".[test]"
+# opencv-contrib-python-headless (AKAZE for the odometry's FastSLAM option) replaces opencv-python-headless; both
+# install the cv2 package, so a venv that still has the plain one loses it and gets contrib reinstalled over it.
+if .venv/bin/python -m pip show opencv-python-headless >/dev/null 2>&1; then
+  .venv/bin/python -m pip uninstall --quiet -y opencv-python-headless
+  .venv/bin/python -m pip install --quiet --force-reinstall --no-deps opencv-contrib-python-headless
+fi
 echo "$WANT" > "$STAMP"

@@ -166,3 +166,34 @@ def test_odometry_command_writes_a_pose_per_frame_and_survives_bad_frames(tmp_pa
 def test_odometry_command_reports_a_missing_recording(tmp_path, capsys):
     assert main(["odometry", str(tmp_path / "nope"), "--out", str(tmp_path / "t.tum")]) == 1
     assert "recording directory not found" in capsys.readouterr().err
+
+
+def test_fastslam_filter_prefers_the_particle_at_the_true_pose():
+    from tracker.odometry.fastslam import FastSlam1, FastSlamConfig, sus_indices
+
+    rng = np.random.default_rng(0)
+    flt = FastSlam1(525.0, FastSlamConfig(n_particles=3), rng)
+    pts = rng.uniform([-0.3, -0.2, 0.5], [0.3, 0.2, 1.0], (40, 3))
+    flt.add_landmarks(pts)
+    flt.t[1] = [0.004, 0.0, 0.0]  # particle 1 believes it moved 4 mm, particle 2 turned 0.5°
+    flt.R[2] = exp_se3([0, 0, 0, 0, np.radians(0.5), 0])[:3, :3]
+    before = flt.sigma[0, 0].copy()
+    flt.update(pts, np.arange(40))
+    w = flt.weights()
+    assert w[0] > 0.99 and np.argmax(w) == 0
+    assert np.trace(flt.sigma[0, 0]) < np.trace(before)  # the landmark became more certain
+    R, t = flt.estimate()
+    assert np.linalg.norm(t) < 1e-4 and np.allclose(R, np.eye(3), atol=1e-4)
+    # SUS draws particles in proportion to their weights
+    idx = sus_indices(np.array([0.5, 0.25, 0.25, 0.0]), rng)
+    assert sorted(idx.tolist()) == [0, 0, 1, 2]
+
+
+def test_fastslam_odometry_follows_a_swaying_camera_within_centimetres():
+    src = SimulatedTable("static", seed=0, options=SimOptions(camera_motion="sway"), n_frames=30)
+    odo = make_odometry("fastslam", src.intrinsics, seed=0)
+    errs, results = _run(src, odo, 30)
+    assert all(r.ok for r in results) and min(r.inliers for r in results[1:]) >= 8
+    assert odo.filter.n_landmarks > 20
+    assert errs.ate_rmse < 0.01, errs
+    assert errs.rot_rmse_deg < 1.0, errs
