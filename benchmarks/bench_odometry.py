@@ -1,0 +1,265 @@
+"""Benchmark of the camera odometry (issue 15): ATE / rotation / RPE on held-out simulated sessions with a moving
+camera, the default dense odometry against the seed's FastSLAM option and OpenCV's RGB-D odometry (baseline).
+
+Sessions: simulator seeds >= 100 only (the odometry was tuned on seeds 0–4), 300 frames (10 s) each: ``static``
+(no hand) and ``guess-1`` (a hand picks up and moves parts), camera ``handheld`` (sway + jitter) and ``sway``.
+World frame = the first frame's camera frame; no trajectory alignment. ATE = RMSE of the camera position, rotation
+RMSE, RPE = RMSE of the relative translation error over 1 s, per second. Every method gets the simulator's hand
+box as its exclusion mask (``--mask hand`` of the CLI); OpenCV's odometry gets it as its frame mask.
+
+Also run: the external castle-simu sequence (ViSP, 40 frames, moving camera around a static object, exact
+ground truth; only the object has depth, no table), where the camera's motion is the inverse of the object's
+ground-truth motion. ``real/tum-desk`` holds one frame only, so it has no motion to estimate.
+
+Timing: CPU time of the odometry step per frame (``time.thread_time``, the main thread; OpenCV may use more
+threads) and wall time, median / p95. Writes benchmarks/results/odometry.json, odometry.md and trajectory plots
+odometry_<scenario>_<motion>_<seed>.png. Usage::
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python benchmarks/bench_odometry.py [--frames 300] [--quick]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.odometry_baseline import OpenCvOdometry  # noqa: E402
+from tracker.evaluation.machine_info import machine_info  # noqa: E402
+from tracker.evaluation.trajectory_errors import trajectory_errors  # noqa: E402
+from tracker.geometry.pose import Pose  # noqa: E402
+from tracker.odometry import make_odometry  # noqa: E402
+from tracker.odometry.exclusion_mask import exclusion_mask  # noqa: E402
+from tracker.sources.simulator import SimOptions, SimulatedTable  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+METHODS = ("default", "fastslam", "opencv-rgb")
+SESSIONS = (("static", "handheld", 100), ("guess-1", "handheld", 100), ("static", "handheld", 101),
+            ("guess-1", "handheld", 101), ("static", "sway", 102), ("guess-1", "sway", 102))
+
+
+def _odometry(method: str, intrinsics):
+    if method == "opencv-rgb":
+        return OpenCvOdometry(intrinsics, "rgb")
+    return make_odometry(method, intrinsics, seed=0)
+
+
+def _run_frames(method: str, intrinsics, frames, masks) -> dict:
+    odo = _odometry(method, intrinsics)
+    est, cpu, wall, ok = [], [], [], []
+    for f, m in zip(frames(), masks(), strict=True):
+        c0, w0 = time.thread_time(), time.perf_counter()
+        r = odo.step(f, m)
+        cpu.append(1e3 * (time.thread_time() - c0))
+        wall.append(1e3 * (time.perf_counter() - w0))
+        est.append(r.pose_world_camera)
+        ok.append(bool(r.ok))
+    return {"est": est, "cpu": cpu, "wall": wall, "ok": ok}
+
+
+def _summary(run: dict, times, truth) -> dict:
+    e = trajectory_errors(np.asarray(times), run["est"], truth, delta=1.0).to_dict()
+    cpu, wall = np.asarray(run["cpu"][1:]), np.asarray(run["wall"][1:])
+    e.update(cpu_ms_median=round(float(np.median(cpu)), 1), cpu_ms_p95=round(float(np.percentile(cpu, 95)), 1),
+             wall_ms_median=round(float(np.median(wall)), 1), wall_ms_p95=round(float(np.percentile(wall, 95)), 1),
+             measured=int(sum(run["ok"])), poses=len(run["est"]))
+    return e
+
+
+def simulated_session(scenario: str, motion: str, seed: int, n: int) -> tuple[dict, dict]:
+    src = SimulatedTable(scenario, seed=seed, options=SimOptions(camera_motion=motion), n_frames=n)
+    w0 = src.camera_pose_at(0).inverse()
+    truth = [w0 @ src.camera_pose_at(i) for i in range(n)]
+    times = [i / 30.0 for i in range(n)]
+    boxes = [src.render_clean(i)["hand_box"] for i in range(n)]
+    shape = (src.intrinsics.height, src.intrinsics.width)
+
+    def frames():
+        return (src.render(i) for i in range(n))
+
+    def masks():
+        return (exclusion_mask(shape, b) if b is not None else None for b in boxes)
+
+    out, trajs = {}, {"truth": truth}
+    for method in METHODS:
+        run = _run_frames(method, src.intrinsics, frames, masks)
+        out[method] = _summary(run, times, truth)
+        trajs[method] = run["est"]
+        print(f"  {scenario}/{motion}/seed {seed} {method}: {json.dumps(out[method])}", flush=True)
+    shift = max(float(np.linalg.norm(t.t)) for t in truth)
+    turn = max(float(np.degrees(Pose().rotation_error(t))) for t in truth)
+    hand = sum(b is not None for b in boxes)
+    return {"scenario": scenario, "motion": motion, "seed": seed, "frames": n,
+            "camera_max_shift_mm": round(1e3 * shift, 1), "camera_max_turn_deg": round(turn, 2),
+            "frames_with_hand": hand, "methods": out}, trajs
+
+
+def castle_session() -> tuple[dict, dict] | None:
+    from tracker.sources.recording import RecordingSource
+
+    root = SHARED / "data" / "external" / "castle-simu"
+    if not root.is_dir():
+        return None
+    src = RecordingSource(root)
+    n = len(src)
+    obj = [src.groundtruth(i)["castle"] for i in range(n)]  # object pose in each camera frame
+    truth = [obj[0] @ o.inverse() for o in obj]  # camera i in the first camera's frame
+    times = [src.timestamp(i) for i in range(n)]
+
+    def frames():
+        return (src.read(i) for i in range(n))
+
+    def masks():
+        return (None for _ in range(n))
+
+    out, trajs = {}, {"truth": truth}
+    for method in METHODS:
+        run = _run_frames(method, src.intrinsics, frames, masks)
+        out[method] = _summary(run, times, truth)
+        trajs[method] = run["est"]
+        print(f"  castle-simu {method}: {json.dumps(out[method])}", flush=True)
+    shift = max(float(np.linalg.norm(t.t)) for t in truth)
+    turn = max(float(np.degrees(Pose().rotation_error(t))) for t in truth)
+    return {"scenario": "castle-simu (external)", "motion": "ViSP", "seed": None, "frames": n,
+            "camera_max_shift_mm": round(1e3 * shift, 1), "camera_max_turn_deg": round(turn, 2),
+            "frames_with_hand": 0, "methods": out}, trajs
+
+
+def plot(name: str, trajs: dict, title: str) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    colours = {"truth": "k", "default": "tab:blue", "fastslam": "tab:orange", "opencv-rgb": "tab:green"}
+    n = len(trajs["truth"])
+    tt = np.arange(n) / 30.0
+    for key, poses in trajs.items():
+        p = 1e3 * np.array([q.t for q in poses])
+        style = {"color": colours[key], "lw": 2.0 if key == "truth" else 1.2, "label": key}
+        axes[0].plot(p[:, 0], p[:, 2], **style)
+        if key != "truth":
+            err = [1e3 * a.translation_error(b) for a, b in zip(poses, trajs["truth"], strict=True)]
+            axes[1].plot(tt, err, **style)
+            axes[2].plot(tt, np.degrees([a.rotation_error(b) for a, b in zip(poses, trajs["truth"], strict=True)]),
+                         **style)
+    axes[0].set(xlabel="x (mm)", ylabel="z (mm)", title="camera path, top view (first camera frame)")
+    axes[0].axis("equal")
+    axes[1].set(xlabel="time (s)", ylabel="position error (mm)", yscale="log", title="position error")
+    axes[2].set(xlabel="time (s)", ylabel="rotation error (°)", yscale="log", title="rotation error")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    path = RESULTS / f"odometry_{name}.png"
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path.name
+
+
+def markdown(res: dict) -> str:
+    m = res["machine"]
+    lines = [
+        "## Camera odometry (issue 15)",
+        "",
+        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; NUMBA_NUM_THREADS=1. 1-minute load "
+        f"{m['load_1min_at_start']} at the start and {res['load_1min_at_end']} at the end: taken under load (the "
+        "2 cores were shared with other agents' jobs), so wall times are pessimistic; CPU times are of the main "
+        "thread.",
+        "",
+        "Held-out simulator seeds (100–102, never tuned on), 300 frames each, 640×480, world = first camera frame, "
+        "no trajectory alignment; every method masks the simulator's hand box. `default` = dense frame-to-keyframe "
+        "RGB-D odometry (`tracker/odometry/camera_odometry.py`), `fastslam` = the seed's AKAZE + FastSLAM 1.0 "
+        "(100 particles), `opencv-rgb` = the baseline, OpenCV 5's `cv2.Odometry` (photometric, frame to frame, "
+        "its samples' usage; its RGB_DEPTH and DEPTH variants diverged on these scenes, see notes). ATE = RMSE of the "
+        "camera position; RPE over 1 s, per second. Ratio = baseline ATE / default ATE.",
+        "",
+        "| session | camera moved mm / ° | hand frames | method | ATE RMSE mm (max) | rot RMSE ° | RPE mm/s | "
+        "RPE °/s | measured | CPU ms median / p95 | wall ms median / p95 |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in res["sessions"]:
+        name = f"{s['scenario']} {s['motion']}" + (f" seed {s['seed']}" if s["seed"] is not None else "")
+        for method, e in s["methods"].items():
+            lines.append(
+                f"| {name} | {s['camera_max_shift_mm']:.0f} / {s['camera_max_turn_deg']:.1f} | {s['frames_with_hand']} "
+                f"| {method} | {e['ate_rmse_mm']:.2f} ({e['ate_max_mm']:.1f}) | {e['rot_rmse_deg']:.3f} | "
+                f"{e['rpe_mm_per_s']:.2f} | {e['rpe_deg_per_s']:.3f} | {e['measured']}/{e['poses']} | "
+                f"{e['cpu_ms_median']:.1f} / {e['cpu_ms_p95']:.1f} | "
+                f"{e['wall_ms_median']:.1f} / {e['wall_ms_p95']:.1f} |"
+            )
+            name = ""
+    ratios = []
+    for s in res["sessions"]:
+        ate = {k: v["ate_rmse_mm"] for k, v in s["methods"].items()}
+        base = max(ate["default"], 1e-6)
+        label = f"{s['scenario']} {s['motion']}" + ("" if s["seed"] is None else f" {s['seed']}")
+        ratios.append(f"{label}: {ate['opencv-rgb'] / base:.1f}× / {ate['fastslam'] / base:.1f}×")
+    lines += ["", "Baseline ratio (opencv-rgb ATE / default ATE) and FastSLAM ratio (fastslam ATE / default ATE) per "
+              "session: " + "; ".join(ratios) + ".", ""]
+    lines += ["Trajectory plots (top view, position and rotation error over time): "
+              + ", ".join(f"`benchmarks/results/{p}`" for p in res["plots"]), "", res["notes"], ""]
+    return "\n".join(lines)
+
+
+NOTES = (
+    "Notes. Targets of issue 15 on unseen hand-held sessions of 300 frames: ATE RMSE <= 3 mm, rotation RMSE <= 0.3°, "
+    "RPE <= 3 mm/s, a pose for every frame, >= 30 fps. Every method returns a pose for every frame (`measured` counts "
+    "the frames whose pose was measured rather than extrapolated or held). OpenCV's `cv2.Odometry` with "
+    "`OdometryType_RGB_DEPTH` or `DEPTH` (ICP) diverged on these table scenes already between neighbouring frames "
+    "(translations of 10–15 cm along the table, ATE 2.4 m over 3 s on tuning seed 1), apparently because a large "
+    "plane leaves the point-to-plane term degenerate along the table; its photometric variant is the baseline. "
+    "The simulated table's wood grain runs along the planks, so translation along the planks is observable "
+    "mostly from the parts and the floor: masking every part (`--mask parts`) made the dense odometry drift by "
+    "2–4 cm on tuning seeds, so by default only the hand is masked and Huber weights handle moved parts."
+)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--quick", action="store_true", help="two sessions of 90 frames, no castle")
+    ap.add_argument("--no-write", action="store_true", help="print only")
+    args = ap.parse_args(argv)
+    info = machine_info()
+    info["load_1min_at_start"] = info.pop("load_avg_1min")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    sessions, plots = [], []
+    todo = SESSIONS[:2] if args.quick else SESSIONS
+    n = 90 if args.quick else args.frames
+    for scenario, motion, seed in todo:
+        s, trajs = simulated_session(scenario, motion, seed, n)
+        sessions.append(s)
+        if not args.no_write:
+            plots.append(plot(f"{scenario}_{motion}_{seed}", trajs, f"{scenario}, {motion} camera, seed {seed}"))
+    if not args.quick:
+        castle = castle_session()
+        if castle is not None:
+            sessions.append(castle[0])
+            if not args.no_write:
+                plots.append(plot("castle-simu", castle[1], "castle-simu (ViSP, external)"))
+    res = {"machine": info, "sessions": sessions, "plots": plots, "notes": NOTES,
+           "load_1min_at_end": round(os.getloadavg()[0], 2)}
+    md = markdown(res)
+    print(md)
+    if not args.no_write:
+        (RESULTS / "odometry.json").write_text(json.dumps(res, indent=2) + "\n")
+        (RESULTS / "odometry.md").write_text(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
