@@ -232,6 +232,9 @@ class SnapshotModel(BaseModel):
     source: dict[str, Any]
     errors: list[str]
     carried: list[str] = Field([], description="parts currently hidden inside a hand and moved with it")
+    camera_pose: dict[str, Any] | None = Field(
+        None, description="camera odometry: {t, q, ok}, the camera's pose in the world frame (the first camera "
+        "frame); null when odometry is off")
     image_size: list[int]
     identical_parts: dict[str, dict[str, Any]] = Field(
         {}, description="{name: {bbox [x,y,w,h], center, score, seen}}: same-colour parts told apart in the image"

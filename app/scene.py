@@ -33,6 +33,8 @@ SCENE_HZ = 4.0
 """Scene updates per second at most. The embedded scene shares the page's main thread (same site): a browser
 drawing it in software (no GPU) at 10 Hz starved the panel (0.07 panel fps against 1.8 processed under heavy
 load); at 4 Hz and half resolution the panel showed every processed frame (benchmarks/bench_server.py)."""
+CAMERA_PATH_POINTS = 900
+"""Camera positions kept for the camera path (30 s at 30 fps)."""
 
 
 def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
@@ -101,6 +103,12 @@ class Scene:
         self.depth_cloud = sc.add_point_cloud(
             "/camera/depth", np.zeros((1, 3), np.float32), (128, 128, 128), point_size=0.003
         )
+        # camera odometry: the camera's frustum (under /camera) and its path in the table frame
+        self.frustum = sc.add_camera_frustum("/camera/frustum", fov=np.radians(49.0), aspect=4.0 / 3.0, scale=0.04,
+                                             color=(40, 110, 220), visible=False)
+        self.camera_path = sc.add_point_cloud("/camera_path", np.zeros((1, 3), np.float32), (40, 110, 220),
+                                              point_size=0.003, precision="float32", visible=False)
+        self._path: list[np.ndarray] = []
         self.ghost = sc.add_box(
             "/camera/ghost", color=(255, 255, 255), dimensions=(0.036,) * 3, opacity=0.35, visible=False
         )
@@ -155,6 +163,15 @@ class Scene:
                 cam_in_table = Pose.from_dict(snap.table["table_to_camera"]).inverse()
                 self.camera_node.wxyz = _wxyz(cam_in_table.q)
                 self.camera_node.position = cam_in_table.t
+                if snap.camera_pose is not None:  # odometry on: show the frustum and where the camera went
+                    self._path = (self._path + [cam_in_table.t.astype(np.float32)])[-CAMERA_PATH_POINTS:]
+                    self.camera_path.points = np.stack(self._path)
+                    self.camera_path.visible = True
+                    if frame is not None:
+                        self.frustum.fov = float(2.0 * np.arctan2(frame.intrinsics.height / 2.0, frame.intrinsics.fy))
+                        self.frustum.aspect = frame.intrinsics.width / frame.intrinsics.height
+                    self.frustum.color = (40, 110, 220) if snap.camera_pose_ok else (230, 120, 30)
+                    self.frustum.visible = True
             if frame is not None and frame.depth is not None and self._frames % DEPTH_EVERY == 1:
                 h, w = frame.depth.shape
                 k = max(1, int(round(np.sqrt(h * w / DEPTH_POINTS))))

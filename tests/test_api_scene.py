@@ -64,3 +64,19 @@ def test_update_moves_handles_in_place(scene):
     assert scene.ghost.visible and np.allclose(scene.ghost.position, [0.09, 0.0, 0.8])
     assert tuple(scene.ghost.color) == (35, 70, 200)
     assert not scene.label_nodes["red"].visible  # words only in learning mode
+
+
+def test_camera_frustum_and_path_follow_the_odometry(scene):
+    assert not scene.frustum.visible  # no odometry pose yet
+    for i in range(3):
+        table_to_camera = Pose(np.array([0.01 * i, 0.1, 0.8]), np.array([0.0, 0.0, 0.0, 1.0]))
+        snap = Snapshot(frame_index=i, time=i / 30.0, camera_pose=Pose(np.array([-0.01 * i, 0.0, 0.0])),
+                        camera_pose_ok=i != 2,
+                        table={"normal": [0, -1, 0], "offset": 0.1, "table_to_camera": table_to_camera.to_dict()})
+        scene.update(snap, None)
+    assert scene.frustum.visible and scene.camera_path.visible
+    path = scene.camera_path.points
+    assert path.shape == (3, 3) and np.allclose(path[:, 0], [0.0, -0.01, -0.02])  # camera positions, table frame
+    assert tuple(scene.frustum.color) == (230, 120, 30)  # the last pose was extrapolated
+    d = snap.to_dict()
+    assert d["camera_pose"]["ok"] is False and np.allclose(d["camera_pose"]["t"], [-0.02, 0.0, 0.0])

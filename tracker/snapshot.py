@@ -47,6 +47,9 @@ class Snapshot:
     * ``carried``: names of the parts currently hidden inside a hand and moved with it (``[]`` when none).
     * ``identical_parts``: parts of one colour told apart in the image from user-drawn boxes (the web app's
       :mod:`app.identical_parts`): per name ``{"bbox": [x, y, w, h], "center", "score", "seen"}``.
+    * ``camera_pose``: the camera's pose in the world frame (camera → world; world = the first frame's camera
+      frame) from the camera odometry (:mod:`tracker.odometry`), ``None`` when odometry is off;
+      ``camera_pose_ok``: False when that pose was extrapolated rather than measured.
     """
 
     frame_index: int
@@ -68,6 +71,8 @@ class Snapshot:
     carried: list[str] = field(default_factory=list)
     image_size: tuple[int, int] = (0, 0)
     identical_parts: dict[str, dict[str, Any]] = field(default_factory=dict)
+    camera_pose: Pose | None = None
+    camera_pose_ok: bool = True
 
     def to_dict(self, include_particles: bool = False) -> dict[str, Any]:
         """A JSON-able dictionary (particle clouds only when ``include_particles``)."""
@@ -90,6 +95,9 @@ class Snapshot:
             "carried": [str(n) for n in self.carried],
             "image_size": list(self.image_size),
             "identical_parts": self.identical_parts,
+            "camera_pose": None if self.camera_pose is None else {
+                "t": _finite_list(self.camera_pose.t), "q": _finite_list(self.camera_pose.q),
+                "ok": bool(self.camera_pose_ok)},
         }
         if include_particles:
             d["particles"] = {name: np.asarray(p, np.float32).round(4).tolist() for name, p in self.particles.items()}
