@@ -77,6 +77,23 @@ def _summary(run: dict, times, truth) -> dict:
     return e
 
 
+def _run_methods(label: str, intrinsics, frames, masks, times, truth) -> tuple[dict, dict]:
+    """Every method on the same frames: per-method summaries and estimated trajectories (with the truth)."""
+    out, trajs = {}, {"truth": truth}
+    for method in METHODS:
+        run = _run_frames(method, intrinsics, frames, masks)
+        out[method] = _summary(run, times, truth)
+        trajs[method] = run["est"]
+        print(f"  {label} {method}: {json.dumps(out[method])}", flush=True)
+    return out, trajs
+
+
+def _extent(truth: list[Pose]) -> dict:
+    shift = max(float(np.linalg.norm(t.t)) for t in truth)
+    turn = max(float(np.degrees(Pose().rotation_error(t))) for t in truth)
+    return {"camera_max_shift_mm": round(1e3 * shift, 1), "camera_max_turn_deg": round(turn, 2)}
+
+
 def simulated_session(scenario: str, motion: str, seed: int, n: int) -> tuple[dict, dict]:
     src = SimulatedTable(scenario, seed=seed, options=SimOptions(camera_motion=motion), n_frames=n)
     w0 = src.camera_pose_at(0).inverse()
@@ -91,17 +108,9 @@ def simulated_session(scenario: str, motion: str, seed: int, n: int) -> tuple[di
     def masks():
         return (exclusion_mask(shape, b) if b is not None else None for b in boxes)
 
-    out, trajs = {}, {"truth": truth}
-    for method in METHODS:
-        run = _run_frames(method, src.intrinsics, frames, masks)
-        out[method] = _summary(run, times, truth)
-        trajs[method] = run["est"]
-        print(f"  {scenario}/{motion}/seed {seed} {method}: {json.dumps(out[method])}", flush=True)
-    shift = max(float(np.linalg.norm(t.t)) for t in truth)
-    turn = max(float(np.degrees(Pose().rotation_error(t))) for t in truth)
+    out, trajs = _run_methods(f"{scenario}/{motion}/seed {seed}", src.intrinsics, frames, masks, times, truth)
     hand = sum(b is not None for b in boxes)
-    return {"scenario": scenario, "motion": motion, "seed": seed, "frames": n,
-            "camera_max_shift_mm": round(1e3 * shift, 1), "camera_max_turn_deg": round(turn, 2),
+    return {"scenario": scenario, "motion": motion, "seed": seed, "frames": n, **_extent(truth),
             "frames_with_hand": hand, "methods": out}, trajs
 
 
@@ -123,16 +132,8 @@ def castle_session() -> tuple[dict, dict] | None:
     def masks():
         return (None for _ in range(n))
 
-    out, trajs = {}, {"truth": truth}
-    for method in METHODS:
-        run = _run_frames(method, src.intrinsics, frames, masks)
-        out[method] = _summary(run, times, truth)
-        trajs[method] = run["est"]
-        print(f"  castle-simu {method}: {json.dumps(out[method])}", flush=True)
-    shift = max(float(np.linalg.norm(t.t)) for t in truth)
-    turn = max(float(np.degrees(Pose().rotation_error(t))) for t in truth)
-    return {"scenario": "castle-simu (external)", "motion": "ViSP", "seed": None, "frames": n,
-            "camera_max_shift_mm": round(1e3 * shift, 1), "camera_max_turn_deg": round(turn, 2),
+    out, trajs = _run_methods("castle-simu", src.intrinsics, frames, masks, times, truth)
+    return {"scenario": "castle-simu (external)", "motion": "ViSP", "seed": None, "frames": n, **_extent(truth),
             "frames_with_hand": 0, "methods": out}, trajs
 
 

@@ -23,30 +23,24 @@ from tracker.geometry.pose import Pose
 from tracker.odometry.dense_alignment import align
 from tracker.odometry.keyframe import Keyframe, make_keyframe_level
 from tracker.odometry.motion_prior import ConstantVelocity
+from tracker.odometry.odometry_base import OdometryBase
 from tracker.odometry.odometry_config import OdometryConfig
 from tracker.odometry.odometry_result import OdometryResult
 from tracker.odometry.rgbd_pyramid import build_pyramid
 from tracker.odometry.se3 import invert, motion_size
 
 
-class CameraOdometry:
+class CameraOdometry(OdometryBase):
     """Dense frame-to-keyframe RGB-D odometry. ``step(frame, mask)`` → :class:`OdometryResult`."""
 
     method = "dense"
 
     def __init__(self, intrinsics: Intrinsics, config: OdometryConfig | None = None, seed: int = 0) -> None:
-        self.intrinsics = intrinsics
+        super().__init__(intrinsics)
         self.config = config or OdometryConfig()
         self._rng = np.random.default_rng(seed)
         self.keyframes: list[Keyframe] = []
-        self._motion = ConstantVelocity()
         self._active = 0
-        self._pose = Pose()
-
-    @property
-    def pose(self) -> Pose:
-        """The latest camera pose in the world frame."""
-        return self._pose
 
     def reset(self) -> None:
         """Forget everything: the next frame defines the world frame again."""
@@ -55,37 +49,19 @@ class CameraOdometry:
         self._active = 0
         self._pose = Pose()
 
-    # ------------------------------------------------------------------------------------------------------
-    def skip(self, timestamp: float, reason: str) -> OdometryResult:
-        """A frame that could not be read: the constant-velocity pose at ``timestamp``, flagged with ``reason``."""
-        res = self._skip(timestamp, reason)
-        self._pose = res.pose_world_camera
-        return res
-
     def step(self, frame: Frame, mask: np.ndarray | None = None) -> OdometryResult:
         """Estimate the camera pose of ``frame`` (colour RGB uint8 + registered depth in metres); ``mask`` (H×W
         bool, True = exclude) marks hands and moving parts."""
+        problem = self._check(frame, mask)
+        if problem:
+            return self.skip(float(frame.timestamp), problem)
         res = self._step(frame, mask)
         self._pose = res.pose_world_camera
         return res
 
-    def _skip(self, timestamp: float, reason: str) -> OdometryResult:
-        t0 = time.perf_counter()
-        T = self._motion.predict(timestamp)
-        self._motion.update(timestamp, T, measured=False)
-        return OdometryResult(Pose.from_matrix(T), False, 0, 1e3 * (time.perf_counter() - t0), float(timestamp),
-                              message=reason)
-
     def _step(self, frame: Frame, mask: np.ndarray | None) -> OdometryResult:
         t0 = time.perf_counter()
         ts = float(frame.timestamp)
-        if (frame.intrinsics.width, frame.intrinsics.height) != (self.intrinsics.width, self.intrinsics.height):
-            raise ValueError(f"odometry: frame {frame.index} is {frame.intrinsics.width}x{frame.intrinsics.height}, "
-                             f"the odometry was set up for {self.intrinsics.width}x{self.intrinsics.height}")
-        if mask is not None and np.shape(mask) != frame.color.shape[:2]:
-            raise ValueError(f"odometry: mask shape {np.shape(mask)} differs from the image {frame.color.shape[:2]}")
-        if not frame.has_depth:
-            return self._skip(ts, f"frame {frame.index}: no depth — pose extrapolated at constant velocity")
         pyr = build_pyramid(frame.color, frame.depth, self.intrinsics, self.config.n_levels, mask)
 
         if not self.keyframes:  # the first measured frame fixes the world frame (or continues the prediction)

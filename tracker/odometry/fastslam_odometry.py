@@ -20,47 +20,31 @@ from tracker.geometry.camera import Intrinsics
 from tracker.geometry.pose import Pose
 from tracker.odometry.akaze_features import AkazeFrontEnd, rigid_inliers
 from tracker.odometry.fastslam import FastSlam1, FastSlamConfig
-from tracker.odometry.motion_prior import ConstantVelocity
+from tracker.odometry.odometry_base import OdometryBase
 from tracker.odometry.odometry_result import OdometryResult
 from tracker.odometry.se3 import invert, log_se3
 
 
-class FastSlamOdometry:
+class FastSlamOdometry(OdometryBase):
     """AKAZE + FastSLAM 1.0 camera odometry (see the module docstring)."""
 
     method = "fastslam"
 
     def __init__(self, intrinsics: Intrinsics, config: FastSlamConfig | None = None, seed: int = 0) -> None:
-        self.intrinsics = intrinsics
+        super().__init__(intrinsics)
         self.config = config or FastSlamConfig()
         self._rng = np.random.default_rng(seed)
         self.front = AkazeFrontEnd(intrinsics, self.config.max_features)
         self.filter: FastSlam1 | None = None
         self.descriptors = np.zeros((0, 61), np.uint8)
-        self._motion = ConstantVelocity()
-        self._pose = Pose()
-
-    @property
-    def pose(self) -> Pose:
-        return self._pose
-
-    def skip(self, timestamp: float, reason: str) -> OdometryResult:
-        t0 = time.perf_counter()
-        T = self._motion.predict(timestamp)
-        self._motion.update(timestamp, T, measured=False)
-        self._pose = Pose.from_matrix(T)
-        return OdometryResult(self._pose, False, 0, 1e3 * (time.perf_counter() - t0), float(timestamp), message=reason)
 
     def step(self, frame: Frame, mask: np.ndarray | None = None) -> OdometryResult:
+        """Estimate the camera pose of ``frame``; ``mask`` (H×W bool, True = exclude) marks hands and parts."""
         t0 = time.perf_counter()
         ts = float(frame.timestamp)
-        if (frame.intrinsics.width, frame.intrinsics.height) != (self.intrinsics.width, self.intrinsics.height):
-            raise ValueError(f"odometry: frame {frame.index} is {frame.intrinsics.width}x{frame.intrinsics.height}, "
-                             f"the odometry was set up for {self.intrinsics.width}x{self.intrinsics.height}")
-        if mask is not None and np.shape(mask) != frame.color.shape[:2]:
-            raise ValueError(f"odometry: mask shape {np.shape(mask)} differs from the image {frame.color.shape[:2]}")
-        if not frame.has_depth:
-            return self.skip(ts, f"frame {frame.index}: no depth — pose extrapolated at constant velocity")
+        problem = self._check(frame, mask)
+        if problem:
+            return self.skip(ts, problem)
         cfg = self.config
         feats = self.front.detect(frame.color, frame.depth, mask)
         if self.filter is None:
@@ -76,7 +60,7 @@ class FastSlamOdometry:
             return OdometryResult(self._pose, True, 0, 1e3 * (time.perf_counter() - t0), ts, keyframe=True)
 
         flt = self.filter
-        prev_t, prev_T = self._motion._last if self._motion._last else (ts, np.eye(4))
+        prev_t, prev_T = self._motion.last or (ts, np.eye(4))
         dt = max(ts - prev_t, 1e-3)
         pred = self._motion.predict(ts)
         twist = log_se3(invert(prev_T) @ pred) / dt if cfg.motion == "constant_velocity" else np.zeros(6)

@@ -24,6 +24,11 @@ class ConstantVelocity:
     def started(self) -> bool:
         return self._last is not None
 
+    @property
+    def last(self) -> tuple[float, np.ndarray] | None:
+        """``(time, pose)`` of the last recorded pose, or None."""
+        return self._last
+
     def predict(self, t: float) -> np.ndarray:
         """Extrapolated pose at time ``t`` seconds (the last pose when fewer than two are known)."""
         if self._last is None:
