@@ -25,7 +25,7 @@ from tracker.odometry.correspondences import empty_buffers, geometric_terms, pho
 from tracker.odometry.keyframe import Keyframe, KeyframeLevel
 from tracker.odometry.odometry_config import OdometryConfig
 from tracker.odometry.rgbd_pyramid import PyramidLevel
-from tracker.odometry.se3 import exp_se3, invert
+from tracker.odometry.se3 import exp_se3, invert, log_se3
 
 
 @dataclass
@@ -100,6 +100,9 @@ def _geometric(kl: KeyframeLevel, cur: PyramidLevel, T_kc: np.ndarray, T_ck: np.
 def align(keyframe: Keyframe, current: list[PyramidLevel], T_kc_init: np.ndarray, cfg: OdometryConfig) -> Alignment:
     """Align the current frame's pyramid to ``keyframe`` starting from ``T_kc_init`` (see the module docstring)."""
     T_kc = np.array(T_kc_init, dtype=np.float64)
+    T_prior_inv = invert(T_kc)
+    prior = np.array([1.0 / cfg.prior_sigma_m**2] * 3 + [1.0 / np.radians(cfg.prior_sigma_deg) ** 2] * 3) \
+        if cfg.prior_sigma_m > 0 else None
     total_it = 0
     inliers = 0
     overlap = 0.0
@@ -130,6 +133,9 @@ def align(keyframe: Keyframe, current: list[PyramidLevel], T_kc_init: np.ndarray
                 inliers += int(np.count_nonzero(np.abs(r) <= cfg.huber * s))
             if inliers < 6:
                 break
+            if prior is not None:  # weak pull towards the prediction: matters only where the data say nothing
+                H[np.diag_indices(6)] += prior
+                g += prior * log_se3(T_kc @ T_prior_inv)
             H[np.diag_indices(6)] += 1e-6 * (np.trace(H) / 6.0 + 1e-9)
             try:
                 xi = -np.linalg.solve(H, g)

@@ -22,6 +22,9 @@ class OdometryConfig:
     * ``robust``: ``"tukey"`` (biweight: gross outliers such as a part moved since the keyframe get no weight) or
       ``"huber"``; ``tukey`` / ``huber``: their thresholds in robust standard deviations.
     * ``min_photo_sigma`` / ``min_geo_sigma``: floors of the robust scales (grey levels / metres).
+    * ``prior_sigma_m`` / ``prior_sigma_deg``: standard deviations of a Gaussian prior on the deviation from the
+      constant-velocity prediction (0 = no prior); it decides only directions the images leave undetermined
+      (e.g. sliding along a textureless table while a hand hides the parts).
     * ``converged_m`` / ``converged_rad``: a level stops iterating when the update is smaller than both.
     * ``min_inliers``: fewest valid correspondences (both terms together, finest level) for a pose to count.
     * ``max_step_m`` / ``max_step_deg``: a result farther than this from the constant-velocity prediction is
@@ -50,6 +53,8 @@ class OdometryConfig:
     tukey: float = 4.685
     min_photo_sigma: float = 1.0
     min_geo_sigma: float = 0.0005
+    prior_sigma_m: float = 0.0
+    prior_sigma_deg: float = 0.5
     converged_m: float = 2e-5
     converged_rad: float = 2e-5
     min_inliers: int = 300
