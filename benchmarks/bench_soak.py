@@ -29,7 +29,6 @@ import asyncio
 import collections
 import json
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -40,17 +39,13 @@ import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from bench_server import free_port  # noqa: E402 - benchmarks/ is this script's folder
+
 from tracker.evaluation.machine_info import machine_info  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 PASSWORD = "soak-benchmark-teacher"
 TASK = {"source_sentence": "Μου αρέσει ο καφές", "words": ["Me", "gusta", "el", "café"]}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def rss_mib(pid: int) -> float:
@@ -132,10 +127,6 @@ def hostile_requests(base: str) -> list[tuple[str, dict]]:
         ("foreign-host", {"method": "GET", "url": "/api/status", "headers": {"host": "evil.example"}}),
         ("get-flood", {"method": "GET", "url": "/api/tasks"}),
         ("get-flood", {"method": "GET", "url": "/api/status"}),
-        (
-            "bad-sentence",
-            {"method": "POST", "url": "/api/tasks", "json": {"source_sentence": "\x00", "words": ["a", "b"]}},
-        ),
     ]
 
 
@@ -159,7 +150,9 @@ async def hostile_client(base: str, port: int, load: Load, hz: float) -> None:
             try:
                 r = await client.request(**req)
                 load.codes[f"{label} {r.status_code}"] += 1
-                if k % 10 == 0:  # a teacher edits tasks now and then
+                if k % 10 == 0:  # a teacher edits tasks now and then (and sends a bad sentence)
+                    r = await teacher.post("/api/tasks", json={"source_sentence": "\x00", "words": ["a", "b"]})
+                    load.codes[f"teacher-bad-sentence {r.status_code}"] += 1
                     r = await teacher.post("/api/tasks", json=TASK)
                     load.codes[f"teacher-create {r.status_code}"] += 1
                     if r.status_code == 201:
@@ -246,10 +239,8 @@ def summarize(samples: list[dict]) -> dict:
             "rss_mib_first": ss[0]["rss_mib"],
             "rss_mib_last": ss[-1]["rss_mib"],
             "rss_mib_max": max(s["rss_mib"] for s in ss),
+            "rss_slope_mib_per_h": round(slope_per_hour([s["t_s"] for s in ss], [s["rss_mib"] for s in ss]) or 0.0, 1),
         }
-    hostile = [s for s in samples if s["phase"] == "hostile"]
-    slope = slope_per_hour([s["t_s"] for s in hostile], [s["rss_mib"] for s in hostile])
-    out["rss_slope_mib_per_h_hostile"] = None if slope is None else round(slope, 1)
     if "quiet" in out and "hostile" in out and out["quiet"]["processed_fps_median"]:
         out["fps_ratio_hostile_over_quiet"] = round(
             out["hostile"]["processed_fps_median"] / out["quiet"]["processed_fps_median"], 3
@@ -338,10 +329,9 @@ def main() -> int:
             )
     lines += [
         "",
-        f"Ratio hostile / quiet processed fps: {summary.get('fps_ratio_hostile_over_quiet')}; RSS slope over the"
-        f" hostile part: {summary.get('rss_slope_mib_per_h_hostile')} MiB/h (least squares over"
-        f" {len(h and [s for s in samples if s['phase'] == 'hostile'])} samples; a short run overstates it);"
-        f" 5xx answers: {sum(server_errors.values())}.",
+        f"Ratio hostile / quiet processed fps: {summary.get('fps_ratio_hostile_over_quiet')}; RSS slope (least"
+        f" squares, MiB/h): quiet {q.get('rss_slope_mib_per_h')}, hostile {h.get('rss_slope_mib_per_h')} (a short run"
+        f" overstates it: the first minutes include warm-up); 5xx answers: {sum(server_errors.values())}.",
         "",
         "Answers by kind: " + ", ".join(f"{k}: {v}" for k, v in codes.items()),
         "",

@@ -161,5 +161,10 @@ def run(args: argparse.Namespace) -> int:
         check_source(settings)
     app = create_app(settings)
     print(f"Assembly Agent: http://{settings.host}:{settings.port}/  (teacher editor: /teacher, API: /docs)")
+    if settings.host in ("0.0.0.0", "::") and not settings.allowed_hosts:
+        print(
+            "note: other machines reach this server only by a name given with --allowed-host (e.g. this machine's "
+            "LAN address); others are refused against DNS rebinding"
+        )
     uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning", timeout_graceful_shutdown=5)
     return 0
