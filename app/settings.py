@@ -18,6 +18,8 @@
   recordings the API may open), ``max_body_bytes`` (413 above), ``api_rate``/``api_burst`` and
   ``learner_rate``/``learner_burst`` (429 with ``Retry-After`` above, per client address),
   ``login_burst``/``login_refill_s`` (wrong teacher passwords allowed per client).
+* ``on_damaged_database``: a damaged or unwritable database at start stops the server with a message naming
+  the file (``refuse``) or is served read-only (``read-only``; changes get 503, ``/api/status`` says why).
 * ``tracker_config``: tracker preset name or YAML/TOML path; ``seed``: random seed of tracker and modes.
 * ``n_particles``: the tracker's particle count N. Default :data:`SERVER_PARTICLES` = 100 rather than the
   tracker preset's 225 (a ``tracker_config`` given without ``n_particles`` keeps its own N): on a 2-core
