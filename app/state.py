@@ -232,6 +232,13 @@ class AppState:
             pipeline.detector = self.detector_for(pipeline)
         return pipeline
 
+    def forget_scene(self) -> None:
+        """Another source: parts placed by boxes, colour calibrations and identical parts belonged to the old one
+        (its camera, light and objects)."""
+        self.user_poses.clear()
+        self.calibrations.clear()
+        self.identical.clear()
+
     def detector_for(self, pipeline: AssemblyPipeline) -> Any:
         """The colour detector of ``pipeline``'s parts: preset ranges, replaced by the calibrations in force."""
         from tracker.perception.color_detection import ColorDetector

@@ -104,8 +104,7 @@ def select_mode(
 
         def switch() -> None:
             state.mode, state.task, state.source_spec = body.mode, body.task, body.source
-            state.user_poses.clear()
-            state.calibrations.clear()
+            state.forget_scene()
             state.worker.reset()
             state.worker.start()
 

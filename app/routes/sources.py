@@ -44,8 +44,7 @@ def select_source(body: m.SourceSelect, state: State, settings: SettingsDep) -> 
 
     def switch() -> None:
         state.source_spec = spec
-        state.user_poses.clear()
-        state.calibrations.clear()  # colour ranges belong to the old camera and light
+        state.forget_scene()
         state.worker.reset()
 
     state.start_session(switch, source=spec)  # the new session is stored first: a storage error changes nothing
