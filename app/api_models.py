@@ -15,6 +15,8 @@ from tracker.assembly import SentenceTask
 ModeName = Literal["guidance", "guess", "learning", "none"]
 MAX_IMAGE_PX = 10_000
 """Upper bound of box coordinates (pixels); the box must also lie inside the frame's image."""
+Pixel = Annotated[float, Field(ge=0, le=MAX_IMAGE_PX, allow_inf_nan=False, description="pixels from the left/top")]
+Extent = Annotated[float, Field(gt=0, le=MAX_IMAGE_PX, allow_inf_nan=False, description="box width/height, pixels")]
 MAX_PARTS = 64
 MAX_PASSWORD_CHARS = 1024
 PartName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
@@ -138,10 +140,10 @@ class SessionsResponse(BaseModel):
 class BoxRequest(BaseModel):
     """``POST /api/boxes``: a rectangle drawn on the colour image (pixels of the full-size image)."""
 
-    x: float = Field(ge=0, le=MAX_IMAGE_PX, allow_inf_nan=False)
-    y: float = Field(ge=0, le=MAX_IMAGE_PX, allow_inf_nan=False)
-    w: float = Field(gt=0, le=MAX_IMAGE_PX, allow_inf_nan=False)
-    h: float = Field(gt=0, le=MAX_IMAGE_PX, allow_inf_nan=False)
+    x: Pixel
+    y: Pixel
+    w: Extent
+    h: Extent
     action: Literal["track", "calibrate"] = "track"
     part: PartName | None = Field(None, description="part name; default: the part whose colour matches the rectangle")
 
@@ -164,10 +166,10 @@ class IdenticalBox(BaseModel):
     """``POST /api/identical-parts``: a box drawn around one of several parts of the same colour."""
 
     colour: str = Field(min_length=1, max_length=40, description="the parts' colour (a part name or preset colour)")
-    x: float = Field(ge=0)
-    y: float = Field(ge=0)
-    w: float = Field(gt=0)
-    h: float = Field(gt=0)
+    x: Pixel
+    y: Pixel
+    w: Extent
+    h: Extent
 
 
 class IdenticalParts(BaseModel):

@@ -68,8 +68,13 @@ def test_non_finite_and_huge_box_numbers_are_refused(client):
         '{"x": 10, "y": 10, "w": 1000000000, "h": 1000000000}',
         '{"x": 10, "y": 10, "w": 5, "h": ' + "9" * 5000 + "}",
     ):
-        r = client.post("/api/boxes", content=raw, headers={"content-type": "application/json"})
+        json_h = {"content-type": "application/json"}
+        r = client.post("/api/boxes", content=raw, headers=json_h)
         assert r.status_code in (400, 422), (raw[:60], r.status_code, r.text[:200])
+        r = client.post("/api/identical-parts", content=raw.replace("{", '{"colour": "red", ', 1), headers=json_h)
+        assert r.status_code in (400, 422), (raw[:60], r.status_code, r.text[:200])
+    r = client.post("/api/identical-parts", json={"colour": "red", "x": 500, "y": 400, "w": 20, "h": 20})
+    assert r.status_code == 422 and "outside the 160×120 image" in detail(r)
     # inside the bounds of the model, but outside this 160x120 image
     r = client.post("/api/boxes", json={"x": 500, "y": 400, "w": 20, "h": 20})
     assert r.status_code == 422 and "outside the 160×120 image" in detail(r)

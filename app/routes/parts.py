@@ -156,7 +156,8 @@ def identical_parts(state: State) -> m.IdenticalParts:
 @router.post(
     "/api/identical-parts",
     response_model=m.IdenticalParts,
-    responses={409: {"model": m.Message}, 422: {"model": m.Message}},
+    dependencies=[Learner],
+    responses={409: {"model": m.Message}, 422: {"model": m.Message}, 429: {"model": m.Message}},
 )
 def add_identical_part(body: m.IdenticalBox, state: State) -> m.IdenticalParts:
     """One box per part of the same colour (``red #1``, ``red #2``, …, in drawing order); each keeps its name
@@ -167,6 +168,7 @@ def add_identical_part(body: m.IdenticalBox, state: State) -> m.IdenticalParts:
     def apply(pipeline: AssemblyPipeline | None, frame):
         if pipeline is None or frame is None:
             raise LookupError("no frame processed yet")
+        box = inside_image(rect, frame.color.shape[1], frame.color.shape[0])
         ranges = dict(getattr(pipeline.detector, "ranges", {}) or {})
         rng = ranges.get(body.colour)
         if rng is None:
@@ -175,14 +177,19 @@ def add_identical_part(body: m.IdenticalBox, state: State) -> m.IdenticalParts:
             except ValueError as exc:
                 raise ValueError(f"colour {body.colour!r}: name a part or a preset colour") from exc
         mask = clean_mask(rng.mask(cv2.cvtColor(frame.color, cv2.COLOR_RGB2HSV)))
-        check_track_box({body.colour: mask}, rect, None)
-        return state.identical.add(body.colour, rng, rect)
+        check_track_box({body.colour: mask}, box, None)
+        return state.identical.add(body.colour, rng, box)
 
     on_worker(state, apply)
     return identical_list(state)
 
 
-@router.delete("/api/identical-parts", response_model=m.IdenticalParts)
+@router.delete(
+    "/api/identical-parts",
+    response_model=m.IdenticalParts,
+    dependencies=[Learner],
+    responses={429: {"model": m.Message}},
+)
 def clear_identical_parts(state: State) -> m.IdenticalParts:
     """Stop telling identical parts apart."""
     state.identical.clear()
