@@ -80,8 +80,9 @@ def test_same_seed_gives_identical_tracks(static_src):
 
 
 def test_reseeding_recovers_a_teleported_part(static_src):
-    """A part whose estimate is 6 cm away from its (reliable) colour blob is re-seeded there and recovers in the first
-    frame; without re-seeding the colour input needs several frames."""
+    """A part whose estimate is 6 cm away from its (reliable) colour blob is re-seeded there (filter) or re-acquired
+    from the blob (refinement stage) and recovers in the first frame; with neither, the colour input alone needs
+    several frames."""
     from tracker.perception.color_detection import ColorDetector
 
     src = static_src
@@ -92,15 +93,19 @@ def test_reseeding_recovers_a_teleported_part(static_src):
     gt = src.initial_poses
     start = {"red": Pose(gt["red"].t + np.array([0.06, 0.0, 0.0]), gt["red"].q), "green": gt["green"]}
     final = {}
-    for frac in (0.0, 0.3):
-        tr = MultiObjectTracker(parts, src.intrinsics, _cfg(n_particles=100, reseed_fraction=frac), seed=6)
+    settings = {"neither": (0.0, False), "reseed": (0.3, False), "reacquire": (0.0, True)}
+    for label, (frac, reacquire) in settings.items():
+        tr = MultiObjectTracker(parts, src.intrinsics, _cfg(n_particles=100, reseed_fraction=frac, reacquire=reacquire),
+                                seed=6)
         tr.initialize(start)
         errs = [tr.step(f, d, src.table_plane).poses["red"].translation_error(f.meta["groundtruth"]["poses"]["red"])
                 for f, d in zip(frames, dets, strict=True)]
-        final[frac] = (float(np.mean(errs[:3])), tr.n_reseeded, float(np.mean(errs[-3:])))
-    assert final[0.3][1] >= 1 and final[0.0][1] == 0, final
-    assert final[0.3][0] < 0.005 and final[0.3][2] < 0.005, final  # recovered at once and stays
-    assert final[0.0][0] > 0.015, final  # colour input alone needs several frames
+        final[label] = (float(np.mean(errs[:3])), tr.n_reseeded, float(np.mean(errs[-3:])), tr.n_reacquired)
+    assert final["reseed"][1] >= 1 and final["neither"][1] == 0 and final["reacquire"][1] == 0, final
+    assert final["reacquire"][3] >= 1 and final["neither"][3] == 0, final
+    for label in ("reseed", "reacquire"):
+        assert final[label][0] < 0.005 and final[label][2] < 0.005, final  # recovered at once and stays
+    assert final["neither"][0] > 0.015, final  # colour input alone needs several frames
 
 
 def test_cube_resting_on_table_does_not_sink(static_src):
