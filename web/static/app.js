@@ -267,7 +267,8 @@ function renderSnapshot(s) {
     });
     $("word-list").replaceChildren(...vItems);
     const words = Array.isArray(ms.words) ? ms.words : [];
-    const wItems = words.map((w) => el("li", `${w.cube}: ${w.word}${w.is_distractor ? " (distractor)" : ""}`));
+    // which words are distractors is for the learner to find out: the list shows cube and word only
+    const wItems = words.map((w) => el("li", `${w.cube}: ${w.word}`));
     setList($("cube-words"), wItems, "");
   }
   renderParts(s);
