@@ -188,31 +188,3 @@ def test_loss_monitor_counts_bad_frames_and_rechecks_after_release_and_reappeara
     assert mon.update(1, good, True, False)  # reappeared: re-checked
     assert not mon.update(1, good, True, False)
 
-
-@pytest.mark.parametrize("lattice", [1, 2, 3])
-def test_mesh_likelihood_render_on_a_coarser_lattice_matches_the_box_depth(tmp_path, lattice):
-    """The filter's mesh renderer rasterised on every ``lattice``-th grid pixel (large parts) gives exact depth
-    on that lattice."""
-    from tracker.geometry.mesh_renderer import MeshModel, render_mesh_at_pixels
-    from tracker.geometry.parts import PartSpec
-
-    path = tmp_path / "box.obj"
-    trimesh.creation.box(extents=(0.04, 0.03, 0.05)).export(path)
-    model = MeshModel.from_part(PartSpec("m", box=None, mesh=str(path)))
-    pose = Pose.from_rotvec(np.array([0.3, -0.4, 0.2]), np.array([0.02, -0.01, 0.3]))
-    f, off = 2, 0
-    ref = render_box_depth(INTR, [pose], [(0.04, 0.03, 0.05)], downsample=f)
-    hh, ww = ref.shape
-    gj, gi = np.meshgrid(np.arange(hh), np.arange(ww), indexing="ij")
-    gi, gj = gi.ravel().astype(np.int64), gj.ravel().astype(np.int64)
-    out = np.full((1, gi.size), np.inf, np.float32)
-    loc = np.arange(gi.size, dtype=np.int64).reshape(1, -1)
-    render_mesh_at_pixels(pose.R[None, None], pose.t[None, None], model.vertices, model.faces, 0,
-                          np.zeros(1, np.int64), gi, gj, np.arange(gi.size, dtype=np.int64), float(f), float(off),
-                          INTR.fx, INTR.fy, INTR.cx, INTR.cy, out, loc, np.zeros((1, gi.size), np.uint8), lattice)
-    depth = out[0].reshape(hh, ww)
-    on = ((gi % lattice == 0) & (gj % lattice == 0)).reshape(hh, ww)
-    both = on & np.isfinite(ref) & np.isfinite(depth)
-    assert both.sum() > 30
-    assert np.abs(depth[both] - ref[both]).max() < 1e-4
-    assert np.sum((np.isfinite(ref) != np.isfinite(depth)) & on) <= 0.1 * np.isfinite(ref[on]).sum()

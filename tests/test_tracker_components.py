@@ -196,7 +196,10 @@ def test_box_renderer_face_on_depth_and_occlusion():
     assert abs(int(row.sum()) - 39) <= 1
 
 
-def test_mesh_renderer_matches_box_renderer(tmp_path):
+@pytest.mark.parametrize("lattice", [1, 2, 3])
+def test_mesh_renderer_matches_box_renderer(tmp_path, lattice):
+    """Mesh rasterisation at the likelihood grid, and on every ``lattice``-th grid pixel (large parts whose
+    likelihood pixels were thinned): exact depth on that lattice."""
     intr = Intrinsics.default()
     path = tmp_path / "cube.stl"
     import trimesh
@@ -215,13 +218,14 @@ def test_mesh_renderer_matches_box_renderer(tmp_path):
     loc = np.arange(gi.size, dtype=np.int64).reshape(1, -1)
     render_mesh_at_pixels(pose.R[None, None], pose.t[None, None], model.vertices, model.faces, 0,
                           np.zeros(1, np.int64), gi, gj, np.arange(gi.size, dtype=np.int64), float(f), float(off),
-                          intr.fx, intr.fy, intr.cx, intr.cy, out, loc, np.zeros((1, gi.size), np.uint8))
+                          intr.fx, intr.fy, intr.cx, intr.cy, out, loc, np.zeros((1, gi.size), np.uint8), lattice)
     mesh_d = out[0].reshape(hh, ww)
-    both = np.isfinite(ref) & np.isfinite(mesh_d)
-    assert both.sum() > 20
+    on = ((gi % lattice == 0) & (gj % lattice == 0)).reshape(hh, ww)
+    both = np.isfinite(ref) & np.isfinite(mesh_d) & on
+    assert both.sum() > 20 / lattice**2
     assert np.abs(mesh_d[both] - ref[both]).max() < 1e-4
     # silhouettes agree except possibly at exact edge pixels
-    assert np.sum(np.isfinite(ref) != np.isfinite(mesh_d)) <= 0.1 * np.isfinite(ref).sum()
+    assert np.sum((np.isfinite(ref) != np.isfinite(mesh_d)) & on) <= 0.1 * np.isfinite(ref[on]).sum()
 
 
 def test_bad_mesh_gives_clear_error(tmp_path):
