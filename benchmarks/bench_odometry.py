@@ -158,8 +158,10 @@ def plot(name: str, trajs: dict, title: str) -> str:
                          **style)
     axes[0].set(xlabel="x (mm)", ylabel="z (mm)", title="camera path, top view (first camera frame)")
     axes[0].axis("equal")
-    axes[1].set(xlabel="time (s)", ylabel="position error (mm)", yscale="log", title="position error")
-    axes[2].set(xlabel="time (s)", ylabel="rotation error (°)", yscale="log", title="rotation error")
+    axes[1].set(xlabel="time (s)", ylabel="position error (mm)", yscale="log", title="position error",
+                ylim=(0.01, None))
+    axes[2].set(xlabel="time (s)", ylabel="rotation error (°)", yscale="log", title="rotation error",
+                ylim=(0.001, None))
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
