@@ -208,3 +208,43 @@ def test_colour_conversion_matches_opencv():
     rgb = np.array([[[200, 150, 120], [10, 20, 30]]], np.uint8)
     ycc = cv2.cvtColor(rgb, cv2.COLOR_RGB2YCrCb)
     assert np.array_equal(crcb(rgb), ycc[..., 1:])
+
+
+def test_contact_monitor_touching_holding_and_release():
+    from tracker.hands.contact import ContactMonitor, contact_test
+
+    hand = np.zeros((60, 60), bool)
+    hand[10:30, 10:30] = True
+    part = np.zeros((60, 60), bool)
+    part[31:45, 12:28] = True  # 1 px gap: within r_touch = 3 px
+    far = np.zeros((60, 60), bool)
+    far[50:58, 50:58] = True
+    assert contact_test(hand, part) and not contact_test(hand, far)
+    depth = np.full((60, 60), 0.70)
+    part_depth = np.full((60, 60), 0.80)
+    assert not contact_test(hand, part, depth, part_depth)  # 10 cm apart in depth: the hand is above it
+    mon = ContactMonitor()
+    first = mon.update({1: hand}, {"red": part, "blue": far}, {"red": np.zeros(3), "blue": np.zeros(3)})
+    assert first == {}  # needs 2 of the last 3 frames
+    second = mon.update({1: hand}, {"red": part, "blue": far}, {"red": np.zeros(3), "blue": np.zeros(3)})
+    assert second == {(1, "red"): "touching"} and mon.touched_parts() == {"red"}
+    moved = mon.update({1: hand}, {"red": part, "blue": far}, {"red": np.array([0.02, 0, 0]), "blue": np.zeros(3)})
+    assert moved == {(1, "red"): "holding"}
+    states = [mon.update({}, {"red": part, "blue": far}) for _ in range(5)]
+    assert states[3] == {(1, "red"): "holding"} and states[4] == {}  # released after n_off = 5 failing frames
+
+
+def test_hand_masks_are_skin_inside_the_track_box(s1):
+    frames, boxes = s1
+    i0 = next(i for i, b in enumerate(boxes) if b.get(0) and _inside(b[0]))
+    tr = HandTracker(HandTrackerConfig(auto_init=False, seed=0))
+    tr.process(frames[i0])
+    tid = tr.start_track(boxes[i0][0])
+    for rgb in frames[i0 + 1 : i0 + 6]:
+        est = tr.process(rgb)[0]
+    m = tr.hand_masks()[tid]
+    u0, v0, u1, v1 = est.box
+    assert m.shape == (480, 640) and m.sum() > 500
+    assert not m[:v0].any() and not m[v1:].any() and not m[:, :u0].any() and not m[:, u1:].any()
+    skin = SimulatedTable("hands-s1", seed=3).render(i0 + 5).meta["groundtruth"]["skin_mask"] > 0
+    assert np.count_nonzero(m & skin) > 0.8 * np.count_nonzero(m)

@@ -216,6 +216,27 @@ class HandTracker:
         self.tracks.append(_Track(tid, filt))
         return tid
 
+    def hand_masks(self) -> dict[int, np.ndarray]:
+        """Skin mask M_k = B(x_k) ∩ B^c_k (spec §14.4) of every live track at the last processed frame, as a
+        full-resolution bool H×W image per track id (working pixels repeated ``scale`` times)."""
+        out: dict[int, np.ndarray] = {}
+        if self._prev_rgb is None or self.full_size is None:
+            return out
+        W, H = self.full_size
+        h, w = self._prev_rgb.shape[:2]
+        s = self.s
+        for tr in self.tracks:
+            u0, v0, u1, v1 = state_box(tr.filt.estimate)
+            u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, w - 1), min(v1, h - 1)
+            m = np.zeros((H, W), bool)
+            if u1 >= u0 and v1 >= v0:
+                sub = self.skin.mask(self._prev_rgb[v0 : v1 + 1, u0 : u1 + 1]).astype(bool)
+                up = np.repeat(np.repeat(sub, s, axis=0), s, axis=1)
+                hh, ww = min(up.shape[0], H - v0 * s), min(up.shape[1], W - u0 * s)
+                m[v0 * s : v0 * s + hh, u0 * s : u0 * s + ww] = up[:hh, :ww]
+            out[tr.id] = m
+        return out
+
     # ------------------------------------------------------------------ frames
     def process(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[HandEstimate]:
         """Track the hands in the next frame (RGB uint8 H×W×3, optional registered depth in metres); returns one
