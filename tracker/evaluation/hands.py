@@ -135,7 +135,7 @@ def _with(config: HandTrackerConfig, **changes) -> HandTrackerConfig:
 def make_tracker(method: str, config: HandTrackerConfig, focal: float):
     if method == "camshift":
         return CamShiftTracker(config)
-    return HandTracker(HandTrackerConfig(**{**config.__dict__, "method": method}), focal=focal)
+    return HandTracker(_with(config, method=method, auto_init=False), focal=focal)
 
 
 @dataclass
