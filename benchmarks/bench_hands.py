@@ -49,12 +49,15 @@ def main() -> int:
             name, title = "hands", "Hand tracking (issue 14): Experiment 1, particle filter vs Kalman vs CamShift"
             extra = ("Per-frame e^p, F^b, F^c of the first sequence of each scenario: "
                      "`benchmarks/results/hands_curves.png`.")
+            baseline = ("Baseline: OpenCV CamShift on the same session skin model's likelihood-ratio image, started "
+                        "from the same boxes (ratio PF / CamShift in the table).")
         else:
             summary = experiment_2(tmp, seeds=seeds, runs=args.runs, n_frames=args.frames)
             shutil.copy(Path(tmp) / "hands_particles.png", RESULTS / "hands_particles.png")
             body = experiment_2_table(summary)
             name, title = "hands_particles", "Hand tracking (issue 14): Experiment 2, particle count"
             extra = "Plot: `benchmarks/results/hands_particles.png`."
+            baseline = "A sweep of the method's own particle count: the default N_s = 30 is the reference row."
     (RESULTS / f"{name}.json").write_text(json.dumps({"machine": machine_info(), **summary}, indent=1,
                                                      default=str) + "\n")  # fmt: skip
     cmd = f"--experiment {args.experiment} --seeds {','.join(map(str, seeds))} --runs {args.runs}"
@@ -65,8 +68,7 @@ def main() -> int:
         "Simulated scenarios `hands-s1` (one hand, long sleeve), `hands-s2` (two hands overlapping each other and the "
         "parts), `hands-s3` (bare forearm, motion blur, skin-like parts), 640×480 at 30 Hz, the tracker working at "
         "320×240 (scale 2). Parameters were tuned on seeds 0–4; the figures below are on held-out seeds only. "
-        "ē^p in full-resolution pixels; F̄ in [0, 1]. Baseline: OpenCV CamShift on the same session skin model's "
-        "likelihood-ratio image, started from the same boxes.", "",
+        "ē^p in full-resolution pixels; F̄ in [0, 1]. " + baseline, "",
         machine_note(), "", body, "", extra, "",
         f"Reproduce: `.venv/bin/python benchmarks/bench_hands.py {cmd}`", ""])  # fmt: skip
     (RESULTS / f"{name}.md").write_text(md)
