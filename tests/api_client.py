@@ -43,9 +43,10 @@ def app_client(tmp_path, open_source: Callable, **settings) -> Iterator[TestClie
         yield client
 
 
-def wait_frames(client: TestClient, n: int = 3, timeout: float = 90.0) -> dict:
+def wait_frames(client: TestClient, n: int = 3, timeout: float = 240.0) -> dict:
     """Wait until the worker has processed frame ``n``; returns /api/status (AssertionError on timeout; generous:
-    the first test of a run pays the JIT compilation of the tracker, slow on a loaded machine)."""
+    the first test of a run pays the JIT compilation of the tracker's numba kernels on a fresh clone, which takes
+    minutes on a loaded machine)."""
     t0 = time.time()
     while time.time() - t0 < timeout:
         st = client.get("/api/status").json()

@@ -45,6 +45,7 @@ async function refreshAuth() {
     ? "Enter the teacher password to create or edit tasks. Learners can only read them."
     : "No teacher password exists yet. Choose one (at least 10 characters; only on the server machine itself); it is stored hashed.";
   $("btn-login").textContent = auth.configured ? "Log in" : "Set password";
+  $("btn-login").disabled = false; // enabled once the page knows whether to log in or to set the password
   $("login-form").classList.toggle("hidden", auth.loggedIn);
   $("btn-logout").classList.toggle("hidden", !auth.loggedIn);
   if (auth.loggedIn) setMessage("login-message", "Logged in as teacher.");
