@@ -198,8 +198,7 @@ def refine_pose(
                 return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info,
                                     f"only {n_valid} valid depth pairs")
             try:
-                L = np.linalg.cholesky(info + prior)
-                xi = -np.linalg.solve(L.T, np.linalg.solve(L, g))
+                xi = -np.linalg.solve(info + prior, g)
             except np.linalg.LinAlgError:
                 return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info, "singular system")
             Rw = _rodrigues(xi[:3])
