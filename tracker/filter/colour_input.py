@@ -28,6 +28,7 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
     u = np.zeros((k, 3))
     trk._color_targets = []  # (part index, (u, v), weight) for the optional colour likelihood term
     detected = np.zeros(k, bool)
+    trk._blob_off = np.zeros(k, bool)  # reliable blob off the estimate's silhouette (re-acquisition looks at it)
     if cfg.use_color_input and detections:
         for i, name in enumerate(trk.names):
             det = detections.get(name)
@@ -44,6 +45,7 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
             detected[i] = reliable
             hit = surface_depth(trk, i, center)
             off_silhouette = reliable and not np.isfinite(hit)
+            trk._blob_off[i] = off_silhouette
             if cfg.color_area_weighting and not off_silhouette:
                 score *= area_ratio(trk, i, area)
             if off_silhouette and cfg.reseed_fraction > 0 and depth is not None:

@@ -106,7 +106,8 @@ class PartRefiner:
         """Refine the ``active`` parts at ``poses[k] = (R, t)`` (None: part not rendered, e.g. not tracked) against
         ``depth``; ``allowed[k]``: optional H×W mask of the pixels part k may claim. Returns per part the accepted
         correction or None (inactive, not visible, not healthy or out of bounds; ``self.last`` keeps each part's
-        :class:`RefineResult` for loss detection)."""
+        :class:`RefineResult` for loss detection and re-acquisition: a healthy one whose correction was out of
+        bounds says so in its ``reason``)."""
         k = len(self.shapes)
         out: list[Correction | None] = [None] * k
         self.last = [None] * k
@@ -129,8 +130,7 @@ class PartRefiner:
             c0 = R0 @ self.centers[i] + t0
             c1 = res.R @ self.centers[i] + res.t
             if np.linalg.norm(c1 - c0) > self.max_translation or rotation_angle(Rd) > self.max_rotation:
-                res.healthy = False
-                res.reason = "correction beyond the accepted bounds"
+                res.reason = "correction beyond the accepted bounds"  # supported by the depth, but not taken here
                 continue
             out[i] = Correction(res.R, res.t, Rd, res.t - Rd @ t0, res)
         return out

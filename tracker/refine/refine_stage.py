@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tracker.filter.colour_input import blob_mask, blob_target, surface_depth
+from tracker.filter.colour_input import blob_mask, blob_target
 from tracker.filter.frame_context import table_normal_offset
 from tracker.filter.penalties import intersection_flags
 from tracker.geometry.pose import Pose
@@ -111,12 +111,14 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         poses.append((est.R, est.t))
         mask = None
         seen = bool(trk.visibility[i] >= trk.config.visible_fraction_full)
+        ok = bool(trk.visibility[i] > 0.05)
         if trk.parts[i].color is not None and detections:
             det = detections.get(name)
             mask = blob_mask(trk, det, depth.shape) if det is not None else None
-            seen = mask is not None and int(mask.sum()) >= trk.config.reseed_min_area_px
-        active.append(bool(trk.visibility[i] > 0.05) and (mask is None or bool(mask.any()))
-                      and not (trk.parts[i].color is not None and detections and mask is None))
+            area = 0 if mask is None else int(np.count_nonzero(mask))
+            seen = area >= trk.config.reseed_min_area_px
+            ok = ok and area > 0  # no blob: the part shows nowhere, nothing to refine on
+        active.append(ok)
         allowed.append(mask)
         visible.append(seen)
     corrections = trk._refiner.refine(depth, poses, active, allowed)
@@ -128,21 +130,19 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         res = trk._refiner.last[i]
         supported = res if corrections[i] is not None else None
         need = trk._loss.update(i, supported, visible[i] and not carried[i], bool(released[i]))
-        beyond = res is not None and corrections[i] is None and res.reason.startswith("correction beyond")
-        start = poses[i]
-        if visible[i] and allowed[i] is not None:
-            det = detections.get(trk.names[i])
-            if not np.isfinite(surface_depth(trk, i, det.center)):
-                # the part's blob lies off its estimate: start from the blob (its centroid's ray, its median depth)
-                need = True
-                start = (poses[i][0], blob_target(trk, i, det, depth))
+        beyond = res is not None and res.healthy and corrections[i] is None  # supported, but a large correction
+        start, current = poses[i], res
+        if visible[i] and allowed[i] is not None and trk._blob_off[i]:
+            # the part's blob lay off its estimate (colour stage): start from the blob (its centroid's ray, its
+            # median depth); the refinement from the estimate (``res``) stays a candidate (a hand may bias the blob)
+            need = True
+            start, current = (poses[i][0], blob_target(trk, i, detections.get(trk.names[i]), depth)), None
         if trk.config.reacquire and (need or beyond) and trk._cooldown[i] == 0 and visible[i]:
             starts = CUBE_STARTS if trk.parts[i].box is not None else MESH_STARTS
-            res = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts)
-            if start is not poses[i]:  # the estimate itself stays a candidate (a hand may bias the blob's centroid)
-                here = trk._refiner.refine_one(depth, i, poses[i][0], poses[i][1], allowed[i])
-                if here.healthy and (res is None or here.score >= res.score):
-                    res = here
+            found = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts, current)
+            if current is None and res is not None and res.healthy and (found is None or res.score >= found.score):
+                found = res
+            res = found
             trk._cooldown[i] = trk.config.reacquire_cooldown
             trk.n_reacquired += 1
             if res is not None:
