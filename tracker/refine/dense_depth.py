@@ -94,15 +94,17 @@ def _rodrigues(w: np.ndarray) -> np.ndarray:
 
 @nb.njit(cache=True)
 def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, fx, fy, cx, cy, sigma0, sigma_z2,
-                huber_k):
+                huber_k, behind_margin):
     """One correspondence pass: the weighted normal equations ``H`` (6×6) and ``g`` (6) of the point-to-plane
-    residuals (twist about ``c``), the number of valid pairs, of observable model points, and the median |r|."""
+    residuals (twist about ``c``), the number of valid pairs, of observable model points, the median |r|, and the
+    number of model points whose measurement lies more than ``behind_margin`` behind them (free space)."""
     h, w = depth.shape
     H = np.zeros((6, 6))
     g = np.zeros(6)
     absr = np.empty(pts.shape[0])
     n_valid = 0
     n_obs = 0
+    n_behind = 0
     J = np.empty(6)
     for i in range(pts.shape[0]):
         x0 = R[0, 0] * pts[i, 0] + R[0, 1] * pts[i, 1] + R[0, 2] * pts[i, 2] + t[0]
@@ -117,6 +119,8 @@ def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, 
         d = depth[v, u]
         if not (d > 0.0) or not np.isfinite(d):
             continue
+        if d > x2 + behind_margin:
+            n_behind += 1
         if use_allowed and not allowed[v, u]:
             continue
         if d < x2 - occlusion:
@@ -151,7 +155,7 @@ def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, 
         for b in range(a):
             H[a, b] = H[b, a]
     med = np.median(absr[:n_valid]) if n_valid > 0 else np.nan
-    return H, g, n_valid, n_obs, med
+    return H, g, n_valid, n_obs, med, n_behind
 
 
 def refine_pose(
@@ -178,7 +182,6 @@ def refine_pose(
         sel = np.linspace(0, pts.shape[0] - 1, cfg.max_points).round().astype(np.int64)
         pts, nrm = pts[sel], nrm[sel]
     m_total = pts.shape[0]
-    h, w = depth.shape
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     prior = np.diag([cfg.lambda_rot] * 3 + [cfg.lambda_trans] * 3)
     info = np.zeros((6, 6))
@@ -188,12 +191,15 @@ def refine_pose(
     mask = np.zeros((1, 1), np.bool_) if allowed is None else np.ascontiguousarray(allowed, np.bool_)
     dep = np.ascontiguousarray(depth, np.float32)
     center = np.asarray(center, np.float64)
+    behind = cfg.thresholds[-1] * 2.0
+
+    def correspond(thr: float):
+        return _accumulate(pts, nrm, R, t, R @ center + t, dep, mask, allowed is not None, float(thr),
+                           cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k, behind)
+
     for thr in cfg.thresholds:
         for _ in range(cfg.updates_per_iteration):
-            c = R @ center + t
-            info, g, n_valid, n_observable, med = _accumulate(
-                pts, nrm, R, t, c, dep, mask, allowed is not None, float(thr), cfg.occlusion_m, fx, fy, cx, cy,
-                cfg.sigma0, cfg.sigma_z2, cfg.huber_k)
+            info, g, n_valid, n_observable, med, _ = correspond(thr)
             if n_valid < cfg.min_points:
                 return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info,
                                     f"only {n_valid} valid depth pairs")
@@ -201,12 +207,13 @@ def refine_pose(
                 xi = -np.linalg.solve(info + prior, g)
             except np.linalg.LinAlgError:
                 return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info, "singular system")
+            c = R @ center + t
             Rw = _rodrigues(xi[:3])
             t = c + Rw @ (t - c) + xi[3:]
             R = Rw @ R
             if np.linalg.norm(xi) < cfg.stop_step:
                 break
-    n_behind = _count_behind(depth, intrinsics, pts @ R.T + t, cfg.thresholds[-1] * 2.0)
+    info, _, n_valid, n_observable, med, n_behind = correspond(cfg.thresholds[-1])  # support of the final pose
     frac = n_valid / m_total
     # supported: enough of the model matched, or (partly hidden by a hand or another part) most of what can be seen
     healthy = frac >= cfg.min_valid_fraction or (
@@ -214,16 +221,3 @@ def refine_pose(
     return RefineResult(R, t, healthy, m_total, n_valid, frac, med, info,
                         "" if healthy else f"only {frac:.0%} of the visible model points matched the depth", n_behind)
 
-
-def _count_behind(depth: np.ndarray, intrinsics: Intrinsics, x: np.ndarray, margin: float) -> int:
-    """How many camera-frame points ``x`` (M, 3) project onto a measurement more than ``margin`` behind them."""
-    h, w = depth.shape
-    z = x[:, 2]
-    front = z > 1e-3
-    zs = np.where(front, z, 1.0)
-    u = np.rint(intrinsics.fx * x[:, 0] / zs + intrinsics.cx).astype(np.int64)
-    v = np.rint(intrinsics.fy * x[:, 1] / zs + intrinsics.cy).astype(np.int64)
-    ok = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    d = depth[np.where(ok, v, 0), np.where(ok, u, 0)]
-    with np.errstate(invalid="ignore"):
-        return int(np.count_nonzero(ok & np.isfinite(d) & (d > z + margin)))
