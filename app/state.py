@@ -6,6 +6,7 @@ for it (:meth:`AppState.on_worker`), so HTTP handling never waits for a frame to
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 from collections.abc import Callable
@@ -204,6 +205,13 @@ class AppState:
             )
             config = base.with_overrides(n_particles=self.settings.n_particles)
 
+        metadata = safe_metadata(src)
+        word_assignment = None
+        if metadata.get("scenario"):  # a simulated session (live or recorded): follow its scripted user's row
+            from tracker.sources.simulator.scripted_words import scripted_row_assignment
+
+            word_assignment = functools.partial(scripted_row_assignment, metadata["scenario"])
+
         def build(mode: str, task: str | None) -> AssemblyPipeline:
             return AssemblyPipeline(
                 list(parts),
@@ -214,9 +222,10 @@ class AppState:
                 seed=self.settings.seed,
                 initial_poses=poses,
                 table_recheck_s=self.settings.table_recheck_s,
-                source_info={"spec": self.source_spec, "round": self.round, **safe_metadata(src)},
+                source_info={"spec": self.source_spec, "round": self.round, **metadata},
                 auto_place=self.settings.auto_place,
                 auto_place_interval_s=self.settings.auto_place_interval_s,
+                word_assignment=word_assignment,
             )
 
         try:

@@ -16,6 +16,7 @@ from tracker.frame import Frame
 from tracker.geometry.camera import Intrinsics
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
+from tracker.perception.box_tools import guess_part, pose_from_rect
 from tracker.pipeline import AssemblyPipeline
 from tracker.sources.base import FrameSource
 
@@ -221,9 +222,9 @@ def test_parts_without_pose_start_tracking_when_a_box_is_drawn():
     w = src.intrinsics.width
     h = src.intrinsics.height
     rect = (w // 4 - 2, h // 2 - 2, 14, 14)  # around the red square
-    name = p.guess_part(frames[0].color, rect)
+    name = guess_part(p.parts, p.detector, frames[0].color, rect)
     assert name == "red"
-    pose = p.pose_from_rect(name, rect, frames[0].depth)
+    pose = pose_from_rect(p.part(name), rect, p.intrinsics, p.table, frames[0].depth)
     # the cube's centre is half an edge above the table plane
     height = float(TABLE_NORMAL @ pose.t + TABLE_OFFSET)
     assert abs(height - 0.018) < 0.004

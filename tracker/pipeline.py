@@ -17,7 +17,7 @@ mode's update (instruction, connections, verdicts). A stage that fails on a fram
 ``[x, y, z, w]``).
 
 Parts without a pose are not tracked until they are placed: by a rectangle the user draws
-(:meth:`AssemblyPipeline.pose_from_rect` + :meth:`~AssemblyPipeline.set_part_pose`), by
+(``tracker.perception.box_tools.pose_from_rect`` + :meth:`~AssemblyPipeline.set_part_pose`), by
 :meth:`AssemblyPipeline.auto_place` (automatic first-frame pose initialisation,
 `pose_initialization`), or, with ``auto_place=True``, automatically: while some part has no pose,
 ``auto_place`` is tried on a frame with a table plane at most every ``auto_place_interval_s`` seconds (frame
@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -103,6 +103,9 @@ class AssemblyPipeline:
     * ``source_info``: the source's metadata, copied into every snapshot.
     * ``auto_place``: while some part has no pose, find the missing poses automatically (see the module
       docstring) at most every ``auto_place_interval_s`` seconds of frame time.
+    * ``word_assignment``: for the learning mode, called with each freshly built mode; a cube → word dict it
+      returns replaces the mode's random assignment (the simulator's scripted user builds its row in a fixed
+      order: ``tracker.sources.simulator.scripted_words``); ``None`` keeps the mode's own.
     """
 
     def __init__(
@@ -118,6 +121,7 @@ class AssemblyPipeline:
         source_info: dict[str, Any] | None = None,
         auto_place: bool = False,
         auto_place_interval_s: float = 2.0,
+        word_assignment: Callable[[Any], dict[str, str] | None] | None = None,
     ) -> None:
         if not parts:
             raise ValueError("pipeline: no parts to track")
@@ -134,6 +138,7 @@ class AssemblyPipeline:
         self.source_info = dict(source_info or {})
         self.auto_place_enabled = bool(auto_place)
         self.auto_place_interval_s = float(auto_place_interval_s)
+        self.word_assignment = word_assignment
         self._auto_place_time: float | None = None  # frame time of the last automatic attempt
         self._auto_place_errors: dict[str, str] = {}  # part -> why the last automatic attempt did not find it
         self.carried: list[str] = []  # parts the tracker holds hidden in a hand (TrackerState.carried)
@@ -208,27 +213,14 @@ class AssemblyPipeline:
             built = build_mode(self._sentence_task_model(task), mode, self.parts, self.seed, sentence=task)
         else:
             built = build_mode(resolve_task(task), mode, self.parts, self.seed)
-        if mode == "learning":
-            built = self._follow_scripted_row(built, build_mode)
+        if mode == "learning" and self.word_assignment is not None:
+            assignment = self.word_assignment(built)
+            if assignment:
+                built = build_mode(built.task, "learning", self.parts, self.seed, sentence=built.sentence,
+                                   assignment=assignment)
         self.mode_name, self.task, self.mode = mode, task, built
         if self.tracker is not None:
             self.tracker.set_connection_hints([])
-
-    def _follow_scripted_row(self, built, build_mode):
-        """For a simulated learning scenario, put the words on the cubes in the order the scripted user builds
-        its row (left to right), so the simulated user builds the correct sentence; distractor words go on the
-        scenario's distractor cubes. Other sources keep the mode's random seeded assignment."""
-        scenario = self.source_info.get("scenario") or {}
-        cells = (scenario.get("structure") or {}).get("cells") or {}
-        row = [c for c, _ in sorted(cells.items(), key=lambda item: item[1][0])]
-        words = list(built.sentence.words)
-        if not row or len(row) != len(words) or not set(row) <= set(built.assignment):
-            return built
-        assignment = dict(zip(row, words, strict=True))
-        spare = [c for c in scenario.get("distractors", []) if c in built.assignment]
-        assignment.update(zip(spare, built.sentence.distractors, strict=False))
-        return build_mode(built.task, "learning", self.parts, self.seed, sentence=built.sentence,
-                          assignment=assignment)
 
     def _sentence_task_model(self, sentence):
         """A learning task around one sentence (e.g. a teacher's) using every part of this pipeline as a cube."""
@@ -352,89 +344,6 @@ class AssemblyPipeline:
             if p.name == name:
                 return p
         raise ValueError(f"unknown part {name!r}; parts are {', '.join(p.name for p in self.parts)}")
-
-    def pose_from_rect(self, name: str, rect: tuple[float, float, float, float], depth: np.ndarray | None) -> Pose:
-        """Camera-frame pose of part ``name`` resting on the table under the pixel rectangle ``(x, y, w, h)``.
-
-        The rectangle centre's viewing ray is intersected with the table plane and the part is lifted by
-        half its height along the table normal, in the table's fundamental orientation (body y up). Without
-        a table plane, the median depth inside the rectangle (plus half the part's size) is used.
-        """
-        x, y, w, h = (float(v) for v in rect)
-        if w <= 0 or h <= 0:
-            raise ValueError(f"rectangle must have a positive width and height, got w={w}, h={h}")
-        u, v = x + w / 2.0, y + h / 2.0
-        part = self.part(name)
-        half = (part.box[1] if part.box is not None else part.bounding_radius()) / 2.0
-        ray = np.array(
-            [(u - self.intrinsics.cx) / self.intrinsics.fx, (v - self.intrinsics.cy) / self.intrinsics.fy, 1.0]
-        )
-        if self.table is not None:
-            n = np.asarray(self.table.normal, float)
-            denom = float(n @ ray)
-            if abs(denom) > 1e-9:
-                s = -float(self.table.offset) / denom
-                if s > 0:
-                    t2c = self.table.table_to_camera()
-                    centre = ray * s + n * half
-                    return Pose(centre, t2c.q)
-        if depth is None:
-            raise ValueError("cannot place a part: no table plane found yet and the frame has no depth")
-        x0, y0 = max(0, int(x)), max(0, int(y))
-        patch = depth[y0 : int(y + h) + 1, x0 : int(x + w) + 1]
-        vals = patch[np.isfinite(patch)]
-        if vals.size == 0:
-            raise ValueError("cannot place a part: no depth inside the rectangle")
-        z = float(np.median(vals)) + half
-        return Pose(ray * z, np.array([0.0, 0.0, 0.0, 1.0]))
-
-    def guess_part(self, rgb: np.ndarray, rect: tuple[float, float, float, float]) -> str:
-        """The coloured part with the most pixels of its colour inside the pixel rectangle ``(x, y, w, h)``.
-
-        Uses the colour detector's masks (so the table's own colour does not count); falls back to the
-        nominal colour nearest in hue to the rectangle's saturated pixels.
-        """
-        import cv2
-
-        x, y, w, h = (int(round(v)) for v in rect)
-        x0, y0 = max(0, x), max(0, y)
-        coloured = [p for p in self.parts if p.color is not None]
-        if w <= 0 or h <= 0 or not coloured:
-            raise ValueError("name the part: the rectangle is empty or no part has a colour")
-        if self.detector is not None:
-            counts = {
-                name: int(np.count_nonzero(mask[y0 : y + h, x0 : x + w]))
-                for name, mask in self.detector.masks(rgb).items()
-            }
-            best = max(counts, key=counts.get) if counts else None
-            if best is not None and counts[best] > 0:
-                return best
-        patch = rgb[y0 : y + h, x0 : x + w]
-        if patch.size == 0:
-            raise ValueError("name the part: the rectangle lies outside the image")
-        hsv = cv2.cvtColor(patch.reshape(-1, 1, 3), cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(float)
-        sat = hsv[:, 1] > 60
-        if sat.any():
-            hsv = hsv[sat]
-        ang = hsv[:, 0] * (2 * np.pi / 180.0)  # OpenCV hue is 0..180
-        hue = (np.arctan2(np.sin(ang).mean(), np.cos(ang).mean()) % (2 * np.pi)) * 180.0 / (2 * np.pi)
-
-        def hue_distance(p: PartSpec) -> float:
-            d = abs(float(cv2.cvtColor(np.uint8([[p.color]]), cv2.COLOR_RGB2HSV)[0, 0, 0]) - hue)
-            return min(d, 180.0 - d)
-
-        return min(coloured, key=hue_distance).name
-
-    def calibrate_color(self, name: str, rgb: np.ndarray, rect: tuple[float, float, float, float]):
-        """Re-learn part ``name``'s colour range from the pixels inside ``rect`` (perception's calibration)."""
-        from tracker.perception.color_detection import ColorDetector, calibrate_range
-
-        self.part(name)
-        rng = calibrate_range(rgb, rect=tuple(int(round(v)) for v in rect))
-        ranges = dict(getattr(self.detector, "ranges", {}) or {})
-        ranges[name] = rng
-        self.detector = ColorDetector(ranges)
-        return rng
 
     def reset(self) -> None:
         """Back to the initial poses, a fresh mode and a table to be found again."""

@@ -10,6 +10,7 @@ from app import api_models as m
 from app.routes.deps import Learner, State, on_worker
 from app.state import AppState, Calibration
 from tracker.perception.box_checks import check_calibration, check_track_box, raised_share
+from tracker.perception.box_tools import guess_part, pose_from_rect
 from tracker.perception.color_detection import calibrate_range, clean_mask
 from tracker.perception.hsv_range import preset_range
 from tracker.pipeline import AssemblyPipeline
@@ -54,7 +55,7 @@ def draw_box(body: m.BoxRequest, state: State) -> m.BoxResponse:
         if body.part is not None:
             pipeline.part(body.part)  # an unknown name: ValueError
         if body.action == "calibrate":
-            name = body.part or pipeline.guess_part(frame.color, rect)
+            name = body.part or guess_part(pipeline.parts, pipeline.detector, frame.color, rect)
             rng = calibrate_range(frame.color, rect)
             check_calibration(rng, cv2.cvtColor(frame.color, cv2.COLOR_RGB2HSV))
             state.calibrations.append(Calibration(name, rng, frame.index))
@@ -62,8 +63,10 @@ def draw_box(body: m.BoxRequest, state: State) -> m.BoxResponse:
             return name, None, frame.index
         raised = raised_share(frame.depth, frame.intrinsics, pipeline.table, rect)
         masks = pipeline.detector.masks(frame.color) if pipeline.detector is not None else {}
-        name = check_track_box(masks, rect, body.part, raised) or pipeline.guess_part(frame.color, rect)
-        pose = pipeline.pose_from_rect(name, rect, frame.depth)
+        name = check_track_box(masks, rect, body.part, raised) or guess_part(
+            pipeline.parts, pipeline.detector, frame.color, rect
+        )
+        pose = pose_from_rect(pipeline.part(name), rect, pipeline.intrinsics, pipeline.table, frame.depth)
         pipeline.set_part_pose(name, pose)
         state.user_poses[name] = pose
         return name, pose, frame.index
