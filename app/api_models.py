@@ -42,7 +42,7 @@ class WorkerStatus(BaseModel):
 
 
 class StorageStatus(BaseModel):
-    path: str = Field(description="the SQLite file")
+    path: str = Field(description="the SQLite file, or the PostgreSQL URL without its password")
     read_only: bool = Field(description="served read-only (damaged or unwritable at start): changes get 503")
     problem: str | None = Field(description="what is wrong with the database, or null when it works")
 

@@ -1,7 +1,11 @@
 """Server settings (pydantic-settings): command-line flags override environment variables ``ASSEMBLY_AGENT_*``.
 
 * ``host``/``port``: where the HTTP server listens; ``viser_port``: the 3D scene's server (0 = off).
-* ``database``: SQLite file path or ``sqlite:///path`` URL where teacher tasks and sessions live.
+* ``database``: where teacher tasks, sessions and learner results live: a SQLite file path or ``sqlite:///path``
+  URL (default, no set-up), or a PostgreSQL server ``postgresql://user:password@host:port/dbname`` shared by
+  several stations (:mod:`app.database`).
+* ``station``: this station's name, stored with every session (the teacher's results are grouped by it);
+  default: the machine's host name.
 * ``teacher_password``: when set (env ``ASSEMBLY_AGENT_TEACHER_PASSWORD``), the teacher password; otherwise
   the first teacher to open ``/teacher`` sets it. It is only ever stored hashed.
 * ``source``: ``sim:<scenario>`` | ``recording:<dir>`` | ``camera:<n>`` (default: the simulated scenario of
@@ -30,11 +34,14 @@
 
 from __future__ import annotations
 
+import socket
 from pathlib import Path
 from typing import Literal
 
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from app.database import DatabaseTarget
 
 SERVER_PARTICLES = 100
 """The server's default tracker particle count (see the module docstring)."""
@@ -49,6 +56,12 @@ class Settings(BaseSettings):
     port: int = Field(8000, ge=0, le=65535)
     viser_port: int = Field(8080, ge=0, le=65535, description="port of the viser 3D scene; 0 disables it")
     database: str = "data/assembly-agent.sqlite3"
+    station: str = Field(
+        default_factory=lambda: socket.gethostname() or "station",
+        min_length=1,
+        max_length=64,
+        description="this station's name, stored with its sessions (default: the host name)",
+    )
     teacher_password: str | None = None
     source: str | None = Field(None, description="default: the simulated scenario matching the mode")
     mode: Literal["guidance", "guess", "learning", "none"] = "guidance"
@@ -103,15 +116,16 @@ class Settings(BaseSettings):
             return self.source
         return {"guess": "sim:guess-1", "learning": "sim:learning-4"}.get(self.mode, "sim:guidance-demo")
 
+    def database_target(self) -> DatabaseTarget:
+        """Where ``database`` points (ValueError naming the accepted forms for anything else)."""
+        return DatabaseTarget.parse(self.database)
+
     def database_path(self) -> Path:
-        """The SQLite file behind ``database`` (a path or a ``sqlite:///`` URL)."""
-        db = self.database
-        if "://" in db:
-            if not db.startswith("sqlite:///"):
-                scheme = db.split("://", 1)[0]
-                raise ValueError(
-                    f"database: only SQLite is supported by this build (got a {scheme!r} URL); "
-                    "use a file path or sqlite:///path"
-                )
-            db = db[len("sqlite:///") :]
-        return Path(db)
+        """The SQLite file behind ``database`` (a path or a ``sqlite:///`` URL); ValueError for a server."""
+        target = self.database_target()
+        if target.path is None:
+            raise ValueError(
+                f"database {target.display} is a PostgreSQL server: this works on SQLite files only "
+                "(back up a PostgreSQL database with pg_dump, restore it with pg_restore)"
+            )
+        return target.path

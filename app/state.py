@@ -84,7 +84,7 @@ class AppState:
 
     def __init__(self, settings: Settings, open_source: Callable[[str], FrameSource] | None = None) -> None:
         self.settings = settings
-        self.storage = Storage(settings.database_path(), on_damaged=settings.on_damaged_database)
+        self.storage = Storage(settings.database_target(), on_damaged=settings.on_damaged_database)
         self.auth = TeacherAuth(self.storage, settings.teacher_password)
         self.source_spec = settings.source_spec()
         self.mode = settings.mode
@@ -271,7 +271,8 @@ class AppState:
             new_id = None
             if not self.storage.read_only:
                 new_id = self.storage.switch_session(
-                    self.session_id, self.session_frames(), source or self.source_spec, mode, task
+                    self.session_id, self.session_frames(), source or self.source_spec, mode, task,
+                    station=self.settings.station,
                 )
             if apply is not None:
                 apply()

@@ -1,9 +1,13 @@
 #!/usr/bin/env bash
-# Install the Debian packages the tests need (Chromium for the browser tests) when they are missing.
+# Install the Debian packages the tests need when they are missing: Chromium (browser tests) and PostgreSQL
+# (the storage tests start a throw-away PostgreSQL server of their own; nothing is configured system-wide).
 # Needs root (or password-less sudo); without either it says what to install and carries on.
 set -euo pipefail
 missing=()
 command -v chromium >/dev/null 2>&1 || missing+=(chromium)
+if ! command -v initdb >/dev/null 2>&1 && ! ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1; then
+  missing+=(postgresql)
+fi
 if [ ${#missing[@]} -eq 0 ]; then
   exit 0
 fi

@@ -29,7 +29,16 @@ def register(subparsers) -> None:
     p.add_argument("--host", help="address to listen on (default 127.0.0.1; 0.0.0.0 for all interfaces)")
     p.add_argument("--port", type=int, help="HTTP port (default 8000)")
     p.add_argument("--viser-port", type=int, help="port of the viser 3D scene (default 8080; 0 disables it)")
-    p.add_argument("--database", help="SQLite file or sqlite:///path URL (default data/assembly-agent.sqlite3)")
+    p.add_argument(
+        "--database",
+        help="SQLite file, sqlite:///path, or postgresql://user:password@host:port/dbname for a database shared by "
+        "several stations (default data/assembly-agent.sqlite3; env ASSEMBLY_AGENT_DATABASE)",
+    )
+    p.add_argument(
+        "--station",
+        help="this station's name, stored with its sessions and results (default: the host name; "
+        "env ASSEMBLY_AGENT_STATION)",
+    )
     p.add_argument("--tracker-config", help="tracker preset name or YAML/TOML settings file")
     p.add_argument(
         "--particles",
@@ -139,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
             "port": args.port,
             "viser_port": args.viser_port,
             "database": args.database,
+            "station": args.station,
             "tracker_config": args.tracker_config,
             "n_particles": args.n_particles,
             "seed": args.seed,

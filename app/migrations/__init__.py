@@ -1,0 +1,3 @@
+"""Alembic migrations of the database schema (SQLite and PostgreSQL alike).
+
+Applied by :meth:`app.storage.Storage.migrate`."""

@@ -1,0 +1,66 @@
+"""Two app instances (two stations) on one real PostgreSQL server: they share teacher tasks, sessions and results,
+and both survive a restart of PostgreSQL (503 with a clear message while it is down, working again by themselves).
+"""
+
+from __future__ import annotations
+
+from contextlib import ExitStack
+
+from api_client import app_client
+from test_worker import SyntheticTable
+
+PASSWORD = "profesora-1"
+TEACHER = {"X-Teacher-Password": PASSWORD}
+TASK = {"source_sentence": "Μου αρέσει ο καφές", "words": ["Me", "gusta", "el", "café"]}
+
+
+def table(_spec):
+    return SyntheticTable(n_frames=100_000)
+
+
+def test_two_stations_share_one_postgres_and_survive_its_restart(postgres_server, tmp_path):
+    url = postgres_server.new_database()
+    with ExitStack() as stack:
+        a, b = (
+            stack.enter_context(
+                app_client(tmp_path / name, table, database=url, station=name, teacher_password=PASSWORD,
+                           source="synthetic:", autostart=False)
+            )
+            for name in ("bench-1", "bench-2")
+        )
+        # a task written on one station is there on the other
+        created = a.post("/api/tasks", json=TASK, headers=TEACHER)
+        assert created.status_code == 201, created.text
+        task_id = created.json()["id"]
+        assert [t["id"] for t in b.get("/api/tasks").json()["tasks"]] == [task_id]
+        # sessions of both stations land in one table; results are grouped by station
+        assert a.post("/api/sessions", json={"action": "start"}).status_code == 200
+        assert b.post("/api/sessions", json={"action": "start"}).status_code == 200
+        ids = {c.app.state.assembly.session_id for c in (a, b)}
+        assert len(ids) == 2 and None not in ids
+        assert ids <= {s["id"] for s in b.get("/api/sessions").json()["sessions"]}
+        store = a.app.state.assembly.storage
+        stations = {s["station"] for s in store.results()["sessions"] if s["id"] in ids}
+        assert stations == {"bench-1", "bench-2"}
+
+        postgres_server.stop()
+        try:
+            for c in (a, b):
+                r = c.get("/api/tasks")
+                assert r.status_code == 503 and "unavailable" in r.json()["detail"], r.text
+                assert "127.0.0.1" in r.json()["detail"] and PASSWORD not in r.json()["detail"]
+                r = c.post("/api/tasks", json={**TASK, "source_sentence": "lost?"}, headers=TEACHER)
+                assert r.status_code == 503 and "nothing was changed" in r.json()["detail"]
+                st = c.get("/api/status")
+                assert st.status_code == 200 and "unavailable" in st.json()["storage"]["problem"]
+        finally:
+            postgres_server.start()
+
+        # both recover without a restart of their own: the first request after the outage works
+        for c in (a, b):
+            r = c.get("/api/tasks")
+            assert r.status_code == 200 and [t["id"] for t in r.json()["tasks"]] == [task_id]
+            assert c.get("/api/status").json()["storage"]["problem"] is None
+        second = b.post("/api/tasks", json={**TASK, "source_sentence": "después"}, headers=TEACHER)
+        assert second.status_code == 201
+        assert len(a.get("/api/tasks").json()["tasks"]) == 2
