@@ -19,7 +19,7 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from app.middleware import LOOPBACK_NAMES, BodyLimit, HostGuard, SecurityHeaders, panel_csp
-from app.routes import auth, modes, pages, parts, sessions, sources, status, tasks, ws
+from app.routes import auth, modes, pages, parts, results, sessions, sources, status, tasks, ws
 from app.routes.deps import api_limit
 from app.settings import Settings
 from app.state import WEB_DIR, AppState, open_source_spec, version
@@ -30,7 +30,7 @@ __all__ = ["AppState", "create_app", "open_source_spec"]
 
 log = logging.getLogger(__name__)
 
-API_ROUTERS = (status, sources, modes, sessions, parts, auth, tasks)
+API_ROUTERS = (status, sources, modes, sessions, parts, auth, tasks, results)
 """Router modules of ``/api``, each with a ``router`` for one resource (requests count against ``api_rate``)."""
 OTHER_ROUTERS = (pages, ws)
 

@@ -112,6 +112,10 @@ class AppState:
 
         self.identical = IdenticalParts()  # same-colour parts told apart in the image (Algorithm 2)
         self.worker.frame_hooks.append(self.identical.on_frame)
+        from app.results import ResultsRecorder
+
+        self.results = ResultsRecorder(self.storage)  # learner results, written in batches off the frame loop
+        self.worker.frame_hooks.append(self.results.on_frame)
         self.round = 0  # pipelines built so far: each opening of the source (a loop, a reset, a switch) is a round
         self._session_frames0 = 0
         self._lock = threading.Lock()
@@ -278,9 +282,11 @@ class AppState:
                 apply()
             self.session_id = new_id
             self._session_frames0 = self.worker.frames_processed
+            self.results.switch(new_id, mode)
 
     def end_session(self) -> None:
         """Record the end of the current session (a storage error is logged: the server is stopping)."""
+        self.results.switch(None, None)
         if self.session_id is not None:
             try:
                 self.storage.end_session(self.session_id, self.session_frames())
@@ -294,6 +300,7 @@ class AppState:
     # -------------------------------------------------------------- life cycle
     def startup(self) -> None:
         s = self.settings
+        self.results.start()
         if s.viser_port:
             try:
                 from app.scene import Scene, SceneUpdater
@@ -313,6 +320,7 @@ class AppState:
     def shutdown(self) -> None:
         self.end_session()
         self.worker.stop()
+        self.results.stop()
         self._close_process_source()
         if self.scene_updater is not None:
             self.scene_updater.stop()

@@ -1,5 +1,6 @@
 """Two app instances (two stations) on one real PostgreSQL server: they share teacher tasks, sessions and results,
-and both survive a restart of PostgreSQL (503 with a clear message while it is down, working again by themselves).
+and both survive a restart of PostgreSQL (503 with a clear message while it is down, working again by themselves;
+learner results made meanwhile are kept in memory and written once it is back).
 """
 
 from __future__ import annotations
@@ -7,7 +8,10 @@ from __future__ import annotations
 from contextlib import ExitStack
 
 from api_client import app_client
+from test_results import play_guidance
 from test_worker import SyntheticTable
+
+from app.results import ResultsRecorder
 
 PASSWORD = "profesora-1"
 TEACHER = {"X-Teacher-Password": PASSWORD}
@@ -42,6 +46,19 @@ def test_two_stations_share_one_postgres_and_survive_its_restart(postgres_server
         store = a.app.state.assembly.storage
         stations = {s["station"] for s in store.results()["sessions"] if s["id"] in ids}
         assert stations == {"bench-1", "bench-2"}
+        # learner results written by each station are read by the teacher on either
+        recorders = []
+        for c in (a, b):
+            state = c.app.state.assembly
+            rec = ResultsRecorder(state.storage)
+            rec.switch(state.storage.start_session("sim:guidance-demo", "guidance", None,
+                                                   station=state.settings.station), "guidance")
+            recorders.append(rec)
+        play_guidance(recorders[0])
+        assert recorders[0].flush()
+        seen = b.get("/api/results", headers=TEACHER).json()
+        assert [x["station"] for x in seen["sessions"] if x["steps_done"]] == ["bench-1"]
+        assert seen["steps"][0]["n"] == 1 and seen["stations"] == ["bench-1", "bench-2"]
 
         postgres_server.stop()
         try:
@@ -53,6 +70,8 @@ def test_two_stations_share_one_postgres_and_survive_its_restart(postgres_server
                 assert r.status_code == 503 and "nothing was changed" in r.json()["detail"]
                 st = c.get("/api/status")
                 assert st.status_code == 200 and "unavailable" in st.json()["storage"]["problem"]
+            play_guidance(recorders[1])  # a learner at bench-2 goes on working meanwhile
+            assert recorders[1].flush() is False and recorders[1].pending() == 3  # kept in memory
         finally:
             postgres_server.start()
 
@@ -64,3 +83,6 @@ def test_two_stations_share_one_postgres_and_survive_its_restart(postgres_server
         second = b.post("/api/tasks", json={**TASK, "source_sentence": "después"}, headers=TEACHER)
         assert second.status_code == 201
         assert len(a.get("/api/tasks").json()["tasks"]) == 2
+        assert recorders[1].flush() is True  # nothing of the outage is lost
+        by_station = {g["station"]: g for g in a.get("/api/results", headers=TEACHER).json()["by_station"]}
+        assert by_station["bench-2"]["completed"] == 1 and by_station["bench-2"]["wrong_placements"] == 1

@@ -51,6 +51,7 @@ async function refreshAuth() {
   if (auth.loggedIn) setMessage("login-message", "Logged in as teacher.");
   $("btn-save").disabled = !auth.loggedIn;
   await refreshTasks();
+  if (window.refreshResults) await window.refreshResults(auth.loggedIn); // results.js: the learner results view
 }
 
 $("login-form").addEventListener("submit", async (ev) => {
