@@ -33,6 +33,8 @@ from app.storage import Storage, StorageError
 
 log = logging.getLogger(__name__)
 
+BLINK_S = 1.0
+"""An unfinished step shorter than this (seconds) with no wrong placement or hint is not stored."""
 MAX_BUFFERED_STEPS = 20_000
 """Step rows kept in memory while the database cannot be written; older ones are dropped (and counted) above."""
 
@@ -172,6 +174,8 @@ class ResultsRecorder:
         a = self._attempt
         if a is None or self._session is None or a.complete:
             return
+        if now - a.step_started_at < BLINK_S and a.wrong == 0 and a.hints == 0:
+            return  # the last frames of a pipeline being replaced (a reset): nothing was worked on
         if a.best < a.total:
             self._add_step(a, a.best + 1, "unfinished", now)
 

@@ -328,6 +328,14 @@ class Storage:
             return None
         return int(con.execute(sa.text("SELECT MAX(version) FROM schema_version")).scalar() or 0)
 
+    def counts(self) -> dict[str, int]:
+        """How many tasks, sessions and result steps the database holds."""
+        with self._transaction() as con:
+            return {
+                name: int(con.execute(sa.select(sa.func.count()).select_from(table)).scalar_one())
+                for name, table in (("tasks", tasks_table), ("sessions", sessions_table), ("steps", steps_table))
+            }
+
     def status(self) -> dict[str, Any]:
         """``{path, read_only, problem}`` for ``/api/status`` (path: the file, or the URL without password)."""
         problem = self.read_only or self.problem

@@ -59,6 +59,17 @@ def test_schema_at_head_and_newer_database_refused(database):
     assert main(["db", "--database", database, "upgrade"]) == 1  # the command refuses it as well
 
 
+def test_db_upgrade_and_check_commands(database, capsys):
+    assert main(["db", "--database", database, "upgrade"]) == 0
+    assert f"schema at revision {head_revision()} (was empty)" in capsys.readouterr().out
+    assert main(["db", "--database", database, "upgrade"]) == 0  # nothing left to do
+    assert capsys.readouterr().out.strip().endswith(f"schema at revision {head_revision()}")
+    Storage(database).create_task(TASK)
+    assert main(["db", "--database", database, "check"]) == 0
+    out = capsys.readouterr().out
+    assert "1 teacher task(s), 0 session(s)" in out and ("intact" in out or "reachable" in out)
+
+
 def test_two_servers_migrate_one_new_database_together(database):
     """Two servers starting at the same moment on an empty database: the schema is created once, both work."""
     opened: list[Storage] = []

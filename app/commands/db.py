@@ -53,11 +53,11 @@ def run(args: argparse.Namespace) -> int:
             assert storage.migration is not None
             before, after = storage.migration
             storage.dispose()
-            print(f"{target.display}: schema at revision {after}" + (f" (was {before})" if before != after else ""))
+            was = f" (was {before or 'empty'})" if before != after else ""
+            print(f"{target.display}: schema at revision {after}{was}")
         elif args.db_action == "check" and target.path is None:
             storage = Storage(target)
-            n_tasks, n_sessions = len(storage.list_tasks()), len(storage.list_sessions(limit=1_000_000))
-            info = {"tasks": n_tasks, "sessions": n_sessions, "revision": storage.schema_version()}
+            info = {**storage.counts(), "revision": storage.schema_version()}
             storage.dispose()
             print(f"{target.display}: reachable; {_summary(info)}")
         elif args.db_action == "check":
