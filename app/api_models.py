@@ -268,3 +268,62 @@ class AuthStatus(BaseModel):
 
 class Message(BaseModel):
     detail: str
+
+
+# ---------------------------------------------------------------------- learner results (teacher only)
+class ResultSession(BaseModel):
+    """One session's results; times are wall-clock seconds since the epoch, durations seconds."""
+
+    id: int
+    station: str | None
+    mode: str | None
+    task: str = Field(description="the task reference (a mode's default task when none was named)")
+    started_at: float
+    ended_at: float | None
+    completed_at: float | None = Field(description="when the task was first completed, or null")
+    steps_total: int | None
+    steps_done: int = Field(description="steps finished in the session's best attempt")
+    wrong_placements: int
+    hints: int
+    time_s: float = Field(description="seconds spent on steps, all attempts")
+
+
+class ResultStep(BaseModel):
+    """One step index over all matching sessions and attempts."""
+
+    step: int = Field(description="1-based step index")
+    n: int = Field(description="attempts at this step (finished or not)")
+    mean_time_s: float | None = Field(description="mean seconds of the finished ones")
+    error_rate: float = Field(description="share (0..1) of attempts with at least one wrong placement")
+    hints: int
+
+
+class ResultGroup(BaseModel):
+    """Totals of the sessions of one task or one station (``task`` or ``station`` names it)."""
+
+    task: str | None = None
+    station: str | None = None
+    sessions: int
+    completed: int
+    mean_step_time_s: float | None
+    error_rate: float | None
+    wrong_placements: int
+    hints: int
+
+
+class ResultFilters(BaseModel):
+    task: str | None
+    station: str | None
+
+
+class Results(BaseModel):
+    """``GET /api/results``: the matching sessions (newest first), per step, per task, per station, and the
+    tasks and stations there are (for the filters)."""
+
+    filters: ResultFilters
+    tasks: list[str]
+    stations: list[str]
+    sessions: list[ResultSession]
+    steps: list[ResultStep]
+    by_task: list[ResultGroup]
+    by_station: list[ResultGroup]

@@ -13,6 +13,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 from fastapi.responses import Response
 
+from app import api_models as m
 from app.results import CSV_COLUMNS, csv_rows, summarise, task_name
 from app.routes.deps import StorageDep, Teacher
 from app.routes.tasks import TEACHER_ONLY
@@ -30,7 +31,7 @@ def _filtered(storage, task: str | None, station: str | None) -> tuple[list[dict
     return sessions, chosen
 
 
-@router.get("/api/results", dependencies=[Teacher], responses=TEACHER_ONLY)
+@router.get("/api/results", response_model=m.Results, dependencies=[Teacher], responses=TEACHER_ONLY)
 def results(storage: StorageDep, task: Filter = None, station: Filter = None) -> dict:
     """Sessions (newest first), mean time and error rate per step, and totals per task and per station; the
     tasks and stations there are (for the filters). Times in seconds, error rates 0..1."""
@@ -43,7 +44,12 @@ def results(storage: StorageDep, task: Filter = None, station: Filter = None) ->
     }
 
 
-@router.get("/api/results.csv", dependencies=[Teacher], responses=TEACHER_ONLY, response_class=Response)
+@router.get(
+    "/api/results.csv",
+    dependencies=[Teacher],
+    response_class=Response,
+    responses={**TEACHER_ONLY, 200: {"content": {"text/csv": {}}, "description": "one row per step"}},
+)
 def results_csv(storage: StorageDep, task: Filter = None, station: Filter = None) -> Response:
     """One CSV row per step of every matching session (columns: see ``app.results.CSV_COLUMNS``)."""
     _, chosen = _filtered(storage, task, station)
