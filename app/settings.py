@@ -4,6 +4,8 @@
 * ``database``: where teacher tasks, sessions and learner results live: a SQLite file path or ``sqlite:///path``
   URL (default, no set-up), or a PostgreSQL server ``postgresql://user:password@host:port/dbname`` shared by
   several stations (:mod:`app.database`).
+* ``database_wait_s``: at start, keep trying this many seconds while a PostgreSQL database is unreachable
+  (a server started together with its database); 0 (default): stop at once with the message.
 * ``station``: this station's name, stored with every session (the teacher's results are grouped by it);
   default: the machine's host name.
 * ``teacher_password``: when set (env ``ASSEMBLY_AGENT_TEACHER_PASSWORD``), the teacher password; otherwise
@@ -56,6 +58,11 @@ class Settings(BaseSettings):
     port: int = Field(8000, ge=0, le=65535)
     viser_port: int = Field(8080, ge=0, le=65535, description="port of the viser 3D scene; 0 disables it")
     database: str = "data/assembly-agent.sqlite3"
+    database_wait_s: float = Field(
+        0.0,
+        ge=0,
+        description="seconds to keep trying at start while a PostgreSQL database is unreachable (0: fail at once)",
+    )
     station: str = Field(
         default_factory=lambda: socket.gethostname() or "station",
         min_length=1,

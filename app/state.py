@@ -21,7 +21,7 @@ from app import api_models as m
 from app.auth import TeacherAuth
 from app.limits import Limits
 from app.settings import Settings
-from app.storage import Storage, StorageError
+from app.storage import StorageError, open_storage
 from app.validation import check_preset_id, teacher_task_id
 from app.worker import PipelineWorker
 from tracker.assembly import SentenceTask
@@ -84,7 +84,9 @@ class AppState:
 
     def __init__(self, settings: Settings, open_source: Callable[[str], FrameSource] | None = None) -> None:
         self.settings = settings
-        self.storage = Storage(settings.database_target(), on_damaged=settings.on_damaged_database)
+        self.storage = open_storage(
+            settings.database_target(), on_damaged=settings.on_damaged_database, wait_s=settings.database_wait_s
+        )
         self.auth = TeacherAuth(self.storage, settings.teacher_password)
         self.source_spec = settings.source_spec()
         self.mode = settings.mode

@@ -16,6 +16,7 @@ so the first operation after the server is back works again without a restart.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import sqlite3
 import threading
@@ -36,6 +37,7 @@ from sqlalchemy.pool import NullPool
 
 from app.database import DatabaseTarget
 
+log = logging.getLogger(__name__)
 MIGRATIONS_DIR = Path(__file__).resolve().parent / "migrations"
 BASELINE_REVISION = "0001"
 """The revision that matches a file of the old ``schema_version`` scheme (version 1)."""
@@ -98,6 +100,13 @@ class StorageError(RuntimeError):
 
     The message names the database and says what to do; the web app answers it with ``503``."""
 
+
+class StorageUnavailable(StorageError):
+    """The database server cannot be reached (PostgreSQL down or restarting); it may work again by itself."""
+
+
+UNAVAILABLE = (sa.exc.OperationalError, sa.exc.InterfaceError, sa.exc.TimeoutError)
+"""SQLAlchemy errors that mean "the server is not there" on PostgreSQL (refused, cut, pool timed out)."""
 
 RESTORE_HINT = "restore a backup with `assembly-agent db restore BACKUP` or move the file away to start empty"
 
@@ -245,7 +254,10 @@ class Storage:
             with self.engine.begin() as con:
                 yield con
         except SQLAlchemyError as exc:
-            raise self._failed(self._explain(exc)) from exc
+            error = self._failed(self._explain(exc))
+            if self.path is None and isinstance(exc, UNAVAILABLE):
+                error = StorageUnavailable(str(error))
+            raise error from exc
         self.problem = None
 
     def _explain(self, exc: SQLAlchemyError) -> str:
@@ -257,7 +269,7 @@ class Storage:
                     f"saved; {RESTORE_HINT} and restart the server"
                 )
             return f"database {self.path}: {_first_line(exc)}"
-        if isinstance(exc, sa.exc.OperationalError | sa.exc.InterfaceError | sa.exc.TimeoutError):
+        if isinstance(exc, UNAVAILABLE):
             return (
                 f"database {self.name} is unavailable ({_first_line(exc)}); nothing was changed. The server "
                 "keeps trying and works again as soon as the database is back"
@@ -505,6 +517,24 @@ class Storage:
         for x in sessions:
             x["steps"] = by_session[x["id"]]
         return {"sessions": sessions}
+
+
+def open_storage(
+    database: str | Path | DatabaseTarget, on_damaged: str = "refuse", wait_s: float = 0.0, poll_s: float = 1.0
+) -> Storage:
+    """:class:`Storage` on ``database``; while its server is unreachable (:class:`StorageUnavailable`), try again
+    every ``poll_s`` seconds for up to ``wait_s`` seconds (a server starting before its database, as in a
+    classroom's compose file); then, or on any other error, raise."""
+    deadline = time.monotonic() + max(0.0, wait_s)
+    while True:
+        try:
+            return Storage(database, on_damaged=on_damaged)
+        except StorageUnavailable as exc:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise
+            log.warning("%s; trying again for %.0f s more", exc, left)
+            time.sleep(min(poll_s, left))
 
 
 # ---------------------------------------------------------------------- backup and restore

@@ -5,13 +5,16 @@ learner results made meanwhile are kept in memory and written once it is back).
 
 from __future__ import annotations
 
+import threading
 from contextlib import ExitStack
 
+import pytest
 from api_client import app_client
 from test_results import play_guidance
 from test_worker import SyntheticTable
 
 from app.results import ResultsRecorder
+from app.storage import StorageUnavailable, head_revision, open_storage
 
 PASSWORD = "profesora-1"
 TEACHER = {"X-Teacher-Password": PASSWORD}
@@ -86,3 +89,22 @@ def test_two_stations_share_one_postgres_and_survive_its_restart(postgres_server
         assert recorders[1].flush() is True  # nothing of the outage is lost
         by_station = {g["station"]: g for g in a.get("/api/results", headers=TEACHER).json()["by_station"]}
         assert by_station["bench-2"]["completed"] == 1 and by_station["bench-2"]["wrong_placements"] == 1
+
+
+def test_server_waits_for_its_database_at_start(postgres_server):
+    """A station started before PostgreSQL (``--database-wait``) opens the database once it is up."""
+    url = postgres_server.new_database()
+    postgres_server.stop()
+    timer = threading.Timer(1.0, postgres_server.start)
+    try:
+        with pytest.raises(StorageUnavailable, match="is unavailable"):
+            open_storage(url, wait_s=0)  # without waiting: the clear message at once
+        timer.start()
+        store = open_storage(url, wait_s=120, poll_s=0.2)
+    finally:
+        if timer.is_alive() or timer.finished.is_set():
+            timer.join()
+        else:
+            postgres_server.start()
+    assert store.schema_version() == head_revision()
+    assert store.create_task(TASK)["id"] == 1

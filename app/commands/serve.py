@@ -35,6 +35,14 @@ def register(subparsers) -> None:
         "several stations (default data/assembly-agent.sqlite3; env ASSEMBLY_AGENT_DATABASE)",
     )
     p.add_argument(
+        "--database-wait",
+        type=float,
+        dest="database_wait_s",
+        metavar="SECONDS",
+        help="at start, keep trying this long while a PostgreSQL database is unreachable (default 0; env "
+        "ASSEMBLY_AGENT_DATABASE_WAIT_S)",
+    )
+    p.add_argument(
         "--station",
         help="this station's name, stored with its sessions and results (default: the host name; "
         "env ASSEMBLY_AGENT_STATION)",
@@ -149,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
             "viser_port": args.viser_port,
             "database": args.database,
             "station": args.station,
+            "database_wait_s": args.database_wait_s,
             "tracker_config": args.tracker_config,
             "n_particles": args.n_particles,
             "seed": args.seed,
