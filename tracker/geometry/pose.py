@@ -6,6 +6,7 @@ A :class:`Pose` maps points from a body frame into a parent frame (usually the c
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,11 +16,23 @@ from scipy.spatial.transform import Rotation
 def normalize_quat(q: np.ndarray) -> np.ndarray:
     """Unit quaternion(s) ``[..., 4]`` in ``[x, y, z, w]`` order with ``w >= 0``."""
     q = np.asarray(q, dtype=np.float64)
+    if q.shape == (4,):
+        return _normalize_quat_one(*q.tolist())
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if np.any(n < 1e-12):
         raise ValueError("zero-length quaternion")
     q = q / n
     return np.where(q[..., 3:4] < 0, -q, q)
+
+
+def _normalize_quat_one(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """:func:`normalize_quat` of one quaternion in plain floats (the same operations, bit-identical)."""
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if n < 1e-12:
+        raise ValueError("zero-length quaternion")
+    if w / n < 0:
+        return np.array([-x / n, -y / n, -z / n, -w / n])
+    return np.array([x / n, y / n, z / n, w / n])
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -38,13 +51,115 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix/matrices ``[..., 3, 3]`` of Hamilton ``[x, y, z, w]`` quaternion(s)."""
-    return Rotation.from_quat(np.asarray(q, dtype=np.float64)).as_matrix()
+    """Rotation matrix/matrices ``[..., 3, 3]`` of Hamilton ``[x, y, z, w]`` quaternion(s) (normalised first).
+
+    Closed form, the same floating-point operations in the same order as scipy's ``Rotation.from_quat(q)
+    .as_matrix()`` (bit-identical results, without its per-call overhead of a few hundred microseconds)."""
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape == (4,):
+        return _quat_to_matrix_one(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+    if q.shape[-1:] != (4,):
+        raise ValueError(f"expected quaternions of shape (..., 4), got {q.shape}")
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    n = np.sqrt(x * x + y * y + z * z + w * w)
+    if np.any(n == 0.0):
+        raise ValueError("zero-length quaternion")
+    x, y, z, w = x / n, y / n, z / n, w / n
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    m = np.stack(
+        [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw),
+         2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw),
+         2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2],
+        axis=-1,
+    )  # fmt: skip
+    return m.reshape(*q.shape[:-1], 3, 3)
+
+
+def _quat_to_matrix_one(x: float, y: float, z: float, w: float) -> np.ndarray:
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if n == 0.0:
+        raise ValueError("zero-length quaternion")
+    x, y, z, w = x / n, y / n, z / n, w / n
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    return np.array(
+        [[x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
+         [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
+         [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2]]
+    )  # fmt: skip
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """Hamilton ``[x, y, z, w]`` quaternion(s) with ``w >= 0`` of rotation matrix/matrices."""
-    return normalize_quat(Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat())
+    """Hamilton ``[x, y, z, w]`` quaternion(s) with ``w >= 0`` of rotation matrix/matrices ``[..., 3, 3]``.
+
+    A matrix that is not orthonormal (its Gram matrix not within ``isclose(·, I, atol=1e-12)``) is replaced by
+    the nearest rotation (SVD) first; a non-positive determinant is a ValueError. Shepperd's method with the same
+    floating-point operations as scipy's ``Rotation.from_matrix(R).as_quat()`` (bit-identical results, without
+    its per-call overhead)."""
+    R = np.asarray(R, dtype=np.float64)
+    if R.shape == (3, 3):
+        return normalize_quat(_matrix_to_quat_one(R))
+    if R.shape[-2:] != (3, 3):
+        raise ValueError(f"expected rotation matrices of shape (..., 3, 3), got {R.shape}")
+    det = np.linalg.det(R)
+    if np.any(det <= 0):
+        raise ValueError(f"non-positive determinant (left-handed or null coordinate frame) in rotation matrix {R}")
+    orthogonal = np.all(np.isclose(R @ np.swapaxes(R, -1, -2), np.eye(3), atol=1e-12), axis=(-2, -1))
+    if not np.all(orthogonal):
+        R = R.copy()
+        bad = ~orthogonal
+        U, _, Vt = np.linalg.svd(R[bad].reshape(-1, 3, 3), full_matrices=False)
+        R[bad] = (U @ Vt).reshape(R[bad].shape)
+    m00, m01, m02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
+    m10, m11, m12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
+    m20, m21, m22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
+    tr = m00 + m11 + m22
+    choice = np.argmax(np.stack([m00, m11, m22, tr], axis=-1), axis=-1)[..., None]
+    cases = (
+        (1 - tr + 2 * m00, m10 + m01, m20 + m02, m21 - m12),
+        (m10 + m01, 1 - tr + 2 * m11, m21 + m12, m02 - m20),
+        (m20 + m02, m21 + m12, 1 - tr + 2 * m22, m10 - m01),
+        (m21 - m12, m02 - m20, m10 - m01, 1 + tr),
+    )
+    q = np.empty((*R.shape[:-2], 4))
+    for c, case in enumerate(cases):
+        q = np.where(choice == c, np.stack(case, axis=-1), q)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    q = q / np.sqrt(x * x + y * y + z * z + w * w)[..., None]
+    return normalize_quat(q)
+
+
+def _matrix_to_quat_one(m: np.ndarray) -> np.ndarray:
+    """:func:`matrix_to_quat` of one 3×3 matrix in plain floats (the checks of the batch path, elementwise)."""
+    rows = m.tolist()
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    if not a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0:
+        raise ValueError(f"non-positive determinant (left-handed or null coordinate frame) in rotation matrix {m}")
+    for r in range(3):
+        for k in range(r, 3):
+            gram = rows[r][0] * rows[k][0] + rows[r][1] * rows[k][1] + rows[r][2] * rows[k][2]
+            if not abs(gram - (r == k)) <= 1e-12 + 1e-5 * (r == k):  # np.isclose(gram, I, atol=1e-12)
+                U, _, Vt = np.linalg.svd(m[None], full_matrices=False)
+                return _orthonormal_matrix_to_quat_one((U @ Vt)[0].tolist())
+    return _orthonormal_matrix_to_quat_one(rows)
+
+
+def _orthonormal_matrix_to_quat_one(rows: list[list[float]]) -> np.ndarray:
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rows
+    tr = m00 + m11 + m22
+    decision = (m00, m11, m22, tr)
+    c = decision.index(max(decision))  # the first of equal largest, as numpy's argmax
+    if c == 0:
+        q = (1 - tr + 2 * m00, m10 + m01, m20 + m02, m21 - m12)
+    elif c == 1:
+        q = (m10 + m01, 1 - tr + 2 * m11, m21 + m12, m02 - m20)
+    elif c == 2:
+        q = (m20 + m02, m21 + m12, 1 - tr + 2 * m22, m10 - m01)
+    else:
+        q = (m21 - m12, m02 - m20, m10 - m01, 1 + tr)
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return np.array([q[0] / n, q[1] / n, q[2] / n, q[3] / n])
 
 
 def rotation_angle(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
@@ -63,7 +178,7 @@ class Pose:
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=np.float64).reshape(3)
         q = normalize_quat(np.asarray(self.q, dtype=np.float64).reshape(4))
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))):
+        if not all(math.isfinite(v) for v in (*t.tolist(), *q.tolist())):
             raise ValueError("pose has non-finite values")
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "q", q)
