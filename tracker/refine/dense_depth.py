@@ -82,16 +82,6 @@ class RefineResult:
         return float(self.n_valid - 2 * self.n_behind)
 
 
-def _rodrigues(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix of the rotation vector ``w`` (rad)."""
-    theta = float(np.linalg.norm(w))
-    if theta < 1e-12:
-        return np.eye(3)
-    k = w / theta
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
-
-
 @nb.njit(cache=True)
 def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, fx, fy, cx, cy, sigma0, sigma_z2,
                 huber_k, behind_margin):
@@ -158,6 +148,77 @@ def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, 
     return H, g, n_valid, n_obs, med, n_behind
 
 
+@nb.njit(cache=True)
+def _solve_spd6(A, b):
+    """x with ``A x = b`` for a symmetric positive definite 6×6 ``A`` (Cholesky); ``ok`` False when A is not."""
+    L = np.zeros((6, 6))
+    x = np.zeros(6)
+    for i in range(6):
+        for j in range(i + 1):
+            acc = A[i, j]
+            for m in range(j):
+                acc -= L[i, m] * L[j, m]
+            if i == j:
+                if not acc > 0.0:
+                    return x, False
+                L[i, i] = np.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+    y = np.zeros(6)
+    for i in range(6):
+        acc = b[i]
+        for m in range(i):
+            acc -= L[i, m] * y[m]
+        y[i] = acc / L[i, i]
+    for i in range(5, -1, -1):
+        acc = y[i]
+        for m in range(i + 1, 6):
+            acc -= L[m, i] * x[m]
+        x[i] = acc / L[i, i]
+    return x, True
+
+
+@nb.njit(cache=True)
+def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy, cx, cy,
+                  sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step):
+    """The correspondence iterations of :func:`refine_pose` (coarse to fine thresholds, ``updates`` Gauss-Newton
+    steps each, the inner loop ends early when the step's norm is below ``stop_step``). Updates ``R``, ``t`` in
+    place; returns (status: 0 done, 1 too few valid pairs, 2 singular system; the last pass's ``H``, ``n_valid``,
+    ``n_obs``, median |r|)."""
+    c = np.empty(3)
+    H = np.zeros((6, 6))
+    n_valid, n_obs, med = 0, 0, np.nan
+    for thr in thresholds:
+        for _ in range(updates):
+            for a in range(3):
+                c[a] = R[a, 0] * center[0] + R[a, 1] * center[1] + R[a, 2] * center[2] + t[a]
+            H, g, n_valid, n_obs, med, _nb = _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
+                                                         occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k, behind)
+            if n_valid < min_points:
+                return 1, H, n_valid, n_obs, med
+            A = H.copy()
+            for a in range(3):
+                A[a, a] += lambda_rot
+                A[a + 3, a + 3] += lambda_trans
+            xi, ok = _solve_spd6(A, -g)
+            if not ok:
+                return 2, H, n_valid, n_obs, med
+            # rotation about the part's centre c by exp(ω) (Rodrigues), then the translation v
+            w0, w1, w2 = xi[0], xi[1], xi[2]
+            theta = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            Rw = np.eye(3)
+            if theta >= 1e-12:
+                k0, k1, k2 = w0 / theta, w1 / theta, w2 / theta
+                K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
+                Rw = Rw + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+            d = t - c
+            t[:] = c + Rw @ d + xi[3:]
+            R[:, :] = Rw @ R
+            if np.sqrt(np.sum(xi * xi)) < stop_step:
+                break
+    return 0, H, n_valid, n_obs, med
+
+
 def refine_pose(
     depth: np.ndarray,
     intrinsics: Intrinsics,
@@ -183,7 +244,6 @@ def refine_pose(
         pts, nrm = pts[sel], nrm[sel]
     m_total = pts.shape[0]
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
-    prior = np.diag([cfg.lambda_rot] * 3 + [cfg.lambda_trans] * 3)
     info = np.zeros((6, 6))
     n_valid, n_observable, med = 0, 0, float("nan")
     if m_total < cfg.min_points:
@@ -193,27 +253,18 @@ def refine_pose(
     center = np.asarray(center, np.float64)
     behind = cfg.thresholds[-1] * 2.0
 
-    def correspond(thr: float):
-        return _accumulate(pts, nrm, R, t, R @ center + t, dep, mask, allowed is not None, float(thr),
-                           cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k, behind)
-
-    for thr in cfg.thresholds:
-        for _ in range(cfg.updates_per_iteration):
-            info, g, n_valid, n_observable, med, _ = correspond(thr)
-            if n_valid < cfg.min_points:
-                return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info,
-                                    f"only {n_valid} valid depth pairs")
-            try:
-                xi = -np.linalg.solve(info + prior, g)
-            except np.linalg.LinAlgError:
-                return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info, "singular system")
-            c = R @ center + t
-            Rw = _rodrigues(xi[:3])
-            t = c + Rw @ (t - c) + xi[3:]
-            R = Rw @ R
-            if np.linalg.norm(xi) < cfg.stop_step:
-                break
-    info, _, n_valid, n_observable, med, n_behind = correspond(cfg.thresholds[-1])  # support of the final pose
+    status, info, n_valid, n_observable, med = _gauss_newton(
+        pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
+        int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k, behind,
+        cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step)
+    if status == 1:
+        return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info,
+                            f"only {n_valid} valid depth pairs")
+    if status == 2:
+        return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info, "singular system")
+    info, _, n_valid, n_observable, med, n_behind = _accumulate(  # support of the final pose
+        pts, nrm, R, t, R @ center + t, dep, mask, allowed is not None, float(cfg.thresholds[-1]), cfg.occlusion_m,
+        fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k, behind)
     frac = n_valid / m_total
     # supported: enough of the model matched, or (partly hidden by a hand or another part) most of what can be seen
     healthy = frac >= cfg.min_valid_fraction or (
