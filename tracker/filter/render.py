@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numba as nb
 import numpy as np
 
 from tracker.geometry.box_renderer import render_boxes_at_pixels
@@ -34,18 +35,32 @@ def render(trk: MultiObjectTracker, obj, p, R, particles, rays, pu, pv, gi, gj, 
 
 
 def bbox(trk, obj, p, R) -> tuple[float, float, float, float]:
-    """Full-resolution pixel rectangle (umin, umax, vmin, vmax) covering part ``obj`` for all given poses."""
+    """Full-resolution pixel rectangle (umin, umax, vmin, vmax) covering part ``obj`` for all given poses
+    (positions ``p`` (N, 3), rotations ``R`` (N, 3, 3)), widened by 1 px; unbounded when a corner lies within 1 cm
+    of the camera plane, empty (inf, −inf, …) without poses."""
     if p.shape[0] == 0:
         return (np.inf, -np.inf, np.inf, -np.inf)
-    pts = np.einsum("nij,cj->nci", R, trk.corners[obj]) + p[:, None, :]
-    zc = pts[..., 2]
-    if np.any(zc < 0.01):
-        return (-np.inf, np.inf, -np.inf, np.inf)
     intr = trk.intrinsics
-    u = intr.fx * pts[..., 0] / zc + intr.cx
-    v = intr.fy * pts[..., 1] / zc + intr.cy
-    m = 1.0
-    return (u.min() - m, u.max() + m, v.min() - m, v.max() + m)
+    return _projected_bounds(R, p, trk.corners[obj], intr.fx, intr.fy, intr.cx, intr.cy)
+
+
+@nb.njit(cache=True)
+def _projected_bounds(R, p, corners, fx, fy, cx, cy):
+    umin, umax, vmin, vmax = np.inf, -np.inf, np.inf, -np.inf
+    for n in range(p.shape[0]):
+        for c in range(corners.shape[0]):
+            x = R[n, 0, 0] * corners[c, 0] + R[n, 0, 1] * corners[c, 1] + R[n, 0, 2] * corners[c, 2] + p[n, 0]
+            y = R[n, 1, 0] * corners[c, 0] + R[n, 1, 1] * corners[c, 1] + R[n, 1, 2] * corners[c, 2] + p[n, 1]
+            z = R[n, 2, 0] * corners[c, 0] + R[n, 2, 1] * corners[c, 1] + R[n, 2, 2] * corners[c, 2] + p[n, 2]
+            if z < 0.01:
+                return (-np.inf, np.inf, -np.inf, np.inf)
+            u = fx * x / z + cx
+            v = fy * y / z + cy
+            umin = min(umin, u)
+            umax = max(umax, u)
+            vmin = min(vmin, v)
+            vmax = max(vmax, v)
+    return (umin - 1.0, umax + 1.0, vmin - 1.0, vmax + 1.0)
 
 
 def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
