@@ -494,7 +494,7 @@ class Storage:
         """Sessions that have a mode (newest first, at most ``limit``), each with its step rows, filtered by task
         and station: ``{"sessions": [{…, "steps": [{…}]}]}``."""
         s, st = sessions_table, steps_table
-        query = sa.select(*(s.c[k] for k in RESULT_SESSION_KEYS)).where(s.c.mode.is_not(None))
+        query = sa.select(*(s.c[k] for k in RESULT_SESSION_KEYS)).where(s.c.mode.is_not(None), s.c.mode != "none")
         if task is not None:
             query = query.where(s.c.task == task)
         if station is not None:

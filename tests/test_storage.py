@@ -70,6 +70,26 @@ def test_db_upgrade_and_check_commands(database, capsys):
     assert "1 teacher task(s), 0 session(s)" in out and ("intact" in out or "reachable" in out)
 
 
+def test_migrations_go_down_and_up_again(database):
+    """Every revision's downgrade undoes its upgrade (on this backend): down to the baseline, then up again."""
+    from alembic import command
+
+    from app.storage import BASELINE_REVISION, alembic_config
+
+    Storage(database)
+    engine = engine_for(database)
+    with engine.begin() as con:
+        command.downgrade(alembic_config(con), BASELINE_REVISION)
+    with engine.connect() as con:
+        assert not sa.inspect(con).has_table("session_steps")
+        assert "station" not in {c["name"] for c in sa.inspect(con).get_columns("sessions")}
+    s = Storage(database)  # opening upgrades again
+    assert s.schema_version() == head_revision()
+    sid = s.start_session("sim:static", "guidance", None, station="bench-1")
+    assert s.results(station="bench-1")["sessions"][0]["id"] == sid
+    engine.dispose()
+
+
 def test_two_servers_migrate_one_new_database_together(database):
     """Two servers starting at the same moment on an empty database: the schema is created once, both work."""
     opened: list[Storage] = []
@@ -183,6 +203,7 @@ def test_results_stored_and_filtered(database):
     a = s.start_session("sim:guidance-demo", "guidance", "guidance-5-cubes", station="bench-1")
     b = s.switch_session(a, 10, "sim:guidance-demo", "guidance", "guidance-5-cubes", station="bench-2")
     c = s.start_session("sim:guess-1", "guess", "guess-structures", station="bench-1")
+    s.start_session("sim:static", "none", None, station="bench-1")  # tracking only: no learner results
     step = {"attempt": 1, "label": "place red", "verdict": "done", "started_at": 100.0, "ended_at": 104.5,
             "duration_s": 4.5, "wrong_placements": 1, "hints": 0}
     s.record_results([{**step, "session_id": a, "step": 1}, {**step, "session_id": a, "step": 2, "hints": 2}],
