@@ -1,6 +1,6 @@
 """Two app instances (two stations) on one real PostgreSQL server: they share teacher tasks, sessions and results,
 and both survive a restart of PostgreSQL (503 with a clear message while it is down, working again by themselves;
-learner results made meanwhile are kept in memory and written once it is back).
+learner results made meanwhile are kept in memory and written once it is back) and of either station.
 """
 
 from __future__ import annotations
@@ -9,12 +9,13 @@ import threading
 from contextlib import ExitStack
 
 import pytest
+import sqlalchemy as sa
 from api_client import app_client
 from test_results import play_guidance
 from test_worker import SyntheticTable
 
 from app.results import ResultsRecorder
-from app.storage import StorageUnavailable, head_revision, open_storage
+from app.storage import StorageUnavailable, head_revision, open_storage, sessions_table
 
 PASSWORD = "profesora-1"
 TEACHER = {"X-Teacher-Password": PASSWORD}
@@ -25,16 +26,17 @@ def table(_spec):
     return SyntheticTable(n_frames=100_000)
 
 
-def test_two_stations_share_one_postgres_and_survive_its_restart(postgres_server, tmp_path):
+def test_two_stations_share_one_postgres_and_survive_restarts(postgres_server, tmp_path):
     url = postgres_server.new_database()
+
+    def station(name: str):
+        return app_client(tmp_path / name, table, database=url, station=name, teacher_password=PASSWORD,
+                          source="synthetic:", autostart=False)
+
     with ExitStack() as stack:
-        a, b = (
-            stack.enter_context(
-                app_client(tmp_path / name, table, database=url, station=name, teacher_password=PASSWORD,
-                           source="synthetic:", autostart=False)
-            )
-            for name in ("bench-1", "bench-2")
-        )
+        first = ExitStack()
+        a = first.enter_context(station("bench-1"))
+        b = stack.enter_context(station("bench-2"))
         # a task written on one station is there on the other
         created = a.post("/api/tasks", json=TASK, headers=TEACHER)
         assert created.status_code == 201, created.text
@@ -47,7 +49,9 @@ def test_two_stations_share_one_postgres_and_survive_its_restart(postgres_server
         assert len(ids) == 2 and None not in ids
         assert ids <= {s["id"] for s in b.get("/api/sessions").json()["sessions"]}
         store = a.app.state.assembly.storage
-        stations = {s["station"] for s in store.results()["sessions"] if s["id"] in ids}
+        with store.engine.connect() as con:
+            rows = con.execute(sa.select(sessions_table.c.station).where(sessions_table.c.id.in_(ids))).all()
+        stations = {r[0] for r in rows}
         assert stations == {"bench-1", "bench-2"}
         # learner results written by each station are read by the teacher on either
         recorders = []
@@ -89,6 +93,17 @@ def test_two_stations_share_one_postgres_and_survive_its_restart(postgres_server
         assert recorders[1].flush() is True  # nothing of the outage is lost
         by_station = {g["station"]: g for g in a.get("/api/results", headers=TEACHER).json()["by_station"]}
         assert by_station["bench-2"]["completed"] == 1 and by_station["bench-2"]["wrong_placements"] == 1
+
+        # a restart of one station: its session is ended, the other goes on, and it comes back with everything
+        a_session = a.app.state.assembly.session_id
+        first.close()
+        ended = {x["id"]: x for x in b.get("/api/sessions").json()["sessions"]}[a_session]
+        assert ended["ended_at"] is not None
+        assert b.post("/api/tasks", json={**TASK, "source_sentence": "mientras"}, headers=TEACHER).status_code == 201
+        a = stack.enter_context(station("bench-1"))
+        assert len(a.get("/api/tasks").json()["tasks"]) == 3
+        again = a.get("/api/results", params={"station": "bench-1"}, headers=TEACHER).json()
+        assert again["by_station"][0]["completed"] == 1
 
 
 def test_server_waits_for_its_database_at_start(postgres_server):
