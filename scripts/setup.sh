@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Create .venv (if missing) and install the package with its test extras. Idempotent and quick when nothing
+# Create .venv (if missing) and install the package with its test and ray extras. Idempotent and quick when nothing
 # changed: the install is skipped while pyproject.toml matches the stamp of the last successful install.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,7 +14,7 @@ if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$WANT" ] && .venv/bin/python -c "im
 fi
 echo "setting up .venv (first run or pyproject.toml changed)..." >&2
 .venv/bin/python -m pip install --quiet --upgrade pip
-.venv/bin/python -m pip install --quiet -e ".[test]"
+.venv/bin/python -m pip install --quiet -e ".[test,ray]"
 # opencv-contrib-python-headless (AKAZE for the odometry's FastSLAM option) replaces opencv-python-headless; both
 # install the cv2 package, so a venv that still has the plain one loses it and gets contrib reinstalled over it.
 if .venv/bin/python -m pip show opencv-python-headless >/dev/null 2>&1; then

@@ -34,6 +34,14 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=None, help="one simulator seed (= --seeds S)")
     p.add_argument("--runs", type=int, default=5, help="hands experiments: runs per particle-filter configuration (5)")
     p.add_argument("--frames", type=int, default=None, help="hands experiments: frames per sequence (default: all)")
+    p.add_argument("--max-time", type=float, default=None, metavar="SECONDS",
+                   help="stop each session after this many seconds of its recording (a short run)")
+    p.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                   help="spread the sessions over Ray: a local Ray runtime on this machine's cores (no ADDRESS) or "
+                   "the cluster at ADDRESS ('auto' = the one 'ray start' runs here, HOST:PORT, ray://HOST:PORT; "
+                   "every node needs this package installed). Results equal the serial run's. Needs the 'ray' extra")
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="run N sessions at a time in local worker processes (default 1 = serial in this process)")
     p.add_argument("--list", action="store_true", help="list the experiments and exit")
     p.set_defaults(func=run)
 
@@ -101,25 +109,36 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--set {key}: value must be a number, got {value!r}") from None
     seeds = _seeds(args)
     poses = args.poses or ("tracked" if tracked_available() else "groundtruth")
+    if args.max_time is not None and args.max_time <= 0:
+        raise ValueError("--max-time must be positive")
     from tqdm import tqdm
 
+    from tracker.evaluation.batch import make_runner
     from tracker.evaluation.sessions import sessions_for
 
+    runner = make_runner(ray=args.ray, jobs=args.jobs)
     exp = EXPERIMENTS.get(args.experiment)
     n_specs = len(sessions_for(exp.base)) if exp is not None else 0
     total = min(args.sessions or n_specs, n_specs) * (len(exp.settings) if exp is not None else 0)
+    if not runner.frame_progress:
+        print(f"running {total} sessions on {runner.describe()}")
     with tqdm(total=total, unit="session", desc=args.experiment, disable=None, dynamic_ncols=True,
               bar_format="{l_bar}{bar}| {n:.1f}/{total} sessions [{elapsed}<{remaining}]") as bar:
 
         def on_frame(i: int, n: int) -> None:  # fractions of a session: the ETA moves during a session
             bar.update(min(args.frame_step, n - i) / max(1, n))
 
+        def on_session(n_done: int, n_total: int) -> None:  # parallel runners: whole sessions as they finish
+            if not runner.frame_progress:
+                bar.update(1)
+
         summary = run_experiment(args.experiment, args.out, sessions=args.sessions, poses=poses,
                                  frame_step=args.frame_step, n_particles=args.particles, progress=bar.write,
                                  tracker_preset=args.tracker_preset, hints=not args.no_hints, overrides=overrides,
-                                 on_frame=on_frame, seeds=seeds)
+                                 on_frame=on_frame, seeds=seeds, runner=runner, on_session=on_session,
+                                 max_time=args.max_time)
     keys = ("sessions", "sessions_in_experiment",
             "connections_total", "connections_within_1s", "connections_never", "false_completions",
-            "guess_correct", "sentences_correct", "mean_deviation_s")
+            "guess_correct", "sentences_correct", "mean_deviation_s", "runner", "elapsed_seconds")
     print(json.dumps({k: summary[k] for k in keys if k in summary}))
     return 0

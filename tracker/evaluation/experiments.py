@@ -16,10 +16,10 @@ import logging
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from tracker.evaluation.batch import BatchRunner, SerialRunner, SessionJob, timed
 from tracker.evaluation.machine_info import machine_info
 from tracker.evaluation.metrics import summarize, timing_distribution
 from tracker.evaluation.report import markdown_table, plot_sweep, write_experiment
-from tracker.evaluation.runner import run_session
 from tracker.evaluation.sessions import GUESS_STRUCTURES, sessions_for
 
 log = logging.getLogger(__name__)
@@ -80,14 +80,20 @@ def _ran(n: int, n_all: int) -> str:
 def run_experiment(name: str, out: str | Path, sessions: int | None = None, poses: str = "groundtruth",
                    frame_step: int = 1, n_particles: int | None = None, progress=None,
                    tracker_preset: str = "default", hints: bool = True, overrides: dict | None = None,
-                   on_frame=None, seeds: list[int] | None = None) -> dict:
+                   on_frame=None, seeds: list[int] | None = None, runner: BatchRunner | None = None,
+                   on_session=None, max_time: float | None = None) -> dict:
     """Run experiment ``name``, write its report into ``out`` and return the summary (also summary.json).
 
     ``progress(text)``: one line per finished session; ``on_frame(i, n)``: after each frame ``i`` of a session's
     ``n`` (a progress bar). The report says how many of the experiment's sessions were run. ``seeds``: simulator
     seeds replacing the sessions' own (session k of the run gets ``seeds[k mod len]``; user profile, scenario and
     task are kept); default: each session's built-in seed (≥ 1011, see :mod:`tracker.evaluation.sessions`). Seeds
-    0–4 are tuning seeds (:mod:`tracker.evaluation.seeds`)."""
+    0–4 are tuning seeds (:mod:`tracker.evaluation.seeds`).
+
+    ``runner``: how the sessions run (:mod:`tracker.evaluation.batch`: serial by default, a process pool or Ray);
+    the results are merged in the sessions' order, so the figures equal the serial run's. ``on_session(n_done,
+    n_total)``: after each finished session (all settings of a sweep together). ``max_time``: stop each session
+    after this many seconds of its recording (a short run; connections after it count as missed)."""
     if name not in EXPERIMENTS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {list(EXPERIMENTS)}")
     exp = EXPERIMENTS[name]
@@ -106,17 +112,25 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
     structures = list(GUESS_STRUCTURES.values()) if exp.base == "guess" else None
     per_setting = {}
     curves = {}
-    for setting in exp.settings:
-        results = []
-        for spec in specs:
-            r = run_session(spec, poses=poses, overrides={**(overrides or {}), **setting}, frame_step=frame_step,
-                            n_particles=n_particles,
-                            tracker_preset=tracker_preset, hints=hints, on_frame=on_frame)
-            results.append(r)
-            if progress:
-                progress(f"{name} [{_label(setting)}] session {spec.index + 1} ({spec.scenario}, user {spec.user}): "
-                         f"{summarize([r])['connections_detected']}/{len(r.truth_events)} detected, "
-                         f"{r.frames} frames in {r.seconds:.1f} s")
+    runner = runner or SerialRunner()
+    common = {"poses": poses, "frame_step": frame_step, "n_particles": n_particles, "tracker_preset": tracker_preset,
+              "hints": hints, "max_time": max_time}
+    jobs = [SessionJob(spec, {**common, "overrides": {**(overrides or {}), **setting}})
+            for setting in exp.settings for spec in specs]
+
+    def done(k: int, r, n_done: int) -> None:
+        setting, spec = exp.settings[k // len(specs)], specs[k % len(specs)]
+        if progress:
+            progress(f"{name} [{_label(setting)}] session {spec.index + 1} ({spec.scenario}, user {spec.user}): "
+                     f"{summarize([r])['connections_detected']}/{len(r.truth_events)} detected, "
+                     f"{r.frames} frames in {r.seconds:.1f} s" + ("" if runner.frame_progress else
+                                                                  f" [{n_done}/{len(jobs)} done]"))
+        if on_session:
+            on_session(n_done, len(jobs))
+
+    all_results, elapsed = timed(runner, jobs, on_done=done, on_frame=on_frame)
+    for i, setting in enumerate(exp.settings):
+        results = all_results[i * len(specs):(i + 1) * len(specs)]
         summary = summarize(results)
         label = _label(setting)
         tag = name if len(exp.settings) == 1 else f"{name}_{len(per_setting) + 1}"
@@ -145,7 +159,8 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
     summary.update({"sessions_run": len(specs), "sessions_in_experiment": n_all})
     summary.update({"experiment": name, "poses": poses, "frame_step": frame_step, "machine": machine(),
                     "tracker_preset": tracker_preset if poses == "tracked" else None, "hints": hints,
-                    "overrides": overrides or {}, "seeds": [spec.seed for spec in specs]})
+                    "overrides": overrides or {}, "max_time": max_time, "seeds": [spec.seed for spec in specs],
+                    "runner": runner.describe(), "elapsed_seconds": round(elapsed, 2)})
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
 
