@@ -4,7 +4,8 @@ Runs the same experiment on the same held-out seeds once per runner (:mod:`track
 first, the baseline, then ``ray``, optionally ``processes``), each into its own output folder, and reports per
 runner the wall time of the whole batch (Ray's start-up included), the sum of the sessions' own wall times, the
 speed-up serial / runner, and whether its summary and per-session results equal the serial run's (timings left
-out). Writes ``benchmarks/results/batch.json`` and ``batch.md`` (a section of BENCHMARKS.md).
+out). A short warm-up session first fills numba's on-disk cache, so no runner pays the kernels' first compilation.
+Writes ``benchmarks/results/batch.json`` and ``batch.md`` (a section of BENCHMARKS.md).
 
 Usage::
 
@@ -98,6 +99,12 @@ def main(argv=None) -> int:
     unknown = [n for n in names if n not in runners]
     if unknown:
         raise SystemExit(f"unknown runner(s) {unknown}; choose from {list(runners)}")
+    # Warm-up: one short session compiles the numba kernels into their on-disk cache, so that no runner pays the
+    # first compilation (the serial run keeps them in memory, the workers load them from the cache).
+    print("warm-up: one short session ...", flush=True)
+    with tempfile.TemporaryDirectory(prefix="bench_batch_warm_") as tmp:
+        run_experiment(args.experiment, tmp, sessions=1, poses=args.poses, frame_step=args.frame_step, seeds=seeds,
+                       max_time=1.0)
     runs, reference = [], None
     with tempfile.TemporaryDirectory(prefix="bench_batch_") as tmp:
         for name in names:
