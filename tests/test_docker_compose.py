@@ -49,6 +49,7 @@ def test_classroom_compose_points_the_server_at_postgres(tmp_path):
     assert url.path.lstrip("/") == db["environment"]["POSTGRES_DB"]
     assert server["environment"]["PGPASSWORD"] == db["environment"]["POSTGRES_PASSWORD"] == "only-for-this-test-1"
     assert server["environment"]["ASSEMBLY_AGENT_TEACHER_PASSWORD"] == "teacher-test-pw-2"
+    assert float(server["environment"]["ASSEMBLY_AGENT_DATABASE_WAIT_S"]) > 0  # a restarted database is waited for
     assert server["environment"]["ASSEMBLY_AGENT_STATION"] == "classroom-server"  # not the container's random id
 
     volume, target = db["volumes"][0].split(":")[:2]
