@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.result_files import git_commit, write_results  # noqa: E402
+from benchmarks.result_files import git_commit, rewrite_markdown, write_results  # noqa: E402
 from tracker.evaluation import run_experiment  # noqa: E402
 from tracker.evaluation.batch import ProcessPoolRunner, RayRunner, SerialRunner, usable_cores  # noqa: E402
 from tracker.evaluation.machine_info import machine_info  # noqa: E402
@@ -69,7 +69,8 @@ def markdown(res: dict) -> str:
         "runs). Identical = the summary and every session's result (detections, guesses, final state) equal the "
         "serial run's, timings left out."
         + (" Taken under load (other agents' jobs shared the 2 cores; 1-minute load in the table), so the wall "
-           "times are pessimistic and the speed-up is smaller than on an idle machine." if loaded else ""),
+           "times are pessimistic and the speed-up is smaller than on an idle machine." if loaded else "")
+        + (f" {res['note']}" if res.get("note") else ""),
         "",
         "| runner | wall s | session s (sum) | speed-up vs serial | identical to serial | load 1 min start / end |",
         "|---|---|---|---|---|---|",
@@ -90,8 +91,17 @@ def main(argv=None) -> int:
     ap.add_argument("--frame-step", type=int, default=2)
     ap.add_argument("--sessions", type=int, default=None, help="only N sessions of the experiment")
     ap.add_argument("--max-time", type=float, default=None, help="stop each session after S seconds")
+    ap.add_argument("--note", default="", help="a sentence for the report (e.g. what else ran meanwhile)")
+    ap.add_argument("--rewrite", action="store_true", help="only rebuild batch.md from batch.json (with --note)")
     ap.add_argument("--runners", default="serial,ray", help="comma-separated: serial (always first), ray, processes")
     args = ap.parse_args(argv)
+    if args.rewrite:
+        def with_note(res: dict) -> str:
+            res["note"] = args.note or res.get("note", "")
+            return markdown(res)
+
+        print(rewrite_markdown("batch", with_note))
+        return 0
     seeds = check_seeds(parse_seeds(args.seeds))
     names = ["serial"] + [n for n in args.runners.split(",") if n and n != "serial"]
     cores = usable_cores()
@@ -124,7 +134,8 @@ def main(argv=None) -> int:
             n_sessions = summary["sessions_run"]
     res = {"machine": machine_info(), "commit": git_commit(), "experiment": args.experiment, "seeds": seeds,
            "seeds_text": args.seeds, "poses": args.poses, "frame_step": args.frame_step, "max_time": args.max_time,
-           "sessions": n_sessions, "runs": runs, "args": " ".join(argv if argv is not None else sys.argv[1:])}
+           "sessions": n_sessions, "runs": runs, "note": args.note,
+           "args": " ".join(argv if argv is not None else sys.argv[1:])}
     md = markdown(res)
     print(md)
     write_results("batch", res, md)
