@@ -13,6 +13,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING
 
+import numba as nb
 import numpy as np
 
 from tracker.filter import hidden_parts, predict, render
@@ -20,7 +21,7 @@ from tracker.filter.colour_input import color_masks
 from tracker.filter.connection_particles import apply_connections
 from tracker.filter.depth_likelihood import pixel_constants, predict_occlusion_rows, update_log_likelihood
 from tracker.filter.frame_context import FrameContext, PassResult
-from tracker.filter.penalties import intersection_log_penalty, lowest_heights, table_log_penalty
+from tracker.filter.penalties import _obb_overlap, intersection_log_penalty, lowest_heights, table_log_penalty
 from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, systematic_resample
 
 if TYPE_CHECKING:
@@ -93,6 +94,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     forceable = trk.visibility >= cfg.hint_min_visibility  # previous frame's occlusion estimate
     if cfg.hint_min_visibility > 0 and cfg.use_color_input and detections:
         forceable &= detected  # and a reliable colour blob now: the hand may have covered the part this frame
+    penalties = PenaltyTerms(trk, plane)
     for i in range(k):
         old_p, old_R = p_cur[:, i].copy(), R_cur[:, i].copy()
         p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i],
@@ -124,7 +126,8 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
         update_log_likelihood(D, loc, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
                               lam, tail, use_occ, dirty, alpha, cmask, cvalid, occ_cap)
         tc = time.perf_counter()
-        ell_tot = (ell + log_penalties(trk, p_cur, R_cur, plane) + hidden_parts.log_rest_prior(trk, p_cur)
+        ell_tot = (ell + penalties.total(p_cur, R_cur, None if i == 0 else changed_objs)
+                   + hidden_parts.log_rest_prior(trk, p_cur)
                    + hidden_parts.log_support_prior(trk, p_cur, R_cur, support_plane))
         td = time.perf_counter()
         log_w += ell_tot - ell_prev
@@ -138,6 +141,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
             # dirty flags are all clear; ô is reached through anc
             D, C, Q, F = (trk._take(spare, key, arr, idx) for key, arr in (("D", D), ("C", C), ("Q", Q), ("F", F)))
             ell, ell_prev, anc = ell[idx], ell_prev[idx], anc[idx]
+            penalties.take(idx)
             log_w = np.full(n, -np.log(n))
             n_resampled += 1
         te = time.perf_counter()
@@ -151,6 +155,8 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
 
 
 def log_penalties(trk, p, R, plane) -> np.ndarray:
+    """Log penalties (N,) of the particles (colour term, intersections, sinking into the table) computed from scratch;
+    the passes keep them per part instead (:class:`PenaltyTerms`)."""
     cfg = trk.config
     out = np.zeros(p.shape[0])
     if trk._color_targets:
@@ -173,3 +179,97 @@ def log_penalties(trk, p, R, plane) -> np.ndarray:
         hmin = lowest_heights(R, p, trk.hulls, plane[0], plane[1])
         out += table_log_penalty(hmin, cfg.lambda_h, cfg.table_tolerance)
     return out
+
+
+class PenaltyTerms:
+    """:func:`log_penalties` of the particles during one frame's coordinate passes, kept per part (colour term,
+    lowest height above the table) and per pair of parts (intersection), so that a pass recomputes only the terms
+    of the parts it moved; :meth:`take` follows a resampling. The sum is formed exactly as :func:`log_penalties`
+    forms it (same values)."""
+
+    def __init__(self, trk: MultiObjectTracker, plane) -> None:
+        cfg = trk.config
+        self.trk = trk
+        self.plane = plane
+        self.colour: dict[int, np.ndarray] = {}
+        self.use_pairs = bool(cfg.use_intersection_penalty and len(trk.pairs))
+        self.pair_flags: np.ndarray | None = None  # (N, M) bool per pair of trk.pairs
+        self.use_table = plane is not None and cfg.lambda_h > 0
+        self.heights: np.ndarray | None = None  # (N, K) lowest height of each part above the table
+
+    def total(self, p: np.ndarray, R: np.ndarray, changed: set[int] | None = None) -> np.ndarray:
+        """The penalties (N,) at positions ``p`` (N, K, 3), rotations ``R`` (N, K, 3, 3), where only the parts in
+        ``changed`` moved since the last call (``None``: all, e.g. the first call of the frame)."""
+        trk, cfg = self.trk, self.trk.config
+        n, k = p.shape[0], p.shape[1]
+        fresh = changed is None
+        parts = range(k) if fresh else sorted(changed)
+        out = np.zeros(n)
+        if trk._color_targets:
+            intr = trk.intrinsics
+            sig2 = cfg.color_likelihood_px**2
+            for i, c, wgt in trk._color_targets:
+                if fresh or i in changed or i not in self.colour:
+                    ctr = np.einsum("nij,j->ni", R[:, i], trk.center[i]) + p[:, i]
+                    z = np.maximum(ctr[:, 2], 1e-3)
+                    du = intr.fx * ctr[:, 0] / z + intr.cx - c[0]
+                    dv = intr.fy * ctr[:, 1] / z + intr.cy - c[1]
+                    d2 = du * du + dv * dv
+                    if cfg.color_term_dead_zone > 0:
+                        r_in = cfg.color_term_dead_zone * float(trk.half[i].min()) * intr.fx / z
+                        d2 = np.maximum(np.sqrt(d2) - r_in, 0.0) ** 2
+                    self.colour[i] = 0.5 * wgt * np.minimum(d2, 9.0 * sig2) / sig2
+                out -= self.colour[i]
+        if self.use_pairs:
+            if fresh or self.pair_flags is None:
+                self.pair_flags = np.zeros((n, len(trk.pairs)), np.bool_)
+                cols = np.arange(len(trk.pairs), dtype=np.int64)
+            else:
+                moved = np.zeros(k, np.bool_)
+                moved[list(changed)] = True
+                cols = np.nonzero(moved[trk.pairs[:, 0]] | moved[trk.pairs[:, 1]])[0].astype(np.int64)
+            pair_intersections(R, p, trk.center, trk.half, trk.pairs, cols, float(cfg.contact_tolerance),
+                               self.pair_flags)
+            out += np.where(self.pair_flags.any(axis=1), np.log(cfg.lambda_i), 0.0)
+        if self.use_table:
+            if fresh or self.heights is None:
+                self.heights = np.empty((n, k))
+            normal, offset = self.plane
+            for i in parts:
+                self.heights[:, i] = lowest_heights(R[:, i:i + 1], p[:, i:i + 1], [trk.hulls[i]], normal, offset)
+            out += table_log_penalty(self.heights.min(axis=1), cfg.lambda_h, cfg.table_tolerance)
+        return out
+
+    def take(self, idx: np.ndarray) -> None:
+        """Follow a resampling: the particles are now the rows ``idx`` of the previous ones."""
+        self.colour = {i: v[idx] for i, v in self.colour.items()}
+        if self.pair_flags is not None:
+            self.pair_flags = self.pair_flags[idx]
+        if self.heights is not None:
+            self.heights = self.heights[idx]
+
+
+@nb.njit(cache=True)
+def pair_intersections(R, t, center, half, pairs, cols, tol, flags):
+    """For the pairs ``pairs[cols]`` of parts: does the pair interpenetrate by more than ``tol`` metres, per particle,
+    into ``flags[:, cols]`` ((N, M) bool); the test of :func:`tracker.filter.penalties.intersection_flags`."""
+    n = R.shape[0]
+    k = R.shape[1]
+    rad = np.empty(k)
+    for o in range(k):
+        rad[o] = np.sqrt(half[o, 0] ** 2 + half[o, 1] ** 2 + half[o, 2] ** 2)
+    cw = np.empty((k, 3))
+    for j in range(n):
+        for o in range(k):
+            for r in range(3):
+                cw[o, r] = (R[j, o, r, 0] * center[o, 0] + R[j, o, r, 1] * center[o, 1] + R[j, o, r, 2] * center[o, 2]
+                            + t[j, o, r])
+        for mm in range(cols.shape[0]):
+            m = cols[mm]
+            a = pairs[m, 0]
+            b = pairs[m, 1]
+            d2 = (cw[a, 0] - cw[b, 0]) ** 2 + (cw[a, 1] - cw[b, 1]) ** 2 + (cw[a, 2] - cw[b, 2]) ** 2
+            if d2 > (rad[a] + rad[b]) ** 2:  # bounding spheres apart
+                flags[j, m] = False
+            else:
+                flags[j, m] = _obb_overlap(R[j, a], cw[a], half[a], R[j, b], cw[b], half[b], tol)

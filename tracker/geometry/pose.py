@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numba as nb
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -102,32 +103,67 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
         return normalize_quat(_matrix_to_quat_one(R))
     if R.shape[-2:] != (3, 3):
         raise ValueError(f"expected rotation matrices of shape (..., 3, 3), got {R.shape}")
-    det = np.linalg.det(R)
-    if np.any(det <= 0):
+    flat = np.ascontiguousarray(R.reshape(-1, 3, 3))
+    q, status = _matrices_to_quats(flat, True)
+    if np.any(status == 2):
         raise ValueError(f"non-positive determinant (left-handed or null coordinate frame) in rotation matrix {R}")
-    orthogonal = np.all(np.isclose(R @ np.swapaxes(R, -1, -2), np.eye(3), atol=1e-12), axis=(-2, -1))
-    if not np.all(orthogonal):
-        R = R.copy()
-        bad = ~orthogonal
-        U, _, Vt = np.linalg.svd(R[bad].reshape(-1, 3, 3), full_matrices=False)
-        R[bad] = (U @ Vt).reshape(R[bad].shape)
-    m00, m01, m02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
-    m10, m11, m12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
-    m20, m21, m22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
-    tr = m00 + m11 + m22
-    choice = np.argmax(np.stack([m00, m11, m22, tr], axis=-1), axis=-1)[..., None]
-    cases = (
-        (1 - tr + 2 * m00, m10 + m01, m20 + m02, m21 - m12),
-        (m10 + m01, 1 - tr + 2 * m11, m21 + m12, m02 - m20),
-        (m20 + m02, m21 + m12, 1 - tr + 2 * m22, m10 - m01),
-        (m21 - m12, m02 - m20, m10 - m01, 1 + tr),
-    )
-    q = np.empty((*R.shape[:-2], 4))
-    for c, case in enumerate(cases):
-        q = np.where(choice == c, np.stack(case, axis=-1), q)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    q = q / np.sqrt(x * x + y * y + z * z + w * w)[..., None]
-    return normalize_quat(q)
+    redo = status == 1
+    if np.any(redo):  # not orthonormal: the nearest rotation first
+        U, _, Vt = np.linalg.svd(flat[redo], full_matrices=False)
+        q[redo] = _matrices_to_quats(np.ascontiguousarray(U @ Vt), False)[0]
+    return q.reshape(*R.shape[:-2], 4)
+
+
+@nb.njit(cache=True)
+def _matrices_to_quats(R, check):
+    """Kernel of :func:`matrix_to_quat` for (M, 3, 3) matrices: quaternions (M, 4) and a status per matrix (0 done,
+    1 not orthonormal: project it first, 2 non-positive determinant); ``check`` False skips both tests."""
+    m = R.shape[0]
+    out = np.zeros((m, 4))
+    status = np.zeros(m, np.int64)
+    for j in range(m):
+        a, b, c = R[j, 0, 0], R[j, 0, 1], R[j, 0, 2]
+        d, e, f = R[j, 1, 0], R[j, 1, 1], R[j, 1, 2]
+        g, h, i = R[j, 2, 0], R[j, 2, 1], R[j, 2, 2]
+        if check:
+            if not a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0:
+                status[j] = 2
+                continue
+            orthonormal = True
+            for r in range(3):
+                for k in range(r, 3):
+                    gram = R[j, r, 0] * R[j, k, 0] + R[j, r, 1] * R[j, k, 1] + R[j, r, 2] * R[j, k, 2]
+                    eye = 1.0 if r == k else 0.0
+                    if not abs(gram - eye) <= 1e-12 + 1e-5 * eye:
+                        orthonormal = False
+            if not orthonormal:
+                status[j] = 1
+                continue
+        tr = a + e + i
+        best = a
+        choice = 0
+        if e > best:
+            best, choice = e, 1
+        if i > best:
+            best, choice = i, 2
+        if tr > best:
+            choice = 3
+        if choice == 0:
+            x, y, z, w = 1 - tr + 2 * a, d + b, g + c, h - f
+        elif choice == 1:
+            x, y, z, w = d + b, 1 - tr + 2 * e, h + f, c - g
+        elif choice == 2:
+            x, y, z, w = g + c, h + f, 1 - tr + 2 * i, d - b
+        else:
+            x, y, z, w = h - f, c - g, d - b, 1 + tr
+        n = np.sqrt(x * x + y * y + z * z + w * w)
+        x, y, z, w = x / n, y / n, z / n, w / n
+        n = np.sqrt(x * x + y * y + z * z + w * w)  # normalize_quat's second pass, as on scipy's result
+        x, y, z, w = x / n, y / n, z / n, w / n
+        if w < 0:
+            x, y, z, w = -x, -y, -z, -w
+        out[j, 0], out[j, 1], out[j, 2], out[j, 3] = x, y, z, w
+    return out, status
 
 
 def _matrix_to_quat_one(m: np.ndarray) -> np.ndarray:
