@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     n_specs = len(sessions_for(exp.base)) if exp is not None else 0
     total = min(args.sessions or n_specs, n_specs) * (len(exp.settings) if exp is not None else 0)
     if not runner.frame_progress:
-        print(f"running {total} sessions on {runner.describe()}")
+        print(f"running {total} session{'s' if total != 1 else ''} on {runner.describe()}")
     with tqdm(total=total, unit="session", desc=args.experiment, disable=None, dynamic_ncols=True,
               bar_format="{l_bar}{bar}| {n:.1f}/{total} sessions [{elapsed}<{remaining}]") as bar:
 

@@ -11,7 +11,8 @@ finishes (progress display); only the serial runner also reports frames within a
 * :class:`ProcessPoolRunner`: ``jobs`` worker processes on this machine (``evaluate --jobs N``).
 * :class:`RayRunner`: Ray tasks of one CPU each (``evaluate --ray [ADDRESS]``): a local Ray runtime using this
   machine's cores by default, or an existing cluster (``auto`` = the one ``ray start`` runs on this machine,
-  ``HOST:PORT`` or ``ray://HOST:PORT``). Every node of a cluster needs this package installed (the same commit).
+  ``HOST:PORT`` or ``ray://HOST:PORT``). Every node of a cluster needs this package installed (the same commit);
+  a cluster with token authentication is joined with ``RAY_AUTH_MODE=token`` and its token in the environment.
   Ray is an optional dependency: ``pip install -e ".[ray]"``.
 """
 
@@ -165,7 +166,10 @@ class RayRunner:
                 ray.init(address=self.address, **common)
         except (ConnectionError, ValueError, RuntimeError) as exc:
             where = f"the Ray cluster at {self.address}" if self.address else "a local Ray runtime"
-            raise RuntimeError(f"could not start or join {where}: {exc}") from exc
+            hint = ("" if self.address is None or os.environ.get("RAY_AUTH_MODE") else
+                    " (a cluster that uses token authentication, which `ray start` does by default since Ray 2.59, "
+                    "is joined with RAY_AUTH_MODE=token and its token, ~/.ray/auth_token or RAY_AUTH_TOKEN)")
+            raise RuntimeError(f"could not start or join {where}: {exc}{hint}") from exc
         return True
 
     def run(self, jobs: Sequence[SessionJob], on_done: OnDone | None = None,
