@@ -148,6 +148,21 @@ def integrity_problem(path: Path) -> str | None:
     return "; ".join(rows[:3]) + (f" (and {len(rows) - 3} more)" if len(rows) > 3 else "")
 
 
+LOGIN_PROBLEMS = (
+    ("password", "check the user and its password (in the URL, PGPASSWORD or ~/.pgpass)"),
+    ("authentication", "check the user and its password (in the URL, PGPASSWORD or ~/.pgpass)"),
+    ("does not exist", "create it on the PostgreSQL server (createuser / createdb) or correct the URL"),
+    ("permission denied", "grant the user access to the database (its owner: createdb -O USER)"),
+)
+"""Connection failures that are settings to correct, not an outage: (text in the message, what to do)."""
+
+
+def _login_problem(exc: BaseException) -> str | None:
+    """What to do when ``exc`` is a refused login (wrong password, unknown user or database), else ``None``."""
+    text = _first_line(exc).lower()
+    return next((hint for key, hint in LOGIN_PROBLEMS if key in text), None)
+
+
 def _first_line(exc: BaseException) -> str:
     orig = getattr(exc, "orig", None) or exc
     text = str(orig).strip().splitlines()
@@ -255,7 +270,7 @@ class Storage:
                 yield con
         except SQLAlchemyError as exc:
             error = self._failed(self._explain(exc))
-            if self.path is None and isinstance(exc, UNAVAILABLE):
+            if self.path is None and isinstance(exc, UNAVAILABLE) and _login_problem(exc) is None:
                 error = StorageUnavailable(str(error))
             raise error from exc
         self.problem = None
@@ -269,6 +284,9 @@ class Storage:
                     f"saved; {RESTORE_HINT} and restart the server"
                 )
             return f"database {self.path}: {_first_line(exc)}"
+        hint = _login_problem(exc)
+        if hint is not None:
+            return f"database {self.name} refused the connection ({_first_line(exc)}); {hint}"
         if isinstance(exc, UNAVAILABLE):
             return (
                 f"database {self.name} is unavailable ({_first_line(exc)}); nothing was changed. The server "

@@ -251,3 +251,14 @@ def test_env_password_replaces_stored_one(database):
     TeacherAuth(s).setup("first-password")
     auth = TeacherAuth(s, env_password="from-the-env")
     assert auth.check_password("from-the-env") and not auth.check_password("first-password")
+
+
+def test_wrong_postgres_settings_are_not_an_outage(postgres_server):
+    """An unknown database or user is a setting to correct: said so, and not waited for like an outage."""
+    from app.storage import StorageUnavailable, open_storage
+
+    for url, what in ((postgres_server.url("no_such_db"), "no_such_db"),
+                      (postgres_server.url("postgres").replace("postgres@", "nobody@"), "nobody")):
+        with pytest.raises(StorageError, match=f"refused the connection.*{what}.*does not exist.*createdb") as err:
+            open_storage(url, wait_s=60)  # returns at once: nothing to wait for
+        assert not isinstance(err.value, StorageUnavailable)
