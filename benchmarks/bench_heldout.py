@@ -132,12 +132,17 @@ def run_session(job: dict) -> dict:
     cfg = TrackerConfig.preset("default")
     if job.get("particles"):
         cfg = cfg.with_overrides(n_particles=job["particles"])
-    ours = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=0)
+    odometry = job.get("odometry") or "off"
+    sessions = {"ours": TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=0, odometry=odometry)}
+    if odometry != "off":  # the same tracker with odometry off, on the same frames
+        sessions["off"] = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=0)
+    ours = sessions["ours"]
     icp = ICPTracker(src.parts, src.intrinsics)
     icp.initialize(src.initial_poses)
-    logs = {"ours": PoseErrorLog(src.parts), "icp": PoseErrorLog(src.parts)}
-    wall = {"ours": [], "icp": []}
-    cpu = {"ours": [], "icp": []}
+    logs = {k: PoseErrorLog(src.parts) for k in (*sessions, "icp")}
+    wall = {k: [] for k in logs}
+    cpu = {k: [] for k in logs}
+    odo_ok = 0
     hand_frames = 0
     t_start = time.perf_counter()
     for i in range(src.n_frames):
@@ -145,10 +150,12 @@ def run_session(job: dict) -> dict:
         frame.depth = as_recorded(frame.depth)
         g = frame.meta["groundtruth"]
         hand_frames += g.get("hand_box") is not None
-        state, dt = ours.step(frame)
-        cpu["ours"].append(1e3 * ours.last_cpu)
-        wall["ours"].append(1e3 * dt)
-        logs["ours"].add(state.poses, g["poses"])
+        for k, session in sessions.items():
+            state, dt = session.step(frame)
+            cpu[k].append(1e3 * (session.last_cpu + session.last_ego_cpu))
+            wall[k].append(1e3 * dt)
+            logs[k].add(state.poses, g["poses"])
+        odo_ok += ours.ego_step is not None and ours.ego_step.ok
         plane = (ours.table.normal, ours.table.offset) if ours.table is not None else None
         c0, w0 = time.thread_time(), time.perf_counter()
         poses = icp.step(frame.depth, plane)
@@ -158,6 +165,7 @@ def run_session(job: dict) -> dict:
     res = {k: job[k] for k in ("session", "scenario", "motion", "occlusion", "speed", "seed")}
     res.update({"frames": src.n_frames, "parts": len(src.parts), "hand_frames": int(hand_frames),
                 "n_particles": cfg.n_particles, "table": ours.table is not None, "icp_backend": icp.backend,
+                "odometry": odometry, "odometry_measured": int(odo_ok),
                 "seconds": round(time.perf_counter() - t_start, 1)})
     for k, log in logs.items():
         runs = lost_runs(log)
@@ -169,7 +177,7 @@ def run_session(job: dict) -> dict:
 def overall(sessions: list[dict]) -> dict:
     """Worst and median session per tracker, parts lost, sessions meeting issue 11's targets, ratios ours / ICP."""
     out: dict = {}
-    for k in ("ours", "icp"):
+    for k in [k for k in ("ours", "off", "icp") if sessions and k in sessions[0]]:
         rows = [s[k] for s in sessions]
         o = {}
         for m in (*METRICS, "cpu_ms_median", "wall_ms_median"):
@@ -183,6 +191,9 @@ def overall(sessions: list[dict]) -> dict:
         out[k] = o
     out["ratio"] = {key: round(out["ours"][key] / out["icp"][key], 2) if out["icp"][key] > 0 else None
                     for key in out["ours"] if key.endswith(("_worst", "_median"))}
+    if "off" in out:
+        out["ratio_off"] = {key: round(out["ours"][key] / out["off"][key], 2) if out["off"][key] > 0 else None
+                            for key in out["ours"] if key.endswith(("_worst", "_median"))}
     return out
 
 
@@ -195,6 +206,8 @@ def markdown(res: dict) -> str:
     loaded = max(m["load_1min_at_start"] or 0, res["load_1min_at_end"] or 0) > 1.5
     title = ("## Held-out simulator sessions (issue 11)" if not dev
              else "## DEVELOPMENT run on tuning seeds 0–4 (never reported)")
+    if res.get("odometry", "off") != "off":
+        title += f" — camera odometry {res['odometry']} against off (issue 15)"
     lines = [
         title,
         "",
@@ -218,14 +231,21 @@ def markdown(res: dict) -> str:
         "of frame 0, table points removed with the same plane (`benchmarks/icp_baseline.py`). Figures are the "
         "worst part's (largest over the parts, each column separately); rotation errors are symmetry-aware. "
         "**Lost**: parts with error > 5 cm or > 30° for ≥ 10 consecutive frames (visible or not). ms: median "
-        "thread CPU time of the tracker step per frame.",
+        "thread CPU time of the tracker step per frame"
+        + (" (with odometry on: plus the odometry stage — mask, odometry, camera motion; "
+           "`tracker/odometry/ego_motion.py`; the parts are moved by the camera's motion before each step and the "
+           "table plane is propagated)." if res.get("odometry", "off") != "off" else "."),
         "",
         "| # | scenario | camera | occl. | speed | seed | parts | tracker | t median mm | t p95 mm | r median ° "
         "| r p95 ° | lost | CPU ms/frame |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    odometry = res.get("odometry", "off")
+    labels = [("ours", "ours" if odometry == "off" else f"ours, odometry {odometry}"), ("off", "ours, odometry off"),
+              ("icp", "ICP")]
+    labels = [(k, label) for k, label in labels if res["sessions"] and k in res["sessions"][0]]
     for s in res["sessions"]:
-        for k, label in (("ours", "ours"), ("icp", "ICP")):
+        for k, label in labels:
             r = s[k]
             lost = f"{r['lost']}" + (f" ({', '.join(r['lost_parts'])})" if r["lost_parts"] else "")
             head = (f"| {s['session']} | {s['scenario']} | {s['motion']} | {s['occlusion']:g} | {s['speed']:g} | "
@@ -240,17 +260,21 @@ def markdown(res: dict) -> str:
         "| sessions meeting the targets |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for k, label in (("ours", "ours"), ("icp", "ICP")):
+    for k, label in labels:
         r = o[k]
         cells = " | ".join(f"{r[mm + '_worst']:.2f} / {r[mm + '_median']:.2f}" for mm in (*METRICS, "cpu_ms_median"))
         c = cells.rsplit(" | ", 1)
         lines.append(f"| {label} | {c[0]} | {r['lost']} ({r['sessions_with_loss']}) | {c[1]} | "
                      f"{r['sessions_meeting_targets']}/{len(res['sessions'])} |")
-    def ratio(key: str) -> str:  # two significant digits (a ratio of 0.004 is not "0.0")
-        a, b = o["ours"][key], o["icp"][key]
+    def ratio(key: str, base: str = "icp") -> str:  # two significant digits (a ratio of 0.004 is not "0.0")
+        a, b = o["ours"][key], o[base][key]
         return f"{a / b:.2g}×" if b > 0 else "–"
 
     cells = " | ".join(f"{ratio(mm + '_worst')} / {ratio(mm + '_median')}" for mm in METRICS)
+    if "off" in o:
+        off_cells = " | ".join(f"{ratio(mm + '_worst', 'off')} / {ratio(mm + '_median', 'off')}" for mm in METRICS)
+        lines.append(f"| ratio odometry {odometry} / off | {off_cells} | | {ratio('cpu_ms_median_worst', 'off')} / "
+                     f"{ratio('cpu_ms_median_median', 'off')} | |")
     lines += [
         f"| ratio ours / ICP | {cells} | | {ratio('cpu_ms_median_worst')} / {ratio('cpu_ms_median_median')} | |",
         "",
@@ -275,11 +299,15 @@ def main(argv=None) -> int:
     ap.add_argument("--sessions", default=None, help="run only these sessions of the design (1-based, e.g. 2,4-6)")
     ap.add_argument("--jobs", type=int, default=1, help="sessions run in parallel (processes)")
     ap.add_argument("--particles", type=int, default=None, help="N of our tracker (default: the preset's)")
+    ap.add_argument("--odometry", default="off", choices=("default", "fastslam", "off"),
+                    help="camera odometry of our tracker (issue 15); when on, the same tracker with odometry off "
+                    "runs beside it on the same frames and the results go to results/heldout_odometry[_dev].*")
     ap.add_argument("--note", default="", help="a sentence added to the figures' notes")
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite the .md from the .json and exit")
     args = ap.parse_args(argv)
-    stem = "heldout_dev" if args.dev else "heldout"
+    stem = ("heldout_dev" if args.dev else "heldout") if args.odometry == "off" else (
+        "heldout_odometry_dev" if args.dev else "heldout_odometry")
     if args.markdown_only:
         print(rewrite_markdown(stem, markdown))
         return 0
@@ -312,7 +340,8 @@ def main(argv=None) -> int:
     for k in picked:
         scenario, motion, occlusion, speed = DESIGN[k - 1]
         jobs.append({"session": k, "scenario": scenario, "motion": motion, "occlusion": occlusion, "speed": speed,
-                     "seed": seeds[(k - 1) % len(seeds)], "frames": args.frames, "particles": args.particles})
+                     "seed": seeds[(k - 1) % len(seeds)], "frames": args.frames, "particles": args.particles,
+                     "odometry": args.odometry})
     sessions = []
     if args.jobs == 1:
         results = map(run_session, jobs)
@@ -327,6 +356,7 @@ def main(argv=None) -> int:
         pool.join()
     sessions.sort(key=lambda s: s["session"])
     res = {"machine": info, "commit": commit, "note": args.note, "dev": args.dev, "seeds_text": seeds_text,
+           "odometry": args.odometry,
            "frames": args.frames, "jobs": args.jobs, "sessions": sessions, "overall": overall(sessions),
            "load_1min_at_end": round(os.getloadavg()[0], 2)}
     md = markdown(res)

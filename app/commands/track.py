@@ -207,8 +207,12 @@ class TrackSession:
     """
 
     def __init__(self, parts, intrinsics, poses, cfg, seed: int = 0, use_color: bool = True, table=None,
-                 use_table: bool = True) -> None:
+                 use_table: bool = True, odometry: str = "off") -> None:
         from tracker.filter.particle_filter import MultiObjectTracker
+        from tracker.odometry.ego_motion import MODES, EgoMotion
+
+        if odometry not in MODES:
+            raise ValueError(f"odometry must be one of {', '.join(MODES)}, got {odometry!r}")
 
         self.parts = list(parts)
         self.config = cfg
@@ -227,10 +231,21 @@ class TrackSession:
         self.skipped = 0
         self.track_seconds = 0.0
         self.last_cpu = 0.0
+        self.carried: list[str] = []
+        self.last_ego_cpu = 0.0  # thread CPU seconds of the last odometry stage (mask, odometry, camera motion)
+        self.ego = None if odometry == "off" else EgoMotion(odometry, intrinsics, self.parts, seed=seed)
+        self.ego_step = None  # the last EgoMotionStep (odometry on)
+        if self.ego is not None and table is not None:
+            self.ego.anchor_table(table)
 
     def step(self, frame):
-        """Track one frame; returns ``(TrackerState, tracker seconds)``."""
-        if self.follower is not None:
+        """Track one frame; returns ``(TrackerState, tracker seconds)``. With odometry on, the camera's motion is
+        applied to the tracker first and the table plane is propagated (re-checked when the odometry fails)."""
+        if self.ego is not None:
+            c0 = time.thread_time()
+            self._follow_camera(frame)
+            self.last_ego_cpu = time.thread_time() - c0
+        elif self.follower is not None:
             self.table = self.follower.update(frame, self.poses)
         dets = self.detector.detect(frame.color) if self.detector is not None else None
         t0, c0 = time.perf_counter(), time.thread_time()
@@ -239,9 +254,30 @@ class TrackSession:
         self.last_cpu = time.thread_time() - c0
         self.track_seconds += dt
         self.poses = dict(state.poses)
+        self.carried = list(state.carried)
         self.skipped += not state.depth_used
         self.frames += 1
         return state, dt
+
+
+    def _follow_camera(self, frame) -> None:
+        """Odometry on: move the tracker's state by the camera's motion; propagate (or re-check) the table."""
+        from tracker.filter.camera_motion import apply_camera_motion
+
+        ego = self.ego.step(frame, self.table, self.poses, self.carried)
+        self.ego_step = ego
+        if ego.camera_motion is not None:
+            apply_camera_motion(self.tracker, ego.camera_motion)
+            self.poses = dict(self.tracker.estimates)
+        if self.follower is None:
+            return
+        if ego.ok and self.ego.has_table:
+            self.table = self.follower.table = self.ego.table_in_camera()
+            return
+        before = self.table
+        self.table = self.follower.update(frame, self.poses)
+        if self.table is not None and (self.table is not before or not self.ego.has_table):
+            self.ego.anchor_table(self.table)
 
 
 def load_recording_parts(recording, objects=None):

@@ -1,0 +1,48 @@
+"""Move the tracker's camera-frame state by the camera's own motion (issue 15: parts kept in the world frame).
+
+The particle filter works in the camera frame. When the camera moves by ``T_new_old`` (4×4, maps points of the old
+camera frame to the new one: ``X_new = R X_old + t``, metres), a part that stays put in the world moves by
+``T_new_old`` in the camera frame. :func:`apply_camera_motion` applies that change of frame to everything the
+tracker keeps in camera coordinates, before its next step, so that the prediction of a static part is where the
+part now appears and the filter only has to explain the parts' own motion:
+
+* particle positions ``p`` and rotations ``R`` (``R_new = R_d R``);
+* particle velocities (translation and rotation-vector parts are camera-frame vectors: rotated by ``R_d``);
+* the estimates, the rest-prior anchors, the last dense-refinement result that may be reused, and the hand-carry
+  memory (past positions, hand points, last hand step).
+
+Pixel-indexed state (occlusion posteriors, blob centres of the previous frame) is left as it is: it is renewed
+from the image every frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker.geometry.pose import Pose
+
+
+def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
+    """Express ``trk`` (a :class:`~tracker.filter.particle_filter.MultiObjectTracker` after ``initialize``) in the
+    new camera frame; ``T_new_old``: 4×4 rigid transform from the old camera frame to the new one."""
+    T = np.asarray(T_new_old, np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"camera motion must be a finite 4x4 transform, got shape {T.shape}")
+    Rd, td = T[:3, :3], T[:3, 3]
+    if not getattr(trk, "_initialized", False):
+        return
+    trk.p = trk.p @ Rd.T + td
+    trk.R = np.einsum("ij,nkjl->nkil", Rd, trk.R)
+    v = trk.v.copy()
+    v[..., :3] = trk.v[..., :3] @ Rd.T
+    v[..., 3:] = trk.v[..., 3:] @ Rd.T
+    trk.v = v
+    D = Pose.from_matrix(T)
+    trk.estimates = {name: D @ pose for name, pose in trk.estimates.items()}
+    trk._rest_t = trk._rest_t @ Rd.T + td
+    trk._icp_last = [None if last is None else (D @ last[0], *last[1:]) for last in trk._icp_last]
+    carry = getattr(trk, "_carry", None)
+    if carry is not None:
+        carry.history = type(carry.history)((t, pos @ Rd.T + td) for t, pos in carry.history)
+        carry.patches = [None if pts is None else pts @ Rd.T + td for pts in carry.patches]
+        carry.last_step = carry.last_step @ Rd.T

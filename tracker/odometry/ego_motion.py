@@ -1,0 +1,251 @@
+"""``EgoMotion``: the camera odometry as a stage of the tracker (issue 15 item 3).
+
+Per frame, before the particle filter's step:
+
+1. **Mask** what must not define the camera's motion (True = exclude, :func:`moving_scene_mask`): everything that
+   stands out of the table plane (``FOREGROUND_MIN_M`` … ``FOREGROUND_MAX_M`` above it: hands, arms, parts) except
+   the silhouettes of the parts that stay put in the world frame (static parts carry texture and geometry the
+   odometry needs: the simulated table's grain leaves translation along the planks nearly unobserved); the
+   silhouettes of moving parts (carried, under a hand box, or shifted by more than ``MOVING_MIN_M`` in the world
+   frame within ``MOVING_WINDOW_S``); and hand boxes when a hand tracker (or the simulator) gives them.
+2. **Odometry step** (:func:`tracker.odometry.make_odometry`): the camera's pose ``T_wc`` in the world frame (=
+   the first frame's camera frame; camera → world, metres).
+3. **Camera motion** for the tracker: ``T_new_old = T_wc⁻¹ · T_applied`` where ``T_applied`` is the camera pose
+   the tracker's camera-frame state refers to. It is returned (to be applied with
+   :func:`tracker.filter.camera_motion.apply_camera_motion`) only when the step was measured and the motion exceeds
+   a dead band (``DEADBAND_M`` / ``DEADBAND_DEG``; below it the jitter of the estimate would only shake the
+   parts). A failed step (no depth, failed or implausible alignment) returns none: the tracker keeps its
+   camera-frame prediction (as with odometry off), the caller re-checks the table plane, and the next measured
+   step starts again from its own pose (the motion during the failure is left to the filter).
+4. **Table plane**: once anchored (:meth:`anchor_table`, the plane detected in the current camera frame is stored
+   in the world frame) it is propagated into each new camera frame (:meth:`table_in_camera`) instead of being
+   re-detected.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import deque
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from tracker.frame import Frame
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+from tracker.odometry.exclusion_mask import PART_MARGIN_PX
+from tracker.odometry.se3 import invert, motion_size
+
+FOREGROUND_MIN_M = 0.012
+"""Metres above the table plane from which a pixel is foreground (hand, arm, part) rather than table."""
+FOREGROUND_MAX_M = 0.40
+"""Metres above the table plane up to which a pixel is foreground (higher: background such as a wall)."""
+MOVING_MIN_M = 0.004
+"""A part whose world-frame position changed by more than this (metres) within ``MOVING_WINDOW_S`` is moving."""
+MOVING_WINDOW_S = 0.5
+"""Seconds of world-frame part positions remembered for the moving test."""
+DEADBAND_M = 0.0003
+"""Camera motions smaller than this translation (metres) and ``DEADBAND_DEG`` are not applied to the tracker."""
+DEADBAND_DEG = 0.03
+"""Rotation dead band of the applied camera motion, degrees."""
+MODES = ("default", "fastslam", "off")
+"""Values of the ``--odometry`` option: an odometry method of :data:`tracker.odometry.METHODS` or ``off``."""
+
+
+@dataclass(frozen=True)
+class EgoMotionStep:
+    """One frame of :class:`EgoMotion`.
+
+    * ``pose_world_camera``: camera → world (world = first camera frame), measured or extrapolated;
+    * ``ok``: the pose was measured (False: extrapolated; ``message`` says why);
+    * ``camera_motion``: 4×4 ``T_new_old`` to apply to the tracker's camera-frame state, or None (nothing to apply);
+    * ``ms``: wall time of the stage (mask + odometry), milliseconds.
+    """
+
+    pose_world_camera: Pose
+    ok: bool
+    camera_motion: np.ndarray | None
+    ms: float
+    message: str = ""
+
+
+def part_silhouettes(shape: tuple[int, int], intrinsics: Intrinsics, parts: Sequence[PartSpec],
+                     poses: Mapping[str, Pose], names: Iterable[str]) -> np.ndarray:
+    """H×W uint8 mask (1 inside) of the convex hulls of the named parts' projected vertices (camera-frame poses)."""
+    h, w = shape
+    out = np.zeros((h, w), np.uint8)
+    by_name = {p.name: p for p in parts}
+    for name in names:
+        pose, part = poses.get(name), by_name.get(name)
+        if pose is None or part is None:
+            continue
+        pts = pose.transform_points(_hull_vertices(part))
+        if np.any(pts[:, 2] <= 1e-3):
+            continue
+        uv = intrinsics.project(pts)
+        if not np.all(np.isfinite(uv)):
+            continue
+        hull = cv2.convexHull(np.round(uv).astype(np.int32))
+        cv2.fillConvexPoly(out, hull, 1)
+    return out
+
+
+_HULLS: dict[int, np.ndarray] = {}
+
+
+def _hull_vertices(part: PartSpec) -> np.ndarray:
+    """The part's body-frame vertices (a box's 8 corners; a mesh's convex-hull vertices, cached)."""
+    if part.box is not None:
+        return part.vertices()
+    key = id(part)
+    if key not in _HULLS:
+        import trimesh
+
+        mesh = part.load_mesh()
+        _HULLS[key] = np.asarray(trimesh.Trimesh(mesh.vertices, mesh.faces).convex_hull.vertices, np.float64)
+    return _HULLS[key]
+
+
+def moving_scene_mask(depth: np.ndarray | None, intrinsics: Intrinsics, table, static: np.ndarray,
+                      moving: np.ndarray, hand_boxes: Iterable[Sequence[int]] = (),
+                      margin: int = PART_MARGIN_PX) -> np.ndarray:
+    """H×W bool mask, True = exclude from the odometry: foreground above ``table`` (a plane with ``normal`` and
+    ``offset`` in the camera frame, or None) outside the ``static`` silhouettes, the ``moving`` silhouettes and the
+    hand boxes ``[u0, v0, u1, v1]`` (end-exclusive), dilated by ``margin`` pixels."""
+    h, w = static.shape
+    out = moving.astype(np.uint8, copy=True)
+    if table is not None and depth is not None:
+        n = np.asarray(table.normal, np.float32)
+        rx = (np.arange(w, dtype=np.float32) - np.float32(intrinsics.cx)) / np.float32(intrinsics.fx)
+        ry = (np.arange(h, dtype=np.float32) - np.float32(intrinsics.cy)) / np.float32(intrinsics.fy)
+        dots = (n[0] * rx)[None, :] + (n[1] * ry + n[2])[:, None]
+        with np.errstate(invalid="ignore"):
+            height = depth * dots + np.float32(table.offset)
+            fg = (height > FOREGROUND_MIN_M) & (height < FOREGROUND_MAX_M)
+        out |= (fg & (static == 0)).astype(np.uint8)
+    if margin > 0 and out.any():
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
+        out = cv2.dilate(out, k)
+    for box in hand_boxes:
+        u0, v0, u1, v1 = (int(x) for x in box)
+        out[max(0, v0 - margin):min(h, v1 + margin), max(0, u0 - margin):min(w, u1 + margin)] = 1
+    return out.astype(bool)
+
+
+class EgoMotion:
+    """Camera ego-motion for a tracker (see the module docstring).
+
+    ``method``: ``default`` (dense RGB-D odometry) or ``fastslam``; ``intrinsics`` of the frames; ``parts``: the
+    tracked parts (for their silhouettes)."""
+
+    def __init__(self, method: str, intrinsics: Intrinsics, parts: Sequence[PartSpec], seed: int = 0) -> None:
+        from tracker.odometry import make_odometry
+
+        self.method = method
+        self.intrinsics = intrinsics
+        self.parts = list(parts)
+        self.odometry = make_odometry(method, intrinsics, seed=seed)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the camera's path: the next frame defines the world frame again."""
+        self.odometry.reset()
+        self.pose = Pose()
+        self.ok = True
+        self._applied: np.ndarray | None = None  # camera pose the tracker's state refers to (None: none yet)
+        self._table_world = None  # (normal, offset, plane) of the anchored table, world frame
+        self._history: deque[tuple[float, dict[str, np.ndarray]]] = deque()
+        self.failures = 0
+        self.last_mask: np.ndarray | None = None
+
+    # ------------------------------------------------------------------------------------------- per frame
+    def moving_parts(self, poses: Mapping[str, Pose], carried: Iterable[str] = (),
+                     hand_boxes: Sequence[Sequence[int]] = ()) -> set[str]:
+        """Parts taken to move in the world frame: ``carried``, those whose projected centre lies in a hand box
+        (grown by 30 px), and those that moved by more than ``MOVING_MIN_M`` within ``MOVING_WINDOW_S``."""
+        moving = set(carried)
+        for name, pose in poses.items():
+            if pose.t[2] > 1e-3:
+                u, v = self.intrinsics.project(pose.t[None])[0]
+                if any(b[0] - 30 <= u < b[2] + 30 and b[1] - 30 <= v < b[3] + 30 for b in hand_boxes):
+                    moving.add(name)
+        if len(self._history) >= 2:
+            now = self._history[-1][1]
+            for _, past in self._history:
+                moving.update(n for n, x in now.items() if n in past and np.linalg.norm(x - past[n]) > MOVING_MIN_M)
+        return moving
+
+    def step(self, frame: Frame, table=None, poses: Mapping[str, Pose] | None = None, carried: Iterable[str] = (),
+             hand_boxes: Sequence[Sequence[int]] = ()) -> EgoMotionStep:
+        """One frame: mask, odometry, the camera motion to apply. ``table``: the current plane (camera frame of
+        the previous frame; None before one is found); ``poses``: the parts' latest camera-frame estimates;
+        ``carried``: parts held in a hand; ``hand_boxes``: pixel boxes of hands."""
+        t0 = time.perf_counter()
+        poses = dict(poses or {})
+        hand_boxes = [b for b in hand_boxes if b is not None]
+        shape = frame.color.shape[:2]
+        moving = self.moving_parts(poses, carried, hand_boxes)
+        static = part_silhouettes(shape, self.intrinsics, self.parts, poses, set(poses) - moving)
+        moving_sil = part_silhouettes(shape, self.intrinsics, self.parts, poses, moving)
+        mask = moving_scene_mask(frame.depth, self.intrinsics, table, static, moving_sil, hand_boxes)
+        self.last_mask = mask
+        res = self.odometry.step(frame, mask)
+        self.pose, self.ok = res.pose_world_camera, bool(res.ok)
+        T_wc = res.pose_world_camera.as_matrix()
+        motion = None
+        if not res.ok:
+            self.failures += 1
+            self._applied = None
+        elif self._applied is None:
+            self._applied = T_wc
+        else:
+            D = invert(T_wc) @ self._applied
+            dt, dr = motion_size(D)
+            if dt > DEADBAND_M or np.degrees(dr) > DEADBAND_DEG:
+                motion = D
+                self._applied = T_wc
+        self._remember(float(frame.timestamp), poses, motion)
+        return EgoMotionStep(res.pose_world_camera, bool(res.ok), motion, 1e3 * (time.perf_counter() - t0),
+                             res.message)
+
+    def _remember(self, now: float, poses: Mapping[str, Pose], motion: np.ndarray | None) -> None:
+        """World-frame part positions for the moving test (the poses are of the previous camera frame, which the
+        tracker's state refers to: ``T_applied`` before this step's motion)."""
+        ref = self._applied if motion is None else self._applied @ motion
+        if ref is None:
+            self._history.clear()
+            return
+        R, t = ref[:3, :3], ref[:3, 3]
+        self._history.append((now, {n: R @ p.t + t for n, p in poses.items()}))
+        while self._history and now - self._history[0][0] > MOVING_WINDOW_S:
+            self._history.popleft()
+
+    # ------------------------------------------------------------------------------------------- table plane
+    @property
+    def has_table(self) -> bool:
+        """A table plane is anchored in the world frame."""
+        return self._table_world is not None
+
+    def anchor_table(self, table) -> None:
+        """Store ``table`` (a :class:`~tracker.perception.table_plane.TablePlane` in the current camera frame) in
+        the world frame; later frames get it from :meth:`table_in_camera`."""
+        if table is None:
+            self._table_world = None
+            return
+        R, t = self.pose.R, self.pose.t
+        n_w = R @ np.asarray(table.normal, np.float64)
+        d_w = float(table.offset) - float(n_w @ t)
+        self._table_world = (n_w, d_w, table)
+
+    def table_in_camera(self):
+        """The anchored table plane in the current camera frame (None when none is anchored)."""
+        if self._table_world is None:
+            return None
+        n_w, d_w, plane = self._table_world
+        R, t = self.pose.R, self.pose.t
+        n_c = R.T @ n_w
+        return dataclasses.replace(plane, normal=n_c, offset=d_w + float(n_w @ t))
