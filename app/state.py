@@ -232,6 +232,7 @@ class AppState:
                 auto_place=self.settings.auto_place,
                 auto_place_interval_s=self.settings.auto_place_interval_s,
                 word_assignment=word_assignment,
+                odometry=self.settings.odometry,
             )
 
         try:

@@ -22,6 +22,14 @@ Parts without a pose are not tracked until they are placed: by a rectangle the u
 `pose_initialization`), or, with ``auto_place=True``, automatically: while some part has no pose,
 ``auto_place`` is tried on a frame with a table plane at most every ``auto_place_interval_s`` seconds (frame
 time); parts it cannot find are reported in ``Snapshot.errors`` (``"auto-place <part>: <reason>"``) until found.
+
+Camera ego-motion (``odometry="default"`` or ``"fastslam"``; ``"off"`` by default): before perception, the odometry
+stage (:class:`~tracker.odometry.ego_motion.EgoMotion`: hands, moving parts and foreground masked) estimates the
+camera's pose in the world frame (= the first frame's camera frame); the tracker's particles are moved by the
+camera's motion (:func:`~tracker.filter.camera_motion.apply_camera_motion`) so that static parts stay put, and the
+table plane is propagated instead of re-checked. A frame whose odometry fails keeps the camera-frame prediction
+and gets the usual table re-check at once. Poses stay camera-frame; ``Snapshot.camera_pose`` /
+``camera_pose_ok`` carry the camera's pose.
 """
 
 from __future__ import annotations
@@ -106,6 +114,7 @@ class AssemblyPipeline:
     * ``word_assignment``: for the learning mode, called with each freshly built mode; a cube → word dict it
       returns replaces the mode's random assignment (the simulator's scripted user builds its row in a fixed
       order: ``tracker.sources.simulator.scripted_words``); ``None`` keeps the mode's own.
+    * ``odometry``: ``"off"``, ``"default"`` (dense RGB-D odometry) or ``"fastslam"`` (see the module docstring).
     """
 
     def __init__(
@@ -122,6 +131,7 @@ class AssemblyPipeline:
         auto_place: bool = False,
         auto_place_interval_s: float = 2.0,
         word_assignment: Callable[[Any], dict[str, str] | None] | None = None,
+        odometry: str = "off",
     ) -> None:
         if not parts:
             raise ValueError("pipeline: no parts to track")
@@ -152,6 +162,7 @@ class AssemblyPipeline:
         self._last_wall: float | None = None
         self._setup_errors: list[str] = []
         self.detector = self._make_detector()
+        self.ego = self._make_ego_motion(odometry)
         self._tracked_names: list[str] = []
         self.tracker = None
         self._initialize_tracker()
@@ -169,6 +180,14 @@ class AssemblyPipeline:
             return None
         coloured = [p for p in self.parts if p.color is not None]
         return ColorDetector.from_parts(coloured) if coloured else None
+
+    def _make_ego_motion(self, odometry: str):
+        """The camera odometry stage (None when ``odometry`` is ``"off"``)."""
+        from tracker.odometry.ego_motion import MODES, EgoMotion
+
+        if odometry not in MODES:
+            raise ValueError(f"pipeline: odometry must be one of {', '.join(MODES)}, got {odometry!r}")
+        return None if odometry == "off" else EgoMotion(odometry, self.intrinsics, self.parts, seed=self.seed)
 
     def _make_tracker(self):
         """The particle filter for the parts that have a pose so far (``None`` until one has)."""
@@ -352,6 +371,8 @@ class AssemblyPipeline:
         self._fps, self._last_wall = 0.0, None
         self._auto_place_time, self._auto_place_errors, self.carried = None, {}, []
         self.tracker = None
+        if self.ego is not None:
+            self.ego.reset()
         self._initialize_tracker()
         self.set_mode(self.mode_name, self.task)
 
@@ -371,6 +392,10 @@ class AssemblyPipeline:
         return float(np.count_nonzero(on)) / max(1, on.size)
 
     def _update_table(self, frame: Frame, errors: list[str]) -> None:
+        if self.ego is not None and self.ego.has_table:
+            if self.ego.ok:  # odometry on and measured: the plane is propagated (_follow_camera), not re-checked
+                return
+            self._table_time = None  # the odometry failed: re-check the plane now
         if frame.depth is None:
             return
         due = self._table_time is None or abs(frame.timestamp - self._table_time) >= self.table_recheck_s
@@ -392,6 +417,8 @@ class AssemblyPipeline:
             return
         self._table_rays = None
         self._table_share = self._on_table_share(frame.depth, frame.intrinsics)
+        if self.ego is not None:
+            self.ego.anchor_table(self.table)
 
     def _boxes(self) -> dict[str, list[float]]:
         out: dict[str, list[float]] = {}
@@ -419,11 +446,41 @@ class AssemblyPipeline:
         wall = time.time() if wall_time is None else float(wall_time)
         errors: list[str] = list(self._setup_errors)
         timings: dict[str, float] = {}
+        if self.ego is not None:
+            self._follow_camera(frame, errors, timings)
         detections = self._perceive(frame, errors, timings)
         particles = self._estimate(frame, detections, errors, timings)
         mode_state = self._monitor(frame, errors, timings)
         self._count_fps()
         return self._snapshot(frame, wall, detections, particles, mode_state, errors, timings)
+
+    def _follow_camera(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> None:
+        """Odometry on: the camera's pose; the tracker's state moved by the camera's motion; the table propagated
+        (a plane found since the last frame is anchored in the world frame first)."""
+        from tracker.filter.camera_motion import apply_camera_motion
+
+        t0 = time.perf_counter()
+        try:
+            if self.table is not None and not self.ego.has_table:
+                self.ego.anchor_table(self.table)
+            ego = self.ego.step(frame, self.table, self.poses, self.carried, self._hand_boxes(frame))
+            if not ego.ok:
+                errors.append(f"odometry: {ego.message}")
+            if ego.camera_motion is not None and self.tracker is not None:
+                apply_camera_motion(self.tracker, ego.camera_motion)
+                self.poses.update(self.tracker.estimates)
+            if ego.ok and self.ego.has_table:
+                self.table = self.ego.table_in_camera()
+                self._table_rays = None
+        except Exception as exc:  # noqa: BLE001 - a failing stage is reported, the frame goes on
+            log.exception("odometry failed on frame %s", frame.index)
+            errors.append(f"odometry: {type(exc).__name__}: {exc}")
+        timings["odometry"] = time.perf_counter() - t0
+
+    @staticmethod
+    def _hand_boxes(frame: Frame) -> list:
+        """Pixel boxes of hands known for ``frame`` (a hand tracker's ``hand_boxes`` in its meta), else none."""
+        return [b for b in (frame.meta.get("hand_boxes") or []) if b is not None]
 
     def _perceive(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> dict:
         """Table plane (found, re-checked), colour detections and, when on, automatic placement of missing parts."""
@@ -545,5 +602,7 @@ class AssemblyPipeline:
             source=self.source_info,
             errors=errors,
             carried=list(self.carried),
+            camera_pose=None if self.ego is None else self.ego.pose,
+            camera_pose_ok=True if self.ego is None else bool(self.ego.ok),
             image_size=(frame.intrinsics.width, frame.intrinsics.height),
         )

@@ -56,6 +56,12 @@ def register(subparsers) -> None:
     )
     p.add_argument("--seed", type=int, help="random seed of tracker and modes")
     p.add_argument(
+        "--odometry",
+        choices=["default", "fastslam", "off"],
+        help="camera ego-motion (default off): 'default' dense RGB-D odometry, 'fastslam' the seed's AKAZE + "
+        "FastSLAM; the parts are kept in the world frame while the camera moves",
+    )
+    p.add_argument(
         "--no-realtime",
         dest="realtime",
         action="store_false",
@@ -161,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
             "tracker_config": args.tracker_config,
             "n_particles": args.n_particles,
             "seed": args.seed,
+            "odometry": args.odometry,
             "realtime": args.realtime,
             "auto_place": getattr(args, "auto_place", None),
             "allowed_hosts": args.allowed_hosts,

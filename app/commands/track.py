@@ -20,9 +20,15 @@ Writes one JSON line per frame to ``--out`` (default: stdout is left for the rep
 
     {"index": i, "poses": {"<name>": {"t": [x, y, z], "q": [x, y, z, w]}}}
 
-(camera frame, metres, Hamilton quaternions). When the recording has ground truth it prints per part the
-translation error (mm) and symmetry-aware rotation error (degrees) mean / median / 95th percentile, and the
-frame rate achieved. Frames without valid depth near the parts keep the prediction; their number is reported.
+(camera frame, metres, Hamilton quaternions); with ``--odometry default|fastslam`` each line also has
+``"camera": {"t", "q", "ok"}``, the camera's pose in the world frame (= the first frame's camera frame; ``ok`` False
+when extrapolated). With odometry on, the tracker's particles are moved by the camera's motion before each step
+(static parts stay put in the world frame) and the table plane is propagated with the camera instead of re-checked
+(re-checked when the odometry fails); see :mod:`tracker.odometry.ego_motion`.
+
+When the recording has ground truth it prints per part the translation error (mm) and symmetry-aware rotation
+error (degrees) mean / median / 95th percentile, and the frame rate achieved. Frames without valid depth near
+the parts keep the prediction; their number is reported.
 """
 
 from __future__ import annotations
@@ -47,6 +53,9 @@ def register(subparsers) -> None:
     p.add_argument("--no-color", action="store_true", help="depth only (ignore part colours)")
     p.add_argument("--no-table", action="store_true",
                    help="do not look for a table plane (e.g. a recording with depth of the object only)")
+    p.add_argument("--odometry", default="off", choices=("default", "fastslam", "off"),
+                   help="camera ego-motion (default off): the parts are moved by the camera's motion before each "
+                        "step and the table plane is propagated; --out still gets camera-frame poses")
     p.add_argument("--init", default=None, choices=("given", "auto"),
                    help="first-frame poses: 'given' (objects.json) or 'auto' (found in the first frame); "
                         "default: the given ones, missing ones found automatically")
@@ -322,7 +331,7 @@ def run(args: argparse.Namespace) -> int:
             src.close()
             raise
     session = TrackSession(parts, src.intrinsics, poses, cfg, seed=args.seed, use_color=not args.no_color,
-                           table=first_table, use_table=not args.no_table)
+                           table=first_table, use_table=not args.no_table, odometry=args.odometry)
     errors = PoseErrorLog(parts) if src.has_groundtruth else None
     out = open(args.out, "w") if args.out else None  # noqa: SIM115
     n = 0
@@ -343,8 +352,10 @@ def run(args: argparse.Namespace) -> int:
             state, _ = session.step(frame)
             bar.update(1)
             if out is not None:
-                out.write(json.dumps({"index": frame.index, "poses": {k: v.to_dict() for k, v in state.poses.items()}})
-                          + "\n")
+                line = {"index": frame.index, "poses": {k: v.to_dict() for k, v in state.poses.items()}}
+                if session.ego_step is not None:
+                    line["camera"] = {**session.ego_step.pose_world_camera.to_dict(), "ok": session.ego_step.ok}
+                out.write(json.dumps(line) + "\n")
             if errors is not None:
                 gt = src.groundtruth(frame.index)
                 if gt:
@@ -372,6 +383,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"table plane re-detected {follower.redetections} time(s) (camera or table moved)"
               + (f"; {follower.failures} re-detection(s) failed, the previous plane was kept" if follower.failures
                  else ""), file=sys.stderr)  # fmt: skip
+    if session.ego is not None:
+        print(f"odometry {args.odometry}: {n - session.ego.failures} of {n} camera poses measured, "
+              f"{session.ego.failures} extrapolated (the parts kept their camera-frame prediction there)",
+              file=sys.stderr)
     if session.skipped:
         print(f"warning: {session.skipped} frame(s) had no valid depth near the parts; the prediction was kept",
               file=sys.stderr)

@@ -1,0 +1,127 @@
+"""Camera ego-motion in the tracker (issue 15 item 3): parts kept in the world frame, camera-frame poses still
+reported, the table plane propagated, a failed odometry step falling back cleanly."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tracker.filter.camera_motion import apply_camera_motion
+from tracker.filter.particle_filter import MultiObjectTracker
+from tracker.filter.tracker_config import TrackerConfig
+from tracker.geometry.pose import Pose
+from tracker.odometry.ego_motion import EgoMotion, moving_scene_mask
+from tracker.perception.table_plane import TablePlane
+from tracker.pipeline import AssemblyPipeline
+from tracker.sources.simulator import SimOptions, SimulatedTable
+
+FRAMES = 40
+
+
+def _transform(rotvec, t) -> np.ndarray:
+    return Pose.from_rotvec(np.asarray(rotvec, float), np.asarray(t, float)).as_matrix()
+
+
+def test_camera_motion_moves_particles_estimates_and_velocities_rigidly():
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
+        n_particles=20), seed=0)
+    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    trk.v[:, :, :3] = [0.001, 0.0, 0.0]
+    T = _transform([0.0, 0.05, 0.02], [0.01, -0.02, 0.005])
+    before = {n: p for n, p in trk.estimates.items()}
+    apply_camera_motion(trk, T)
+    D = Pose.from_matrix(T)
+    for i, (name, pose) in enumerate(before.items()):
+        moved = D @ pose
+        assert trk.estimates[name].translation_error(moved) < 1e-9
+        assert np.allclose(trk.p[:, i], moved.t) and np.allclose(trk.R[:, i], moved.R)
+    assert np.allclose(trk.v[0, 0, :3], T[:3, :3] @ [0.001, 0.0, 0.0])
+    with pytest.raises(ValueError, match="4x4"):
+        apply_camera_motion(trk, np.eye(3))
+
+
+def test_table_plane_is_carried_into_the_moved_camera():
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    ego = EgoMotion("default", src.intrinsics, src.parts)
+    plane = TablePlane(np.array([0.0, -0.8, -0.6]), 0.5)
+    ego.anchor_table(plane)
+    ego.pose = Pose.from_rotvec(np.array([0.1, -0.05, 0.02]), np.array([0.03, 0.01, -0.02]))
+    moved = ego.table_in_camera()
+    on_plane = np.array([[0.1, 0.2, 0.0], [-0.2, 0.4, 0.0], [0.0, 0.0, 0.0]])
+    on_plane[:, 2] = -(0.5 + on_plane[:, :2] @ plane.normal[:2]) / plane.normal[2]  # points of the first frame
+    in_new_camera = ego.pose.inverse().transform_points(on_plane)  # the same world points seen by the moved camera
+    assert np.abs(moved.height(in_new_camera)).max() < 1e-9
+
+
+def test_mask_keeps_static_parts_and_excludes_foreground_moving_parts_and_hands():
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    f = src.render(0)
+    from tracker.perception.table_plane import detect_table
+
+    table = detect_table(f.depth, src.intrinsics)
+    h, w = f.depth.shape
+    ego = EgoMotion("default", src.intrinsics, src.parts)
+    names = [p.name for p in src.parts]
+    from tracker.odometry.ego_motion import part_silhouettes
+
+    static = part_silhouettes((h, w), src.intrinsics, src.parts, src.initial_poses, names[1:])
+    moving = part_silhouettes((h, w), src.intrinsics, src.parts, src.initial_poses, names[:1])
+    mask = moving_scene_mask(f.depth, src.intrinsics, table, static, moving, hand_boxes=[[0, 0, 20, 20]])
+    assert mask[:20, :20].all()
+    assert mask[moving > 0].all()  # the moving part is excluded
+    inner = static.astype(bool) & ~mask
+    assert inner.sum() > 0.8 * static.sum()  # the static parts are kept (but for the dilated border of others)
+    assert mask.mean() < 0.2  # the table itself is kept
+    assert ego.table_in_camera() is None
+
+
+def _run(odometry: str, frames: int = FRAMES, drop_depth: int | None = None):
+    src = SimulatedTable("static", seed=3, options=SimOptions(camera_motion="handheld"), n_frames=frames)
+    pipe = AssemblyPipeline(src.parts, src.intrinsics, mode=None, initial_poses=src.initial_poses, seed=0,
+                            odometry=odometry)
+    w0 = src.camera_pose_at(0).inverse()
+    snaps, truth_cam = [], []
+    for i in range(frames):
+        frame = src.render(i)
+        if i == drop_depth:
+            frame = dataclasses.replace(frame, depth=None)
+        snaps.append(pipe.process(frame, wall_time=i / 30.0))
+        truth_cam.append(w0 @ src.camera_pose_at(i))
+    return src, snaps, truth_cam
+
+
+def test_static_parts_stay_put_in_the_world_frame_while_the_camera_moves():
+    src, snaps, truth_cam = _run("default")
+    moved = max(np.linalg.norm(t.t) for t in truth_cam)
+    assert moved > 0.004  # the camera did move (a hand-held sway), so the test means something
+    first = {n: snaps[0].camera_pose @ p for n, p in snaps[0].poses.items()}
+    for snap, cam in zip(snaps, truth_cam, strict=True):
+        assert snap.camera_pose_ok and snap.camera_pose.translation_error(cam) < 0.003
+        assert set(snap.poses) == {p.name for p in src.parts}  # camera-frame poses still come out
+        for name, pose in snap.poses.items():
+            assert (snap.camera_pose @ pose).translation_error(first[name]) < 0.005, (snap.frame_index, name)
+    gt = src.render_clean(FRAMES - 1)["poses"]
+    for name, pose in snaps[-1].poses.items():  # and they are the parts' camera-frame poses
+        assert pose.translation_error(gt[name]) < 0.005
+
+
+def test_failed_odometry_step_falls_back_to_the_camera_frame_prediction():
+    src, snaps, truth_cam = _run("default", frames=14, drop_depth=8)
+    bad = snaps[8]
+    assert not bad.camera_pose_ok and any(e.startswith("odometry:") for e in bad.errors)
+    assert set(bad.poses) == {p.name for p in src.parts}
+    assert all(s.camera_pose_ok for s in snaps[9:])  # measured again after the gap
+    assert snaps[-1].camera_pose.translation_error(truth_cam[-1]) < 0.003
+    gt = src.render_clean(13)["poses"]
+    for name, pose in snaps[-1].poses.items():
+        assert pose.translation_error(gt[name]) < 0.005
+    assert snaps[-1].table is not None
+
+
+def test_odometry_option_is_checked():
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    with pytest.raises(ValueError, match="odometry must be one of"):
+        AssemblyPipeline(src.parts, src.intrinsics, mode=None, initial_poses=src.initial_poses, odometry="orb")
