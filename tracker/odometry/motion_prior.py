@@ -1,11 +1,15 @@
 """Constant-velocity prediction of the camera pose from the last two estimates (used as the alignment's start and
-as the pose of frames that cannot be measured)."""
+as the pose of frames that cannot be measured). After ``HOLD_AFTER`` unmeasured frames in a row the velocity is
+halved on every further one, so a long failure holds the pose instead of extrapolating without bound."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from tracker.odometry.se3 import exp_se3, invert, log_se3
+
+HOLD_AFTER = 2
+"""Unmeasured frames in a row extrapolated at the full last velocity; the velocity halves on each further one."""
 
 
 class ConstantVelocity:
@@ -15,10 +19,12 @@ class ConstantVelocity:
     def __init__(self) -> None:
         self._last: tuple[float, np.ndarray] | None = None
         self._twist = np.zeros(6)  # body-frame twist per second
+        self._missed = 0  # unmeasured updates in a row
 
     def reset(self, t: float, T: np.ndarray) -> None:
         self._last = (float(t), np.array(T, dtype=np.float64))
         self._twist = np.zeros(6)
+        self._missed = 0
 
     @property
     def started(self) -> bool:
@@ -44,4 +50,7 @@ class ConstantVelocity:
             dt = float(t) - t0
             if dt > 1e-6:
                 self._twist = log_se3(invert(T0) @ T) / dt
+        self._missed = 0 if measured else self._missed + 1
+        if self._missed > HOLD_AFTER:
+            self._twist = 0.5 * self._twist
         self._last = (float(t), np.array(T, dtype=np.float64))
