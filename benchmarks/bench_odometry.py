@@ -45,6 +45,9 @@ from tracker.sources.simulator import SimOptions, SimulatedTable  # noqa: E402
 RESULTS = Path(__file__).resolve().parent / "results"
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 METHODS = ("default", "fastslam", "opencv-rgb")
+IN_TRACKER = "in-tracker"
+"""The default odometry run inside the tracker (``track --odometry default``: its own mask of foreground, hand/arm
+boxes and moving parts from the tracker's estimates; no simulator hand box); its camera poses are scored."""
 SESSIONS = (("static", "handheld", 100), ("guess-1", "handheld", 100), ("static", "handheld", 101),
             ("guess-1", "handheld", 101), ("static", "sway", 102), ("guess-1", "sway", 102))
 
@@ -77,12 +80,37 @@ def _summary(run: dict, times, truth) -> dict:
     return e
 
 
-def _run_methods(label: str, intrinsics, frames, masks, times, truth) -> tuple[dict, dict]:
+def _run_in_tracker(src, frames) -> dict:
+    """The tracker of ``track --odometry default`` on the frames; its odometry stage's camera poses and CPU time."""
+    from app.commands.track import TrackSession
+    from tracker.filter.tracker_config import TrackerConfig
+
+    session = TrackSession(src.parts, src.intrinsics, src.initial_poses, TrackerConfig.preset("default"), seed=0,
+                           odometry="default")
+    est, cpu, wall, ok = [], [], [], []
+    for f in frames():
+        w0 = time.perf_counter()
+        session.step(f)
+        cpu.append(1e3 * session.last_ego_cpu)
+        wall.append(1e3 * (time.perf_counter() - w0))
+        est.append(session.ego_step.pose_world_camera)
+        ok.append(bool(session.ego_step.ok))
+    return {"est": est, "cpu": cpu, "wall": wall, "ok": ok, "jumps": session.ego.jumps}
+
+
+def _run_methods(label: str, intrinsics, frames, masks, times, truth, methods=METHODS, src=None) -> tuple[dict, dict]:
     """Every method on the same frames: per-method summaries and estimated trajectories (with the truth)."""
     out, trajs = {}, {"truth": truth}
-    for method in METHODS:
-        run = _run_frames(method, intrinsics, frames, masks)
+    for method in methods:
+        if method == IN_TRACKER:
+            if src is None:
+                continue
+            run = _run_in_tracker(src, frames)
+        else:
+            run = _run_frames(method, intrinsics, frames, masks)
         out[method] = _summary(run, times, truth)
+        if "jumps" in run:
+            out[method]["jumps"] = run["jumps"]
         trajs[method] = run["est"]
         print(f"  {label} {method}: {json.dumps(out[method])}", flush=True)
     return out, trajs
@@ -94,7 +122,7 @@ def _extent(truth: list[Pose]) -> dict:
     return {"camera_max_shift_mm": round(1e3 * shift, 1), "camera_max_turn_deg": round(turn, 2)}
 
 
-def simulated_session(scenario: str, motion: str, seed: int, n: int) -> tuple[dict, dict]:
+def simulated_session(scenario: str, motion: str, seed: int, n: int, methods=METHODS) -> tuple[dict, dict]:
     src = SimulatedTable(scenario, seed=seed, options=SimOptions(camera_motion=motion), n_frames=n)
     w0 = src.camera_pose_at(0).inverse()
     truth = [w0 @ src.camera_pose_at(i) for i in range(n)]
@@ -108,7 +136,8 @@ def simulated_session(scenario: str, motion: str, seed: int, n: int) -> tuple[di
     def masks():
         return (exclusion_mask(shape, b) if b is not None else None for b in boxes)
 
-    out, trajs = _run_methods(f"{scenario}/{motion}/seed {seed}", src.intrinsics, frames, masks, times, truth)
+    out, trajs = _run_methods(f"{scenario}/{motion}/seed {seed}", src.intrinsics, frames, masks, times, truth,
+                              methods, src)
     hand = sum(b is not None for b in boxes)
     return {"scenario": scenario, "motion": motion, "seed": seed, "frames": n, **_extent(truth),
             "frames_with_hand": hand, "methods": out}, trajs
@@ -144,7 +173,8 @@ def plot(name: str, trajs: dict, title: str) -> str:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    colours = {"truth": "k", "default": "tab:blue", "fastslam": "tab:orange", "opencv-rgb": "tab:green"}
+    colours = {"truth": "k", "default": "tab:blue", "fastslam": "tab:orange", "opencv-rgb": "tab:green",
+               IN_TRACKER: "tab:purple"}
     n = len(trajs["truth"])
     tt = np.arange(n) / 30.0
     for key, poses in trajs.items():
@@ -175,8 +205,9 @@ def plot(name: str, trajs: dict, title: str) -> str:
 
 def markdown(res: dict) -> str:
     m = res["machine"]
+    in_tracker = any(IN_TRACKER in s["methods"] for s in res["sessions"])
     lines = [
-        "## Camera odometry (issue 15)",
+        "## Camera odometry inside the tracker (issue 15)" if in_tracker else "## Camera odometry (issue 15)",
         "",
         f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; NUMBA_NUM_THREADS=1. 1-minute load "
         f"{m['load_1min_at_start']} at the start and {res['load_1min_at_end']} at the end: taken under load (the "
@@ -188,7 +219,13 @@ def markdown(res: dict) -> str:
         "RGB-D odometry (`tracker/odometry/camera_odometry.py`), `fastslam` = the seed's AKAZE + FastSLAM 1.0 "
         "(100 particles), `opencv-rgb` = the baseline, OpenCV 5's `cv2.Odometry` (photometric, frame to frame, "
         "its samples' usage; its RGB_DEPTH and DEPTH variants diverged on these scenes, see notes). ATE = RMSE of the "
-        "camera position; RPE over 1 s, per second. Ratio = baseline ATE / default ATE.",
+        "camera position; RPE over 1 s, per second. Ratio = baseline ATE / default ATE."
+        + (f" `{IN_TRACKER}` = the same dense odometry run by the tracker (`track --odometry default`, "
+           "`tracker/odometry/ego_motion.py`) with its own mask and no simulator hand box: foreground above the "
+           "propagated table plane except the silhouettes of the parts it tracks as static, the whole bounding box "
+           "of hand/arm-sized foreground blobs (with their shadows), the silhouettes of moving parts; its CPU time "
+           "is the whole odometry stage (mask + odometry). `jumps`: registrations rejected as a jump of over 8 mm / "
+           "1.5° between frames (the tracker is then re-anchored instead of being moved)." if in_tracker else ""),
         "",
         "| session | camera moved mm / ° | hand frames | method | ATE RMSE mm (max) | rot RMSE ° | RPE mm/s | "
         "RPE °/s | measured | CPU ms median / p95 | wall ms median / p95 |",
@@ -197,22 +234,23 @@ def markdown(res: dict) -> str:
     for s in res["sessions"]:
         name = f"{s['scenario']} {s['motion']}" + (f" seed {s['seed']}" if s["seed"] is not None else "")
         for method, e in s["methods"].items():
+            label = method + (f" ({e['jumps']} jumps)" if "jumps" in e else "")
             lines.append(
                 f"| {name} | {s['camera_max_shift_mm']:.0f} / {s['camera_max_turn_deg']:.1f} | {s['frames_with_hand']} "
-                f"| {method} | {e['ate_rmse_mm']:.2f} ({e['ate_max_mm']:.1f}) | {e['rot_rmse_deg']:.3f} | "
+                f"| {label} | {e['ate_rmse_mm']:.2f} ({e['ate_max_mm']:.1f}) | {e['rot_rmse_deg']:.3f} | "
                 f"{e['rpe_mm_per_s']:.2f} | {e['rpe_deg_per_s']:.3f} | {e['measured']}/{e['poses']} | "
                 f"{e['cpu_ms_median']:.1f} / {e['cpu_ms_p95']:.1f} | "
                 f"{e['wall_ms_median']:.1f} / {e['wall_ms_p95']:.1f} |"
             )
             name = ""
     ratios = []
+    others = [m for m in res["sessions"][0]["methods"] if m != "default"] if res["sessions"] else []
     for s in res["sessions"]:
         ate = {k: v["ate_rmse_mm"] for k, v in s["methods"].items()}
         base = max(ate["default"], 1e-6)
         label = f"{s['scenario']} {s['motion']}" + ("" if s["seed"] is None else f" {s['seed']}")
-        ratios.append(f"{label}: {ate['opencv-rgb'] / base:.1f}× / {ate['fastslam'] / base:.1f}×")
-    lines += ["", "Baseline ratio (opencv-rgb ATE / default ATE) and FastSLAM ratio (fastslam ATE / default ATE) per "
-              "session: " + "; ".join(ratios) + ".", ""]
+        ratios.append(f"{label}: " + " / ".join(f"{ate[m] / base:.2g}×" for m in others if m in ate))
+    lines += ["", f"Ratios ({' / '.join(others)} ATE over the default's) per session: " + "; ".join(ratios) + ".", ""]
     lines += ["Trajectory plots (top view, position and rotation error over time): "
               + ", ".join(f"`benchmarks/results/{p}`" for p in res["plots"]), "", res["notes"], ""]
     return "\n".join(lines)
@@ -236,19 +274,41 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--quick", action="store_true", help="two sessions of 90 frames, no castle")
     ap.add_argument("--no-write", action="store_true", help="print only")
+    ap.add_argument("--methods", default=",".join(METHODS),
+                    help=f"comma-separated methods of {', '.join((*METHODS, IN_TRACKER))} "
+                    f"(default: {','.join(METHODS)})")
+    ap.add_argument("--sessions", default=None, help="only these sessions, e.g. guess-1/handheld/100,static/sway/102 "
+                    "(no castle)")
+    ap.add_argument("--stem", default="odometry", help="results file name: results/STEM.md/.json (default odometry)")
     args = ap.parse_args(argv)
+    methods = tuple(m for m in args.methods.split(",") if m)
+    bad = [m for m in methods if m not in (*METHODS, IN_TRACKER)]
+    if bad or "default" not in methods:
+        print(f"error: --methods {args.methods!r}: give methods of {', '.join((*METHODS, IN_TRACKER))}, including "
+              "default", file=sys.stderr)
+        return 2
     info = machine_info()
     info["load_1min_at_start"] = info.pop("load_avg_1min")
     RESULTS.mkdir(parents=True, exist_ok=True)
     sessions, plots = [], []
     todo = SESSIONS[:2] if args.quick else SESSIONS
+    if args.sessions:
+        todo = []
+        for item in args.sessions.split(","):
+            scenario, motion, seed = item.split("/")
+            if int(seed) < 100:
+                print(f"error: --sessions {item}: held-out seeds are >= 100", file=sys.stderr)
+                return 2
+            todo.append((scenario, motion, int(seed)))
     n = 90 if args.quick else args.frames
+    prefix = "" if args.stem == "odometry" else args.stem + "_"
     for scenario, motion, seed in todo:
-        s, trajs = simulated_session(scenario, motion, seed, n)
+        s, trajs = simulated_session(scenario, motion, seed, n, methods)
         sessions.append(s)
         if not args.no_write:
-            plots.append(plot(f"{scenario}_{motion}_{seed}", trajs, f"{scenario}, {motion} camera, seed {seed}"))
-    if not args.quick:
+            title = f"{scenario}, {motion} camera, seed {seed}"
+            plots.append(plot(f"{prefix}{scenario}_{motion}_{seed}", trajs, title))
+    if not args.quick and not args.sessions:
         castle = castle_session()
         if castle is not None:
             sessions.append(castle[0])
@@ -259,8 +319,8 @@ def main(argv=None) -> int:
     md = markdown(res)
     print(md)
     if not args.no_write:
-        (RESULTS / "odometry.json").write_text(json.dumps(res, indent=2) + "\n")
-        (RESULTS / "odometry.md").write_text(md)
+        (RESULTS / f"{args.stem}.json").write_text(json.dumps(res, indent=2) + "\n")
+        (RESULTS / f"{args.stem}.md").write_text(md)
     return 0
 
 

@@ -125,3 +125,42 @@ def test_odometry_option_is_checked():
     src = SimulatedTable("static", seed=0, n_frames=1)
     with pytest.raises(ValueError, match="odometry must be one of"):
         AssemblyPipeline(src.parts, src.intrinsics, mode=None, initial_poses=src.initial_poses, odometry="orb")
+
+
+class _ScriptedOdometry:
+    """Stands in for the odometry: returns the given camera poses (None = a failed step) one per call."""
+
+    def __init__(self, poses):
+        self.poses = list(poses)
+
+    def reset(self):
+        pass
+
+    def step(self, frame, mask=None):
+        from tracker.odometry.odometry_result import OdometryResult
+
+        pose = self.poses.pop(0)
+        ok = pose is not None
+        return OdometryResult(pose if ok else Pose(), ok, 1000 if ok else 0, 0.0, frame.timestamp,
+                              message="" if ok else "scripted failure")
+
+
+def test_jumps_and_failures_are_not_applied_and_the_table_stays_in_the_camera_frame():
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    frame = src.render(0)
+    ego = EgoMotion("default", src.intrinsics, src.parts)
+    shift = [Pose(np.array([0.002 * k, 0.0, 0.0])) for k in range(4)]
+    jump = Pose(np.array([0.0, 0.0, 0.04]))  # along the table normal: moves the plane unless re-anchored
+    ego.odometry = _ScriptedOdometry([shift[0], shift[1], jump @ shift[2], None, jump @ shift[3]])
+    table = TablePlane(np.array([0.0, -0.8, -0.6]), 0.5)
+    ego.anchor_table(table)
+    steps, tables = [], []
+    for _ in range(5):
+        steps.append(ego.step(frame, table))
+        tables.append(ego.table_in_camera())
+    assert steps[0].camera_motion is None  # the first pose only anchors the tracker's frame
+    assert np.allclose(steps[1].camera_motion[:3, 3], [-0.002, 0.0, 0.0])  # camera moved +x: parts move -x
+    assert steps[2].camera_motion is None and ego.jumps == 1  # a 4 cm jump is not the camera's motion
+    assert abs(tables[2].offset - tables[1].offset) < 1e-9 and np.allclose(tables[2].normal, tables[1].normal)
+    assert not steps[3].ok and steps[3].camera_motion is None and ego.failures == 1
+    assert steps[4].ok and steps[4].camera_motion is None  # after a failure: re-anchored, nothing applied
