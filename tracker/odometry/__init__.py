@@ -9,20 +9,10 @@ Both take ``step(frame, mask=None)`` and return an :class:`~tracker.odometry.odo
 pose is the camera's pose in the world frame = the first frame's camera frame. :func:`make_odometry` builds one by
 method name.
 
-Use in the tracker (issue 15 item 3; the pipeline owns the wiring)::
-
-    odo = CameraOdometry(intrinsics)                       # once per source; odo.reset() when the source restarts
-    mask = exclusion_mask(frame.color.shape[:2], hand_box, part_masks_of_moving_parts)   # True = exclude
-    res = odo.step(frame, mask)                            # ~15–25 ms CPU per 640×480 frame
-    T_wc = res.pose_world_camera                           # camera → world (world = first camera frame)
-    # parts kept in the world frame: T_world_obj = T_wc @ T_cam_obj; predict each part in the new camera frame as
-    # T_cam_obj = T_wc.inverse() @ T_world_obj before the particle filter's step (static parts then stay put);
-    # table plane propagated, not re-detected: with table_to_camera_0 from the first detection,
-    # table_to_camera = T_wc.inverse() @ T_w_table, where T_w_table = table_to_camera_0 (world = camera 0);
-    # res.ok False (no depth, failed alignment): the pose is extrapolated — keep the parts' camera-frame
-    # prediction and re-check the table plane.
-    # Snapshot.camera_pose = T_wc, Snapshot.camera_pose_ok = res.ok (the viser scene then shows the camera frustum
-    # and its path).
+Use in the tracker (issue 15 item 3): :class:`~tracker.odometry.ego_motion.EgoMotion` runs the odometry as a stage
+before the particle filter's step (mask of hands, arms, moving parts and foreground; the camera motion to apply with
+:func:`tracker.filter.camera_motion.apply_camera_motion`; the table plane propagated). ``AssemblyPipeline(...,
+odometry="default")``, ``track --odometry default`` and ``serve --odometry default`` switch it on.
 """
 
 from __future__ import annotations
