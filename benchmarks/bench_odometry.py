@@ -301,7 +301,7 @@ def main(argv=None) -> int:
                 return 2
             todo.append((scenario, motion, int(seed)))
     n = 90 if args.quick else args.frames
-    prefix = "" if args.stem == "odometry" else args.stem + "_"
+    prefix = "" if args.stem == "odometry" else args.stem.removeprefix("odometry_") + "_"
     for scenario, motion, seed in todo:
         s, trajs = simulated_session(scenario, motion, seed, n, methods)
         sessions.append(s)
