@@ -281,8 +281,11 @@ def markdown(res: dict) -> str:
         "Issue 11's targets for every held-out session (worst part): t median ≤ 2 mm, t p95 ≤ 8 mm, r median ≤ 1.5°, "
         "r p95 ≤ 5°, no part lost.",
         "",
-        "Reproduce: `.venv/bin/python benchmarks/bench_heldout.py --jobs 2`"
-        + (" --dev" if dev else "") + " (≈ 1 min of CPU per session).",
+        "Reproduce: `.venv/bin/python benchmarks/bench_heldout.py --jobs 2"
+        + (" --dev" if dev else "")
+        + (f" --odometry {res['odometry']}" if res.get("odometry", "off") != "off" else "")
+        + "` (≈ 1 min of CPU per session" + ("; three trackers per session)." if res.get("odometry", "off") != "off"
+                                             else ")."),
         "",
     ]
     return "\n".join(lines)
