@@ -234,6 +234,9 @@ class SnapshotModel(BaseModel):
     source: dict[str, Any]
     errors: list[str]
     carried: list[str] = Field([], description="parts currently hidden inside a hand and moved with it")
+    hands: list[dict[str, Any]] = Field(
+        [], description="tracked hands (hand tracking on): {id, box [u0,v0,u1,v1], score, velocity, touching, holding, "
+        "text e.g. 'holding the red cube', position [x,y,z] m or null}")
     camera_pose: dict[str, Any] | None = Field(
         None, description="camera odometry: {t, q, ok}, the camera's pose in the world frame (the first camera "
         "frame); null when odometry is off")

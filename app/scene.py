@@ -1,4 +1,4 @@
-"""The viser 3D scene: table, depth point cloud, parts at their estimated poses, particle clouds, words, ghost.
+"""The viser 3D scene: table, depth point cloud, parts at their estimated poses, particle clouds, words, ghost, hands.
 
 World frame = the table frame (y up along the table normal; see the README's conventions). Everything
 the camera measures lives under the node ``/camera`` whose pose is the camera in the table frame, so
@@ -35,6 +35,10 @@ drawing it in software (no GPU) at 10 Hz starved the panel (0.07 panel fps again
 load); at 4 Hz and half resolution the panel showed every processed frame (benchmarks/bench_server.py)."""
 CAMERA_PATH_POINTS = 900
 """Camera positions kept for the camera path (30 s at 30 fps)."""
+MAX_HANDS_SHOWN = 2
+"""Tracked hands drawn (a translucent skin-coloured sphere at each hand's position, labelled with what it holds)."""
+HAND_RADIUS = 0.04
+"""Metres: radius of a hand's sphere (about half a palm's length)."""
 
 
 def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
@@ -112,6 +116,13 @@ class Scene:
         self.ghost = sc.add_box(
             "/camera/ghost", color=(255, 255, 255), dimensions=(0.036,) * 3, opacity=0.35, visible=False
         )
+        self.hand_nodes = [
+            sc.add_icosphere(f"/camera/hands/{i}", radius=HAND_RADIUS, color=(224, 172, 140), subdivisions=2,
+                             opacity=0.5, visible=False)
+            for i in range(MAX_HANDS_SHOWN)
+        ]
+        self.hand_labels = [sc.add_label(f"/camera/hands/{i}/text", "", position=(0.0, -0.05, 0.0), visible=False)
+                            for i in range(MAX_HANDS_SHOWN)]  # fmt: skip
         self.parts: list[PartSpec] = []
         self.part_nodes: dict[str, Any] = {}
         self.particle_nodes: dict[str, Any] = {}
@@ -207,6 +218,7 @@ class Scene:
                     label.visible = True
                 elif label.visible:
                     label.visible = False
+            self._update_hands(snap.hands)
             ghost = ghost_target(snap.mode_state) if snap.mode == "guidance" else None
             if ghost is not None:
                 part, pose = ghost
@@ -218,6 +230,21 @@ class Scene:
                 self.ghost.visible = True
             elif self.ghost.visible:
                 self.ghost.visible = False
+
+    def _update_hands(self, hands: list[dict[str, Any]]) -> None:
+        """A sphere per tracked hand with a 3-D position (camera frame), labelled "holding the red cube" etc."""
+        placed = [h for h in hands if h.get("position") is not None][:MAX_HANDS_SHOWN]
+        for i, (node, label) in enumerate(zip(self.hand_nodes, self.hand_labels, strict=True)):
+            if i >= len(placed):
+                if node.visible:
+                    node.visible = label.visible = False
+                continue
+            node.position = np.asarray(placed[i]["position"], float)
+            node.visible = True
+            text = str(placed[i].get("text") or "")
+            if label.text != text:
+                label.text = text
+            label.visible = bool(text)
 
     def stop(self) -> None:
         self.server.stop()

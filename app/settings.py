@@ -79,6 +79,8 @@ class Settings(BaseSettings):
     source_process: bool = Field(True, description="render the simulator in a child process (parallel to tracking)")
     auto_place: bool = Field(True, description="place parts without a pose automatically when found on the table")
     auto_place_interval_s: float = Field(2.0, gt=0, description="seconds between automatic placement attempts")
+    hands: bool = Field(False, description="track the hands: occluder prior for the parts, 'holding the red cube' in "
+                        "the panel, connections confirmed only after the hand lets go")
     tracker_config: str | None = None
     n_particles: int | None = Field(
         SERVER_PARTICLES,

@@ -233,6 +233,7 @@ class AppState:
                 auto_place_interval_s=self.settings.auto_place_interval_s,
                 word_assignment=word_assignment,
                 odometry=self.settings.odometry,
+                hands=self.settings.hands,
             )
 
         try:

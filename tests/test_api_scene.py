@@ -80,3 +80,14 @@ def test_camera_frustum_and_path_follow_the_odometry(scene):
     assert tuple(scene.frustum.color) == (230, 120, 30)  # the last pose was extrapolated
     d = snap.to_dict()
     assert d["camera_pose"]["ok"] is False and np.allclose(d["camera_pose"]["t"], [-0.02, 0.0, 0.0])
+
+
+def test_hands_are_drawn_at_their_positions_with_what_they_hold(scene):
+    hand = {"id": 1, "box": [10, 20, 60, 90], "score": 0.9, "velocity": [0.0, 0.0], "touching": [], "holding": ["red"],
+            "text": "holding the red cube", "position": [0.02, -0.01, 0.7]}
+    scene.update(Snapshot(frame_index=0, time=0.0, hands=[hand, {**hand, "id": 2, "position": None}]), None)
+    assert scene.hand_nodes[0].visible and np.allclose(scene.hand_nodes[0].position, [0.02, -0.01, 0.7])
+    assert scene.hand_labels[0].text == "holding the red cube" and scene.hand_labels[0].visible
+    assert not scene.hand_nodes[1].visible  # no depth, no 3-D place
+    scene.update(Snapshot(frame_index=1, time=0.03), None)
+    assert not scene.hand_nodes[0].visible and not scene.hand_labels[0].visible

@@ -171,6 +171,50 @@ def test_n_checks_consecutive_frames_and_breaking_hysteresis():
     assert all(not h.locked for h in hints)
 
 
+def test_hand_gate_holds_a_connection_back_until_the_hand_lets_go():
+    """Spec hand-tracking §14.7: pending while a hand touches a part, confirmed n_release free frames later, dropped
+    when the test fails meanwhile; gate off (or no hand tracking) = the seed's timing."""
+    T = default_table_to_camera()
+    base = T @ Pose(np.array([0, A / 2, 0]))
+    near = {"a": base, "b": base @ Pose(np.array([A + 0.003, 0, 0]))}
+    off = {"a": base, "b": base @ Pose(np.array([A + 0.03, 0, 0]))}
+    m = _monitor(n_checks=2)
+    m.touched = {"b"}
+    for i in range(6):
+        m.update(i * 0.1, near, T)
+    assert m.status[0].state == "near" and m.status[0].pending and not m.events
+    m.touched = set()  # released: n_release = 3 free frames confirm it
+    for i in range(6, 8):
+        m.update(i * 0.1, near, T)
+    assert not m.events and m.status[0].to_dict()["pending"]
+    m.update(0.8, near, T)
+    assert m.status[0].state == "connected" and m.events[-1].t == pytest.approx(0.8)
+
+    m = _monitor(n_checks=2)
+    m.touched = {"a"}
+    m.update(0.0, near, T)
+    m.update(0.1, near, T)
+    m.update(0.2, off, T)  # the test fails while pending: the candidate is dropped
+    assert not m.status[0].pending
+    m.touched = set()
+    m.update(0.3, near, T)
+    assert m.status[0].state != "connected"  # the N_checks count restarted
+    m.update(0.4, near, T)
+    assert m.status[0].state == "connected"
+
+    for gate_off in (AssemblyParams(N_checks=2, hand_gate=False), None):
+        m = _monitor(n_checks=2)
+        if gate_off is not None:
+            m.params = gate_off
+        m.touched = {"b"} if gate_off is not None else None
+        m.update(0.0, near, T)
+        m.update(0.1, near, T)
+        assert m.status[0].state == "connected"
+    assert AssemblyParams.from_dict({"hand_gate": 0.0}).hand_gate is False
+    with pytest.raises(ValueError):
+        AssemblyParams.from_dict({"n_release": 0})
+
+
 def test_hint_relative_pose_in_tracker_frames():
     T = default_table_to_camera()
     rng = np.random.default_rng(3)

@@ -16,6 +16,11 @@ mode's update (instruction, connections, verdicts). A stage that fails on a fram
 ``Snapshot.errors`` and the rest of the frame still runs. Poses are camera-frame (metres, quaternions
 ``[x, y, z, w]``).
 
+With ``hands=True`` the hand tracker runs in the perceive stage (:class:`tracker.hands.loop.HandLoop`): its hand
+mask is the cube tracker's occluder prior, touching / holding per part is computed after the estimate and shown in
+``Snapshot.hands`` ("holding the red cube"), and the touched parts gate the mode's connection decisions
+(``AssemblyParams.hand_gate``).
+
 Parts without a pose are not tracked until they are placed: by a rectangle the user draws
 (``tracker.perception.box_tools.pose_from_rect`` + :meth:`~AssemblyPipeline.set_part_pose`), by
 :meth:`AssemblyPipeline.auto_place` (automatic first-frame pose initialisation,
@@ -115,6 +120,8 @@ class AssemblyPipeline:
       returns replaces the mode's random assignment (the simulator's scripted user builds its row in a fixed
       order: ``tracker.sources.simulator.scripted_words``); ``None`` keeps the mode's own.
     * ``odometry``: ``"off"``, ``"default"`` (dense RGB-D odometry) or ``"fastslam"`` (see the module docstring).
+    * ``hands``: run the hand tracker (see the module docstring); ``hand_config``: its
+      :class:`~tracker.hands.loop.HandLoopConfig` (None: defaults).
     """
 
     def __init__(
@@ -132,6 +139,8 @@ class AssemblyPipeline:
         auto_place_interval_s: float = 2.0,
         word_assignment: Callable[[Any], dict[str, str] | None] | None = None,
         odometry: str = "off",
+        hands: bool = False,
+        hand_config: Any = None,
     ) -> None:
         if not parts:
             raise ValueError("pipeline: no parts to track")
@@ -164,6 +173,8 @@ class AssemblyPipeline:
         self.detector = self._make_detector()
         self.ego = self._make_ego_motion(odometry)
         self._tracked_names: list[str] = []
+        self._hand_config = hand_config
+        self.hands = self._make_hands() if hands else None
         self.tracker = None
         self._initialize_tracker()
         self.mode_name: str | None = None
@@ -188,6 +199,15 @@ class AssemblyPipeline:
         if odometry not in MODES:
             raise ValueError(f"pipeline: odometry must be one of {', '.join(MODES)}, got {odometry!r}")
         return None if odometry == "off" else EgoMotion(odometry, self.intrinsics, self.parts, seed=self.seed)
+
+    def _make_hands(self):
+        """The hand tracker with its contact monitor (:class:`tracker.hands.loop.HandLoop`), None if unavailable."""
+        try:
+            from tracker.hands.loop import HandLoop
+        except ImportError as exc:
+            self._setup_errors.append(f"hand tracking unavailable: {exc}")
+            return None
+        return HandLoop(self.parts, self.intrinsics, self._hand_config)
 
     def _make_tracker(self):
         """The particle filter for the parts that have a pose so far (``None`` until one has)."""
@@ -370,6 +390,8 @@ class AssemblyPipeline:
         self.table, self._table_time, self._table_rays = None, None, None
         self._fps, self._last_wall = 0.0, None
         self._auto_place_time, self._auto_place_errors, self.carried = None, {}, []
+        if self.hands is not None:
+            self.hands = self._make_hands()
         self.tracker = None
         if self.ego is not None:
             self.ego.reset()
@@ -450,6 +472,7 @@ class AssemblyPipeline:
             self._follow_camera(frame, errors, timings)
         detections = self._perceive(frame, errors, timings)
         particles = self._estimate(frame, detections, errors, timings)
+        self._hand_contacts(frame, errors, timings)
         mode_state = self._monitor(frame, errors, timings)
         self._count_fps()
         return self._snapshot(frame, wall, detections, particles, mode_state, errors, timings)
@@ -508,7 +531,40 @@ class AssemblyPipeline:
                 log.exception("automatic placement failed on frame %s", frame.index)
                 errors.append(f"auto-place: {type(exc).__name__}: {exc}")
             timings["auto_place"] = time.perf_counter() - t0
+        if self.hands is not None:
+            self._perceive_hands(frame, errors, timings)
         return detections
+
+    def _perceive_hands(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> None:
+        """One hand-tracker step (the table plane and the parts' last poses exclude pixels that cannot be a hand)."""
+        from tracker.filter.frame_context import table_normal_offset
+
+        t0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            self.hands.perceive(frame.color, frame.depth, table_normal_offset(self.table), self.poses)
+        except Exception as exc:  # noqa: BLE001 - a failing stage is reported, the frame goes on
+            log.exception("hand tracking failed on frame %s", frame.index)
+            errors.append(f"hands: {type(exc).__name__}: {exc}")
+        timings["hands"] = time.perf_counter() - t0
+        timings["hands_cpu"] = time.thread_time() - c0
+
+    def _hand_contacts(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> None:
+        """Touching / holding per hand and part at the new estimated poses (for the panel and the connection gate)."""
+        if self.hands is None:
+            return
+        t0 = time.perf_counter()
+        try:
+            self.hands.update_contacts(self.poses, frame.depth)
+        except Exception as exc:  # noqa: BLE001
+            log.exception("hand contacts failed on frame %s", frame.index)
+            errors.append(f"hand contacts: {type(exc).__name__}: {exc}")
+        timings["hand_contacts"] = time.perf_counter() - t0
+
+    def _occluders(self) -> np.ndarray | None:
+        """The hand occluder mask for the cube tracker (None when hands are off or the prior is switched off)."""
+        if self.hands is None or not self.hands.config.occluder_prior:
+            return None
+        return self.hands.occluder_mask()
 
     def _estimate(self, frame: Frame, detections: dict, errors: list[str],
                   timings: dict[str, float]) -> dict[str, np.ndarray]:
@@ -521,7 +577,9 @@ class AssemblyPipeline:
                     tracked = set(self._tracked_names)
                     hints = [h for h in self.mode.connection_hints() if {h.first, h.second} <= tracked]
                     self.tracker.set_connection_hints(hints)
-                state = self.tracker.step(frame, detections or None, self.table)
+                touched = None if self.hands is None else self.hands.touched_parts()
+                state = self.tracker.step(frame, detections or None, self.table, occluders=self._occluders(),
+                                          touched=touched)
                 self.poses.update(state.poses)
                 self.carried = [str(n) for n in (getattr(state, "carried", None) or [])]
                 particles = {k: np.asarray(v, np.float32) for k, v in state.particles.items()}
@@ -541,6 +599,7 @@ class AssemblyPipeline:
         t0 = time.perf_counter()
         mode_state: dict[str, Any] = {}
         if self.mode is not None:
+            self.mode.set_hand_contacts(None if self.hands is None else self.hands.touched_parts())
             t2c = self.table.table_to_camera() if self.table is not None else None
             if t2c is None:
                 errors.append("mode: waiting for the table plane")
@@ -604,5 +663,6 @@ class AssemblyPipeline:
             carried=list(self.carried),
             camera_pose=None if self.ego is None else self.ego.pose,
             camera_pose_ok=True if self.ego is None else bool(self.ego.ok),
+            hands=[] if self.hands is None else self.hands.hands(),
             image_size=(frame.intrinsics.width, frame.intrinsics.height),
         )

@@ -45,6 +45,10 @@ class Snapshot:
     * ``source``: the source's metadata; ``errors``: messages about this frame (a stage that failed, a part
       automatic placement has not found yet).
     * ``carried``: names of the parts currently hidden inside a hand and moved with it (``[]`` when none).
+    * ``hands``: the tracked hands when hand tracking is on (``[]`` otherwise): per hand ``{"id", "box": [u0, v0, u1,
+      v1] px (end-exclusive), "score", "velocity": [du, dv] px/frame, "touching": [parts], "holding": [parts],
+      "text", "position"}``, ``text`` e.g. "holding the red cube", ``position`` the camera-frame point (metres) of the
+      box centre at the median depth of the hand's skin pixels or None (:meth:`tracker.hands.loop.HandLoop.hands`).
     * ``identical_parts``: parts of one colour told apart in the image from user-drawn boxes (the web app's
       :mod:`app.identical_parts`): per name ``{"bbox": [x, y, w, h], "center", "score", "seen"}``.
     * ``camera_pose``: the camera's pose in the world frame (camera → world; world = the first frame's camera
@@ -69,6 +73,7 @@ class Snapshot:
     source: dict[str, Any] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
     carried: list[str] = field(default_factory=list)
+    hands: list[dict[str, Any]] = field(default_factory=list)
     image_size: tuple[int, int] = (0, 0)
     identical_parts: dict[str, dict[str, Any]] = field(default_factory=dict)
     camera_pose: Pose | None = None
@@ -93,6 +98,7 @@ class Snapshot:
             "source": self.source,
             "errors": list(self.errors),
             "carried": [str(n) for n in self.carried],
+            "hands": self.hands,
             "image_size": list(self.image_size),
             "identical_parts": self.identical_parts,
             "camera_pose": None if self.camera_pose is None else {

@@ -24,9 +24,11 @@ def register(subparsers) -> None:
     p.add_argument("--tracker-preset", default="default", help="tracker preset for --poses tracked (default|seed-exp1|"
                    "seed-exp23)")
     p.add_argument("--no-hints", action="store_true", help="do not feed connection hints to the tracker (ablation)")
+    p.add_argument("--hands", action="store_true", help="run the hand tracker on the rendered frames (tracked poses): "
+                   "occluder prior and the connection gate (off with --set hand_gate=0)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override an assembly parameter for every session (m_p, m_q_deg, yaw_tolerance_deg, K, "
-                   "N_max, N_checks, N_break, break_factor); repeatable")
+                   "N_max, N_checks, N_break, break_factor, hand_gate, n_release); repeatable")
     p.add_argument("--seeds", default=None, help="simulator seeds, e.g. 100-115 or 100,105. Hands experiments: the "
                    "seeds to run (default: the held-out 100,101,102 for 'hands', 100 for 'hands-particles'); the "
                    "others: they replace the sessions' own seeds (session k takes the k-th, cycling; default: each "
@@ -136,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
                                  frame_step=args.frame_step, n_particles=args.particles, progress=bar.write,
                                  tracker_preset=args.tracker_preset, hints=not args.no_hints, overrides=overrides,
                                  on_frame=on_frame, seeds=seeds, runner=runner, on_session=on_session,
-                                 max_time=args.max_time)
+                                 max_time=args.max_time, hands=args.hands)
     keys = ("sessions", "sessions_in_experiment",
             "connections_total", "connections_within_1s", "connections_never", "false_completions",
             "guess_correct", "sentences_correct", "mean_deviation_s", "runner", "elapsed_seconds")

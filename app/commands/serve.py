@@ -76,6 +76,13 @@ def register(subparsers) -> None:
         help="do not look for parts without a pose automatically (draw a box or press 'Find parts' instead)",
     )
     p.add_argument(
+        "--hands",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="track the hands (boxes in the colour view, 'holding the red cube', hands in the 3D scene, occluder "
+        "prior for the parts, connections confirmed after the hand lets go); default off",
+    )
+    p.add_argument(
         "--allowed-host",
         action="append",
         dest="allowed_hosts",
@@ -170,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
             "odometry": args.odometry,
             "realtime": args.realtime,
             "auto_place": getattr(args, "auto_place", None),
+            "hands": getattr(args, "hands", None),
             "allowed_hosts": args.allowed_hosts,
             "allowed_origins": args.allowed_origins,
             "recording_dirs": args.recording_dirs,

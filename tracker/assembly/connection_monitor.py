@@ -9,6 +9,13 @@ timestamped events. It also notices face-to-face contacts that no connection of 
 Breaking (not given in the thesis; chosen here): an established connection breaks after ``N_break``
 consecutive frames failing a relaxed test (position margins ``break_factor · m_p``, rotation margin of
 ``2 · m_q_deg``). Frames in which a part of the connection has no pose leave its state unchanged.
+
+Hand gate (hand-tracking spec §14.7; ``AssemblyParams.hand_gate``): :attr:`ConnectionMonitor.touched` holds the parts
+a hand touches this frame (set by the caller from :mod:`tracker.hands.contact`; None = no hand tracking, gate open).
+A connection whose test has held for ``N_checks`` frames while a hand touches one of its parts becomes *pending*
+(``ConnectionStatus.pending``, state stays "near"); it is established at the first frame at which neither part has
+been touched for ``n_release`` consecutive frames with the test still holding; if the test fails meanwhile, the
+candidate is dropped and the count restarts.
 Times are the ``t`` values passed to :meth:`ConnectionMonitor.update` (seconds).
 """
 
@@ -49,7 +56,9 @@ class AssemblyParams:
       without a prior); ``K``: score sensitivity (5.16); ``N_max``:
       maximum particles per connection (5.19); ``N_checks``: consecutive passing frames to establish a connection;
       ``N_break`` / ``break_factor``: hysteresis for breaking; ``near_score``: score above which an open
-      connection is reported as "near".
+      connection is reported as "near"; ``hand_gate``: hold connections back while a hand touches one of their
+      parts (hand-tracking spec §14.7; only when the caller reports touched parts); ``n_release``: frames without
+      touch that confirm a pending connection.
     """
 
     m_p: float = 0.01
@@ -62,15 +71,18 @@ class AssemblyParams:
     N_break: int = 6
     break_factor: float = 1.5
     near_score: float = 0.5
+    hand_gate: bool = True
+    n_release: int = 3
 
     @classmethod
     def from_dict(cls, d: dict | None, **overrides) -> AssemblyParams:
         names = {f.name for f in fields(cls)}
         merged = {**{k: v for k, v in (d or {}).items() if k in names}, **overrides}
         p = cls(**merged)
-        p.N_max, p.N_checks, p.N_break = int(p.N_max), int(p.N_checks), int(p.N_break)
-        if p.N_checks < 1 or p.N_break < 1:
-            raise ValueError("N_checks and N_break must be at least 1")
+        p.N_max, p.N_checks, p.N_break, p.n_release = int(p.N_max), int(p.N_checks), int(p.N_break), int(p.n_release)
+        p.hand_gate = bool(p.hand_gate)
+        if p.N_checks < 1 or p.N_break < 1 or p.n_release < 1:
+            raise ValueError("N_checks, N_break and n_release must be at least 1")
         margins(p.m_p)
         return p
 
@@ -116,7 +128,8 @@ class MonitorEvent:
 
 @dataclass
 class ConnectionStatus:
-    """Current state of one connection: ``state`` is ``open``, ``near`` or ``connected``."""
+    """Current state of one connection: ``state`` is ``open``, ``near`` or ``connected``; ``pending``: its test
+    holds but a hand touches one of its parts (or let go fewer than ``n_release`` frames ago)."""
 
     first: str
     second: str
@@ -128,6 +141,8 @@ class ConnectionStatus:
     count: int = 0
     fail_count: int = 0
     established_at: float | None = None
+    pending: bool = False
+    free_count: int = 0
     option: Option | None = field(default=None, repr=False)
     offset_table: np.ndarray | None = field(default=None, repr=False)
 
@@ -139,6 +154,7 @@ class ConnectionStatus:
             "score": round(float(self.score), 4),
             "since": None if self.since is None else round(float(self.since), 4),
             "expected": self.expected,
+            "pending": self.pending,
         }
 
 
@@ -165,6 +181,8 @@ class ConnectionMonitor:
                 if n not in self.parts:
                     raise ValueError(f"connection {c.first}–{c.second}: unknown part {n!r}")
         self.params = params or AssemblyParams()
+        self.touched: set[str] | None = None
+        """Parts a hand touches in the current frame (None: no hand tracking; see the hand gate above)."""
         self.symmetry = SymmetryState({n: p.is_cube for n, p in self.parts.items()})
         self.adjacency = (
             AdjacencyDetector(self.parts.values(), self.params, exclude={c.key for c in self.connections})
@@ -254,7 +272,9 @@ class ConnectionMonitor:
             st.score = connection_score(spec.p_des, spec.R_des, best.p, best.R, prm.m_p, prm.K)
             if not established:
                 st.count = st.count + 1 if st.passing else 0
-                if st.count >= prm.N_checks:
+                if st.count >= prm.N_checks and self._held_back(spec, st):
+                    _set_state(st, "near", t)
+                elif st.count >= prm.N_checks:
                     self.symmetry.establish(spec.first, spec.second, res,
                                             lambda o, s=spec, h=dy: self._passes(s, o, dy=h))
                     st.established_at = t
@@ -262,6 +282,7 @@ class ConnectionMonitor:
                     _set_state(st, "connected", t)
                     self.events.append(MonitorEvent(t, "connected", spec.first, spec.second, True))
                 else:
+                    st.pending, st.free_count = False, 0
                     _set_state(st, "near" if (st.passing or st.score >= prm.near_score) else "open", t)
             else:
                 ok = self._passes(spec, best, prm.break_factor, dy=dy)
@@ -278,6 +299,23 @@ class ConnectionMonitor:
         if self.adjacency is not None:
             self.events.extend(self.adjacency.update(t, poses, table_to_camera))
         return self.status
+
+    def _held_back(self, spec: ConnectionSpec, st: ConnectionStatus) -> bool:
+        """The hand gate for a connection whose test has held ``N_checks`` frames: True while it must stay pending
+        (a hand touches one of its parts, or let go fewer than ``n_release`` frames ago); updates ``st.pending``."""
+        if not self.params.hand_gate or self.touched is None:
+            st.pending, st.free_count = False, 0
+            return False
+        if spec.first in self.touched or spec.second in self.touched:
+            st.pending, st.free_count = True, 0
+            return True
+        if not st.pending:
+            return False
+        st.free_count += 1
+        if st.free_count >= self.params.n_release:
+            st.pending, st.free_count = False, 0
+            return False
+        return True
 
     # ------------------------------------------------------------------ outputs
     @property

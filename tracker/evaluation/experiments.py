@@ -81,7 +81,7 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
                    frame_step: int = 1, n_particles: int | None = None, progress=None,
                    tracker_preset: str = "default", hints: bool = True, overrides: dict | None = None,
                    on_frame=None, seeds: list[int] | None = None, runner: BatchRunner | None = None,
-                   on_session=None, max_time: float | None = None) -> dict:
+                   on_session=None, max_time: float | None = None, hands: bool = False) -> dict:
     """Run experiment ``name``, write its report into ``out`` and return the summary (also summary.json).
 
     ``progress(text)``: one line per finished session; ``on_frame(i, n)``: after each frame ``i`` of a session's
@@ -93,7 +93,8 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
     ``runner``: how the sessions run (:mod:`tracker.evaluation.batch`: serial by default, a process pool or Ray);
     the results are merged in the sessions' order, so the figures equal the serial run's. ``on_session(n_done,
     n_total)``: after each finished session (all settings of a sweep together). ``max_time``: stop each session
-    after this many seconds of its recording (a short run; connections after it count as missed)."""
+    after this many seconds of its recording (a short run; connections after it count as missed). ``hands``: run the
+    hand tracker and its connection gate (tracked poses only; see :func:`~tracker.evaluation.runner.run_session`)."""
     if name not in EXPERIMENTS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {list(EXPERIMENTS)}")
     exp = EXPERIMENTS[name]
@@ -114,7 +115,7 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
     curves = {}
     runner = runner or SerialRunner()
     common = {"poses": poses, "frame_step": frame_step, "n_particles": n_particles, "tracker_preset": tracker_preset,
-              "hints": hints, "max_time": max_time}
+              "hints": hints, "max_time": max_time, "hands": hands}
     jobs = [SessionJob(spec, {**common, "overrides": {**(overrides or {}), **setting}})
             for setting in exp.settings for spec in specs]
 
@@ -135,7 +136,8 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
         label = _label(setting)
         tag = name if len(exp.settings) == 1 else f"{name}_{len(per_setting) + 1}"
         write_experiment(out, tag, results, summary, structures,
-                         header=f"{exp.description}. {_ran(len(results), n_all)} Poses: {poses}; setting: {label}; "
+                         header=f"{exp.description}. {_ran(len(results), n_all)} Poses: {poses}"
+                                f"{' with hand tracking' if hands else ''}; setting: {label}; "
                                 f"parameters: {results[0].params if results else {}}.\n")
         summary["setting"] = setting
         per_setting[label] = summary
@@ -160,7 +162,7 @@ def run_experiment(name: str, out: str | Path, sessions: int | None = None, pose
     summary.update({"experiment": name, "poses": poses, "frame_step": frame_step, "machine": machine(),
                     "tracker_preset": tracker_preset if poses == "tracked" else None, "hints": hints,
                     "overrides": overrides or {}, "max_time": max_time, "seeds": [spec.seed for spec in specs],
-                    "runner": runner.describe(), "elapsed_seconds": round(elapsed, 2)})
+                    "runner": runner.describe(), "elapsed_seconds": round(elapsed, 2), "hands": hands})
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return summary
 

@@ -11,7 +11,10 @@ Pose sources:
 
 ``max_time`` stops the session early (seconds; true connections after it are then counted as missed).
 ``frame_step`` processes every n-th frame (timestamps stay the simulator's, 30 fps); ``hints=False`` runs the
-tracker without the mode's connection hints (ablation of Algorithm 6).
+tracker without the mode's connection hints (ablation of Algorithm 6). ``hands=True`` (tracked poses only) runs the
+hand tracker on the rendered frames as the pipeline does (:class:`tracker.hands.loop.HandLoop`: occluder prior for
+the tracker, touching / holding after its step) and gives the mode the touched parts, so the connection gate of
+hand-tracking spec §14.7 acts unless ``hand_gate=0`` is among the overrides (the gate-off arm of that comparison).
 """
 
 from __future__ import annotations
@@ -82,7 +85,8 @@ def _swapped(assignment: dict[str, str], sentence_words: list[str]) -> dict[str,
 def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict | None = None,
                 frame_step: int = 1, tracker_preset: str = "default", n_particles: int | None = None,
                 noise: tuple[float, float] = (0.003, 0.05), hints: bool = True,
-                max_time: float | None = None, on_frame: Callable[[int, int], None] | None = None) -> SessionResult:
+                max_time: float | None = None, on_frame: Callable[[int, int], None] | None = None,
+                hands: bool = False) -> SessionResult:
     """Run ``spec`` and compare the mode's output with the simulator's ground truth.
 
     ``on_frame(i, n)``: called after each processed frame ``i`` of the session's ``n`` (progress display)."""
@@ -90,6 +94,8 @@ def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict |
 
     if poses not in ("groundtruth", "tracked"):
         raise ValueError(f"poses must be 'groundtruth' or 'tracked', got {poses!r}")
+    if hands and poses != "tracked":
+        raise ValueError("hand tracking needs rendered frames: use it with tracked poses")
     t_start = time.perf_counter()
     src = SimulatedTable(spec.scenario, seed=spec.seed, realtime=False,
                          options=SimOptions(speed=spec.speed, occlusion=spec.occlusion, excursions=spec.excursions))
@@ -104,7 +110,7 @@ def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict |
     t_complete = max((t for t, _, _ in truth), default=None)
     rng = np.random.default_rng(spec.seed + 7)
     table_to_camera: Pose = src.table_to_camera
-    tracker = detector = table = None
+    tracker = detector = table = hand_loop = plane = None
     if poses == "tracked":
         from tracker.filter.particle_filter import MultiObjectTracker
         from tracker.filter.tracker_config import TrackerConfig
@@ -120,6 +126,13 @@ def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict |
         detector = ColorDetector.from_parts(src.parts)
         tracker = MultiObjectTracker(src.parts, src.intrinsics, cfg, seed=spec.seed)
         tracker.initialize(src.initial_poses)
+        if hands:
+            from tracker.filter.frame_context import table_normal_offset
+            from tracker.hands.loop import HandLoop
+
+            hand_loop = HandLoop(src.parts, src.intrinsics)
+            plane = table_normal_offset(table)
+    est = dict(src.initial_poses)
     completion_detected, false_completions, was_complete, n_frames = None, 0, False, 0
     state = None
     for i in range(0, len(src), max(1, frame_step)):
@@ -128,7 +141,14 @@ def run_session(spec: SessionSpec, poses: str = "groundtruth", overrides: dict |
             break
         if tracker is not None:
             frame = src.render(i)
-            est = tracker.step(frame, detector.detect(frame.color), table).poses
+            occluders = touched = None
+            if hand_loop is not None:
+                hand_loop.perceive(frame.color, frame.depth, plane, est)
+                occluders, touched = hand_loop.occluder_mask(), hand_loop.touched_parts()
+            est = tracker.step(frame, detector.detect(frame.color), table, occluders=occluders, touched=touched).poses
+            if hand_loop is not None:
+                hand_loop.update_contacts(est, frame.depth)
+                mode.set_hand_contacts(hand_loop.touched_parts())
         else:
             est = jitter(src.groundtruth(i), rng, *noise)
         state = mode.update(t, est, table_to_camera)

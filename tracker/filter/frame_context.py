@@ -15,13 +15,20 @@ class FrameContext:
     """One frame as the filter's stages see it (camera frame, metres, seconds).
 
     ``table``: what the caller passed (TablePlane-like or ``(normal, offset)``); ``table_plane``: it as a unit
-    ``(normal, offset)`` or None; ``timings``: milliseconds per stage; ``t0``: ``perf_counter`` at the start."""
+    ``(normal, offset)`` or None; ``timings``: milliseconds per stage; ``t0``: ``perf_counter`` at the start;
+    ``occluders``: full-resolution bool H×W of pixels known to show an occluder in front of the parts (the hand
+    tracker's mask H_k, hand-tracking spec §14.5) or None: the weighing raises the predicted occlusion probability
+    there to at least ``occluder_probability`` (o_hand) and the refinement leaves those pixels out; ``touched``: parts
+    a tracked hand touches (hand-tracking spec §14.6): the hand carry may take such a part along when it vanishes."""
 
     frame: Frame
     table: Any
     table_plane: tuple[np.ndarray, float] | None
     t0: float
     timings: dict[str, float] = field(default_factory=dict)
+    occluders: np.ndarray | None = None
+    occluder_probability: float = 0.9
+    touched: frozenset[str] = frozenset()
 
     @property
     def depth(self) -> np.ndarray | None:
@@ -30,6 +37,30 @@ class FrameContext:
     @property
     def now(self) -> float:
         return float(self.frame.timestamp)
+
+    def occluder_prior(self, us: np.ndarray, vs: np.ndarray, gi: np.ndarray, gj: np.ndarray) -> np.ndarray | None:
+        """o_hand · H_i (float32, one per evaluated grid pixel, hand-tracking spec §14.5) for the grid pixels
+        ``(us[gi], vs[gj])`` of a grid with step f = us[1] − us[0] whose block (gj, gi) covers the full-resolution
+        pixels [f·gj, f·gj + f) × [f·gi, f·gi + f): H_i = 1 when any pixel of the block is an occluder (max-pooling);
+        None without occluders."""
+        occ = self.occluders
+        if occ is None:
+            return None
+        f = int(us[1] - us[0]) if len(us) > 1 else 1
+        nv, nu = len(vs), len(us)
+        padded = np.zeros((nv * f, nu * f), bool)
+        h, w = min(occ.shape[0], nv * f), min(occ.shape[1], nu * f)
+        padded[:h, :w] = occ[:h, :w]
+        pooled = padded.reshape(nv, f, nu, f).any(axis=(1, 3))
+        return np.float32(self.occluder_probability) * pooled[gj, gi].astype(np.float32)
+
+    @property
+    def refine_depth(self) -> np.ndarray | None:
+        """The depth image for the refinement: NaN (no measurement) at the occluder pixels, else the frame's."""
+        d = self.frame.depth
+        if d is None or self.occluders is None:
+            return d
+        return np.where(self.occluders, np.float32(np.nan), d)
 
 
 @dataclass

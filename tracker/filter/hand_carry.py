@@ -105,10 +105,12 @@ class HandCarry:
         return not supported_by_other(obj, positions, heights, self.radii)
 
     def update(self, depth: np.ndarray | None, positions: np.ndarray, hidden: np.ndarray, released: np.ndarray,
-               heights: np.ndarray, plane) -> np.ndarray:
+               heights: np.ndarray, plane, touched: np.ndarray | None = None) -> np.ndarray:
         """One frame. ``positions`` (K, 3) current estimates; ``hidden`` (K,) parts without a reliable blob and
         with a low visible fraction; ``released`` (K,) parts whose blob is reliable again; ``heights`` (K,) lowest
-        point above the table (m, inf = unknown). Returns the displacement (K, 3) to apply to each part (m)."""
+        point above the table (m, inf = unknown); ``touched`` (K,) parts a tracked hand touches (the hand tracker's
+        contact test): a hidden touched part is taken to be in that hand like a moving one. Returns the displacement
+        (K, 3) to apply to each part (m)."""
         cfg = self.config
         k = len(self.patches)
         delta = np.zeros((k, 3))
@@ -122,7 +124,8 @@ class HandCarry:
                 continue
             exclude = [(positions[o], self.radii[o] + 0.005) for o in range(k) if o != i and not carried[o]]
             if self.patches[i] is None:
-                if moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights):
+                grasped = touched is not None and bool(touched[i])
+                if grasped or moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights):
                     pts = self._points(depth, positions[i], cfg.carry_radius, plane, exclude)
                     self.patches[i] = pts if pts.shape[0] >= cfg.carry_min_points else None
                     self.last_step[i] = 0.0

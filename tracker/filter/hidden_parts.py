@@ -23,7 +23,7 @@ def hold_hidden_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, de
     cfg = trk.config
     k = len(trk.parts)
     if cfg.carry_follow:
-        follow_hands(trk, ctx.depth, detected, ctx.table_plane, detections)
+        follow_hands(trk, ctx.depth, detected, ctx.table_plane, detections, ctx.touched)
     noise_scale = trk._noise_scale.copy()
     trk._rest_on = np.zeros(k, bool)
     if cfg.rest_prior_sigma > 0 and cfg.use_color_input and detections is not None:
@@ -39,10 +39,10 @@ def hold_hidden_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, de
     return noise_scale
 
 
-def follow_hands(trk, depth, detected: np.ndarray, plane, detections) -> None:
+def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: frozenset[str] = frozenset()) -> None:
     """Hand carry (:mod:`tracker.filter.hand_carry`): shift hidden carried parts with the hand that holds them
-    (``plane``: the table's (normal, offset) or None). A carried part whose reliable colour blob stays put while
-    the hand moves on has been let go: released."""
+    (``plane``: the table's (normal, offset) or None; ``touched``: parts a tracked hand touches). A carried part
+    whose reliable colour blob stays put while the hand moves on has been let go: released."""
     cfg = trk.config
     k = len(trk.parts)
     pos = np.array([trk.estimates[nm].t for nm in trk.names])
@@ -51,7 +51,8 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections) -> None:
         for i, nm in enumerate(trk.names):
             heights[i] = lowest_height(trk, i, trk.estimates[nm].R, pos[i], plane)
     hidden = trk.visibility < cfg.rest_prior_max_visibility  # little depth evidence (previous frame)
-    delta = trk._carry.update(depth, pos, hidden, ~hidden, heights, plane)
+    delta = trk._carry.update(depth, pos, hidden, ~hidden, heights, plane,
+                              np.array([nm in touched for nm in trk.names], bool))
     centers = {}
     for i, nm in enumerate(trk.names):
         det = detections.get(nm) if detections else None

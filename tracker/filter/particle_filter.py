@@ -30,6 +30,7 @@ so (``depth_used`` False, ``message``). Use :class:`MultiObjectTracker` as::
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -204,9 +205,13 @@ class MultiObjectTracker:
         self._hints = resolve_hints(list(hints or []), self.names, self.config.n_particles,
                                     self.config.max_connection_fraction)
 
-    def step(self, frame: Frame, detections: dict | None = None, table=None) -> TrackerState:
+    def step(self, frame: Frame, detections: dict | None = None, table=None, occluders: np.ndarray | None = None,
+             touched: Iterable[str] | None = None) -> TrackerState:  # fmt: skip
         """Process one frame; see the module docstring. ``detections``: name → object with ``.center``/``.score``;
-        ``table``: object with ``.normal``/``.offset`` (or a ``(normal, offset)`` tuple) or None.
+        ``table``: object with ``.normal``/``.offset`` (or a ``(normal, offset)`` tuple) or None; ``occluders``:
+        full-resolution bool H×W of pixels showing a known occluder such as a hand (occluder prior, see
+        :class:`~tracker.filter.frame_context.FrameContext`) or None; ``touched``: names of the parts a tracked hand
+        touches (a hidden one may then be carried, :mod:`~tracker.filter.hand_carry`).
 
         The stages, one module each: colour input (:mod:`~tracker.filter.colour_input`), hidden parts: hand carry
         and rest prior (:mod:`~tracker.filter.hidden_parts`), prediction (:mod:`~tracker.filter.predict`), evaluated
@@ -216,6 +221,8 @@ class MultiObjectTracker:
         if not self._initialized:
             raise RuntimeError("MultiObjectTracker.step called before initialize(poses)")
         ctx = self._begin_frame(frame, table)
+        ctx.occluders = occluders
+        ctx.touched = frozenset(touched or ())
         u, detected = colour_input.control_inputs(self, ctx, detections)
         noise_scale = hidden_parts.hold_hidden_parts(self, ctx, detections, detected)
         pred = predict.deterministic(self, u)
@@ -232,7 +239,7 @@ class MultiObjectTracker:
         state.resampled = passes.n_resampled
         hidden_parts.update_rest_anchors(self, detected)
         tg = time.perf_counter()
-        refine_stage.refine(self, state, ctx.depth, detections, ctx.table)
+        refine_stage.refine(self, state, ctx.refine_depth, detections, ctx.table)
         ctx.timings["refine"] = (time.perf_counter() - tg) * 1e3
         if self.config.carry_follow:
             self._carry.record(ctx.now, np.array([state.poses[nm].t for nm in self.names]))

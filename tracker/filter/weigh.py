@@ -56,6 +56,9 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
                                                             cfg.p_occ_given_occ).T)
     else:
         o_hat = np.zeros((n, npix), np.float32)
+    hand_prior = ctx.occluder_prior(trk._us, trk._vs, gi, gj) if cfg.use_occlusion_model else None
+    if hand_prior is not None:  # ô' = max(ô, o_hand·H): pixels under a hand are likely occluded (hand spec §14.5)
+        o_hat = np.maximum(o_hat, hand_prior[None, :])
 
     # full render + likelihood at the deterministic prediction
     t1 = time.perf_counter()

@@ -6,8 +6,10 @@ rendered by the cube tracker), optionally the measured depth and each part's ren
 0 where invalid), the parts' estimated positions (metres) and the image velocities (px/frame) of hands and parts.
 
 * Contact test for hand h and part j: |dilate(M^h, r_touch) ∩ S_j| ≥ A_touch (r_touch = 3 px, A_touch = 20 px) and,
-  where depth is valid, the median measured depth of the hand pixels within r_touch of S_j and the median rendered
-  depth of S_j there differ by ≤ δ_touch = 3 cm.
+  where depth is valid, the median measured depth of the hand pixels within r_touch of S_j lies at most δ_touch = 3 cm
+  behind and at most δ_front = 9 cm in front of the median rendered depth of S_j there. Product deviation from the
+  spec's symmetric ±3 cm: a hand that grasps a cube from above shows the camera the back of the hand, measured 4–8 cm
+  in front of the held cube's top in the simulator's guidance sessions, so the symmetric test never saw a grasp.
 * Touching: the test held on ≥ 2 of the last 3 frames; it ends after n_off = 5 consecutive failing frames.
 * Holding: touching, and either the part has moved ≥ 1.5 cm since touching began, or for 3 consecutive frames
   ‖v_part − v_hand‖ ≤ 0.5‖v_hand‖ with ‖v_hand‖ ≥ 2 px/frame.
@@ -27,6 +29,7 @@ import numpy as np
 R_TOUCH = 3
 A_TOUCH = 20
 DELTA_TOUCH = 0.03
+DELTA_FRONT = 0.09
 N_OFF = 5
 MOVE_HOLD = 0.015
 N_VEL = 3
@@ -58,7 +61,8 @@ def contact_test(hand_mask: np.ndarray, silhouette: np.ndarray, depth: np.ndarra
     part_px = part_px[np.isfinite(part_px) & (part_px > 0)]
     if len(hand_px) == 0 or len(part_px) == 0:
         return True  # depth invalid there: test (ii) is skipped
-    return abs(float(np.median(hand_px)) - float(np.median(part_px))) <= DELTA_TOUCH
+    gap = float(np.median(part_px)) - float(np.median(hand_px))  # > 0: the hand is in front of the part
+    return -DELTA_TOUCH <= gap <= DELTA_FRONT
 
 
 class ContactMonitor:

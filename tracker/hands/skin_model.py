@@ -143,9 +143,16 @@ class SkinModel:
         return self.lut[ycc[..., 1], ycc[..., 2]]
 
     # ------------------------------------------------------------------ session
-    def with_background(self, rgb: np.ndarray, k: int = 4, step: int = 4, seed: int = 0) -> SkinModel:
-        """This model with ω2 fitted on a hand-free RGB frame (every ``step``-th pixel in both directions)."""
+    def with_background(self, rgb: np.ndarray, k: int = 4, step: int = 4, seed: int = 0,
+                        keep: np.ndarray | None = None) -> SkinModel:  # fmt: skip
+        """This model with ω2 fitted on a hand-free RGB frame (every ``step``-th pixel in both directions); ``keep``
+        (bool H×W): fit only those pixels (the others are excluded from the colour mask anyway). Unchanged when
+        fewer than 50·k pixels remain."""
         x = crcb(np.asarray(rgb)[::step, ::step]).reshape(-1, 2)
+        if keep is not None:
+            x = x[np.asarray(keep, bool)[::step, ::step].reshape(-1)]
+            if len(x) < 50 * k:
+                return self
         bg = Gmm2D.fit(x, k, seed=seed)
         return SkinModel(self.skin, bg, self.log_tau, UNIFORM_FLOOR, {**self.info, "background": "session"},
                          _ls=self._ls)  # fmt: skip

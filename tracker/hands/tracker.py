@@ -175,6 +175,8 @@ class HandTracker:
         self.full_size: tuple[int, int] | None = None
         self._prev_rgb: np.ndarray | None = None
         self._prev_grey: np.ndarray | None = None
+        self._excl: np.ndarray | None = None  # this frame's working-resolution "cannot be a hand" mask (or None)
+        self._prev_excl: np.ndarray | None = None
         self._candidates: list[_Candidate] = []
         self._adapt_pixels: list[np.ndarray] = []
         self.last_features: HandFeatures | None = None
@@ -195,6 +197,15 @@ class HandTracker:
         u0, v0, u1, v1 = (int(b) for b in box_excl)
         a0, b0, a1, b1 = u0 // s, v0 // s, (u1 - 1) // s, (v1 - 1) // s
         return np.array([(a0 + a1) / 2.0, (b0 + b1) / 2.0, a1 - a0, b1 - b0, 0.0, 0.0])
+
+    def _skin(self, rgb: np.ndarray, excl: np.ndarray | None, y0: int = 0, y1: int | None = None, x0: int = 0,
+              x1: int | None = None) -> np.ndarray:  # fmt: skip
+        """Colour mask B^c (uint8 0/1) of the working-resolution crop ``rgb[y0:y1, x0:x1]``, with the pixels of the
+        exclusion mask ``excl`` (working resolution, whole frame; None: none) set to 0."""
+        m = self.skin.mask(rgb[y0:y1, x0:x1])
+        if excl is not None:
+            m[excl[y0:y1, x0:x1]] = 0
+        return m
 
     # ------------------------------------------------------------------ tracks
     def start_track(self, box_excl: list[int] | tuple[int, ...]) -> int:
@@ -230,7 +241,7 @@ class HandTracker:
             u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, w - 1), min(v1, h - 1)
             m = np.zeros((H, W), bool)
             if u1 >= u0 and v1 >= v0:
-                sub = self.skin.mask(self._prev_rgb[v0 : v1 + 1, u0 : u1 + 1]).astype(bool)
+                sub = self._skin(self._prev_rgb, self._prev_excl, v0, v1 + 1, u0, u1 + 1).astype(bool)
                 up = np.repeat(np.repeat(sub, s, axis=0), s, axis=1)
                 hh, ww = min(up.shape[0], H - v0 * s), min(up.shape[1], W - u0 * s)
                 m[v0 * s : v0 * s + hh, u0 * s : u0 * s + ww] = up[:hh, :ww]
@@ -238,9 +249,14 @@ class HandTracker:
         return out
 
     # ------------------------------------------------------------------ frames
-    def process(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> list[HandEstimate]:
+    def process(self, rgb: np.ndarray, depth: np.ndarray | None = None,
+                exclude: np.ndarray | None = None) -> list[HandEstimate]:  # fmt: skip
         """Track the hands in the next frame (RGB uint8 H×W×3, optional registered depth in metres); returns one
-        estimate per live track after this frame's update, in full-resolution pixels."""
+        estimate per live track after this frame's update, in full-resolution pixels.
+
+        ``exclude``: pixels that cannot be a hand whatever their colour (bool; at full resolution H×W or at the
+        working resolution H/scale × W/scale), e.g. the table plane and the parts' own surfaces
+        (:mod:`tracker.hands.loop`); they are left out of the colour mask B^c."""
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f"hand tracker: expected an H×W×3 uint8 RGB image, got {rgb.dtype} {rgb.shape}")
@@ -253,11 +269,12 @@ class HandTracker:
         small = np.ascontiguousarray(small)
         grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
         size = (small.shape[1], small.shape[0])
+        self._excl = self._working_mask(exclude, H, W, size)
         self.frame_index += 1
         out: list[HandEstimate] = []
         if self._prev_rgb is None:
             if self.config.session_background:
-                self.skin = self.skin.with_background(small, step=2)
+                self.skin = self.skin.with_background(small, step=2, keep=None if self._excl is None else ~self._excl)
         elif self.tracks:
             out = self._step_tracks(small, grey, size)
         if self.config.auto_init and len(self.tracks) < self.config.max_tracks:
@@ -267,7 +284,19 @@ class HandTracker:
                 out.append(self._estimate(self.tracks[-1], size))
         self._prev_rgb = small
         self._prev_grey = grey
+        self._prev_excl = self._excl
         return out
+
+    def _working_mask(self, exclude: np.ndarray | None, H: int, W: int, size: tuple[int, int]) -> np.ndarray | None:
+        """``exclude`` as a working-resolution bool mask (a full-resolution mask is subsampled every scale-th px)."""
+        if exclude is None:
+            return None
+        ex = np.asarray(exclude, bool)
+        if ex.shape == (H, W):
+            ex = ex[:: self.s, :: self.s][: size[1], : size[0]]
+        if ex.shape != (size[1], size[0]):
+            raise ValueError(f"hand tracker: exclusion mask is {ex.shape}, expected {(H, W)} or {(size[1], size[0])}")
+        return ex
 
     def _roi(self, size: tuple[int, int]) -> tuple[int, int, int, int]:
         W, H = size
@@ -291,8 +320,8 @@ class HandTracker:
             self.tracks = []
             return []
         assert self._prev_rgb is not None and self._prev_grey is not None
-        mprev = self.skin.mask(self._prev_rgb[y0:y1, x0:x1])
-        mcur = self.skin.mask(rgb[y0:y1, x0:x1])
+        mprev = self._skin(self._prev_rgb, self._prev_excl, y0, y1, x0, x1)
+        mcur = self._skin(rgb, self._excl, y0, y1, x0, x1)
         feats = compute_features(self._prev_grey, grey, mprev, mcur, roi, size, self.clusters, cfg.flow,
                                  max(8, cfg.roi_limit // self.s), backward=cfg.method == "pf")  # fmt: skip
         self.last_features = feats
@@ -362,7 +391,7 @@ class HandTracker:
         """A new track's initial working-resolution state, or None (see the module docstring)."""
         cfg = self.config
         h, w = rgb.shape[:2]
-        mask = self.skin.mask(rgb)
+        mask = self._skin(rgb, self._excl)
         r = max(1, int(round(2.0 / self.s)))
         disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk)

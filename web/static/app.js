@@ -290,6 +290,19 @@ function renderParts(s) {
     return li;
   });
   setList($("part-list"), items, "–");
+  renderHands(s);
+}
+
+// Tracked hands (hand tracking on): "hand 1: holding the red cube" (or touching, or just the hand).
+function renderHands(s) {
+  const hands = Array.isArray(s.hands) ? s.hands : [];
+  $("hand-list").classList.toggle("hidden", hands.length === 0);
+  const items = hands.map((h) => {
+    const li = el("li", `hand ${h.id}: ${h.text || "seen"}`, h.holding && h.holding.length ? "hand-holding" : "hand");
+    li.dataset.hand = String(h.id);
+    return li;
+  });
+  $("hand-list").replaceChildren(...items);
 }
 
 $("btn-auto-place").addEventListener("click", async () => {
@@ -365,6 +378,25 @@ function drawOverlay() {
         labels.push([name, p.bbox[0] * sx, p.bbox[1] * sy, (p.bbox[1] + p.bbox[3]) * sy]);
       }
       drawLabels(ctx, labels, w, h);
+    }
+    if ($("show-hands").checked) {
+      ctx.setLineDash([]);
+      ctx.lineWidth = 2;
+      ctx.font = "bold 12px sans-serif";
+      ctx.textBaseline = "bottom";
+      for (const hnd of s.hands || []) {
+        const b = hnd.box;
+        if (!Array.isArray(b) || b.length !== 4) continue;
+        ctx.strokeStyle = "#ffb070";
+        ctx.strokeRect(b[0] * sx, b[1] * sy, (b[2] - b[0]) * sx, (b[3] - b[1]) * sy);
+        const label = `hand ${hnd.id}${hnd.text ? ": " + hnd.text : ""}`;
+        const tw = ctx.measureText(label).width + 8;
+        const x = Math.max(0, Math.min(b[0] * sx, w - tw)), y = Math.max(15, b[1] * sy);
+        ctx.fillStyle = "rgba(20, 20, 20, 0.75)";
+        ctx.fillRect(x, y - 15, tw, 15);
+        ctx.fillStyle = "#ffb070";
+        ctx.fillText(label, x + 4, y - 1);
+      }
     }
   }
   const r = state.drag || state.lastBox;

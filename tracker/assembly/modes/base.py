@@ -57,6 +57,13 @@ class Mode:
             m.reset()
         self.last_state = None
 
+    def set_hand_contacts(self, touched: Iterable[str] | None) -> None:
+        """The parts a hand touches in the coming frame (hand-tracking spec §14.7), for the connection gate of every
+        monitor; ``None`` when hands are not tracked (the gate is open)."""
+        parts = None if touched is None else {str(p) for p in touched}
+        for m in self.monitors():
+            m.touched = parts
+
     def connection_hints(self) -> list[ConnectionHint]:
         """Hints of all monitors; for a pair named by several, the locked one or the one with most particles."""
         best: dict[frozenset, ConnectionHint] = {}

@@ -1,0 +1,62 @@
+"""Hands in the loop (hand-tracking spec §14.5–14.7): the pipeline's hand step on a simulated guidance session."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+from tracker.hands.loop import HandLoop, box_part_depth
+from tracker.pipeline import AssemblyPipeline
+from tracker.sources.simulator import SimulatedTable
+
+
+def test_part_depth_of_a_box_seen_face_on():
+    intr = Intrinsics.default()
+    cube = PartSpec.cube("red", "red")
+    pose = Pose(np.array([0.0, 0.0, 0.5]))
+    off = 0.03 * intr.fx / 0.482  # 3 cm off the centre on the front face: outside the 3.6 cm cube
+    z = box_part_depth(cube, pose, intr, np.array([intr.cx - off, intr.cx, intr.cx + off]), np.array([intr.cy]))[0]
+    assert np.isclose(z[1], 0.5 - cube.box[2] / 2, atol=1e-6)  # the front face
+    assert np.isinf(z[0]) and np.isinf(z[2])
+
+
+def test_simulated_hand_holding_a_part_shows_in_the_snapshot():
+    """Seed 100 of guidance-demo: the hand grasps the red cube at about frame 70 and lifts it from frame 79. The
+    snapshot's hand says it holds red (tracked poses: the hand carry follows the touched part) and the tracker keeps
+    the red cube in the hand; before the hand arrives no hand is reported."""
+    src = SimulatedTable("guidance-demo", seed=100, realtime=False)
+    pipe = AssemblyPipeline(src.parts, src.intrinsics, mode="guidance", initial_poses=src.initial_poses, hands=True)
+    holding, first_hand = [], None
+    for i in range(92):
+        snap = pipe.process(src.render(i))
+        if snap.hands and first_hand is None:
+            first_hand = i
+        if any("red" in h["holding"] for h in snap.hands):
+            holding.append(i)
+            assert snap.hands[0]["text"] == "holding the red cube"
+    assert first_hand is not None and first_hand > 30  # the hand enters after the first second
+    assert holding and holding[-1] == 91  # still held at the end
+    assert "red" in snap.carried
+    lifted = src.groundtruth(91)["red"].t
+    assert np.linalg.norm(snap.poses["red"].t - lifted) < 0.03  # the estimate went along with the hand
+    assert snap.to_dict()["hands"][0]["holding"] == ["red"]
+    assert "hands" in snap.timings and snap.timings["hands_cpu"] > 0
+
+
+def test_table_and_part_pixels_are_not_hand():
+    """On the hand-free first frame the whole wooden table (skin-coloured) and the cubes are excluded."""
+    src = SimulatedTable("guidance-demo", seed=100, realtime=False)
+    frame = src.render(0)
+    from tracker.filter.frame_context import table_normal_offset
+    from tracker.perception.table_plane import detect_table
+
+    loop = HandLoop(src.parts, src.intrinsics)
+    excl = loop.exclusion(frame.depth, table_normal_offset(detect_table(frame.depth, src.intrinsics)),
+                          src.groundtruth(0))  # fmt: skip
+    skin = loop.tracker.skin.mask(frame.color[::2, ::2]).astype(bool)
+    assert skin.mean() > 0.5  # the table is skin-coloured
+    assert (skin & ~excl).mean() < 0.01
+    loop.perceive(frame.color, frame.depth, None, {})
+    assert loop.touched_parts() is None and loop.occluder_mask() is None  # no hand: the gate stays open

@@ -1,0 +1,258 @@
+"""Hands in the loop: the hand tracker run beside the cube tracker (hand-tracking spec §14.1, §14.5–14.7).
+
+:class:`HandLoop` is what the pipeline (and the evaluation runner) call once per frame:
+
+1. :meth:`HandLoop.perceive` (before the cube tracker's step): the colour mask B^c leaves out the pixels that cannot
+   be a hand whatever their colour (:meth:`HandLoop.exclusion`): those within ``table_clearance_m`` of the table
+   plane (product addition: a wooden table has the chrominance of skin, and a hand is above the table) and those
+   inside a part's silhouette whose measured depth is not in front of the part's rendered surface by more than
+   δ_z = ``part_clearance_m`` (spec §14.1: the part's own surface; the parts are taken at their last estimated poses).
+   Then one :class:`~tracker.hands.tracker.HandTracker` step and the hand masks M^h_k.
+2. :meth:`HandLoop.occluder_mask` (spec §14.5): H_k = the union of the hand masks dilated by r_occ = 5 px (the
+   forearm components of B^c are not added: documented simplification), full resolution, for the cube tracker's
+   occluder prior (``MultiObjectTracker.step(..., occluders=H_k)``).
+3. :meth:`HandLoop.update_contacts` (after the cube tracker's step, spec §14.6): each part's silhouette S_j and its
+   rendered depth at the new estimated pose, computed by a ray–box test only in a window around the hand boxes, go
+   to the :class:`~tracker.hands.contact.ContactMonitor` with the hands' and parts' image velocities and the parts'
+   positions; the result is touching / holding per (hand, part).
+4. :meth:`HandLoop.touched_parts` feeds the connection gate of §14.7 (``Mode.set_hand_contacts``); None while no hand
+   is tracked (gate open, seed behaviour).
+
+Parts without a box shape (``PartSpec.box`` None) have no silhouette here: they are neither excluded nor touched.
+Units: pixels of the colour image (end-exclusive boxes), metres, camera frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+from tracker.hands.contact import R_TOUCH, ContactMonitor
+from tracker.hands.tracker import HandEstimate, HandTracker, HandTrackerConfig
+
+
+@dataclass(frozen=True)
+class HandLoopConfig:
+    """``tracker``: the hand tracker's configuration; ``occluder_prior``: give the cube tracker the hand mask as its
+    occluder prior (spec §14.5; switchable); ``table_clearance_m``: pixels closer than this to the table plane
+    are not hand; ``part_clearance_m``: δ_z of the part-surface exclusion (spec §14.1); ``occluder_radius_px``: r_occ
+    (spec §14.5)."""
+
+    tracker: HandTrackerConfig = field(default_factory=HandTrackerConfig)
+    occluder_prior: bool = True
+    table_clearance_m: float = 0.015
+    part_clearance_m: float = 0.01
+    occluder_radius_px: int = 5
+
+
+def box_part_depth(part: PartSpec, pose: Pose, intrinsics: Intrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Depth (camera z, metres; ``inf`` where the ray misses) of box part ``part`` at ``pose`` seen through the pixel
+    grid ``u`` (columns, 1-D) × ``v`` (rows, 1-D): a [len(v), len(u)] float32 array (slab test per pixel)."""
+    half = np.asarray(part.box, np.float64) / 2.0
+    R = np.asarray(pose.R, np.float64)
+    o = -R.T @ np.asarray(pose.t, np.float64)  # camera centre in the box frame
+    x = (np.asarray(u, np.float64) - intrinsics.cx) / intrinsics.fx
+    y = (np.asarray(v, np.float64) - intrinsics.cy) / intrinsics.fy
+    # ray direction (x, y, 1) in the box frame, per axis: R.T[a, 0] x + R.T[a, 1] y + R.T[a, 2]
+    t_near = np.full((len(y), len(x)), -np.inf)
+    t_far = np.full((len(y), len(x)), np.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for a in range(3):
+            d = R[0, a] * x[None, :] + R[1, a] * y[:, None] + R[2, a]
+            t1 = (-half[a] - o[a]) / d
+            t2 = (half[a] - o[a]) / d
+            t_near = np.maximum(t_near, np.minimum(t1, t2))
+            t_far = np.minimum(t_far, np.maximum(t1, t2))
+    hit = (t_near <= t_far) & (t_far > 0) & np.isfinite(t_near)
+    return np.where(hit, np.maximum(t_near, 0.0), np.inf).astype(np.float32)
+
+
+class HandLoop:
+    """The hand tracker, the exclusion of table and part pixels, the occluder mask and touching / holding (see the
+    module docstring). ``parts``: the parts of the scene; ``intrinsics``: of the colour (and registered depth) image."""
+
+    def __init__(self, parts: list[PartSpec], intrinsics: Intrinsics, config: HandLoopConfig | None = None) -> None:
+        self.config = config or HandLoopConfig()
+        self.parts = {p.name: p for p in parts if p.box is not None}
+        self.intrinsics = intrinsics
+        self.tracker = HandTracker(self.config.tracker, focal=intrinsics.fx)
+        self.contacts = ContactMonitor()
+        self.estimates: list[HandEstimate] = []
+        self.masks: dict[int, np.ndarray] = {}
+        self.states: dict[tuple[int, str], str] = {}
+        self._centres: dict[str, np.ndarray] = {}  # projected part centres of the previous frame (px)
+        self.positions: dict[int, np.ndarray] = {}  # per hand: camera-frame point of its box centre (m)
+        self._rays: tuple[tuple[int, int], np.ndarray, np.ndarray] | None = None
+
+    # ------------------------------------------------------------------ per frame
+    def perceive(self, color: np.ndarray, depth: np.ndarray | None, table_plane: tuple[np.ndarray, float] | None,
+                 poses: dict[str, Pose]) -> list[HandEstimate]:  # fmt: skip
+        """One hand-tracker step on the frame (RGB uint8 H×W×3, depth metres or None); ``table_plane`` ``(unit
+        normal, offset)`` or None; ``poses``: the parts' last estimated poses (camera frame)."""
+        exclude = self.exclusion(depth, table_plane, poses)
+        self.estimates = self.tracker.process(color, depth, exclude)
+        self.masks = self.tracker.hand_masks()
+        return self.estimates
+
+    def exclusion(self, depth: np.ndarray | None, table_plane: tuple[np.ndarray, float] | None,
+                  poses: dict[str, Pose]) -> np.ndarray | None:  # fmt: skip
+        """Working-resolution bool mask of the pixels that cannot be a hand (table plane, part surfaces), sampled at
+        the full-resolution pixels (s·i, s·j), s = the tracker's scale; None without depth."""
+        if depth is None:
+            return None
+        s = self.tracker.s
+        H, W = depth.shape
+        z = depth[::s, ::s][: H // s, : W // s]
+        out = np.zeros(z.shape, bool)
+        cfg = self.config
+        with np.errstate(invalid="ignore"):
+            if table_plane is not None:
+                n, off = table_plane
+                if self._rays is None or self._rays[0] != z.shape:
+                    v, u = np.mgrid[0 : z.shape[0] * s : s, 0 : z.shape[1] * s : s].astype(np.float32)
+                    self._rays = (z.shape, (u - self.intrinsics.cx) / self.intrinsics.fx,
+                                  (v - self.intrinsics.cy) / self.intrinsics.fy)  # fmt: skip
+                _, rx, ry = self._rays
+                n = np.asarray(n, np.float32)
+                height = z * (n[0] * rx + n[1] * ry + n[2]) + np.float32(off)
+                out |= np.abs(height) < cfg.table_clearance_m
+            for name, part in self.parts.items():
+                pose = poses.get(name)
+                win = self._part_window(part, pose, H, W)
+                if win is None:
+                    continue
+                u0, v0, u1, v1 = (-(-c // s) for c in win)  # first working pixel at or after each bound
+                if u1 <= u0 or v1 <= v0:
+                    continue
+                zr = box_part_depth(part, pose, self.intrinsics, np.arange(u0, u1) * s, np.arange(v0, v1) * s)
+                zm = z[v0:v1, u0:u1]
+                out[v0:v1, u0:u1] |= np.isfinite(zr) & (zm >= zr - cfg.part_clearance_m)
+        return out
+
+    def _part_window(self, part: PartSpec, pose: Pose | None, H: int, W: int) -> tuple[int, int, int, int] | None:
+        """End-exclusive pixel box [u0, v0, u1, v1] of the part's projected vertices (+1 px), clipped; None if none."""
+        if pose is None:
+            return None
+        pts = pose.transform_points(part.vertices())
+        if np.any(pts[:, 2] <= 1e-3):
+            return None
+        uv = self.intrinsics.project(pts)
+        u0, v0 = max(int(np.floor(uv[:, 0].min())) - 1, 0), max(int(np.floor(uv[:, 1].min())) - 1, 0)
+        u1, v1 = min(int(np.ceil(uv[:, 0].max())) + 2, W), min(int(np.ceil(uv[:, 1].max())) + 2, H)
+        return (u0, v0, u1, v1) if u1 > u0 and v1 > v0 else None
+
+    def occluder_mask(self) -> np.ndarray | None:
+        """H_k (spec §14.5): full-resolution bool H×W, the hand masks' union dilated by r_occ; None without hands."""
+        if not self.masks:
+            return None
+        union = None
+        for m in self.masks.values():
+            union = m.copy() if union is None else union | m
+        ys, xs = np.nonzero(union)
+        if len(ys) == 0:
+            return None
+        r = int(self.config.occluder_radius_px)
+        H, W = union.shape
+        y0, y1, x0, x1 = max(ys.min() - r, 0), min(ys.max() + r + 1, H), max(xs.min() - r, 0), min(xs.max() + r + 1, W)
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        out = np.zeros((H, W), bool)
+        out[y0:y1, x0:x1] = cv2.dilate(union[y0:y1, x0:x1].astype(np.uint8), k).astype(bool)
+        return out
+
+    def update_contacts(self, poses: dict[str, Pose], depth: np.ndarray | None) -> dict[tuple[int, str], str]:
+        """Touching / holding after the cube tracker's step (``poses``: its new estimates): ``{(hand id, part):
+        "touching" | "holding"}`` (spec §14.6)."""
+        centres: dict[str, np.ndarray] = {}
+        for name, pose in poses.items():
+            if name in self.parts and pose is not None and pose.t[2] > 1e-3:
+                centres[name] = self.intrinsics.project(np.asarray(pose.t, float)[None])[0]
+        part_vel = {n: c - self._centres[n] for n, c in centres.items() if n in self._centres}
+        self._centres = centres
+        hand_vel = {e.id: np.asarray(e.state[4:6], float) for e in self.estimates}
+        positions = {n: np.asarray(p.t, float) for n, p in poses.items() if n in self.parts and p is not None}
+        masks, sils, part_depths, crop_depth = {}, {}, {}, None
+        win = self._hands_window()
+        if win is not None:
+            u0, v0, u1, v1 = win
+            masks = {h: m[v0:v1, u0:u1] for h, m in self.masks.items()}
+            crop_depth = None if depth is None else depth[v0:v1, u0:u1]
+            us, vs = np.arange(u0, u1), np.arange(v0, v1)
+            H, W = self.masks[next(iter(self.masks))].shape
+            for name, part in self.parts.items():
+                pw = self._part_window(part, poses.get(name), H, W)
+                if pw is None or pw[0] >= u1 or pw[2] <= u0 or pw[1] >= v1 or pw[3] <= v0:
+                    continue
+                zr = box_part_depth(part, poses[name], self.intrinsics, us, vs)
+                sils[name] = np.isfinite(zr)
+                part_depths[name] = zr
+        self.states = self.contacts.update(masks, sils, positions, crop_depth, part_depths, hand_vel, part_vel)
+        self.positions = self._hand_positions(depth)
+        return self.states
+
+    def _hand_positions(self, depth: np.ndarray | None) -> dict[int, np.ndarray]:
+        """Camera-frame point (m) of each hand's box centre at the median valid depth of its skin pixels."""
+        out: dict[int, np.ndarray] = {}
+        if depth is None:
+            return out
+        for e in self.estimates:
+            m = self.masks.get(e.id)
+            u0, v0, u1, v1 = e.box
+            if m is None or u1 <= u0 or v1 <= v0:
+                continue
+            z = depth[v0:v1, u0:u1][m[v0:v1, u0:u1]]
+            z = z[np.isfinite(z) & (z > 0)]
+            if len(z):
+                uc, vc = (u0 + u1 - 1) / 2.0, (v0 + v1 - 1) / 2.0
+                out[e.id] = self.intrinsics.backproject(np.array([uc]), np.array([vc]), np.array([np.median(z)]))[0]
+        return out
+
+    def _hands_window(self) -> tuple[int, int, int, int] | None:
+        """The hand boxes' bounding rectangle grown by r_touch + 1 px (all contact tests happen inside it)."""
+        boxes = [e.box for e in self.estimates if e.box[2] > e.box[0] and e.box[3] > e.box[1]]
+        if not boxes or not self.masks:
+            return None
+        H, W = self.masks[next(iter(self.masks))].shape
+        g = R_TOUCH + 1
+        u0, v0 = max(min(b[0] for b in boxes) - g, 0), max(min(b[1] for b in boxes) - g, 0)
+        u1, v1 = min(max(b[2] for b in boxes) + g, W), min(max(b[3] for b in boxes) + g, H)
+        return (u0, v0, u1, v1) if u1 > u0 and v1 > v0 else None
+
+    # ------------------------------------------------------------------ outputs
+    def touched_parts(self) -> set[str] | None:
+        """Parts a hand touches or holds now, for the connection gate; None while no hand is tracked (gate open)."""
+        touched = self.contacts.touched_parts()
+        if not self.estimates and not touched:
+            return None
+        return touched
+
+    def hands(self) -> list[dict]:
+        """Per hand: ``{"id", "box": [u0, v0, u1, v1], "score", "velocity": [du, dv] px/frame, "touching": [parts],
+        "holding": [parts], "text", "position"}`` with ``text`` e.g. "holding the red cube" (empty when neither) and
+        ``position`` the camera-frame point (m) of the box centre at the hand's median depth, or None."""
+        out = []
+        for e in self.estimates:
+            holding = sorted(p for (h, p), st in self.states.items() if h == e.id and st == "holding")
+            touching = sorted(p for (h, p), st in self.states.items() if h == e.id and st == "touching")
+            out.append({"id": int(e.id), "box": [int(b) for b in e.box], "score": round(float(e.score), 3),
+                        "velocity": [round(float(e.state[4]), 2), round(float(e.state[5]), 2)],
+                        "touching": touching, "holding": holding, "text": self.describe(holding, touching),
+                        "position": None if e.id not in self.positions else
+                        [round(float(x), 4) for x in self.positions[e.id]]})  # fmt: skip
+        return out
+
+    def describe(self, holding: list[str], touching: list[str]) -> str:
+        """"holding the red cube", "touching the blue cube and the green cube" or ""."""
+        verb, names = ("holding", holding) if holding else ("touching", touching)
+        if not names:
+            return ""
+        words = [f"the {self._label(n)}" for n in names]
+        return f"{verb} " + (words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1])
+
+    def _label(self, name: str) -> str:
+        part = self.parts.get(name)
+        return f"{name} cube" if part is not None and part.is_cube and " " not in name else name
