@@ -39,15 +39,17 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
             if center is None or score < cfg.min_detection_score:
                 continue
             area = getattr(det, "area", None)
-            reliable = (score >= cfg.reseed_min_score and area is not None and np.isfinite(area)
-                        and area >= cfg.reseed_min_area_px
-                        and area_ratio(trk, i, area) >= cfg.reseed_min_area_ratio)
+            ratio = None  # area_ratio(trk, i, area), computed when first needed (the estimate does not move before)
+            if score >= cfg.reseed_min_score and area is not None and np.isfinite(area) \
+                    and area >= cfg.reseed_min_area_px:
+                ratio = area_ratio(trk, i, area)
+            reliable = ratio is not None and ratio >= cfg.reseed_min_area_ratio
             detected[i] = reliable
             hit = surface_depth(trk, i, center)
             off_silhouette = reliable and not np.isfinite(hit)
             trk._blob_off[i] = off_silhouette
             if cfg.color_area_weighting and not off_silhouette:
-                score *= area_ratio(trk, i, area)
+                score *= area_ratio(trk, i, area) if ratio is None else ratio
             if off_silhouette and cfg.reseed_fraction > 0 and depth is not None:
                 reseed(trk, i, det, depth)
                 hit = surface_depth(trk, i, center)

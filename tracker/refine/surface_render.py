@@ -33,10 +33,32 @@ def _render_box(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, center, ha
     o = np.empty(3)
     for j in range(3):
         o[j] = -(R[0, j] * t[0] + R[1, j] * t[1] + R[2, j] * t[2]) - center[j]
+    # only the grid cells within the box's projected corners (and a cell around them) can see it; the whole grid
+    # when a corner lies near or behind the camera plane
+    imin, imax, jmin, jmax = 0, nu - 1, 0, nv - 1
+    umin, umax, vmin, vmax = np.inf, -np.inf, np.inf, -np.inf
+    near = False
+    for sx in (-1.0, 1.0):
+        for sy in (-1.0, 1.0):
+            for sz in (-1.0, 1.0):
+                bx, by, bz = center[0] + sx * half[0], center[1] + sy * half[1], center[2] + sz * half[2]
+                x = R[0, 0] * bx + R[0, 1] * by + R[0, 2] * bz + t[0]
+                y = R[1, 0] * bx + R[1, 1] * by + R[1, 2] * bz + t[1]
+                z = R[2, 0] * bx + R[2, 1] * by + R[2, 2] * bz + t[2]
+                if z < 1e-3:
+                    near = True
+                else:
+                    umin, umax = min(umin, fx * x / z + cx), max(umax, fx * x / z + cx)
+                    vmin, vmax = min(vmin, fy * y / z + cy), max(vmax, fy * y / z + cy)
+    if not near:
+        imin = max(imin, int(np.floor((umin - u0) / s)) - 1)
+        imax = min(imax, int(np.ceil((umax - u0) / s)) + 1)
+        jmin = max(jmin, int(np.floor((vmin - v0) / s)) - 1)
+        jmax = min(jmax, int(np.ceil((vmax - v0) / s)) + 1)
     d = np.empty(3)
-    for jj in range(nv):
+    for jj in range(jmin, jmax + 1):
         yv = (v0 + jj * s - cy) / fy
-        for ii in range(nu):
+        for ii in range(imin, imax + 1):
             xu = (u0 + ii * s - cx) / fx
             for j in range(3):
                 d[j] = R[0, j] * xu + R[1, j] * yv + R[2, j]
