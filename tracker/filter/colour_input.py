@@ -44,6 +44,8 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
                     and area >= cfg.reseed_min_area_px:
                 ratio = area_ratio(trk, i, area)
             reliable = ratio is not None and ratio >= cfg.reseed_min_area_ratio
+            if ratio is not None and not reliable and far_sliver(trk, i, score, area, center):
+                reliable = True  # a sliver far from the estimate: biased centroid, but far nearer than the estimate
             detected[i] = reliable
             hit = surface_depth(trk, i, center)
             off_silhouette = reliable and not np.isfinite(hit)
@@ -150,6 +152,25 @@ def area_ratio(trk, obj: int, area) -> float:
     if expected <= 1.0:
         return 1.0
     return float(min(1.0, area / expected))
+
+
+def far_sliver(trk, obj: int, score: float, area, center) -> bool:
+    """Is the blob a confident sliver of the part (score >= reseed_min_score, area >= reseed_min_area_px, but below
+    reseed_min_area_ratio of the part's projection) whose centroid lies farther from the estimate's projected
+    centre than ``far_sliver_radii`` × the part's projected bounding radius? A sliver's centroid is biased toward
+    the visible piece by at most that radius, so it still says where the part went (a part snatched by a fast hand
+    and mostly hidden in it); near the estimate the bias would outweigh the information."""
+    cfg = trk.config
+    if (cfg.far_sliver_radii <= 0 or score < cfg.reseed_min_score or area is None or not np.isfinite(area)
+            or area < cfg.reseed_min_area_px):
+        return False
+    est = trk.estimates[trk.names[obj]]
+    c = est.R @ trk.center[obj] + est.t
+    if c[2] <= 0.05:
+        return False
+    uv = trk.intrinsics.project(c[None])[0]
+    rpx = trk._radius[obj] * trk.intrinsics.fx / float(c[2])
+    return bool(np.hypot(uv[0] - center[0], uv[1] - center[1]) > cfg.far_sliver_radii * rpx)
 
 
 def surface_fallback(trk, obj: int) -> float:

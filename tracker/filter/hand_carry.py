@@ -9,10 +9,12 @@ point more than ``carry_min_height`` above the table with no other part under it
 
 The hand is followed through its depth points above the table (camera frame, metres) near the part: every frame
 the patch of points within ``carry_radius`` of the part's previous position is registered to the current points
-by translation-only point-to-plane ICP (nearest neighbours closer than 2 cm, ``carry_iterations`` rounds), and the
-part moves by that translation. A registration rather than a centroid: a centroid slides up the arm as more of it
-enters the window. Points on other parts' estimates are left out, so a hand passing a resting part does not take
-it along. The carry ends when the part is seen again in depth (visible fraction back above
+by rigid point-to-plane ICP (nearest neighbours closer than 2 cm, ``carry_iterations`` rounds; the rotation about
+the patch's centroid, damped where the patch does not constrain it, at most ``carry_max_turn`` per frame, about the
+table normal only with ``carry_rotation_axis = 'table'``; translation only with ``carry_rotation`` off), and the part
+moves rigidly with the hand. A registration rather than a centroid: a centroid slides up the arm as more of it
+enters the window. Points on other parts' estimates are left out, so a hand passing a resting part does not take it
+along. The carry ends when the part is seen again in depth (visible fraction back above
 ``rest_prior_max_visibility``; the likelihood and re-seeding take over) or when fewer than ``carry_min_points`` hand
 points are left near the part (the hand is gone: the part was put down where it is).
 """
@@ -75,6 +77,7 @@ class HandCarry:
         self.radii = np.asarray(radii, np.float64)  # bounding radius per part (m)
         self.patches: list[np.ndarray | None] = [None] * n_parts  # hand points near each carried part, last frame
         self.last_step = np.zeros((n_parts, 3))  # last frame's hand translation per part (initial guess, m)
+        self.last_turn = np.zeros((n_parts, 3))  # last frame's hand rotation vector per part (initial guess, rad)
         self.history: deque[tuple[float, np.ndarray]] = deque()  # (time s, positions (K, 3))
 
     @property
@@ -105,17 +108,19 @@ class HandCarry:
         return not supported_by_other(obj, positions, heights, self.radii)
 
     def update(self, depth: np.ndarray | None, positions: np.ndarray, hidden: np.ndarray, released: np.ndarray,
-               heights: np.ndarray, plane, touched: np.ndarray | None = None) -> np.ndarray:
+               heights: np.ndarray, plane, touched: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """One frame. ``positions`` (K, 3) current estimates; ``hidden`` (K,) parts without a reliable blob and
         with a low visible fraction; ``released`` (K,) parts whose blob is reliable again; ``heights`` (K,) lowest
         point above the table (m, inf = unknown); ``touched`` (K,) parts a tracked hand touches (the hand tracker's
-        contact test): a hidden touched part is taken to be in that hand like a moving one. Returns the displacement
-        (K, 3) to apply to each part (m)."""
+        contact test): a hidden touched part is taken to be in that hand like a moving one. Returns each part's
+        rigid motion this frame as rotations (K, 3, 3) and translations (K, 3): a camera-frame point x moves to
+        ``Rd @ x + td`` (identity and zero when not carried)."""
         cfg = self.config
         k = len(self.patches)
+        rot = np.repeat(np.eye(3)[None], k, axis=0)
         delta = np.zeros((k, 3))
         if depth is None:
-            return delta
+            return rot, delta
         moved = self.moved()
         carried = self.carried
         for i in range(k):
@@ -129,19 +134,30 @@ class HandCarry:
                     pts = self._points(depth, positions[i], cfg.carry_radius, plane, exclude)
                     self.patches[i] = pts if pts.shape[0] >= cfg.carry_min_points else None
                     self.last_step[i] = 0.0
+                    self.last_turn[i] = 0.0
                 continue
             # search the current points in a window widened by the largest hand motion per frame
             pts = self._points(depth, positions[i], cfg.carry_radius + cfg.carry_max_step, plane, exclude)
             if pts.shape[0] < cfg.carry_min_points:
                 self.patches[i] = None  # the hand left: the part stays where it was put down
                 continue
-            t = register_translation(self.patches[i], pts, cfg.carry_iterations, cfg.carry_max_step,
-                                     self.last_step[i])
-            delta[i] = t
-            self.last_step[i] = t
-            near = ((pts - (positions[i] + t)) ** 2).sum(1) <= cfg.carry_radius**2
+            if cfg.carry_rotation:
+                axis = plane[0] if (plane is not None and cfg.carry_rotation_axis == "table") else None
+                w, t = register_rigid(self.patches[i], pts, cfg.carry_iterations, cfg.carry_max_step,
+                                      cfg.carry_max_turn, (self.last_turn[i], self.last_step[i]), axis)
+            else:
+                w, t = np.zeros(3), register_translation(self.patches[i], pts, cfg.carry_iterations,
+                                                         cfg.carry_max_step, self.last_step[i])
+            # the motion about the patch centroid c: x' = Rw (x - c) + c + t
+            c = self.patches[i].mean(axis=0)
+            Rw = rotvec_matrix(w)
+            rot[i] = Rw
+            delta[i] = c + t - Rw @ c
+            self.last_step[i], self.last_turn[i] = t, w
+            new_pos = Rw @ positions[i] + delta[i]
+            near = ((pts - new_pos) ** 2).sum(1) <= cfg.carry_radius**2
             self.patches[i] = pts[near] if near.sum() >= cfg.carry_min_points else None
-        return delta
+        return rot, delta
 
     def _points(self, depth, center, radius, plane, exclude, max_points: int = 800) -> np.ndarray:
         """Hand points near ``center``, thinned evenly to at most ``max_points`` (keeps the registration cheap)."""
@@ -211,3 +227,86 @@ def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_
             best, best_cost = t, cost
     norm = float(np.linalg.norm(best))
     return best if norm <= max_step else best * (max_step / norm)
+
+
+def rotvec_matrix(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) of the rotation vector ``w`` (rad; Rodrigues)."""
+    w = np.asarray(w, np.float64)
+    th = float(np.linalg.norm(w))
+    if th < 1e-12:
+        return np.eye(3)
+    k = w / th
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
+
+
+def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float, max_turn: float,
+                   guess: tuple[np.ndarray, np.ndarray] | None = None,
+                   axis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid motion that brings point set ``src`` (M, 3) onto ``dst`` (P, 3): rotation vector ``w`` (rad) about
+    ``src``'s centroid c and translation ``t`` (m), i.e. x' = R(w) (x − c) + c + t. Point-to-plane ICP (normals of
+    ``dst``) over nearest-neighbour pairs closer than 2 cm, ``iterations`` Gauss-Newton rounds, started from no
+    motion and from ``guess`` (last frame's (w, t)); the start leaving the smaller mean residual wins.
+
+    The rotation is damped (Tikhonov, 1e-2 of the mean translational information, in units of the patch's radius)
+    so that rotations the surface does not constrain (a cylinder-like forearm about its axis) stay near zero, and
+    capped at ``max_turn`` rad; |t| <= ``max_step``. With ``axis`` (unit, camera frame; e.g. the table normal) the
+    rotation is about that axis only."""
+    from scipy.spatial import cKDTree
+
+    zero = (np.zeros(3), np.zeros(3))
+    if src.shape[0] < 6 or dst.shape[0] < 6:
+        return zero
+    tree = cKDTree(dst)
+    normals = point_normals(dst)
+    c = src.mean(axis=0)
+    rel = src - c
+    radius2 = max(float((rel**2).sum(1).mean()), 1e-6)
+    starts = [zero]
+    if guess is not None and (np.any(guess[0]) or np.any(guess[1])):
+        starts.append((np.asarray(guess[0], np.float64), np.asarray(guess[1], np.float64)))
+    best, best_cost = zero, np.inf
+    for w, t in starts:
+        w, t = w.copy(), t.copy()
+        for _ in range(max(iterations, 1)):
+            moved = rel @ rotvec_matrix(w).T + c + t
+            d, j = tree.query(moved, distance_upper_bound=0.02)
+            ok = np.isfinite(d)
+            if ok.sum() < 6:
+                break
+            n = normals[j[ok]]
+            q = moved[ok] - c - t  # rotated offsets from the centroid
+            r = np.einsum("mi,mi->m", n, dst[j[ok]] - moved[ok])
+            Jr = np.cross(q, n)  # d(residual)/d(small rotation)
+            if axis is not None:
+                Jr = (Jr @ axis)[:, None]
+            nr = Jr.shape[1]
+            J = np.hstack([Jr, n])
+            A = J.T @ J
+            lam = 1e-2 * np.trace(A[nr:, nr:]) / 3.0
+            A[:nr, :nr] += lam * radius2 * np.eye(nr)
+            A[nr:, nr:] += 1e-3 * np.trace(A[nr:, nr:]) * np.eye(3)
+            x = np.linalg.solve(A, J.T @ r)
+            dw = x[0] * axis if axis is not None else x[:3]
+            w = _compose_rotvec(dw, w)
+            t = t + x[nr:]
+            if np.linalg.norm(x[nr:]) < 5e-5 and np.linalg.norm(dw) < 1e-4:
+                break
+        d, _ = tree.query(rel @ rotvec_matrix(w).T + c + t)
+        cost = float(np.mean(np.minimum(d, 0.02)))
+        if cost < best_cost:
+            best, best_cost = (w, t), cost
+    w, t = best
+    th, norm = float(np.linalg.norm(w)), float(np.linalg.norm(t))
+    if th > max_turn:
+        w = w * (max_turn / th)
+    if norm > max_step:
+        t = t * (max_step / norm)
+    return w, t
+
+
+def _compose_rotvec(dw: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Rotation vector of R(dw) R(w)."""
+    from scipy.spatial.transform import Rotation
+
+    return (Rotation.from_rotvec(dw) * Rotation.from_rotvec(w)).as_rotvec()

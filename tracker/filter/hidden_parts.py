@@ -51,28 +51,31 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
         for i, nm in enumerate(trk.names):
             heights[i] = lowest_height(trk, i, trk.estimates[nm].R, pos[i], plane)
     hidden = trk.visibility < cfg.rest_prior_max_visibility  # little depth evidence (previous frame)
-    delta = trk._carry.update(depth, pos, hidden, ~hidden, heights, plane,
-                              np.array([nm in touched for nm in trk.names], bool))
+    rot, delta = trk._carry.update(depth, pos, hidden, ~hidden, heights, plane,
+                                   np.array([nm in touched for nm in trk.names], bool))
     centers = {}
     for i, nm in enumerate(trk.names):
         det = detections.get(nm) if detections else None
         c = getattr(det, "center", None) if det is not None else None
         if c is not None and detected[i]:
             centers[i] = np.asarray(c, np.float64)
-    for i in np.nonzero(np.abs(delta).sum(1) > 0)[0]:
+    moving = (np.abs(delta).sum(1) > 0) | (np.abs(rot - np.eye(3)).sum((1, 2)) > 0)
+    for i in np.nonzero(moving)[0]:
         nm = trk.names[i]
+        new_pos = rot[i] @ pos[i] + delta[i]
         if i in centers and i in trk._last_centers:
-            uv = trk.intrinsics.project(np.array([pos[i], pos[i] + delta[i]]))
+            uv = trk.intrinsics.project(np.array([pos[i], new_pos]))
             hand_px = float(np.linalg.norm(uv[1] - uv[0]))
             blob_px = float(np.linalg.norm(centers[i] - trk._last_centers[i]))
             if hand_px > 3.0 and blob_px < 0.3 * hand_px:
                 trk._carry.release(i)
                 continue
-        trk.p[:, i] += delta[i]
+        trk.p[:, i] = trk.p[:, i] @ rot[i].T + delta[i]
+        trk.R[:, i] = np.einsum("ij,njk->nik", rot[i], trk.R[:, i])
         trk.v[:, i] = 0.0
         est = trk.estimates[nm]
-        trk.estimates[nm] = Pose.from_rt(est.R, est.t + delta[i])
-        trk._rest_t[i] = trk._rest_t[i] + delta[i]
+        trk.estimates[nm] = Pose.from_rt(rot[i] @ est.R, rot[i] @ est.t + delta[i])
+        trk._rest_t[i] = rot[i] @ trk._rest_t[i] + delta[i]
     trk._last_centers = centers
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
 

@@ -86,6 +86,17 @@ class TrackerConfig(BaseModel):
     )
     carry_iterations: int = Field(8, ge=1, description="ICP rounds per frame of the hand-patch registration.")
     carry_max_step: float = Field(0.03, gt=0.0, description="Largest hand motion (m) per frame a carried part follows.")
+    carry_rotation: bool = Field(
+        True, description="Carried parts turn with the hand (rigid registration of the hand patch); off = they follow "
+        "its translation only.",
+    )
+    carry_rotation_axis: str = Field(
+        "free", pattern="^(free|table)$", description="Axis of a carried part's rotation: 'free' (any, from the hand "
+        "patch) or 'table' (about the table normal only, when the plane is known).",
+    )
+    carry_max_turn: float = Field(
+        0.2, gt=0.0, description="Largest hand rotation (rad) per frame a carried part follows.",
+    )
     carry_stride: int = Field(2, ge=1, description="Pixel stride (full resolution) of the hand points.")
     visible_fraction_full: float = Field(
         0.5, gt=0.0, le=1.0, description="Visible fraction from which a part gets its full motion noise.",
@@ -139,6 +150,10 @@ class TrackerConfig(BaseModel):
     reseed_min_area_ratio: float = Field(
         0.25, ge=0.0, le=1.0, description="Minimum blob area / projected area of the part's estimate for re-seeding "
         "(a sliver of a hidden part gives a biased centroid).",
+    )
+    far_sliver_radii: float = Field(
+        1.5, ge=0.0, description="A confident blob smaller than reseed_min_area_ratio of the part still re-seeds it "
+        "when its centroid lies more than this many projected bounding radii from the estimate (0 = off).",
     )
     detected_full_noise: bool = Field(
         False, description="A part with a reliable colour detection (reseed_min_score/area) always gets its full "
@@ -232,6 +247,10 @@ class TrackerConfig(BaseModel):
         "which it is re-acquired from several starting rotations (tracker/refine/recovery.py).",
     )
     reacquire_cooldown: int = Field(5, ge=1, description="Fewest frames between two re-acquisitions of a part.")
+    refine_region_weight: float = Field(
+        0.0, ge=0.0, description="Weight of the silhouette term of the refinement (the rendered outline on the colour "
+        "blob's edge, refine/region_term.py); 0 = depth only.",
+    )
     refine_max_translation: float = Field(0.03, gt=0.0, description="Largest accepted refinement correction, metres.")
     refine_max_rotation: float = Field(0.35, gt=0.0, description="Largest accepted refinement rotation, radians.")
 

@@ -23,8 +23,10 @@ from dataclasses import dataclass, field
 
 import numba as nb
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from tracker.geometry.camera import Intrinsics
+from tracker.refine.region_term import RegionTerm
 
 
 @dataclass(frozen=True)
@@ -219,6 +221,31 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
     return 0, H, n_valid, n_obs, med
 
 
+def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: RefineSettings, behind: float,
+                              intrinsics: Intrinsics, region: RegionTerm):
+    """:func:`_gauss_newton` with the silhouette term's normal equations added to every update (a Python loop: the
+    term re-renders the part's outline at each pose). Updates ``R``, ``t`` in place; same return values."""
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    prior = np.diag([cfg.lambda_rot] * 3 + [cfg.lambda_trans] * 3)
+    info, n_valid, n_obs, med = np.zeros((6, 6)), 0, 0, float("nan")
+    for thr in cfg.thresholds:
+        for _ in range(cfg.updates_per_iteration):
+            c = R @ center + t
+            info, g, n_valid, n_obs, med, _ = _accumulate(pts, nrm, R, t, c, dep, mask, use_mask, float(thr),
+                                                          cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2,
+                                                          cfg.huber_k, behind)
+            if n_valid < cfg.min_points:
+                return 1, info, n_valid, n_obs, med
+            Hr, gr, _ = region.normal_equations(R, t, c, dep, intrinsics)
+            xi = -np.linalg.solve(info + Hr + prior, g + gr)
+            Rw = Rotation.from_rotvec(xi[:3]).as_matrix()
+            t[:] = c + Rw @ (t - c) + xi[3:]
+            R[:] = Rw @ R
+            if np.linalg.norm(xi) < cfg.stop_step:
+                break
+    return 0, info, n_valid, n_obs, med
+
+
 def refine_pose(
     depth: np.ndarray,
     intrinsics: Intrinsics,
@@ -229,11 +256,13 @@ def refine_pose(
     center: np.ndarray,
     settings: RefineSettings | None = None,
     allowed: np.ndarray | None = None,
+    region: RegionTerm | None = None,
 ) -> RefineResult:
     """Refine the pose ``(R, t)`` of a part whose visible model points are ``points`` with ``normals`` (body frame,
     (M, 3) each) against ``depth`` (H×W float metres, NaN or 0 = none). ``center``: the body-frame point the
     rotation update turns about. ``allowed``: optional H×W bool mask of pixels the part may claim (its colour blob;
-    pixels of hands or other parts left out)."""
+    pixels of hands or other parts left out). ``region``: optional silhouette term
+    (:mod:`tracker.refine.region_term`) added to every update's normal equations."""
     cfg = settings or RefineSettings()
     R = np.asarray(R, np.float64).copy()
     t = np.asarray(t, np.float64).copy()
@@ -253,10 +282,14 @@ def refine_pose(
     center = np.asarray(center, np.float64)
     behind = cfg.thresholds[-1] * 2.0
 
-    status, info, n_valid, n_observable, med = _gauss_newton(
-        pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
-        int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k, behind,
-        cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step)
+    if region is None:
+        status, info, n_valid, n_observable, med = _gauss_newton(
+            pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
+            int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k,
+            behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step)
+    else:
+        status, info, n_valid, n_observable, med = _gauss_newton_with_region(
+            pts, nrm, R, t, center, dep, mask, allowed is not None, cfg, behind, intrinsics, region)
     if status == 1:
         return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info,
                             f"only {n_valid} valid depth pairs")

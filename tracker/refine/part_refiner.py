@@ -15,6 +15,7 @@ import numpy as np
 
 from tracker.geometry.camera import Intrinsics
 from tracker.refine.dense_depth import RefineResult, RefineSettings, refine_pose
+from tracker.refine.region_term import RegionSettings, body_outline, region_term
 from tracker.refine.surface_render import render_surfaces
 
 
@@ -49,7 +50,7 @@ class PartRefiner:
 
     def __init__(self, intrinsics: Intrinsics, shapes: list, centers: list[np.ndarray], corners: list[np.ndarray],
                  settings: RefineSettings, stride: int = 2, max_translation: float = 0.03,
-                 max_rotation: float = 0.35) -> None:
+                 max_rotation: float = 0.35, region: RegionSettings | None = None) -> None:
         self.intrinsics = intrinsics
         self.shapes = shapes
         self.centers = [np.asarray(c, np.float64) for c in centers]
@@ -58,6 +59,7 @@ class PartRefiner:
         self.stride = int(stride)
         self.max_translation = float(max_translation)
         self.max_rotation = float(max_rotation)
+        self.region = region  # silhouette term against the colour blob (None = depth only)
         self.last: list[RefineResult | None] = [None] * len(shapes)
 
     def _rect(self, poses: list) -> tuple[int, int, int, int] | None:
@@ -82,7 +84,7 @@ class PartRefiner:
         return (u0, v0, u1, v1)
 
     def refine_one(self, depth: np.ndarray, obj: int, R: np.ndarray, t: np.ndarray,
-                   allowed: np.ndarray | None = None) -> RefineResult:
+                   allowed: np.ndarray | None = None, outline: np.ndarray | None = None) -> RefineResult:
         """Refine part ``obj`` alone from the pose ``(R, t)`` (rendered without the other parts): used to try
         several starting poses when a part is re-acquired (:mod:`tracker.refine.recovery`)."""
         poses = [None] * len(self.shapes)
@@ -93,8 +95,37 @@ class PartRefiner:
         render = render_surfaces(self.intrinsics, self.shapes, poses, rect, self.stride)
         pts, nrm = render.points_of(obj, self.intrinsics)
         R0, t0 = poses[obj]
+        region = self._region(poses, obj, outline)
         return refine_pose(depth, self.intrinsics, (pts - t0) @ R0, nrm @ R0, R0, t0, self.centers[obj],
-                           self.settings, allowed)
+                           self.settings, allowed, region)
+
+    def _region(self, poses: list, obj: int, outline: np.ndarray | None):
+        """Silhouette term of part ``obj`` (None without an outline or with the term off). Its outline is taken
+        from a render at full resolution over the part's own rectangle (every part drawn, so that an outline
+        against a part in front is not used): at the true pose the rendered and the detected blob then cover the
+        same pixels and the residuals vanish exactly."""
+        if self.region is None or self.region.weight <= 0.0 or outline is None or poses[obj] is None:
+            return None
+        own = [None] * len(poses)
+        own[obj] = poses[obj]
+        rect = self._rect(own)
+        if rect is None:
+            return None
+        R0, t0 = (np.asarray(a, np.float64) for a in poses[obj])
+        cfg = self.region
+        u0, v0, u1, v1 = rect
+        pad = 8  # the part may move a few pixels while it is refined
+        rect = (max(u0 - pad, 0), max(v0 - pad, 0), min(u1 + pad, self.intrinsics.width),
+                min(v1 + pad, self.intrinsics.height))
+
+        def outline_at(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+            moved = list(poses)
+            moved[obj] = (R, t)
+            render = render_surfaces(self.intrinsics, self.shapes, moved, rect, 1)
+            return body_outline(render, obj, R, t, self.intrinsics, cfg.max_points)
+
+        render = render_surfaces(self.intrinsics, self.shapes, poses, rect, 1)
+        return region_term(render, obj, R0, t0, outline, self.intrinsics, rect, cfg, outline_at)
 
     def correction(self, R0: np.ndarray, t0: np.ndarray, res: RefineResult) -> Correction:
         """The correction that takes the pose ``(R0, t0)`` to the refined one."""
@@ -102,12 +133,14 @@ class PartRefiner:
         return Correction(res.R, res.t, Rd, res.t - Rd @ np.asarray(t0, np.float64), res)
 
     def refine(self, depth: np.ndarray, poses: list, active: list[bool],
-               allowed: list[np.ndarray | None] | None = None) -> list[Correction | None]:
+               allowed: list[np.ndarray | None] | None = None,
+               outlines: list[np.ndarray | None] | None = None) -> list[Correction | None]:
         """Refine the ``active`` parts at ``poses[k] = (R, t)`` (None: part not rendered, e.g. not tracked) against
-        ``depth``; ``allowed[k]``: optional H×W mask of the pixels part k may claim. Returns per part the accepted
-        correction or None (inactive, not visible, not healthy or out of bounds; ``self.last`` keeps each part's
-        :class:`RefineResult` for loss detection and re-acquisition: a healthy one whose correction was out of
-        bounds says so in its ``reason``)."""
+        ``depth``; ``allowed[k]``: optional H×W mask of the pixels part k may claim; ``outlines[k]``: optional
+        polygon of part k's colour blob for the silhouette term (:mod:`tracker.refine.region_term`). Returns per
+        part the accepted correction or None (inactive, not visible, not healthy or out of bounds; ``self.last``
+        keeps each part's :class:`RefineResult` for loss detection and re-acquisition: a healthy one whose
+        correction was out of bounds says so in its ``reason``)."""
         k = len(self.shapes)
         out: list[Correction | None] = [None] * k
         self.last = [None] * k
@@ -121,8 +154,9 @@ class PartRefiner:
             pts, nrm = render.points_of(i, self.intrinsics)
             body = (pts - t0) @ R0
             nbody = nrm @ R0
+            mask = None if allowed is None else allowed[i]
             res = refine_pose(depth, self.intrinsics, body, nbody, R0, t0, self.centers[i], self.settings,
-                              None if allowed is None else allowed[i])
+                              mask, self._region(poses, i, None if outlines is None else outlines[i]))
             self.last[i] = res
             if not res.healthy:
                 continue

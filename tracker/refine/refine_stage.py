@@ -21,6 +21,7 @@ from tracker.refine.dense_depth import RefineSettings
 from tracker.refine.icp_refinement import PartSurfaceModel, icp_refine, part_points
 from tracker.refine.part_refiner import PartRefiner
 from tracker.refine.recovery import CUBE_STARTS, MESH_STARTS, reacquire
+from tracker.refine.region_term import RegionSettings
 
 if TYPE_CHECKING:
     from tracker.filter.particle_filter import MultiObjectTracker, TrackerState
@@ -95,8 +96,9 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
         occlusion_m=cfg.refine_occlusion, lambda_rot=cfg.refine_lambda_rot, lambda_trans=cfg.refine_lambda_trans,
         min_valid_fraction=cfg.refine_min_valid_fraction, max_points=cfg.refine_max_points,
     )
+    region = RegionSettings(weight=cfg.refine_region_weight) if cfg.refine_region_weight > 0 else None
     return PartRefiner(trk.intrinsics, shapes, list(trk.center), trk.corners, settings, cfg.refine_stride,
-                       cfg.refine_max_translation, cfg.refine_max_rotation)
+                       cfg.refine_max_translation, cfg.refine_max_rotation, region)
 
 
 def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray, detections) -> None:
@@ -105,7 +107,7 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
     correction. A coloured part is refined only on the pixels of its colour blob (hands and other parts left out)
     and not at all while its blob is missing."""
     k = len(trk.parts)
-    poses, active, allowed, visible = [], [], [], []
+    poses, active, allowed, visible, outlines = [], [], [], [], []
     for i, name in enumerate(trk.names):
         est = state.poses[name]
         poses.append((est.R, est.t))
@@ -121,7 +123,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         active.append(ok)
         allowed.append(mask)
         visible.append(seen)
-    corrections = trk._refiner.refine(depth, poses, active, allowed)
+        outlines.append(None if mask is None else getattr(detections.get(name), "contour", None))
+    corrections = trk._refiner.refine(depth, poses, active, allowed, outlines)
     carried = np.asarray(trk._carry.carried, bool).copy()
     released = trk._was_carried & ~carried
     trk._was_carried = carried
@@ -139,7 +142,7 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
             start, current = (poses[i][0], blob_target(trk, i, detections.get(trk.names[i]), depth)), None
         if trk.config.reacquire and (need or beyond) and trk._cooldown[i] == 0 and visible[i]:
             starts = CUBE_STARTS if trk.parts[i].box is not None else MESH_STARTS
-            found = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts, current)
+            found = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts, current, outlines[i])
             if current is None and res is not None and res.healthy and (found is None or res.score >= found.score):
                 found = res
             res = found

@@ -1,0 +1,230 @@
+"""Silhouette (colour-region) residuals for the dense-depth refinement: the part's rendered outline should lie on the
+edge of its colour blob.
+
+Depth alone leaves a part seen through one face free to turn about that face's normal and to slide along it (the
+point-to-plane residuals of a plane do not change); the Tikhonov prior then keeps whatever the filter proposed.
+A cube held in a hand shows little more than one face, so its yaw drifts. ICG/M3T pair the depth modality with a
+region modality for this reason; this is a simple form of it that uses the binary colour blob the detector
+already gives (no colour histograms):
+
+* **Contour points**, per part and frame: pixels of the part's rendered silhouette (the refinement's strided
+  z-buffer, :mod:`tracker.refine.surface_render`) with a 4-neighbour that shows nothing or something farther away
+  (an outline against the background, not against a part in front). Their surface points are kept in the body
+  frame, like the depth model points.
+* **Signed distance** of the blob: ``D(u) = dist_to_blob(u) − dist_to_background(u)`` (pixels, cv2 distance
+  transforms on a crop around the part), with its image gradient ``∇D`` (unit, outward).
+* **Residual** of contour point ``x = R p + t``: ``r = D(π(x)) + s/2`` pixels (a rendered outline pixel lies
+  inside the outline by half the render's stride ``s``; the refiner renders outlines at s = 1); Jacobian
+  ``∇D(π(x))ᵀ ∂π/∂x ∂x/∂ξ`` for the twist ``ξ = (ω, v)`` about the part's centre ``c``
+  (``∂x/∂ω = −[x − c]×``, ``∂x/∂v = I``). Huber-weighted with scale ``sigma_px``; pairs are dropped where the
+  measured depth lies more than ``occlusion_m`` in front of the point (a hand or a part hides the outline there,
+  the blob's edge there is the occluder's) or where ``|r|`` exceeds ``max_px`` (no edge nearby to match).
+
+Camera frame, metres, pixels, radians.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from tracker.geometry.camera import Intrinsics
+from tracker.refine.surface_render import SurfaceRender
+
+
+@dataclass(frozen=True)
+class RegionSettings:
+    """Parameters of the silhouette term."""
+
+    sigma_px: float = 1.5
+    """Scale (px) of the silhouette residuals (the blob edge's uncertainty)."""
+    huber_k: float = 1.345
+    """Huber threshold in units of ``sigma_px``."""
+    max_px: float = 12.0
+    """Contour points farther than this from the blob edge (px) are not paired."""
+    occlusion_m: float = 0.015
+    """A measurement this much in front of a contour point hides the outline there."""
+    weight: float = 1.0
+    """Multiplier of the term's information against the depth term's."""
+    max_points: int = 200
+    """Contour points used per part (evenly thinned)."""
+
+
+def contour_points(render: SurfaceRender, obj: int, intrinsics: Intrinsics) -> np.ndarray:
+    """Camera-frame surface points (C, 3) on part ``obj``'s outline in ``render`` (pixels of the part with a
+    4-neighbour that is empty or farther away; the image border does not count as an outline)."""
+    lab = render.label
+    own = lab == obj
+    if not own.any():
+        return np.zeros((0, 3))
+    z = render.depth
+    edge = np.zeros_like(own)
+    for dj, di in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb_lab = np.full_like(lab, obj)
+        nb_z = np.full_like(z, -np.inf)
+        src_j = slice(max(dj, 0), lab.shape[0] + min(dj, 0))
+        dst_j = slice(max(-dj, 0), lab.shape[0] + min(-dj, 0))
+        src_i = slice(max(di, 0), lab.shape[1] + min(di, 0))
+        dst_i = slice(max(-di, 0), lab.shape[1] + min(-di, 0))
+        nb_lab[dst_j, dst_i] = lab[src_j, src_i]
+        nb_z[dst_j, dst_i] = z[src_j, src_i]
+        edge |= own & (nb_lab != obj) & ((nb_lab < 0) | (nb_z > z))
+    jj, ii = np.nonzero(edge)
+    d = z[jj, ii].astype(np.float64)
+    u = render.u0 + ii * render.stride
+    v = render.v0 + jj * render.stride
+    return np.stack([(u - intrinsics.cx) / intrinsics.fx * d, (v - intrinsics.cy) / intrinsics.fy * d, d], axis=1)
+
+
+@dataclass
+class SignedDistance:
+    """Signed distance (px) to a blob's edge over the crop whose top-left image pixel is ``(u0, v0)``: negative
+    inside the blob; ``gu``, ``gv`` its image gradient."""
+
+    u0: int
+    v0: int
+    d: np.ndarray
+    gu: np.ndarray
+    gv: np.ndarray
+
+    @classmethod
+    def of_outline(cls, outline: np.ndarray, rect: tuple[int, int, int, int], shape: tuple[int, int],
+                   margin: int = 16) -> SignedDistance | None:
+        """Of the blob bounded by the polygon ``outline`` ((N, 2) image pixels, as the colour detector gives it, not
+        eroded) over ``rect = (u0, v0, u1, v1)`` widened by ``margin`` px within an image of ``shape`` (h, w)."""
+        pts = np.asarray(outline, np.float64).reshape(-1, 2)
+        h, w = shape
+        u0, v0 = max(rect[0] - margin, 0), max(rect[1] - margin, 0)
+        u1, v1 = min(rect[2] + margin, w), min(rect[3] + margin, h)
+        if pts.shape[0] < 3 or u0 >= u1 or v0 >= v1:
+            return None
+        crop = np.zeros((v1 - v0, u1 - u0), np.uint8)
+        cv2.fillPoly(crop, [np.round(pts - [u0, v0]).astype(np.int32)], 1)
+        return cls._of_crop(crop, u0, v0)
+
+    @classmethod
+    def _of_crop(cls, crop: np.ndarray, u0: int, v0: int) -> SignedDistance | None:
+        n_in = int(crop.sum())
+        if n_in == 0 or n_in == crop.size:
+            return None
+        outside = cv2.distanceTransform(1 - crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        inside = cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        # pixel centres on either side of the edge are 0.5 px from it
+        d = np.where(crop > 0, 0.5 - inside, outside - 0.5).astype(np.float64)
+        gv, gu = np.gradient(d)
+        return cls(u0, v0, d, gu, gv)
+
+    @classmethod
+    def of_mask(cls, mask: np.ndarray, rect: tuple[int, int, int, int], margin: int = 16) -> SignedDistance | None:
+        """Of the full-image bool ``mask`` over ``rect = (u0, v0, u1, v1)`` widened by ``margin`` px; None when the
+        crop holds no blob pixel or no background pixel."""
+        h, w = mask.shape
+        u0, v0 = max(rect[0] - margin, 0), max(rect[1] - margin, 0)
+        u1, v1 = min(rect[2] + margin, w), min(rect[3] + margin, h)
+        if u0 >= u1 or v0 >= v1:
+            return None
+        return cls._of_crop(np.ascontiguousarray(mask[v0:v1, u0:u1], np.uint8), u0, v0)
+
+    def sample(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Bilinearly interpolated (distance, grad u, grad v) at image pixels (u, v) and whether each lies inside
+        the crop (sub-pixel residuals: nearest-pixel sampling would stall the updates within half a pixel)."""
+        fu = u - self.u0
+        fv = v - self.v0
+        h, w = self.d.shape
+        ok = (fu >= 0) & (fu <= w - 1) & (fv >= 0) & (fv <= h - 1)
+        fu, fv = np.where(ok, fu, 0.0), np.where(ok, fv, 0.0)
+        i0 = np.minimum(np.floor(fu).astype(np.int64), w - 2)
+        j0 = np.minimum(np.floor(fv).astype(np.int64), h - 2)
+        a, b = fu - i0, fv - j0
+        out = []
+        for img in (self.d, self.gu, self.gv):
+            out.append((1 - a) * (1 - b) * img[j0, i0] + a * (1 - b) * img[j0, i0 + 1]
+                       + (1 - a) * b * img[j0 + 1, i0] + a * b * img[j0 + 1, i0 + 1])
+        return out[0], out[1], out[2], ok
+
+
+@dataclass
+class RegionTerm:
+    """The silhouette term of one part for one frame: contour points (body frame) and the blob's signed
+    distance."""
+
+    points: np.ndarray
+    sdf: SignedDistance
+    settings: RegionSettings
+    inset: float = 0.0
+    outline_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    """Optional: body-frame outline points at a pose ``(R, t)``; called at every update so the outline pixels are
+    the current pose's own (points carried over from the start pose drift off the outline by up to a pixel as the
+    part turns, which biases the optimum)."""
+    """Distance (px) of a rendered outline pixel's centre inside the outline: s/2 for a render of stride s (the
+    edge lies between it and the next grid pixel out; exact for s = 1, where blob and render share pixels)."""
+
+    def normal_equations(self, R: np.ndarray, t: np.ndarray, c: np.ndarray, depth: np.ndarray,
+                         intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray, int]:
+        """``H`` (6, 6), ``g`` (6) of the weighted silhouette residuals at pose ``(R, t)`` (twist about the
+        camera-frame centre ``c``) and the number of paired contour points."""
+        cfg = self.settings
+        H, g = np.zeros((6, 6)), np.zeros(6)
+        if self.outline_at is not None:
+            pts = self.outline_at(R, t)
+            if pts.shape[0] >= 8:
+                self.points = pts
+        x = self.points @ R.T + t
+        z = x[:, 2]
+        front = z > 1e-3
+        x, z = x[front], z[front]
+        if x.shape[0] == 0:
+            return H, g, 0
+        fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+        u = fx * x[:, 0] / z + cx
+        v = fy * x[:, 1] / z + cy
+        r, gu, gv, ok = self.sdf.sample(u, v)
+        r = r + self.inset
+        hh, ww = depth.shape
+        iu = np.clip(np.floor(u + 0.5).astype(np.int64), 0, ww - 1)
+        iv = np.clip(np.floor(v + 0.5).astype(np.int64), 0, hh - 1)
+        meas = depth[iv, iu]
+        hidden = np.isfinite(meas) & (meas > 0) & (meas < z - cfg.occlusion_m)
+        ok &= ~hidden & (np.abs(r) <= cfg.max_px) & ((gu != 0) | (gv != 0))
+        if not ok.any():
+            return H, g, 0
+        x, z, r, gu, gv = x[ok], z[ok], r[ok], gu[ok], gv[ok]
+        # ∂r/∂x = ∇D ∂π/∂x
+        dx = np.stack([gu * fx / z, gv * fy / z, -(gu * fx * x[:, 0] + gv * fy * x[:, 1]) / (z * z)], axis=1)
+        a = x - c
+        J = np.hstack([np.cross(a, dx), dx])  # ∂x/∂ω = −[a]× → (∂r/∂x)(−[a]×) = a × ∂r/∂x
+        rs = np.abs(r) / cfg.sigma_px
+        w = np.where(rs <= cfg.huber_k, 1.0, cfg.huber_k / np.maximum(rs, 1e-12)) * (cfg.weight / cfg.sigma_px**2)
+        H = (J * w[:, None]).T @ J
+        g = (J * (w * r)[:, None]).sum(axis=0)
+        return H, g, int(ok.sum())
+
+
+def body_outline(render: SurfaceRender, obj: int, R: np.ndarray, t: np.ndarray, intrinsics: Intrinsics,
+                 max_points: int) -> np.ndarray:
+    """Outline points of part ``obj`` in ``render`` (made at pose ``(R, t)``) in the body frame, evenly thinned to
+    at most ``max_points``."""
+    pts = contour_points(render, obj, intrinsics)
+    if pts.shape[0] > max_points:
+        pts = pts[np.linspace(0, pts.shape[0] - 1, max_points).round().astype(np.int64)]
+    return (pts - t) @ R
+
+
+def region_term(render: SurfaceRender, obj: int, R: np.ndarray, t: np.ndarray, outline: np.ndarray | None,
+                intrinsics: Intrinsics, rect: tuple[int, int, int, int], settings: RegionSettings,
+                outline_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> RegionTerm | None:
+    """The silhouette term of part ``obj`` rendered at ``(R, t)`` against its colour blob's ``outline`` (polygon,
+    (N, 2) image pixels), or None without a blob or a rendered outline. ``outline_at``: see
+    :attr:`RegionTerm.outline_at`."""
+    if outline is None:
+        return None
+    pts = body_outline(render, obj, R, t, intrinsics, settings.max_points)
+    if pts.shape[0] < 8:
+        return None
+    sdf = SignedDistance.of_outline(outline, rect, (intrinsics.height, intrinsics.width))
+    if sdf is None:
+        return None
+    return RegionTerm(pts, sdf, settings, 0.5 * render.stride, outline_at)
