@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tracker.filter.hand_carry import HandCarry, register_translation
+from tracker.filter.hand_carry import HandCarry, register_rigid, register_translation
 from tracker.filter.tracker_config import TrackerConfig
 from tracker.geometry.camera import Intrinsics
 
@@ -22,6 +22,27 @@ def test_register_translation_recovers_a_shift_and_caps_it():
     assert np.linalg.norm(t - shift) < 0.001, t
     capped = register_translation(src, dst, 20, 0.005)
     assert np.linalg.norm(capped) == pytest.approx(0.005)
+
+
+def test_register_rigid_recovers_a_turn_and_a_shift_and_the_table_axis_variant_keeps_to_its_axis():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    # a hand-like patch: a palm slab with a thumb sticking out (not symmetric about any axis)
+    palm = rng.uniform([-0.04, -0.03, -0.005], [0.04, 0.03, 0.005], (400, 3))
+    thumb = rng.uniform([0.02, 0.03, -0.01], [0.035, 0.06, 0.01], (120, 3))
+    src = np.vstack([palm, thumb]) + [0.0, 0.0, 0.6]
+    c = src.mean(axis=0)
+    turn = Rotation.from_euler("z", 6.0, degrees=True).as_matrix()
+    shift = np.array([0.006, -0.004, 0.002])
+    dst = (src - c) @ turn.T + c + shift + rng.normal(0, 0.0003, src.shape)
+    w, t = register_rigid(src, dst, 15, 0.05, 0.3)
+    assert abs(np.degrees(np.linalg.norm(w)) - 6.0) < 1.0 and abs(w[2]) > 0.9 * np.linalg.norm(w), np.degrees(w)
+    assert np.linalg.norm(t - shift) < 0.0015, t
+    w_axis, _ = register_rigid(src, dst, 15, 0.05, 0.3, axis=np.array([1.0, 0.0, 0.0]))
+    assert np.allclose(w_axis[1:], 0.0, atol=1e-9)  # about the given axis only
+    capped, _ = register_rigid(src, dst, 15, 0.05, np.radians(2.0))
+    assert np.degrees(np.linalg.norm(capped)) == pytest.approx(2.0)
 
 
 def _scene(intr: Intrinsics, hand_x: float) -> np.ndarray:
@@ -46,9 +67,10 @@ def test_a_hidden_part_in_the_air_follows_the_hand_and_a_resting_one_stays():
     moved = []
     for k in range(6):
         depth = _scene(intr, 0.01 * k)
-        d = carry.update(depth, pos, hidden, ~hidden, heights, PLANE)
-        pos = pos + d
-        moved.append(d)
+        rot, d = carry.update(depth, pos, hidden, ~hidden, heights, PLANE)
+        new = np.einsum("kij,kj->ki", rot, pos) + d
+        moved.append(new - pos)
+        pos = new
     moved = np.array(moved)
     assert carry.carried.tolist() == [True, False]
     assert np.allclose(moved[1:, 0, 0], 0.01, atol=0.002), moved[:, 0]  # follows the hand 1 cm per frame
@@ -65,8 +87,8 @@ def test_the_carry_ends_when_the_hand_leaves():
     carry.update(_scene(intr, 0.0), pos, np.array([True]), np.array([False]), np.array([0.03]), PLANE)
     assert carry.carried[0]
     table_only = np.full((240, 320), 0.7, np.float32)
-    d = carry.update(table_only, pos, np.array([True]), np.array([False]), np.array([0.03]), PLANE)
-    assert not carry.carried[0] and np.allclose(d, 0.0)
+    rot, d = carry.update(table_only, pos, np.array([True]), np.array([False]), np.array([0.03]), PLANE)
+    assert not carry.carried[0] and np.allclose(d, 0.0) and np.allclose(rot, np.eye(3))
 
 
 @pytest.mark.parametrize("follow", [True, False])
