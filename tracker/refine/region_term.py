@@ -29,6 +29,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
+import numba as nb
 import numpy as np
 
 from tracker.geometry.camera import Intrinsics
@@ -53,30 +54,108 @@ class RegionSettings:
     """Contour points used per part (evenly thinned)."""
 
 
+@nb.njit(cache=True)
+def _outline_pixels(label: np.ndarray, z: np.ndarray, obj: int) -> tuple[np.ndarray, np.ndarray]:
+    """Grid indices (rows, columns) of part ``obj``'s pixels with a 4-neighbour that is empty or farther away."""
+    nv, nu = label.shape
+    rows = np.empty(nv * nu, np.int64)
+    cols = np.empty(nv * nu, np.int64)
+    n = 0
+    for j in range(nv):
+        for i in range(nu):
+            if label[j, i] != obj:
+                continue
+            edge = False
+            for k in range(4):
+                jj = j + (1 if k == 0 else -1 if k == 1 else 0)
+                ii = i + (1 if k == 2 else -1 if k == 3 else 0)
+                if jj < 0 or jj >= nv or ii < 0 or ii >= nu:
+                    continue  # the image border is not an outline
+                lab = label[jj, ii]
+                if lab != obj and (lab < 0 or z[jj, ii] > z[j, i]):
+                    edge = True
+                    break
+            if edge:
+                rows[n] = j
+                cols[n] = i
+                n += 1
+    return rows[:n], cols[:n]
+
+
 def contour_points(render: SurfaceRender, obj: int, intrinsics: Intrinsics) -> np.ndarray:
     """Camera-frame surface points (C, 3) on part ``obj``'s outline in ``render`` (pixels of the part with a
     4-neighbour that is empty or farther away; the image border does not count as an outline)."""
-    lab = render.label
-    own = lab == obj
-    if not own.any():
-        return np.zeros((0, 3))
-    z = render.depth
-    edge = np.zeros_like(own)
-    for dj, di in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        nb_lab = np.full_like(lab, obj)
-        nb_z = np.full_like(z, -np.inf)
-        src_j = slice(max(dj, 0), lab.shape[0] + min(dj, 0))
-        dst_j = slice(max(-dj, 0), lab.shape[0] + min(-dj, 0))
-        src_i = slice(max(di, 0), lab.shape[1] + min(di, 0))
-        dst_i = slice(max(-di, 0), lab.shape[1] + min(-di, 0))
-        nb_lab[dst_j, dst_i] = lab[src_j, src_i]
-        nb_z[dst_j, dst_i] = z[src_j, src_i]
-        edge |= own & (nb_lab != obj) & ((nb_lab < 0) | (nb_z > z))
-    jj, ii = np.nonzero(edge)
-    d = z[jj, ii].astype(np.float64)
+    jj, ii = _outline_pixels(render.label, render.depth, obj)
+    d = render.depth[jj, ii].astype(np.float64)
     u = render.u0 + ii * render.stride
     v = render.v0 + jj * render.stride
     return np.stack([(u - intrinsics.cx) / intrinsics.fx * d, (v - intrinsics.cy) / intrinsics.fy * d, d], axis=1)
+
+
+@nb.njit(cache=True)
+def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, occlusion, max_px, sigma, huber_k,
+                weight):
+    """Normal equations ``H`` (6, 6), ``g`` (6) of the silhouette residuals and the number of paired points (see
+    :meth:`RegionTerm.normal_equations`)."""
+    H = np.zeros((6, 6))
+    g = np.zeros(6)
+    h, w = sd.shape
+    hh, ww = depth.shape
+    J = np.empty(6)
+    n = 0
+    for k in range(pts.shape[0]):
+        x0 = R[0, 0] * pts[k, 0] + R[0, 1] * pts[k, 1] + R[0, 2] * pts[k, 2] + t[0]
+        x1 = R[1, 0] * pts[k, 0] + R[1, 1] * pts[k, 1] + R[1, 2] * pts[k, 2] + t[1]
+        x2 = R[2, 0] * pts[k, 0] + R[2, 1] * pts[k, 1] + R[2, 2] * pts[k, 2] + t[2]
+        if x2 <= 1e-3:
+            continue
+        u = fx * x0 / x2 + cx
+        v = fy * x1 / x2 + cy
+        fu = u - u0
+        fv = v - v0
+        if not (fu >= 0.0 and fu <= w - 1 and fv >= 0.0 and fv <= h - 1):
+            continue
+        iu = int(np.floor(u + 0.5))
+        iv = int(np.floor(v + 0.5))
+        if 0 <= iu < ww and 0 <= iv < hh:
+            meas = depth[iv, iu]
+            if meas > 0.0 and np.isfinite(meas) and meas < x2 - occlusion:
+                continue  # a hand or a part in front hides the outline here
+        i0 = min(int(np.floor(fu)), w - 2)
+        j0 = min(int(np.floor(fv)), h - 2)
+        a = fu - i0
+        b = fv - j0
+        w00 = (1 - a) * (1 - b)
+        w01 = a * (1 - b)
+        w10 = (1 - a) * b
+        w11 = a * b
+        r = w00 * sd[j0, i0] + w01 * sd[j0, i0 + 1] + w10 * sd[j0 + 1, i0] + w11 * sd[j0 + 1, i0 + 1] + inset
+        du = w00 * gu[j0, i0] + w01 * gu[j0, i0 + 1] + w10 * gu[j0 + 1, i0] + w11 * gu[j0 + 1, i0 + 1]
+        dv = w00 * gv[j0, i0] + w01 * gv[j0, i0 + 1] + w10 * gv[j0 + 1, i0] + w11 * gv[j0 + 1, i0 + 1]
+        if abs(r) > max_px or (du == 0.0 and dv == 0.0):
+            continue
+        # dr/dx = grad D . dpi/dx
+        e0 = du * fx / x2
+        e1 = dv * fy / x2
+        e2 = -(du * fx * x0 + dv * fy * x1) / (x2 * x2)
+        a0, a1, a2 = x0 - c[0], x1 - c[1], x2 - c[2]
+        J[0] = a1 * e2 - a2 * e1
+        J[1] = a2 * e0 - a0 * e2
+        J[2] = a0 * e1 - a1 * e0
+        J[3] = e0
+        J[4] = e1
+        J[5] = e2
+        rs = abs(r) / sigma
+        wgt = (1.0 if rs <= huber_k else huber_k / rs) * weight / (sigma * sigma)
+        for p in range(6):
+            g[p] += wgt * r * J[p]
+            for q in range(p, 6):
+                H[p, q] += wgt * J[p] * J[q]
+        n += 1
+    for p in range(6):
+        for q in range(p):
+            H[p, q] = H[q, p]
+    return H, g, n
 
 
 @dataclass
@@ -167,40 +246,16 @@ class RegionTerm:
         """``H`` (6, 6), ``g`` (6) of the weighted silhouette residuals at pose ``(R, t)`` (twist about the
         camera-frame centre ``c``) and the number of paired contour points."""
         cfg = self.settings
-        H, g = np.zeros((6, 6)), np.zeros(6)
         if self.outline_at is not None:
             pts = self.outline_at(R, t)
             if pts.shape[0] >= 8:
                 self.points = pts
-        x = self.points @ R.T + t
-        z = x[:, 2]
-        front = z > 1e-3
-        x, z = x[front], z[front]
-        if x.shape[0] == 0:
-            return H, g, 0
-        fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
-        u = fx * x[:, 0] / z + cx
-        v = fy * x[:, 1] / z + cy
-        r, gu, gv, ok = self.sdf.sample(u, v)
-        r = r + self.inset
-        hh, ww = depth.shape
-        iu = np.clip(np.floor(u + 0.5).astype(np.int64), 0, ww - 1)
-        iv = np.clip(np.floor(v + 0.5).astype(np.int64), 0, hh - 1)
-        meas = depth[iv, iu]
-        hidden = np.isfinite(meas) & (meas > 0) & (meas < z - cfg.occlusion_m)
-        ok &= ~hidden & (np.abs(r) <= cfg.max_px) & ((gu != 0) | (gv != 0))
-        if not ok.any():
-            return H, g, 0
-        x, z, r, gu, gv = x[ok], z[ok], r[ok], gu[ok], gv[ok]
-        # ∂r/∂x = ∇D ∂π/∂x
-        dx = np.stack([gu * fx / z, gv * fy / z, -(gu * fx * x[:, 0] + gv * fy * x[:, 1]) / (z * z)], axis=1)
-        a = x - c
-        J = np.hstack([np.cross(a, dx), dx])  # ∂x/∂ω = −[a]× → (∂r/∂x)(−[a]×) = a × ∂r/∂x
-        rs = np.abs(r) / cfg.sigma_px
-        w = np.where(rs <= cfg.huber_k, 1.0, cfg.huber_k / np.maximum(rs, 1e-12)) * (cfg.weight / cfg.sigma_px**2)
-        H = (J * w[:, None]).T @ J
-        g = (J * (w * r)[:, None]).sum(axis=0)
-        return H, g, int(ok.sum())
+        f = self.sdf
+        return _accumulate(np.ascontiguousarray(self.points, np.float64), np.ascontiguousarray(R, np.float64),
+                           np.ascontiguousarray(t, np.float64), np.ascontiguousarray(c, np.float64), f.d, f.gu, f.gv,
+                           float(f.u0), float(f.v0), depth, intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                           intrinsics.cy, float(self.inset), cfg.occlusion_m, cfg.max_px, cfg.sigma_px, cfg.huber_k,
+                           cfg.weight)
 
 
 def body_outline(render: SurfaceRender, obj: int, R: np.ndarray, t: np.ndarray, intrinsics: Intrinsics,
