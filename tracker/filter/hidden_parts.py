@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tracker.filter.hand_carry import supported_by_other
+from tracker.filter.predict import adaptive_noise
 from tracker.geometry.pose import Pose
 
 if TYPE_CHECKING:
@@ -24,7 +25,7 @@ def hold_hidden_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, de
     k = len(trk.parts)
     if cfg.carry_follow:
         follow_hands(trk, ctx.depth, detected, ctx.table_plane, detections, ctx.touched)
-    noise_scale = trk._noise_scale.copy()
+    noise_scale = trk._noise_scale * adaptive_noise(trk)
     trk._rest_on = np.zeros(k, bool)
     if cfg.rest_prior_sigma > 0 and cfg.use_color_input and detections is not None:
         # little depth evidence (hidden, or in the sensor's shadow next to a hand) and no sign of motion

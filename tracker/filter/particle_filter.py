@@ -196,6 +196,8 @@ class MultiObjectTracker:
         self.n_reacquired = 0  # re-acquisition attempts since initialize (diagnostics, tests)
         self._loss = LossMonitor(k, self.config.loss_bad_frames)
         self._was_carried = np.zeros(k, bool)
+        self._est_vel = np.zeros((k, 6))  # constant-velocity model: per-frame velocity estimate per part
+        self._prev_poses: dict | None = None
         self._cooldown = np.zeros(k, np.int64)
         self._last_time: float | None = None
         self._initialized = True
@@ -241,6 +243,7 @@ class MultiObjectTracker:
         tg = time.perf_counter()
         refine_stage.refine(self, state, ctx.refine_depth, detections, ctx.table)
         ctx.timings["refine"] = (time.perf_counter() - tg) * 1e3
+        predict.update_velocities(self, state.poses, detected & ~self._rest_on & ~self._carry.carried)
         if self.config.carry_follow:
             self._carry.record(ctx.now, np.array([state.poses[nm].t for nm in self.names]))
             state.carried = [nm for nm, c in zip(self.names, self._carry.carried, strict=True) if c]
@@ -308,7 +311,8 @@ class MultiObjectTracker:
         v = np.empty_like(v_prev)
         for i in range(k):
             noise = sample_noise(self.rng, n, cfg.sigma_v, cfg.sigma_w, cfg.wide_noise_fraction, cfg.wide_noise_scale)
-            p[:, i], R[:, i], v[:, i] = propagate(p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i], noise, cfg.k_v, cfg.b)
+            p[:, i], R[:, i], v[:, i] = propagate(p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i], noise,
+                                                  predict.velocity_gain(cfg), cfg.b)
         self.p, self.R, self.v = p, R, v
         state = self._make_state(frame, t0, timings)
         state.depth_used = False

@@ -2,6 +2,17 @@
 
 The noise-free prediction decides which pixels are evaluated (:func:`tracker.filter.render.evaluated_pixels`);
 the noisy propagation of each part happens in its coordinate pass (:mod:`tracker.filter.weigh`).
+
+Two velocity models (``TrackerConfig.velocity_model``):
+
+* ``seed``: each particle carries its own velocity, damped by ``k_v`` every step (eq. 4.26).
+* ``constant``: constant velocity with adaptive noise (not in the seed). After every frame each well-seen part's
+  velocity is estimated from its final (refined) estimates of this and the previous frame, smoothed
+  exponentially (``cv_smoothing``), and given to all its particles; the prediction carries it on with gain
+  ``cv_gain`` (< 1: a part that stops is not thrown far). The motion noise of a moving part grows with its speed
+  (``cv_noise_gain`` × speed / ``sigma_v``, at most ``cv_noise_max`` times), so parts at rest keep the tight noise
+  that makes them precise while fast ones get the spread to follow. Hidden, resting and carried parts have zero
+  velocity (the hand carry moves carried ones).
 """
 
 from __future__ import annotations
@@ -16,9 +27,15 @@ if TYPE_CHECKING:
     from tracker.filter.particle_filter import MultiObjectTracker
 
 
+def velocity_gain(cfg) -> float:
+    """Factor on the previous velocity in the prediction: ``k_v`` (seed) or ``cv_gain`` (constant velocity)."""
+    return cfg.cv_gain if cfg.velocity_model == "constant" else cfg.k_v
+
+
 def deterministic(trk: MultiObjectTracker, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Particles (p, R, v) of every part propagated with zero noise under the colour input ``u`` (K, 3)."""
     cfg = trk.config
+    gain = velocity_gain(cfg)
     n, k = trk.p.shape[0], len(trk.parts)
     p_cur = np.empty_like(trk.p)
     R_cur = np.empty_like(trk.R)
@@ -26,7 +43,7 @@ def deterministic(trk: MultiObjectTracker, u: np.ndarray) -> tuple[np.ndarray, n
     zero = np.zeros((n, 6))
     for i in range(k):
         p_cur[:, i], R_cur[:, i], v_cur[:, i] = propagate(trk.p[:, i], trk.R[:, i], trk.v[:, i], u[i], zero,
-                                                          cfg.k_v, cfg.b)
+                                                          gain, cfg.b)
     return p_cur, R_cur, v_cur
 
 
@@ -36,4 +53,37 @@ def noisy(trk: MultiObjectTracker, p_prev: np.ndarray, R_prev: np.ndarray, v_pre
     cfg = trk.config
     noise = sample_noise(trk.rng, p_prev.shape[0], cfg.sigma_v * scale, cfg.sigma_w * scale, cfg.wide_noise_fraction,
                          cfg.wide_noise_scale)
-    return propagate(p_prev, R_prev, v_prev, u, noise, cfg.k_v, cfg.b)
+    return propagate(p_prev, R_prev, v_prev, u, noise, velocity_gain(cfg), cfg.b)
+
+
+def adaptive_noise(trk: MultiObjectTracker) -> np.ndarray:
+    """Per part (K,), the factor on the motion noise from its estimated speed (constant-velocity model; 1 with
+    the seed's model)."""
+    cfg = trk.config
+    if cfg.velocity_model != "constant":
+        return np.ones(len(trk.parts))
+    speed = np.linalg.norm(trk._est_vel[:, :3], axis=1)
+    return np.minimum(1.0 + cfg.cv_noise_gain * speed / max(cfg.sigma_v, 1e-9), cfg.cv_noise_max)
+
+
+def update_velocities(trk: MultiObjectTracker, poses: dict, seen: np.ndarray) -> None:
+    """Constant-velocity model: estimate each part's velocity (per frame: metres, rotation vector in radians,
+    camera frame) from its final estimates ``poses`` and the previous frame's; ``seen`` (K,) parts whose estimate
+    is supported by the data now (the others get zero velocity). All particles of a part take its velocity."""
+    cfg = trk.config
+    if cfg.velocity_model != "constant":
+        return
+    from scipy.spatial.transform import Rotation
+
+    prev = trk._prev_poses
+    a = cfg.cv_smoothing
+    for i, name in enumerate(trk.names):
+        cur = poses[name]
+        if prev is None or not seen[i]:
+            trk._est_vel[i] = 0.0
+        else:
+            old = prev[name]
+            v = np.concatenate([cur.t - old.t, Rotation.from_matrix(cur.R @ old.R.T).as_rotvec()])
+            trk._est_vel[i] = a * v + (1.0 - a) * trk._est_vel[i]
+        trk.v[:, i] = trk._est_vel[i]
+    trk._prev_poses = dict(poses)

@@ -36,6 +36,19 @@ class TrackerConfig(BaseModel):
     k_v: float = Field(0.2, description="Velocity coefficient k_v (4.24-4.26).")
     sigma_v: float = Field(0.005, ge=0.0, description="Linear noise std sigma_v, metres per step.")
     sigma_w: float = Field(0.05, ge=0.0, description="Angular noise std sigma_omega, radians per step.")
+    velocity_model: str = Field(
+        "seed", pattern="^(seed|constant)$", description="'seed': per-particle velocities damped by k_v (4.26); "
+        "'constant': constant velocity estimated from the refined estimates, with noise that grows with the speed "
+        "(filter/predict.py).",
+    )
+    cv_gain: float = Field(0.8, ge=0.0, le=1.0, description="Constant velocity: factor on the estimated velocity.")
+    cv_smoothing: float = Field(
+        0.5, gt=0.0, le=1.0, description="Constant velocity: weight of the newest velocity in its running mean.",
+    )
+    cv_noise_gain: float = Field(
+        0.5, ge=0.0, description="Constant velocity: motion noise factor 1 + cv_noise_gain * speed / sigma_v.",
+    )
+    cv_noise_max: float = Field(5.0, ge=1.0, description="Constant velocity: largest motion noise factor.")
     wide_noise_fraction: float = Field(
         0.0, ge=0.0, le=1.0, description="Share of noise samples drawn with wide_noise_scale x the stds (a Gaussian "
         "mixture proposal; 0 = the spec's single Gaussian).",
