@@ -6,8 +6,9 @@ estimate although the part should be visible (its colour blob is there, or the f
 is *lost* after ``bad_frames`` such frames, and is *re-checked* in any case right after a hand releases it or when it
 reappears after being hidden. :func:`reacquire` then runs the refinement from several starting rotations about the
 part's centre (a fixed, deterministic set of axes on a Fibonacci sphere and angles: for a cube the largest useful
-angle is about 60°, beyond which a symmetric copy is nearer; for a mesh the whole of SO(3) up to 180°) and keeps
-the start whose refined pose the depth supports best (:attr:`RefineResult.score`: matched model points minus twice
+angle is about 60°, beyond which a symmetric copy is nearer, plus turns about the table normal, the way a part put
+down on the table differs from its estimate; for a mesh the whole of SO(3) up to 180°) and keeps the start whose
+refined pose the depth supports best (:attr:`RefineResult.score`: matched model points minus twice
 the free-space violations). It replaces the estimate only when that support clearly beats the current pose's.
 Camera frame, metres, radians.
 """
@@ -42,6 +43,17 @@ def start_rotations(angles_deg: tuple[float, ...], n_axes: int) -> np.ndarray:
 
 CUBE_STARTS = start_rotations((25.0, 50.0), 12)
 """Starts for a part with the cube's symmetry (25 rotations)."""
+CUBE_TURNS_DEG = (-40.0, -20.0, 20.0, 40.0)
+"""Turns about the table normal tried in addition for a cube (its symmetry repeats every 90° about it)."""
+
+
+def turns_about(axis: np.ndarray, angles_deg: tuple[float, ...]) -> np.ndarray:
+    """Rotation matrices (M, 3, 3) by each angle about the unit ``axis`` (camera frame)."""
+    a = np.asarray(axis, np.float64)
+    a = a / np.linalg.norm(a)
+    return Rotation.from_rotvec(np.radians(np.asarray(angles_deg))[:, None] * a[None]).as_matrix()
+
+
 MESH_STARTS = start_rotations((30.0, 60.0, 90.0, 135.0, 180.0), 14)
 """Starts for a part without symmetry (71 rotations)."""
 

@@ -20,7 +20,7 @@ from tracker.geometry.pose import Pose
 from tracker.refine.dense_depth import RefineSettings
 from tracker.refine.icp_refinement import PartSurfaceModel, icp_refine, part_points
 from tracker.refine.part_refiner import PartRefiner
-from tracker.refine.recovery import CUBE_STARTS, MESH_STARTS, reacquire
+from tracker.refine.recovery import CUBE_STARTS, CUBE_TURNS_DEG, MESH_STARTS, reacquire, turns_about
 from tracker.refine.region_term import RegionSettings
 
 if TYPE_CHECKING:
@@ -31,7 +31,8 @@ def refine(trk: MultiObjectTracker, state: TrackerState, depth, detections, tabl
     """Refine ``state``'s poses in place (and the tracker's particles) as the settings say (module docstring)."""
     cfg = trk.config
     if cfg.dense_refinement and depth is not None:
-        dense_refine(trk, state, depth, detections)
+        plane = table_normal_offset(table)
+        dense_refine(trk, state, depth, detections, None if plane is None else plane[0])
     elif cfg.icp_refinement:
         icp_refine_parts(trk, state, depth, detections, table)
 
@@ -101,11 +102,13 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
                        cfg.refine_max_translation, cfg.refine_max_rotation, region)
 
 
-def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray, detections) -> None:
+def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray, detections,
+                 up: np.ndarray | None = None) -> None:
     """Dense-depth refinement of every visible part (:mod:`tracker.refine.part_refiner`) and re-acquisition of
     lost or just released parts (:mod:`tracker.refine.recovery`); the particles move with each accepted
     correction. A coloured part is refined only on the pixels of its colour blob (hands and other parts left out)
-    and not at all while its blob is missing."""
+    and not at all while its blob is missing. ``up``: the table's normal (camera frame) or None: cubes are then also
+    re-acquired from turns about it (a part put down on the table differs from its estimate by such a turn)."""
     k = len(trk.parts)
     poses, active, allowed, visible, outlines = [], [], [], [], []
     for i, name in enumerate(trk.names):
@@ -142,6 +145,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
             start, current = (poses[i][0], blob_target(trk, i, detections.get(trk.names[i]), depth)), None
         if trk.config.reacquire and (need or beyond) and trk._cooldown[i] == 0 and visible[i]:
             starts = CUBE_STARTS if trk.parts[i].box is not None else MESH_STARTS
+            if up is not None and trk.parts[i].box is not None:
+                starts = np.concatenate([starts, turns_about(up, CUBE_TURNS_DEG)])
             found = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts, current, outlines[i])
             if current is None and res is not None and res.healthy and (found is None or res.score >= found.score):
                 found = res
