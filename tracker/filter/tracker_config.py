@@ -409,6 +409,7 @@ PRESETS["default"] = {
     "color_mask_when_missing": True,
     "color_likelihood_px": 10.0,
     "dense_refinement": True,
+    "refine_region_weight": 1.0,
     "likelihood_pixels_per_part": 250,
     "reseed_fraction": 0.3,
     "detected_full_noise": True,
