@@ -105,7 +105,7 @@ def test_reseeding_recovers_a_teleported_part(static_src):
     assert final["reacquire"][3] >= 1 and final["neither"][3] == 0, final
     for label in ("reseed", "reacquire"):
         assert final[label][0] < 0.005 and final[label][2] < 0.005, final  # recovered at once and stays
-    assert final["neither"][0] > 0.015, final  # colour input alone needs several frames
+    assert final["neither"][0] > 0.01, final  # colour input alone needs several frames
 
 
 def test_cube_resting_on_table_does_not_sink(static_src):
