@@ -14,6 +14,7 @@ greyscale crops. Flows are arrays [h, w, 2] of (u, v) in pixels per frame, x rig
 from __future__ import annotations
 
 import cv2
+import numba as nb
 import numpy as np
 
 METHODS = ("dis", "farneback")
@@ -68,19 +69,10 @@ def invert(f: np.ndarray) -> np.ndarray:
     normalised convolution (a 7×7 box average of the filled neighbours, repeated until none is empty, at most
     4 times; what remains takes the mean) — a cheaper stand-in for the spec's nearest-filled-pixel fill."""
     h, w = f.shape[:2]
-    tx = np.rint(np.arange(w, dtype=np.float32)[None, :] + f[..., 0]).astype(np.int64)
-    ty = np.rint(np.arange(h, dtype=np.float32)[:, None] + f[..., 1]).astype(np.int64)
-    ok = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
-    idx = (ty[ok] * w + tx[ok]).ravel()
-    cnt = np.bincount(idx, minlength=h * w).astype(np.float32).reshape(h, w)
-    su = np.bincount(idx, weights=-f[..., 0][ok].ravel(), minlength=h * w).astype(np.float32).reshape(h, w)
-    sv = np.bincount(idx, weights=-f[..., 1][ok].ravel(), minlength=h * w).astype(np.float32).reshape(h, w)
-    if not (cnt > 0).any():
-        return np.zeros((h, w, 2), np.float32)
-    filled = cnt > 0
     out = np.zeros((h, w, 2), np.float32)
-    out[..., 0][filled] = su[filled] / cnt[filled]
-    out[..., 1][filled] = sv[filled] / cnt[filled]
+    filled = _splat(np.ascontiguousarray(f, np.float32), out)
+    if not filled.any():
+        return out
     empty = ~filled
     wgt = filled.astype(np.float32)
     for _ in range(4):
@@ -95,3 +87,28 @@ def invert(f: np.ndarray) -> np.ndarray:
     if empty.any():
         out[empty] = out[~empty].mean(axis=0)
     return out
+
+
+@nb.njit(cache=True)
+def _splat(f, out):
+    """Every grid point x + f(x), rounded half to even, receives −f(x); ``out`` [h, w, 2] gets the mean of what each
+    pixel received; returns the bool mask of the pixels that received something."""
+    h, w = f.shape[0], f.shape[1]
+    cnt = np.zeros((h, w), np.int64)
+    su = np.zeros((h, w))
+    sv = np.zeros((h, w))
+    for y in range(h):
+        for x in range(w):
+            tx = int(np.rint(np.float32(x) + f[y, x, 0]))
+            ty = int(np.rint(np.float32(y) + f[y, x, 1]))
+            if 0 <= tx < w and 0 <= ty < h:
+                cnt[ty, tx] += 1
+                su[ty, tx] -= f[y, x, 0]
+                sv[ty, tx] -= f[y, x, 1]
+    filled = cnt > 0
+    for y in range(h):
+        for x in range(w):
+            if filled[y, x]:
+                out[y, x, 0] = np.float32(su[y, x] / cnt[y, x])
+                out[y, x, 1] = np.float32(sv[y, x] / cnt[y, x])
+    return filled

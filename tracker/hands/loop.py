@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import cv2
+import numba as nb
 import numpy as np
 
 from tracker.geometry.camera import Intrinsics
@@ -50,26 +51,53 @@ class HandLoopConfig:
     occluder_radius_px: int = 5
 
 
+@nb.njit(cache=True)
+def _slab_grid(R, o, half, x, y, out):
+    """Slab test of the rays (x[j], y[i], 1) (camera frame) against the box of half extents ``half`` whose frame has
+    rotation ``R`` (box → camera) and sees the camera centre at ``o``; writes the entry depth or inf into ``out``."""
+    for i in range(y.shape[0]):
+        for j in range(x.shape[0]):
+            t_near = -np.inf
+            t_far = np.inf
+            for a in range(3):
+                d = R[0, a] * x[j] + R[1, a] * y[i] + R[2, a]
+                if d == 0.0:
+                    if abs(o[a]) > half[a]:
+                        t_far = -1.0
+                        break
+                    continue
+                t1 = (-half[a] - o[a]) / d
+                t2 = (half[a] - o[a]) / d
+                t_near = max(t_near, min(t1, t2))
+                t_far = min(t_far, max(t1, t2))
+            if t_near <= t_far and t_far > 0.0 and t_near > -np.inf:
+                out[i, j] = max(t_near, 0.0)
+            else:
+                out[i, j] = np.inf
+
+
+@nb.njit(cache=True)
+def _near_plane(z, rx, ry, n, off, clearance, out):
+    """Mark the pixels of the depth grid ``z`` (rays (rx[j], ry[i], 1)) within ``clearance`` of the plane
+    n·X + off = 0."""
+    for i in range(z.shape[0]):
+        for j in range(z.shape[1]):
+            d = z[i, j]
+            if d == d and abs(d * (n[0] * rx[j] + n[1] * ry[i] + n[2]) + off) < clearance:
+                out[i, j] = True
+
+
 def box_part_depth(part: PartSpec, pose: Pose, intrinsics: Intrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Depth (camera z, metres; ``inf`` where the ray misses) of box part ``part`` at ``pose`` seen through the pixel
     grid ``u`` (columns, 1-D) × ``v`` (rows, 1-D): a [len(v), len(u)] float32 array (slab test per pixel)."""
     half = np.asarray(part.box, np.float64) / 2.0
-    R = np.asarray(pose.R, np.float64)
+    R = np.ascontiguousarray(pose.R, np.float64)
     o = -R.T @ np.asarray(pose.t, np.float64)  # camera centre in the box frame
     x = (np.asarray(u, np.float64) - intrinsics.cx) / intrinsics.fx
     y = (np.asarray(v, np.float64) - intrinsics.cy) / intrinsics.fy
-    # ray direction (x, y, 1) in the box frame, per axis: R.T[a, 0] x + R.T[a, 1] y + R.T[a, 2]
-    t_near = np.full((len(y), len(x)), -np.inf)
-    t_far = np.full((len(y), len(x)), np.inf)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for a in range(3):
-            d = R[0, a] * x[None, :] + R[1, a] * y[:, None] + R[2, a]
-            t1 = (-half[a] - o[a]) / d
-            t2 = (half[a] - o[a]) / d
-            t_near = np.maximum(t_near, np.minimum(t1, t2))
-            t_far = np.minimum(t_far, np.maximum(t1, t2))
-    hit = (t_near <= t_far) & (t_far > 0) & np.isfinite(t_near)
-    return np.where(hit, np.maximum(t_near, 0.0), np.inf).astype(np.float32)
+    out = np.empty((len(y), len(x)), np.float32)
+    _slab_grid(R, o, half, x, y, out)
+    return out
 
 
 class HandLoop:
@@ -88,6 +116,7 @@ class HandLoop:
         self._centres: dict[str, np.ndarray] = {}  # projected part centres of the previous frame (px)
         self.positions: dict[int, np.ndarray] = {}  # per hand: camera-frame point of its box centre (m)
         self._rays: tuple[tuple[int, int], np.ndarray, np.ndarray] | None = None
+        self._vertices = {n: p.vertices() for n, p in self.parts.items()}
 
     # ------------------------------------------------------------------ per frame
     def perceive(self, color: np.ndarray, depth: np.ndarray | None, table_plane: tuple[np.ndarray, float] | None,
@@ -114,13 +143,10 @@ class HandLoop:
             if table_plane is not None:
                 n, off = table_plane
                 if self._rays is None or self._rays[0] != z.shape:
-                    v, u = np.mgrid[0 : z.shape[0] * s : s, 0 : z.shape[1] * s : s].astype(np.float32)
-                    self._rays = (z.shape, (u - self.intrinsics.cx) / self.intrinsics.fx,
-                                  (v - self.intrinsics.cy) / self.intrinsics.fy)  # fmt: skip
+                    self._rays = (z.shape, (np.arange(z.shape[1]) * s - self.intrinsics.cx) / self.intrinsics.fx,
+                                  (np.arange(z.shape[0]) * s - self.intrinsics.cy) / self.intrinsics.fy)  # fmt: skip
                 _, rx, ry = self._rays
-                n = np.asarray(n, np.float32)
-                height = z * (n[0] * rx + n[1] * ry + n[2]) + np.float32(off)
-                out |= np.abs(height) < cfg.table_clearance_m
+                _near_plane(z, rx, ry, np.asarray(n, np.float64), float(off), cfg.table_clearance_m, out)
             for name, part in self.parts.items():
                 pose = poses.get(name)
                 win = self._part_window(part, pose, H, W)
@@ -138,30 +164,33 @@ class HandLoop:
         """End-exclusive pixel box [u0, v0, u1, v1] of the part's projected vertices (+1 px), clipped; None if none."""
         if pose is None:
             return None
-        pts = pose.transform_points(part.vertices())
-        if np.any(pts[:, 2] <= 1e-3):
+        pts = self._vertices[part.name] @ np.asarray(pose.R).T + np.asarray(pose.t)
+        if pts[:, 2].min() <= 1e-3:
             return None
-        uv = self.intrinsics.project(pts)
-        u0, v0 = max(int(np.floor(uv[:, 0].min())) - 1, 0), max(int(np.floor(uv[:, 1].min())) - 1, 0)
-        u1, v1 = min(int(np.ceil(uv[:, 0].max())) + 2, W), min(int(np.ceil(uv[:, 1].max())) + 2, H)
+        intr = self.intrinsics
+        us = intr.fx * pts[:, 0] / pts[:, 2] + intr.cx
+        vs = intr.fy * pts[:, 1] / pts[:, 2] + intr.cy
+        u0, v0 = max(int(np.floor(us.min())) - 1, 0), max(int(np.floor(vs.min())) - 1, 0)
+        u1, v1 = min(int(np.ceil(us.max())) + 2, W), min(int(np.ceil(vs.max())) + 2, H)
         return (u0, v0, u1, v1) if u1 > u0 and v1 > v0 else None
 
     def occluder_mask(self) -> np.ndarray | None:
         """H_k (spec §14.5): full-resolution bool H×W, the hand masks' union dilated by r_occ; None without hands."""
-        if not self.masks:
-            return None
-        union = None
-        for m in self.masks.values():
-            union = m.copy() if union is None else union | m
-        ys, xs = np.nonzero(union)
-        if len(ys) == 0:
+        boxes = [e.box for e in self.estimates if e.id in self.masks and e.box[2] > e.box[0] and e.box[3] > e.box[1]]
+        if not boxes:
             return None
         r = int(self.config.occluder_radius_px)
-        H, W = union.shape
-        y0, y1, x0, x1 = max(ys.min() - r, 0), min(ys.max() + r + 1, H), max(xs.min() - r, 0), min(xs.max() + r + 1, W)
+        H, W = self.masks[next(iter(self.masks))].shape
+        x0, y0 = max(min(b[0] for b in boxes) - r, 0), max(min(b[1] for b in boxes) - r, 0)
+        x1, y1 = min(max(b[2] for b in boxes) + r, W), min(max(b[3] for b in boxes) + r, H)
+        union = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        for m in self.masks.values():  # a hand's mask lies inside its box
+            union |= m[y0:y1, x0:x1]
+        if not union.any():
+            return None
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         out = np.zeros((H, W), bool)
-        out[y0:y1, x0:x1] = cv2.dilate(union[y0:y1, x0:x1].astype(np.uint8), k).astype(bool)
+        out[y0:y1, x0:x1] = cv2.dilate(union, k).astype(bool)
         return out
 
     def update_contacts(self, poses: dict[str, Pose], depth: np.ndarray | None) -> dict[tuple[int, str], str]:

@@ -1,19 +1,23 @@
 """k-means motion segmentation of the flow inside the colour mask (hand-tracking spec §3.3, eqs. 6.4–6.5).
 
 Only the flow vectors (u, v) are clustered (no positions), Euclidean distance, N_c clusters. Product choices
-(§14.2, tightened for the time budget): the fit uses at most 500 randomly subsampled vectors (spec: 2,000), then
-every vector is assigned to its nearest centroid and each centroid is recomputed as the mean of all its vectors
-(the cluster's mean flow); the fit is OpenCV's k-means with 2 attempts (spec: 3), the first warm-started from the
-previous frame's centroids of the same flow, the other k-means++.
+(§14.2, tightened for the 10 ms per frame budget): the fit uses at most 200 randomly subsampled vectors (spec:
+2,000), at most 10 iterations; then every vector is assigned to its nearest centroid (a numba kernel) and each
+centroid is recomputed as the mean of all its vectors (the cluster's mean flow). The fit is OpenCV's k-means with one
+attempt warm-started from the previous frame's centroids of the same flow, or 2 k-means++ attempts without them
+(spec: 3 in total). Mean box F-score on simulator seeds 0–1 (150 frames) before → after these cuts (with n_r 256 → 64
+in the particle filter): S1 0.921 → 0.924, S2 0.417 → 0.413, S3 0.332 → 0.310.
 """
 
 from __future__ import annotations
 
 import cv2
+import numba as nb
 import numpy as np
 
-MAX_FIT = 500
+MAX_FIT = 200
 ATTEMPTS = 2
+MAX_ITER = 10
 
 
 class MotionClusters:
@@ -38,21 +42,16 @@ class MotionClusters:
         k = min(self.n_clusters, n)
         fit = vec if n <= MAX_FIT else vec[self.rng.choice(n, MAX_FIT, replace=False)]
         cv2.setRNGSeed(int(self.rng.integers(1 << 30)))
-        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.01)
+        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, MAX_ITER, 0.01)
         prev = self._prev.get(key)
         if prev is not None and len(prev) == k and len(fit) >= k:
             init = np.argmin(((fit[:, None, :] - prev[None]) ** 2).sum(-1), axis=1).astype(np.int32)[:, None]
-            _, _, centers = cv2.kmeans(fit, k, init, crit, ATTEMPTS,
-                                        cv2.KMEANS_USE_INITIAL_LABELS | cv2.KMEANS_PP_CENTERS)
+            _, _, centers = cv2.kmeans(fit, k, init, crit, 1, cv2.KMEANS_USE_INITIAL_LABELS)
         elif len(fit) >= k:
             _, _, centers = cv2.kmeans(fit, k, None, crit, ATTEMPTS, cv2.KMEANS_PP_CENTERS)
         else:
             centers = fit[:k]
-        lab = np.argmin(((vec[:, None, :] - centers[None]) ** 2).sum(-1), axis=1)
-        labels[sel] = lab
-        counts = np.bincount(lab, minlength=k)
-        su = np.bincount(lab, weights=vec[:, 0], minlength=k)
-        sv = np.bincount(lab, weights=vec[:, 1], minlength=k)
+        counts, su, sv = _assign(flow, sel, np.asarray(centers, np.float32), labels)
         ok = counts > 0
         cent[:k][ok] = np.stack([su[ok] / counts[ok], sv[ok] / counts[ok]], axis=1)
         self._prev[key] = np.asarray(centers, np.float32)
@@ -60,3 +59,33 @@ class MotionClusters:
 
     def reset(self) -> None:
         self._prev.clear()
+
+
+@nb.njit(cache=True)
+def _assign(flow, sel, centers, labels):
+    """Label every selected pixel with its nearest centroid (squared Euclidean, first on ties); returns the
+    per-cluster counts and flow sums."""
+    k = centers.shape[0]
+    counts = np.zeros(k, np.int64)
+    su = np.zeros(k)
+    sv = np.zeros(k)
+    for v in range(sel.shape[0]):
+        for u in range(sel.shape[1]):
+            if not sel[v, u]:
+                continue
+            fu = np.float32(flow[v, u, 0])
+            fv = np.float32(flow[v, u, 1])
+            best = 0
+            bd = np.inf
+            for c in range(k):
+                du = fu - centers[c, 0]
+                dv = fv - centers[c, 1]
+                dd = du * du + dv * dv
+                if dd < bd:
+                    bd = dd
+                    best = c
+            labels[v, u] = best
+            counts[best] += 1
+            su[best] += fu
+            sv[best] += fv
+    return counts, su, sv

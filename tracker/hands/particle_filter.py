@@ -26,14 +26,14 @@ from tracker.hands.features import HandFeatures
 
 @dataclass(frozen=True)
 class PFParams:
-    """``n_particles`` N_s (30), ``n_threshold`` N_T (None: ⌊N_s/2⌋), ``n_r`` ratio-set subsample (256), ``n_min``
+    """``n_particles`` N_s (30), ``n_threshold`` N_T (None: ⌊N_s/2⌋), ``n_r`` ratio-set subsample (64), ``n_min``
     (10 px), ``tau_d`` (0.8), σ_{p,0} = σ_{s,0} = 1 px, σ_{v,fb} = 1 px/frame, â_{c,1} (0.9), â_{m,1} (0.85), the
     boundary-weight scale (80 px², eq. 6.22) and the velocity-agreement scale (7 (px/frame)², eq. 6.31) (thesis /
     spec §16; pixel quantities in the tracker's working resolution)."""
 
     n_particles: int = 30
     n_threshold: int | None = None
-    n_r: int = 256
+    n_r: int = 64
     n_min: int = 10
     tau_d: float = TAU_D
     sigma_p0: float = 1.0

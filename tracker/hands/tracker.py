@@ -177,6 +177,8 @@ class HandTracker:
         self._prev_grey: np.ndarray | None = None
         self._excl: np.ndarray | None = None  # this frame's working-resolution "cannot be a hand" mask (or None)
         self._prev_excl: np.ndarray | None = None
+        self._mask_cur: np.ndarray | None = None  # this frame's colour mask B^c over the whole working frame
+        self._mask_prev: np.ndarray | None = None
         self._candidates: list[_Candidate] = []
         self._adapt_pixels: list[np.ndarray] = []
         self.last_features: HandFeatures | None = None
@@ -241,7 +243,10 @@ class HandTracker:
             u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, w - 1), min(v1, h - 1)
             m = np.zeros((H, W), bool)
             if u1 >= u0 and v1 >= v0:
-                sub = self._skin(self._prev_rgb, self._prev_excl, v0, v1 + 1, u0, u1 + 1).astype(bool)
+                if self._mask_prev is not None:
+                    sub = self._mask_prev[v0 : v1 + 1, u0 : u1 + 1].astype(bool)
+                else:
+                    sub = self._skin(self._prev_rgb, self._prev_excl, v0, v1 + 1, u0, u1 + 1).astype(bool)
                 up = np.repeat(np.repeat(sub, s, axis=0), s, axis=1)
                 hh, ww = min(up.shape[0], H - v0 * s), min(up.shape[1], W - u0 * s)
                 m[v0 * s : v0 * s + hh, u0 * s : u0 * s + ww] = up[:hh, :ww]
@@ -275,7 +280,8 @@ class HandTracker:
         if self._prev_rgb is None:
             if self.config.session_background:
                 self.skin = self.skin.with_background(small, step=2, keep=None if self._excl is None else ~self._excl)
-        elif self.tracks:
+        self._mask_cur = None
+        if self._prev_rgb is not None and self.tracks:
             out = self._step_tracks(small, grey, size)
         if self.config.auto_init and len(self.tracks) < self.config.max_tracks:
             new = self._auto_init(small, depth)
@@ -285,7 +291,14 @@ class HandTracker:
         self._prev_rgb = small
         self._prev_grey = grey
         self._prev_excl = self._excl
+        self._mask_prev = self._mask_cur
         return out
+
+    def _frame_mask(self, rgb: np.ndarray) -> np.ndarray:
+        """The colour mask B^c (uint8 0/1) of the whole working-resolution frame ``rgb``, computed once per frame."""
+        if self._mask_cur is None:
+            self._mask_cur = self._skin(rgb, self._excl)
+        return self._mask_cur
 
     def _working_mask(self, exclude: np.ndarray | None, H: int, W: int, size: tuple[int, int]) -> np.ndarray | None:
         """``exclude`` as a working-resolution bool mask (a full-resolution mask is subsampled every scale-th px)."""
@@ -320,8 +333,11 @@ class HandTracker:
             self.tracks = []
             return []
         assert self._prev_rgb is not None and self._prev_grey is not None
-        mprev = self._skin(self._prev_rgb, self._prev_excl, y0, y1, x0, x1)
-        mcur = self._skin(rgb, self._excl, y0, y1, x0, x1)
+        if self._mask_prev is not None:
+            mprev = np.ascontiguousarray(self._mask_prev[y0:y1, x0:x1])
+        else:
+            mprev = self._skin(self._prev_rgb, self._prev_excl, y0, y1, x0, x1)
+        mcur = np.ascontiguousarray(self._frame_mask(rgb)[y0:y1, x0:x1])
         feats = compute_features(self._prev_grey, grey, mprev, mcur, roi, size, self.clusters, cfg.flow,
                                  max(8, cfg.roi_limit // self.s), backward=cfg.method == "pf")  # fmt: skip
         self.last_features = feats
@@ -344,6 +360,7 @@ class HandTracker:
             if self.frame_index % cfg.adapt_every == 0 and self._adapt_pixels:
                 self.skin = self.skin.adapted(np.concatenate(self._adapt_pixels))
                 self._adapt_pixels = []
+                self._mask_cur = None  # the frame's mask under the adapted model, if it is needed again
         return ests
 
     def _estimate(self, tr: _Track, size: tuple[int, int], feats: HandFeatures | None = None) -> HandEstimate:
@@ -391,7 +408,7 @@ class HandTracker:
         """A new track's initial working-resolution state, or None (see the module docstring)."""
         cfg = self.config
         h, w = rgb.shape[:2]
-        mask = self._skin(rgb, self._excl)
+        mask = self._frame_mask(rgb)
         r = max(1, int(round(2.0 / self.s)))
         disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk)
