@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from tracker.geometry.camera import Intrinsics
+from tracker.refine.normal_equations import add_huber, twist_row
 from tracker.refine.region_term import RegionTerm
 
 
@@ -127,20 +128,8 @@ def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, 
         m1 = R[1, 0] * nrm[i, 0] + R[1, 1] * nrm[i, 1] + R[1, 2] * nrm[i, 2]
         m2 = R[2, 0] * nrm[i, 0] + R[2, 1] * nrm[i, 1] + R[2, 2] * nrm[i, 2]
         r = m0 * e0 + m1 * e1 + m2 * e2
-        a0, a1, a2 = x0 - c[0], x1 - c[1], x2 - c[2]
-        J[0] = a1 * m2 - a2 * m1
-        J[1] = a2 * m0 - a0 * m2
-        J[2] = a0 * m1 - a1 * m0
-        J[3] = m0
-        J[4] = m1
-        J[5] = m2
-        sig = sigma0 + sigma_z2 * x2 * x2
-        rs = abs(r) / sig
-        wgt = (1.0 if rs <= huber_k else huber_k / rs) / (sig * sig)
-        for a in range(6):
-            g[a] += wgt * r * J[a]
-            for b in range(a, 6):
-                H[a, b] += wgt * J[a] * J[b]
+        twist_row(J, x0, x1, x2, c, m0, m1, m2)
+        add_huber(H, g, J, r, sigma0 + sigma_z2 * x2 * x2, huber_k, 1.0)
         absr[n_valid] = abs(r)
         n_valid += 1
     for a in range(6):

@@ -33,6 +33,7 @@ import numba as nb
 import numpy as np
 
 from tracker.geometry.camera import Intrinsics
+from tracker.refine.normal_equations import add_huber, twist_row
 from tracker.refine.surface_render import SurfaceRender
 
 
@@ -138,19 +139,8 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
         e0 = du * fx / x2
         e1 = dv * fy / x2
         e2 = -(du * fx * x0 + dv * fy * x1) / (x2 * x2)
-        a0, a1, a2 = x0 - c[0], x1 - c[1], x2 - c[2]
-        J[0] = a1 * e2 - a2 * e1
-        J[1] = a2 * e0 - a0 * e2
-        J[2] = a0 * e1 - a1 * e0
-        J[3] = e0
-        J[4] = e1
-        J[5] = e2
-        rs = abs(r) / sigma
-        wgt = (1.0 if rs <= huber_k else huber_k / rs) * weight / (sigma * sigma)
-        for p in range(6):
-            g[p] += wgt * r * J[p]
-            for q in range(p, 6):
-                H[p, q] += wgt * J[p] * J[q]
+        twist_row(J, x0, x1, x2, c, e0, e1, e2)
+        add_huber(H, g, J, r, sigma, huber_k, weight)
         n += 1
     for p in range(6):
         for q in range(p):
