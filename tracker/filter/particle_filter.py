@@ -241,7 +241,7 @@ class MultiObjectTracker:
         state.resampled = passes.n_resampled
         hidden_parts.update_rest_anchors(self, detected)
         tg = time.perf_counter()
-        refine_stage.refine(self, state, ctx.refine_depth, detections, ctx.table)
+        refine_stage.refine(self, state, ctx.refine_depth, detections, ctx.table, ctx.depth)
         ctx.timings["refine"] = (time.perf_counter() - tg) * 1e3
         predict.update_velocities(self, state.poses, detected & ~self._rest_on & ~self._carry.carried)
         if self.config.carry_follow:

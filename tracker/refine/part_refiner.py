@@ -84,7 +84,8 @@ class PartRefiner:
         return (u0, v0, u1, v1)
 
     def refine_one(self, depth: np.ndarray, obj: int, R: np.ndarray, t: np.ndarray,
-                   allowed: np.ndarray | None = None, outline: np.ndarray | None = None) -> RefineResult:
+                   allowed: np.ndarray | None = None, outline: np.ndarray | None = None,
+                   frame_depth: np.ndarray | None = None) -> RefineResult:
         """Refine part ``obj`` alone from the pose ``(R, t)`` (rendered without the other parts): used to try
         several starting poses when a part is re-acquired (:mod:`tracker.refine.recovery`)."""
         poses = [None] * len(self.shapes)
@@ -95,11 +96,11 @@ class PartRefiner:
         render = render_surfaces(self.intrinsics, self.shapes, poses, rect, self.stride)
         pts, nrm = render.points_of(obj, self.intrinsics)
         R0, t0 = poses[obj]
-        region = self._region(poses, obj, outline)
+        region = self._region(poses, obj, outline, depth if frame_depth is None else frame_depth)
         return refine_pose(depth, self.intrinsics, (pts - t0) @ R0, nrm @ R0, R0, t0, self.centers[obj],
                            self.settings, allowed, region)
 
-    def _region(self, poses: list, obj: int, outline: np.ndarray | None):
+    def _region(self, poses: list, obj: int, outline: np.ndarray | None, frame_depth: np.ndarray):
         """Silhouette term of part ``obj`` (None without an outline or with the term off). Its outline is taken
         from a render at full resolution over the part's own rectangle (every part drawn, so that an outline
         against a part in front is not used): at the true pose the rendered and the detected blob then cover the
@@ -125,7 +126,7 @@ class PartRefiner:
             return body_outline(render, obj, R, t, self.intrinsics, cfg.max_points)
 
         render = render_surfaces(self.intrinsics, self.shapes, poses, rect, 1)
-        return region_term(render, obj, R0, t0, outline, self.intrinsics, rect, cfg, outline_at)
+        return region_term(render, obj, R0, t0, outline, self.intrinsics, rect, cfg, outline_at, frame_depth)
 
     def correction(self, R0: np.ndarray, t0: np.ndarray, res: RefineResult) -> Correction:
         """The correction that takes the pose ``(R0, t0)`` to the refined one."""
@@ -134,10 +135,12 @@ class PartRefiner:
 
     def refine(self, depth: np.ndarray, poses: list, active: list[bool],
                allowed: list[np.ndarray | None] | None = None,
-               outlines: list[np.ndarray | None] | None = None) -> list[Correction | None]:
+               outlines: list[np.ndarray | None] | None = None,
+               frame_depth: np.ndarray | None = None) -> list[Correction | None]:
         """Refine the ``active`` parts at ``poses[k] = (R, t)`` (None: part not rendered, e.g. not tracked) against
         ``depth``; ``allowed[k]``: optional H×W mask of the pixels part k may claim; ``outlines[k]``: optional
-        polygon of part k's colour blob for the silhouette term (:mod:`tracker.refine.region_term`). Returns per
+        polygon of part k's colour blob for the silhouette term (:mod:`tracker.refine.region_term`), which tests
+        what hides an outline on ``frame_depth`` (``depth`` when None). Returns per
         part the accepted correction or None (inactive, not visible, not healthy or out of bounds; ``self.last``
         keeps each part's :class:`RefineResult` for loss detection and re-acquisition: a healthy one whose
         correction was out of bounds says so in its ``reason``)."""
@@ -156,7 +159,8 @@ class PartRefiner:
             nbody = nrm @ R0
             mask = None if allowed is None else allowed[i]
             res = refine_pose(depth, self.intrinsics, body, nbody, R0, t0, self.centers[i], self.settings,
-                              mask, self._region(poses, i, None if outlines is None else outlines[i]))
+                              mask, self._region(poses, i, None if outlines is None else outlines[i],
+                                                 depth if frame_depth is None else frame_depth))
             self.last[i] = res
             if not res.healthy:
                 continue

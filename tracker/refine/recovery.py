@@ -91,21 +91,22 @@ class LossMonitor:
 
 def reacquire(refiner: PartRefiner, depth: np.ndarray, obj: int, R: np.ndarray, t: np.ndarray,
               allowed: np.ndarray | None, starts: np.ndarray, current: RefineResult | None = None,
-              outline: np.ndarray | None = None, margin: float = 10.0) -> RefineResult | None:
+              outline: np.ndarray | None = None, frame_depth: np.ndarray | None = None,
+              margin: float = 10.0) -> RefineResult | None:
     """Best-supported refinement of part ``obj`` over the starting rotations ``starts`` (about its centre, applied
-    to ``(R, t)``; ``outline``: the blob's polygon for the silhouette term): the refinement from ``(R, t)`` itself
-    (``current`` when the caller has it already) unless another start's score beats it by ``margin``; None when no
-    start gives a healthy refinement."""
+    to ``(R, t)``; ``outline``: the blob's polygon for the silhouette term, ``frame_depth`` the depth on which it
+    tests occlusion): the refinement from ``(R, t)`` itself (``current`` when the caller has it already) unless
+    another start's score beats it by ``margin``; None when no start gives a healthy refinement."""
     R = np.asarray(R, np.float64)
     t = np.asarray(t, np.float64)
     c = R @ refiner.centers[obj] + t
     if current is None:
-        current = refiner.refine_one(depth, obj, R, t, allowed, outline)
+        current = refiner.refine_one(depth, obj, R, t, allowed, outline, frame_depth)
     best, best_score = (current, current.score) if current.healthy else (None, -np.inf)
     for S in starts[1:]:
         Rs = S @ R
         ts = c - Rs @ refiner.centers[obj]
-        res = refiner.refine_one(depth, obj, Rs, ts, allowed, outline)
+        res = refiner.refine_one(depth, obj, Rs, ts, allowed, outline, frame_depth)
         if res.healthy and res.score > best_score + margin:
             best, best_score = res, res.score
     return best

@@ -27,12 +27,14 @@ if TYPE_CHECKING:
     from tracker.filter.particle_filter import MultiObjectTracker, TrackerState
 
 
-def refine(trk: MultiObjectTracker, state: TrackerState, depth, detections, table) -> None:
-    """Refine ``state``'s poses in place (and the tracker's particles) as the settings say (module docstring)."""
+def refine(trk: MultiObjectTracker, state: TrackerState, depth, detections, table, frame_depth=None) -> None:
+    """Refine ``state``'s poses in place (and the tracker's particles) as the settings say (module docstring).
+    ``depth``: the depth to refine on (occluder pixels such as a hand's removed); ``frame_depth``: the frame's own
+    depth, with which the silhouette term sees what hides a part's outline (``depth`` when None)."""
     cfg = trk.config
     if cfg.dense_refinement and depth is not None:
         plane = table_normal_offset(table)
-        dense_refine(trk, state, depth, detections, None if plane is None else plane[0])
+        dense_refine(trk, state, depth, detections, None if plane is None else plane[0], frame_depth)
     elif cfg.icp_refinement:
         icp_refine_parts(trk, state, depth, detections, table)
 
@@ -103,7 +105,7 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
 
 
 def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray, detections,
-                 up: np.ndarray | None = None) -> None:
+                 up: np.ndarray | None = None, frame_depth: np.ndarray | None = None) -> None:
     """Dense-depth refinement of every visible part (:mod:`tracker.refine.part_refiner`) and re-acquisition of
     lost or just released parts (:mod:`tracker.refine.recovery`); the particles move with each accepted
     correction. A coloured part is refined only on the pixels of its colour blob (hands and other parts left out)
@@ -127,7 +129,7 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         allowed.append(mask)
         visible.append(seen)
         outlines.append(None if mask is None else getattr(detections.get(name), "contour", None))
-    corrections = trk._refiner.refine(depth, poses, active, allowed, outlines)
+    corrections = trk._refiner.refine(depth, poses, active, allowed, outlines, frame_depth)
     carried = np.asarray(trk._carry.carried, bool).copy()
     released = trk._was_carried & ~carried
     trk._was_carried = carried
@@ -147,7 +149,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
             starts = CUBE_STARTS if trk.parts[i].box is not None else MESH_STARTS
             if up is not None and trk.parts[i].box is not None:
                 starts = np.concatenate([starts, turns_about(up, CUBE_TURNS_DEG)])
-            found = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts, current, outlines[i])
+            found = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts, current, outlines[i],
+                              frame_depth)
             if current is None and res is not None and res.healthy and (found is None or res.score >= found.score):
                 found = res
             res = found

@@ -228,6 +228,9 @@ class RegionTerm:
     """Optional: body-frame outline points at a pose ``(R, t)``; called at every update so the outline pixels are
     the current pose's own (points carried over from the start pose drift off the outline by up to a pixel as the
     part turns, which biases the optimum)."""
+    frame_depth: np.ndarray | None = None
+    """Optional: the depth image to test what hides the outline on, in place of the one passed to
+    :meth:`normal_equations` (which may have occluder pixels removed: a hand's pixels must still count as in front)."""
     """Distance (px) of a rendered outline pixel's centre inside the outline: s/2 for a render of stride s (the
     edge lies between it and the next grid pixel out; exact for s = 1, where blob and render share pixels)."""
 
@@ -243,7 +246,8 @@ class RegionTerm:
         f = self.sdf
         return _accumulate(np.ascontiguousarray(self.points, np.float64), np.ascontiguousarray(R, np.float64),
                            np.ascontiguousarray(t, np.float64), np.ascontiguousarray(c, np.float64), f.d, f.gu, f.gv,
-                           float(f.u0), float(f.v0), depth, intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                           float(f.u0), float(f.v0), depth if self.frame_depth is None else self.frame_depth,
+                           intrinsics.fx, intrinsics.fy, intrinsics.cx,
                            intrinsics.cy, float(self.inset), cfg.occlusion_m, cfg.max_px, cfg.sigma_px, cfg.huber_k,
                            cfg.weight)
 
@@ -260,10 +264,11 @@ def body_outline(render: SurfaceRender, obj: int, R: np.ndarray, t: np.ndarray, 
 
 def region_term(render: SurfaceRender, obj: int, R: np.ndarray, t: np.ndarray, outline: np.ndarray | None,
                 intrinsics: Intrinsics, rect: tuple[int, int, int, int], settings: RegionSettings,
-                outline_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> RegionTerm | None:
+                outline_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+                frame_depth: np.ndarray | None = None) -> RegionTerm | None:
     """The silhouette term of part ``obj`` rendered at ``(R, t)`` against its colour blob's ``outline`` (polygon,
     (N, 2) image pixels), or None without a blob or a rendered outline. ``outline_at``: see
-    :attr:`RegionTerm.outline_at`."""
+    :attr:`RegionTerm.outline_at`; ``frame_depth``: :attr:`RegionTerm.frame_depth`."""
     if outline is None:
         return None
     pts = body_outline(render, obj, R, t, intrinsics, settings.max_points)
@@ -272,4 +277,5 @@ def region_term(render: SurfaceRender, obj: int, R: np.ndarray, t: np.ndarray, o
     sdf = SignedDistance.of_outline(outline, rect, (intrinsics.height, intrinsics.width))
     if sdf is None:
         return None
-    return RegionTerm(pts, sdf, settings, 0.5 * render.stride, outline_at)
+    return RegionTerm(pts, sdf, settings, 0.5 * render.stride, outline_at,
+                      None if frame_depth is None else np.ascontiguousarray(frame_depth, np.float32))
