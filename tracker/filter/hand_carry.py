@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
 
 
@@ -150,7 +151,7 @@ class HandCarry:
                                                          cfg.carry_max_step, self.last_step[i])
             # the motion about the patch centroid c: x' = Rw (x - c) + c + t
             c = self.patches[i].mean(axis=0)
-            Rw = rotvec_matrix(w)
+            Rw = _rot(w)
             rot[i] = Rw
             delta[i] = c + t - Rw @ c
             self.last_step[i], self.last_turn[i] = t, w
@@ -229,17 +230,6 @@ def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_
     return best if norm <= max_step else best * (max_step / norm)
 
 
-def rotvec_matrix(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix (3, 3) of the rotation vector ``w`` (rad; Rodrigues)."""
-    w = np.asarray(w, np.float64)
-    th = float(np.linalg.norm(w))
-    if th < 1e-12:
-        return np.eye(3)
-    k = w / th
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
-
-
 def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float, max_turn: float,
                    guess: tuple[np.ndarray, np.ndarray] | None = None,
                    axis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -269,7 +259,7 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
     for w, t in starts:
         w, t = w.copy(), t.copy()
         for _ in range(max(iterations, 1)):
-            moved = rel @ rotvec_matrix(w).T + c + t
+            moved = rel @ _rot(w).T + c + t
             d, j = tree.query(moved, distance_upper_bound=0.02)
             ok = np.isfinite(d)
             if ok.sum() < 6:
@@ -288,11 +278,11 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
             A[nr:, nr:] += 1e-3 * np.trace(A[nr:, nr:]) * np.eye(3)
             x = np.linalg.solve(A, J.T @ r)
             dw = x[0] * axis if axis is not None else x[:3]
-            w = _compose_rotvec(dw, w)
+            w = _rotvec(_rot(dw) @ _rot(w))
             t = t + x[nr:]
             if np.linalg.norm(x[nr:]) < 5e-5 and np.linalg.norm(dw) < 1e-4:
                 break
-        d, _ = tree.query(rel @ rotvec_matrix(w).T + c + t)
+        d, _ = tree.query(rel @ _rot(w).T + c + t)
         cost = float(np.mean(np.minimum(d, 0.02)))
         if cost < best_cost:
             best, best_cost = (w, t), cost
@@ -305,8 +295,13 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
     return w, t
 
 
-def _compose_rotvec(dw: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Rotation vector of R(dw) R(w)."""
+def _rot(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) of one rotation vector (rad)."""
+    return rotvec_to_matrix(w)[0]
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (rad) of one rotation matrix."""
     from scipy.spatial.transform import Rotation
 
-    return (Rotation.from_rotvec(dw) * Rotation.from_rotvec(w)).as_rotvec()
+    return Rotation.from_matrix(R).as_rotvec()

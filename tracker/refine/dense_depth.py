@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numba as nb
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
 from tracker.refine.normal_equations import add_huber, twist_row
 from tracker.refine.region_term import RegionTerm
@@ -227,7 +227,7 @@ def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: 
                 return 1, info, n_valid, n_obs, med
             Hr, gr, _ = region.normal_equations(R, t, c, dep, intrinsics)
             xi = -np.linalg.solve(info + Hr + prior, g + gr)
-            Rw = Rotation.from_rotvec(xi[:3]).as_matrix()
+            Rw = rotvec_to_matrix(xi[:3])[0]
             t[:] = c + Rw @ (t - c) + xi[3:]
             R[:] = Rw @ R
             if np.linalg.norm(xi) < cfg.stop_step:

@@ -125,8 +125,7 @@ class PartRefiner:
             render = render_surfaces(self.intrinsics, self.shapes, moved, rect, 1)
             return body_outline(render, obj, R, t, self.intrinsics, cfg.max_points)
 
-        render = render_surfaces(self.intrinsics, self.shapes, poses, rect, 1)
-        return region_term(render, obj, R0, t0, outline, self.intrinsics, rect, cfg, outline_at, frame_depth)
+        return region_term(outline_at, R0, t0, outline, self.intrinsics, rect, cfg, 1, frame_depth)
 
     def correction(self, R0: np.ndarray, t0: np.ndarray, res: RefineResult) -> Correction:
         """The correction that takes the pose ``(R0, t0)`` to the refined one."""

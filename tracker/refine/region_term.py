@@ -186,34 +186,6 @@ class SignedDistance:
         gv, gu = np.gradient(d)
         return cls(u0, v0, d, gu, gv)
 
-    @classmethod
-    def of_mask(cls, mask: np.ndarray, rect: tuple[int, int, int, int], margin: int = 16) -> SignedDistance | None:
-        """Of the full-image bool ``mask`` over ``rect = (u0, v0, u1, v1)`` widened by ``margin`` px; None when the
-        crop holds no blob pixel or no background pixel."""
-        h, w = mask.shape
-        u0, v0 = max(rect[0] - margin, 0), max(rect[1] - margin, 0)
-        u1, v1 = min(rect[2] + margin, w), min(rect[3] + margin, h)
-        if u0 >= u1 or v0 >= v1:
-            return None
-        return cls._of_crop(np.ascontiguousarray(mask[v0:v1, u0:u1], np.uint8), u0, v0)
-
-    def sample(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Bilinearly interpolated (distance, grad u, grad v) at image pixels (u, v) and whether each lies inside
-        the crop (sub-pixel residuals: nearest-pixel sampling would stall the updates within half a pixel)."""
-        fu = u - self.u0
-        fv = v - self.v0
-        h, w = self.d.shape
-        ok = (fu >= 0) & (fu <= w - 1) & (fv >= 0) & (fv <= h - 1)
-        fu, fv = np.where(ok, fu, 0.0), np.where(ok, fv, 0.0)
-        i0 = np.minimum(np.floor(fu).astype(np.int64), w - 2)
-        j0 = np.minimum(np.floor(fv).astype(np.int64), h - 2)
-        a, b = fu - i0, fv - j0
-        out = []
-        for img in (self.d, self.gu, self.gv):
-            out.append((1 - a) * (1 - b) * img[j0, i0] + a * (1 - b) * img[j0, i0 + 1]
-                       + (1 - a) * b * img[j0 + 1, i0] + a * b * img[j0 + 1, i0 + 1])
-        return out[0], out[1], out[2], ok
-
 
 @dataclass
 class RegionTerm:
@@ -225,22 +197,24 @@ class RegionTerm:
     settings: RegionSettings
     inset: float = 0.0
     outline_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
-    """Optional: body-frame outline points at a pose ``(R, t)``; called at every update so the outline pixels are
-    the current pose's own (points carried over from the start pose drift off the outline by up to a pixel as the
-    part turns, which biases the optimum)."""
+    """Optional: body-frame outline points at a pose ``(R, t)``; called whenever the pose has changed, so the outline
+    pixels are the current pose's own (points carried over from the start pose drift off the outline by up to a pixel
+    as the part turns, which biases the optimum)."""
     frame_depth: np.ndarray | None = None
     """Optional: the depth image to test what hides the outline on, in place of the one passed to
     :meth:`normal_equations` (which may have occluder pixels removed: a hand's pixels must still count as in front)."""
-    """Distance (px) of a rendered outline pixel's centre inside the outline: s/2 for a render of stride s (the
-    edge lies between it and the next grid pixel out; exact for s = 1, where blob and render share pixels)."""
+    pose: tuple[np.ndarray, np.ndarray] | None = None
+    """The pose ``points`` were extracted at."""
 
     def normal_equations(self, R: np.ndarray, t: np.ndarray, c: np.ndarray, depth: np.ndarray,
                          intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray, int]:
         """``H`` (6, 6), ``g`` (6) of the weighted silhouette residuals at pose ``(R, t)`` (twist about the
         camera-frame centre ``c``) and the number of paired contour points."""
         cfg = self.settings
-        if self.outline_at is not None:
+        if self.outline_at is not None and not (
+                self.pose is not None and np.array_equal(self.pose[0], R) and np.array_equal(self.pose[1], t)):
             pts = self.outline_at(R, t)
+            self.pose = (np.array(R, np.float64), np.array(t, np.float64))
             if pts.shape[0] >= 8:
                 self.points = pts
         f = self.sdf
@@ -262,20 +236,20 @@ def body_outline(render: SurfaceRender, obj: int, R: np.ndarray, t: np.ndarray, 
     return (pts - t) @ R
 
 
-def region_term(render: SurfaceRender, obj: int, R: np.ndarray, t: np.ndarray, outline: np.ndarray | None,
-                intrinsics: Intrinsics, rect: tuple[int, int, int, int], settings: RegionSettings,
-                outline_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-                frame_depth: np.ndarray | None = None) -> RegionTerm | None:
-    """The silhouette term of part ``obj`` rendered at ``(R, t)`` against its colour blob's ``outline`` (polygon,
-    (N, 2) image pixels), or None without a blob or a rendered outline. ``outline_at``: see
-    :attr:`RegionTerm.outline_at`; ``frame_depth``: :attr:`RegionTerm.frame_depth`."""
+def region_term(outline_at: Callable[[np.ndarray, np.ndarray], np.ndarray], R: np.ndarray, t: np.ndarray,
+                outline: np.ndarray | None, intrinsics: Intrinsics, rect: tuple[int, int, int, int],
+                settings: RegionSettings, stride: int = 1, frame_depth: np.ndarray | None = None) -> RegionTerm | None:
+    """The silhouette term of a part at ``(R, t)`` against its colour blob's ``outline`` (polygon, (N, 2) image
+    pixels), or None without a blob or a rendered outline. ``outline_at``: :attr:`RegionTerm.outline_at` (renders of
+    stride ``stride``); ``frame_depth``: :attr:`RegionTerm.frame_depth`."""
     if outline is None:
         return None
-    pts = body_outline(render, obj, R, t, intrinsics, settings.max_points)
+    pts = outline_at(R, t)
     if pts.shape[0] < 8:
         return None
     sdf = SignedDistance.of_outline(outline, rect, (intrinsics.height, intrinsics.width))
     if sdf is None:
         return None
-    return RegionTerm(pts, sdf, settings, 0.5 * render.stride, outline_at,
-                      None if frame_depth is None else np.ascontiguousarray(frame_depth, np.float32))
+    return RegionTerm(pts, sdf, settings, 0.5 * stride, outline_at,
+                      None if frame_depth is None else np.ascontiguousarray(frame_depth, np.float32),
+                      (np.array(R, np.float64), np.array(t, np.float64)))
