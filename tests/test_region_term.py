@@ -11,9 +11,9 @@ from tracker.geometry.box_renderer import render_box_depth
 from tracker.geometry.camera import Intrinsics
 from tracker.geometry.pose import Pose
 from tracker.geometry.symmetry import cube_group, symmetric_rotation_error
-from tracker.refine.dense_depth import RefineSettings
+from tracker.refine.dense_depth import RefineSettings, refine_pose
 from tracker.refine.part_refiner import PartRefiner
-from tracker.refine.region_term import RegionSettings, SignedDistance, contour_points
+from tracker.refine.region_term import OutlineScene, RegionSettings, SignedDistance, body_outline, contour_points
 from tracker.refine.surface_render import render_surfaces
 
 INTR = Intrinsics(320, 240, 300.0, 300.0, 159.5, 119.5)
@@ -85,3 +85,68 @@ def test_the_outline_recovers_a_turn_that_depth_alone_cannot_see():
     assert err_depth > 6.0  # the face's plane does not tell the turn
     assert err_outline < 0.6, err_outline
     assert np.linalg.norm(with_outline.t - truth.t) < 0.002
+
+
+def _random_scene(rng: np.random.Generator):
+    """Two boxes and a small tetrahedron mesh at random poses in front of the camera (body → camera)."""
+    tet_v = np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.05, 0.0], [0.0, 0.0, 0.05]]) - 0.0125
+    tet_f = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], np.int64)
+    shapes = [SHAPE, ("mesh", tet_v, tet_f), ("box", np.array([0.003, 0.0, -0.002]), np.array([0.03, 0.015, 0.02]))]
+    poses = []
+    for _ in shapes:
+        R = Rotation.from_rotvec(rng.normal(0.0, 1.0, 3)).as_matrix()
+        t = np.array([rng.uniform(-0.04, 0.04), rng.uniform(-0.04, 0.04), rng.uniform(0.35, 0.5)])
+        poses.append((R, t))
+    return shapes, poses
+
+
+def test_numba_outline_matches_the_render_and_contour_reference():
+    """:class:`OutlineScene` (numba: render, outline pixels, thinning, body frame) gives the points of
+    ``body_outline(render_surfaces(...))`` at stride 1, with the other parts drawn where they are or left out."""
+    rng = np.random.default_rng(7)
+    rect = (60, 20, 260, 220)
+    for trial in range(12):
+        shapes, poses = _random_scene(rng)
+        if trial % 3 == 2:
+            poses[2] = None  # a part not drawn
+        obj = trial % 2
+        max_points = (200, 37, 5)[trial % 3]
+        scene = OutlineScene.of(shapes, poses, obj, rect, max_points)
+        R = poses[obj][0] @ Rotation.from_rotvec(rng.normal(0.0, 0.05, 3)).as_matrix()
+        t = poses[obj][1] + rng.normal(0.0, 0.003, 3)
+        moved = list(poses)
+        moved[obj] = (R, t)
+        ref = body_outline(render_surfaces(INTR, shapes, moved, rect, 1), obj, R, t, INTR, max_points)
+        got = scene.outline_at(R, t, INTR)
+        assert ref.shape[0] > 0
+        assert got.shape == ref.shape
+        assert np.allclose(got, ref, rtol=0.0, atol=1e-12)
+
+
+def test_numba_region_loop_matches_the_python_loop():
+    """The refinement with the silhouette term gives the same pose whether its Gauss-Newton loop runs in numba
+    (the term carries an :class:`OutlineScene`) or in Python (the term's ``outline_at`` callable only)."""
+    rng = np.random.default_rng(3)
+    truth = face_on(12.0)
+    depth = render_box_depth(INTR, [truth], [(EDGE, EDGE, EDGE)]).astype(np.float32)
+    depth[~np.isfinite(depth)] = 0.62
+    depth += rng.normal(0.0, 0.0005, depth.shape).astype(np.float32)
+    outline = outline_of(truth)
+    for yaw in (4.0, 9.0, 15.0):
+        start = face_on(yaw)
+        start = Pose.from_rt(start.R, start.t + rng.normal(0.0, 0.002, 3))
+        ref = refiner(True)
+        region = ref._region([(start.R, start.t)], 0, outline, depth)
+        assert region is not None and region.scene is not None
+        render = render_surfaces(INTR, [SHAPE], [(start.R, start.t)], ref._rect([(start.R, start.t)]), ref.stride)
+        pts, nrm = render.points_of(0, INTR)
+        body, nbody = (pts - start.t) @ start.R, nrm @ start.R
+        fast = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region)
+        region_py = ref._region([(start.R, start.t)], 0, outline, depth)
+        region_py.scene = None
+        slow = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region_py)
+        assert fast.healthy and slow.healthy
+        assert fast.n_valid == slow.n_valid
+        assert np.allclose(fast.t, slow.t, rtol=0.0, atol=1e-10)
+        assert np.allclose(fast.R, slow.R, rtol=0.0, atol=1e-10)
+        assert yaw_error(fast.R, truth) < 1.0

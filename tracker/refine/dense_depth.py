@@ -27,7 +27,8 @@ import numpy as np
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
 from tracker.refine.normal_equations import add_huber, twist_row
-from tracker.refine.region_term import RegionTerm
+from tracker.refine.region_term import RegionTerm, _scene_outline
+from tracker.refine.region_term import _accumulate as _region_accumulate
 
 
 @dataclass(frozen=True)
@@ -210,6 +211,83 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
     return 0, H, n_valid, n_obs, med
 
 
+@nb.njit(cache=True)
+def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy,
+                         cx, cy, sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step,
+                         rpts, rR, rt, sd, gu, gv, su0, sv0, fdepth, inset, r_occ, r_max_px, r_sigma, r_huber, r_weight,
+                         kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, rect, r_max_points):
+    """:func:`_gauss_newton_with_region` in numba for a silhouette term whose outline comes from an
+    :class:`~tracker.refine.region_term.OutlineScene` (its arrays, then the term's: contour points ``rpts`` extracted
+    at ``(rR, rt)``, the blob's signed distance ``sd``, ``gu``, ``gv`` with crop origin ``(su0, sv0)``, the depth
+    ``fdepth`` that tells what hides the outline, and the settings). The same steps as the Python loop: the outline
+    is re-extracted whenever the pose differs from the one its points came from (kept when fewer than 8 points),
+    the update solves ``(H + H_r + Λ) ξ = −(g + g_r)`` and turns by Rodrigues' formula of
+    :func:`~tracker.filter.motion_model.rotvec_to_matrix`. Updates ``R``, ``t`` in place; same return values as
+    :func:`_gauss_newton`."""
+    c = np.empty(3)
+    H = np.zeros((6, 6))
+    n_valid, n_obs, med = 0, 0, np.nan
+    pose_R = rR.copy()
+    pose_t = rt.copy()
+    cur = rpts
+    Rw = np.empty((3, 3))
+    K = np.empty((3, 3))
+    for thr in thresholds:
+        for _ in range(updates):
+            for a in range(3):
+                c[a] = R[a, 0] * center[0] + R[a, 1] * center[1] + R[a, 2] * center[2] + t[a]
+            H, g, n_valid, n_obs, med, _nb = _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
+                                                         occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k, behind)
+            if n_valid < min_points:
+                return 1, H, n_valid, n_obs, med
+            same = True
+            for a in range(3):
+                if t[a] != pose_t[a]:
+                    same = False
+                for b in range(3):
+                    if R[a, b] != pose_R[a, b]:
+                        same = False
+            if not same:
+                fresh = _scene_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, R, t, rect,
+                                       fx, fy, cx, cy, r_max_points)
+                pose_R[:, :] = R
+                pose_t[:] = t
+                if fresh.shape[0] >= 8:
+                    cur = fresh
+            Hr, gr, _nr = _region_accumulate(cur, R, t, c, sd, gu, gv, su0, sv0, fdepth, fx, fy, cx, cy, inset,
+                                             r_occ, r_max_px, r_sigma, r_huber, r_weight)
+            A = H + Hr
+            for a in range(3):
+                A[a, a] += lambda_rot
+                A[a + 3, a + 3] += lambda_trans
+            xi, ok = _solve_spd6(A, -(g + gr))
+            if not ok:
+                return 2, H, n_valid, n_obs, med
+            w0, w1, w2 = xi[0], xi[1], xi[2]
+            th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            if th < 1e-9:
+                fa = 1.0 - th**2 / 6.0
+                fb = 0.5 - th**2 / 24.0
+            else:
+                fa = np.sin(th) / th
+                fb = (1.0 - np.cos(th)) / th**2
+            K[0, 0], K[0, 1], K[0, 2] = 0.0, -w2, w1
+            K[1, 0], K[1, 1], K[1, 2] = w2, 0.0, -w0
+            K[2, 0], K[2, 1], K[2, 2] = -w1, w0, 0.0
+            for a in range(3):
+                for b in range(3):
+                    kk = K[a, 0] * K[0, b] + K[a, 1] * K[1, b] + K[a, 2] * K[2, b]
+                    Rw[a, b] = (1.0 if a == b else 0.0) + fa * K[a, b] + fb * kk
+            d0, d1, d2 = t[0] - c[0], t[1] - c[1], t[2] - c[2]
+            for a in range(3):
+                t[a] = c[a] + (Rw[a, 0] * d0 + Rw[a, 1] * d1 + Rw[a, 2] * d2) + xi[3 + a]
+            Rn = Rw @ R
+            R[:, :] = Rn
+            if np.sqrt(np.sum(xi * xi)) < stop_step:
+                break
+    return 0, H, n_valid, n_obs, med
+
+
 def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: RefineSettings, behind: float,
                               intrinsics: Intrinsics, region: RegionTerm):
     """:func:`_gauss_newton` with the silhouette term's normal equations added to every update (a Python loop: the
@@ -276,6 +354,19 @@ def refine_pose(
             pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
             int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k,
             behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step)
+    elif region.scene is not None:
+        sc, f, rs = region.scene, region.sdf, region.settings
+        if not (region.pose is not None and region.outline_at is not None):
+            raise ValueError("a silhouette term with an outline scene needs its start pose and outline_at")
+        status, info, n_valid, n_observable, med = _gauss_newton_region(
+            pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
+            int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k,
+            behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step,
+            np.ascontiguousarray(region.points, np.float64), np.ascontiguousarray(region.pose[0], np.float64),
+            np.ascontiguousarray(region.pose[1], np.float64), f.d, f.gu, f.gv, float(f.u0), float(f.v0),
+            dep if region.frame_depth is None else region.frame_depth, float(region.inset), rs.occlusion_m,
+            rs.max_px, rs.sigma_px, rs.huber_k, rs.weight, sc.kinds, sc.Rs, sc.ts, sc.centers, sc.halves, sc.verts,
+            sc.faces, sc.voff, sc.foff, sc.obj, sc.rect, sc.max_points)
     else:
         status, info, n_valid, n_observable, med = _gauss_newton_with_region(
             pts, nrm, R, t, center, dep, mask, allowed is not None, cfg, behind, intrinsics, region)

@@ -15,7 +15,7 @@ import numpy as np
 
 from tracker.geometry.camera import Intrinsics
 from tracker.refine.dense_depth import RefineResult, RefineSettings, refine_pose
-from tracker.refine.region_term import RegionSettings, body_outline, region_term
+from tracker.refine.region_term import OutlineScene, RegionSettings, pack_shapes, region_term
 from tracker.refine.surface_render import render_surfaces
 
 
@@ -61,6 +61,7 @@ class PartRefiner:
         self.max_rotation = float(max_rotation)
         self.region = region  # silhouette term against the colour blob (None = depth only)
         self.last: list[RefineResult | None] = [None] * len(shapes)
+        self._packed = pack_shapes(shapes)  # the shapes as the numba outline renderer takes them
 
     def _rect(self, poses: list) -> tuple[int, int, int, int] | None:
         intr = self.intrinsics
@@ -119,13 +120,15 @@ class PartRefiner:
         rect = (max(u0 - pad, 0), max(v0 - pad, 0), min(u1 + pad, self.intrinsics.width),
                 min(v1 + pad, self.intrinsics.height))
 
-        def outline_at(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-            moved = list(poses)
-            moved[obj] = (R, t)
-            render = render_surfaces(self.intrinsics, self.shapes, moved, rect, 1)
-            return body_outline(render, obj, R, t, self.intrinsics, cfg.max_points)
+        scene = OutlineScene.of(self.shapes, poses, obj, rect, cfg.max_points, self._packed)
 
-        return region_term(outline_at, R0, t0, outline, self.intrinsics, rect, cfg, 1, frame_depth)
+        def outline_at(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+            return scene.outline_at(R, t, self.intrinsics)
+
+        term = region_term(outline_at, R0, t0, outline, self.intrinsics, rect, cfg, 1, frame_depth)
+        if term is not None:
+            term.scene = scene
+        return term
 
     def correction(self, R0: np.ndarray, t0: np.ndarray, res: RefineResult) -> Correction:
         """The correction that takes the pose ``(R0, t0)`` to the refined one."""

@@ -34,7 +34,7 @@ import numpy as np
 
 from tracker.geometry.camera import Intrinsics
 from tracker.refine.normal_equations import add_huber, twist_row
-from tracker.refine.surface_render import SurfaceRender
+from tracker.refine.surface_render import SurfaceRender, _render_box, _render_mesh
 
 
 @dataclass(frozen=True)
@@ -91,6 +91,124 @@ def contour_points(render: SurfaceRender, obj: int, intrinsics: Intrinsics) -> n
     u = render.u0 + ii * render.stride
     v = render.v0 + jj * render.stride
     return np.stack([(u - intrinsics.cx) / intrinsics.fx * d, (v - intrinsics.cy) / intrinsics.fy * d, d], axis=1)
+
+
+@nb.njit(cache=True)
+def _scene_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, R, t, rect, fx, fy, cx, cy,
+                   max_points):
+    """Body-frame outline points of part ``obj`` at pose ``(R, t)``, every other drawn part at ``(Rs[k], ts[k])``:
+    the full-resolution render over ``rect = (u0, v0, u1, v1)`` (:func:`~tracker.refine.surface_render.render_surfaces`
+    at stride 1), its outline pixels (:func:`_outline_pixels`), their surface points, evenly thinned to at most
+    ``max_points`` (as ``np.linspace(0, C − 1, max_points).round()`` picks them). The numba form of
+    :func:`body_outline` of such a render; ``kinds[k]``: 0 box (``centers``, ``halves``), 1 mesh (vertices
+    ``verts[voff[k]:voff[k+1]]``, faces ``faces[foff[k]:foff[k+1]]`` indexing them), −1 not drawn."""
+    u0, v0, u1, v1 = rect[0], rect[1], rect[2], rect[3]
+    nu = max(u1 - u0, 0)
+    nv = max(v1 - v0, 0)
+    zbuf = np.full((nv, nu), np.inf)
+    label = np.full((nv, nu), -1, np.int32)
+    normal = np.zeros((nv, nu, 3))
+    if nu > 0 and nv > 0:
+        for k in range(kinds.shape[0]):
+            if kinds[k] < 0:
+                continue
+            Rk = R if k == obj else Rs[k]
+            tk = t if k == obj else ts[k]
+            if kinds[k] == 0:
+                _render_box(zbuf, label, normal, u0, v0, 1, fx, fy, cx, cy, Rk, tk, centers[k], halves[k], k)
+            else:
+                _render_mesh(zbuf, label, normal, u0, v0, 1, fx, fy, cx, cy, Rk, tk, verts[voff[k]:voff[k + 1]],
+                             faces[foff[k]:foff[k + 1]], k)
+    rows, cols = _outline_pixels(label, zbuf, obj)
+    n = rows.shape[0]
+    m = n
+    if n > max_points:
+        m = max_points
+    out = np.empty((m, 3))
+    step = (n - 1) / (max_points - 1) if max_points > 1 else 0.0
+    for a in range(m):
+        j = a
+        if n > max_points:
+            j = n - 1 if a == m - 1 and m > 1 else int(np.rint(a * step))
+        d = zbuf[rows[j], cols[j]]
+        p0 = (u0 + cols[j] - cx) / fx * d - t[0]
+        p1 = (v0 + rows[j] - cy) / fy * d - t[1]
+        p2 = d - t[2]
+        for b in range(3):
+            out[a, b] = p0 * R[0, b] + p1 * R[1, b] + p2 * R[2, b]
+    return out
+
+
+@dataclass
+class OutlineScene:
+    """Every part as :func:`_scene_outline` draws it, for the outline of part ``obj`` over ``rect``: the numba path of
+    the refinement's silhouette term (:func:`tracker.refine.dense_depth.refine_pose`) re-renders the outline
+    from this inside its Gauss-Newton loop. Arrays as :func:`_scene_outline` takes them; ``Rs``, ``ts`` the other
+    parts' poses (body → camera)."""
+
+    kinds: np.ndarray
+    Rs: np.ndarray
+    ts: np.ndarray
+    centers: np.ndarray
+    halves: np.ndarray
+    verts: np.ndarray
+    faces: np.ndarray
+    voff: np.ndarray
+    foff: np.ndarray
+    obj: int
+    rect: np.ndarray
+    max_points: int
+
+    @classmethod
+    def of(cls, shapes: list, poses: list, obj: int, rect: tuple[int, int, int, int], max_points: int,
+           packed: tuple | None = None) -> OutlineScene:
+        """From :func:`~tracker.refine.surface_render.render_surfaces`' ``shapes`` and ``poses`` (None: not drawn);
+        ``packed``: :func:`pack_shapes` of ``shapes`` when already made."""
+        kinds, centers, halves, verts, faces, voff, foff = packed if packed is not None else pack_shapes(shapes)
+        k = len(shapes)
+        kinds = kinds.copy()
+        Rs = np.zeros((k, 3, 3))
+        ts = np.zeros((k, 3))
+        for i, pose in enumerate(poses):
+            if pose is None:
+                kinds[i] = -1
+            else:
+                Rs[i], ts[i] = pose[0], pose[1]
+        return cls(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, int(obj),
+                   np.asarray(rect, np.int64).reshape(4), int(max_points))
+
+    def outline_at(self, R: np.ndarray, t: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+        """Body-frame outline points (C, 3) of part ``obj`` at ``(R, t)`` (the others where they are)."""
+        return _scene_outline(self.kinds, self.Rs, self.ts, self.centers, self.halves, self.verts, self.faces,
+                              self.voff, self.foff, self.obj, np.ascontiguousarray(R, np.float64),
+                              np.ascontiguousarray(t, np.float64), self.rect, intrinsics.fx, intrinsics.fy,
+                              intrinsics.cx, intrinsics.cy, self.max_points)
+
+
+def pack_shapes(shapes: list) -> tuple:
+    """The parts of :func:`~tracker.refine.surface_render.render_surfaces`' ``shapes`` as flat arrays for
+    :func:`_scene_outline`: kinds (K,), box centres and half extents (K, 3), the meshes' vertices and faces stacked,
+    with per-part offsets (K + 1,) into each."""
+    k = len(shapes)
+    kinds = np.zeros(k, np.int64)
+    centers = np.zeros((k, 3))
+    halves = np.zeros((k, 3))
+    verts, faces = [np.zeros((0, 3))], [np.zeros((0, 3), np.int64)]
+    voff = np.zeros(k + 1, np.int64)
+    foff = np.zeros(k + 1, np.int64)
+    for i, shape in enumerate(shapes):
+        nvert = nface = 0
+        if shape[0] == "box":
+            centers[i], halves[i] = shape[1], shape[2]
+        else:
+            kinds[i] = 1
+            verts.append(np.asarray(shape[1], np.float64))
+            faces.append(np.asarray(shape[2], np.int64))
+            nvert, nface = verts[-1].shape[0], faces[-1].shape[0]
+        voff[i + 1] = voff[i] + nvert
+        foff[i + 1] = foff[i] + nface
+    return (kinds, centers, halves, np.ascontiguousarray(np.concatenate(verts)),
+            np.ascontiguousarray(np.concatenate(faces)), voff, foff)
 
 
 @nb.njit(cache=True)
@@ -205,6 +323,9 @@ class RegionTerm:
     :meth:`normal_equations` (which may have occluder pixels removed: a hand's pixels must still count as in front)."""
     pose: tuple[np.ndarray, np.ndarray] | None = None
     """The pose ``points`` were extracted at."""
+    scene: OutlineScene | None = None
+    """Optional: the outline as :attr:`outline_at` gives it, in numba form (the refinement then runs its whole
+    Gauss-Newton loop in numba, :func:`tracker.refine.dense_depth.refine_pose`)."""
 
     def normal_equations(self, R: np.ndarray, t: np.ndarray, c: np.ndarray, depth: np.ndarray,
                          intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray, int]:
