@@ -188,68 +188,129 @@ class PenaltyTerms:
     """:func:`log_penalties` of the particles during one frame's coordinate passes, kept per part (colour term,
     lowest height above the table) and per pair of parts (intersection), so that a pass recomputes only the terms
     of the parts it moved; :meth:`take` follows a resampling. The sum is formed exactly as :func:`log_penalties`
-    forms it (same values)."""
+    forms it (same values; one numba kernel per call, :func:`_penalty_pass`)."""
 
     def __init__(self, trk: MultiObjectTracker, plane) -> None:
         cfg = trk.config
         self.trk = trk
         self.plane = plane
-        self.colour: dict[int, np.ndarray] = {}
+        n, k = cfg.n_particles, len(trk.parts)
+        targets = trk._color_targets
+        self.t_obj = np.array([int(t[0]) for t in targets], np.int64)
+        self.t_uv = np.array([np.asarray(t[1], np.float64)[:2] for t in targets], np.float64).reshape(-1, 2)
+        self.t_w = np.array([float(t[2]) for t in targets], np.float64)
+        self.colour = np.zeros((len(targets), n))  # colour term per target (row) and particle
+        self.t_done = np.zeros(len(targets), np.bool_)  # rows computed since the frame started
         self.use_pairs = bool(cfg.use_intersection_penalty and len(trk.pairs))
-        self.pair_flags: np.ndarray | None = None  # (N, M) bool per pair of trk.pairs
+        self.pair_flags = np.zeros((n, max(len(trk.pairs), 1)), np.bool_)  # (N, M) bool per pair of trk.pairs
         self.use_table = plane is not None and cfg.lambda_h > 0
-        self.heights: np.ndarray | None = None  # (N, K) lowest height of each part above the table
+        self.heights = np.zeros((n, k))  # (N, K) lowest height of each part above the table
+        self.half_min = np.array([float(h.min()) for h in trk.half], np.float64)
+        hulls = [np.ascontiguousarray(h, np.float64).reshape(-1, 3) for h in trk.hulls]
+        self.hull_off = np.zeros(k + 1, np.int64)
+        self.hull_off[1:] = np.cumsum([h.shape[0] for h in hulls])
+        self.hull_all = np.ascontiguousarray(np.concatenate(hulls)) if hulls else np.zeros((0, 3))
+        self.normal = np.zeros(3) if plane is None else np.asarray(plane[0], np.float64).reshape(3)
+        self.offset = 0.0 if plane is None else float(plane[1])
 
     def total(self, p: np.ndarray, R: np.ndarray, changed: set[int] | None = None) -> np.ndarray:
         """The penalties (N,) at positions ``p`` (N, K, 3), rotations ``R`` (N, K, 3, 3), where only the parts in
         ``changed`` moved since the last call (``None``: all, e.g. the first call of the frame)."""
         trk, cfg = self.trk, self.trk.config
         n, k = p.shape[0], p.shape[1]
-        fresh = changed is None
-        parts = range(k) if fresh else sorted(changed)
-        out = np.zeros(n)
-        if trk._color_targets:
-            intr = trk.intrinsics
-            sig2 = cfg.color_likelihood_px**2
-            for i, c, wgt in trk._color_targets:
-                if fresh or i in changed or i not in self.colour:
-                    ctr = np.einsum("nij,j->ni", R[:, i], trk.center[i]) + p[:, i]
-                    z = np.maximum(ctr[:, 2], 1e-3)
-                    du = intr.fx * ctr[:, 0] / z + intr.cx - c[0]
-                    dv = intr.fy * ctr[:, 1] / z + intr.cy - c[1]
-                    d2 = du * du + dv * dv
-                    if cfg.color_term_dead_zone > 0:
-                        r_in = cfg.color_term_dead_zone * float(trk.half[i].min()) * intr.fx / z
-                        d2 = np.maximum(np.sqrt(d2) - r_in, 0.0) ** 2
-                    self.colour[i] = 0.5 * wgt * np.minimum(d2, 9.0 * sig2) / sig2
-                out -= self.colour[i]
-        if self.use_pairs:
-            if fresh or self.pair_flags is None:
-                self.pair_flags = np.zeros((n, len(trk.pairs)), np.bool_)
-                cols = np.arange(len(trk.pairs), dtype=np.int64)
-            else:
-                moved = np.zeros(k, np.bool_)
-                moved[list(changed)] = True
-                cols = np.nonzero(moved[trk.pairs[:, 0]] | moved[trk.pairs[:, 1]])[0].astype(np.int64)
-            pair_intersections(R, p, trk.center, trk.half, trk.pairs, cols, float(cfg.contact_tolerance),
-                               self.pair_flags)
-            out += np.where(self.pair_flags.any(axis=1), np.log(cfg.lambda_i), 0.0)
-        if self.use_table:
-            if fresh or self.heights is None:
-                self.heights = np.empty((n, k))
-            normal, offset = self.plane
-            for i in parts:
-                self.heights[:, i] = lowest_heights(R[:, i:i + 1], p[:, i:i + 1], [trk.hulls[i]], normal, offset)
-            out += table_log_penalty(self.heights.min(axis=1), cfg.lambda_h, cfg.table_tolerance)
+        moved = np.ones(k, np.bool_)
+        if changed is not None:
+            moved[:] = False
+            moved[list(changed)] = True
+        intr = trk.intrinsics
+        out = np.empty(n)
+        _penalty_pass(np.ascontiguousarray(p, np.float64), np.ascontiguousarray(R, np.float64), moved,
+                      changed is None, self.t_obj, self.t_uv, self.t_w, self.colour, self.t_done, trk.center,
+                      self.half_min, intr.fx, intr.fy, intr.cx, intr.cy, float(cfg.color_likelihood_px) ** 2,
+                      float(cfg.color_term_dead_zone), self.use_pairs, trk.half, trk.pairs,
+                      float(cfg.contact_tolerance), float(np.log(cfg.lambda_i)) if self.use_pairs else 0.0,
+                      self.pair_flags, self.use_table, self.hull_all, self.hull_off, self.normal, self.offset,
+                      float(cfg.lambda_h), float(cfg.table_tolerance), self.heights, out)
         return out
 
     def take(self, idx: np.ndarray) -> None:
         """Follow a resampling: the particles are now the rows ``idx`` of the previous ones."""
-        self.colour = {i: v[idx] for i, v in self.colour.items()}
-        if self.pair_flags is not None:
-            self.pair_flags = self.pair_flags[idx]
-        if self.heights is not None:
-            self.heights = self.heights[idx]
+        self.colour = self.colour[:, idx]
+        self.pair_flags = self.pair_flags[idx]
+        self.heights = self.heights[idx]
+
+
+@nb.njit(cache=True)
+def _penalty_pass(p, R, moved, fresh, t_obj, t_uv, t_w, colour, t_done, center, half_min, fx, fy, cx, cy, sig2,
+                  dead_zone, use_pairs, half, pairs, tol, log_li, pair_flags, use_table, hull_all, hull_off, normal,
+                  offset, lambda_h, table_tol, heights, out):
+    """:meth:`PenaltyTerms.total` in one pass over the particles: recompute the colour rows of targets on ``moved``
+    parts (or not yet computed, or all when ``fresh``), the intersection flags of pairs with a moved part and the
+    lowest heights of moved parts, then sum ``−Σ colour + log λ_i [any pair intersects] + λ_h min(h_min + tol, 0)``
+    in the order :func:`log_penalties` sums them."""
+    n, k = p.shape[0], p.shape[1]
+    for tt in range(t_obj.shape[0]):
+        i = t_obj[tt]
+        if not (fresh or moved[i] or not t_done[tt]):
+            continue
+        t_done[tt] = True
+        c0, c1 = t_uv[tt, 0], t_uv[tt, 1]
+        for j in range(n):
+            x = R[j, i, 0, 0] * center[i, 0] + R[j, i, 0, 1] * center[i, 1] + R[j, i, 0, 2] * center[i, 2] + p[j, i, 0]
+            y = R[j, i, 1, 0] * center[i, 0] + R[j, i, 1, 1] * center[i, 1] + R[j, i, 1, 2] * center[i, 2] + p[j, i, 1]
+            z = R[j, i, 2, 0] * center[i, 0] + R[j, i, 2, 1] * center[i, 1] + R[j, i, 2, 2] * center[i, 2] + p[j, i, 2]
+            z = max(z, 1e-3)
+            du = fx * x / z + cx - c0
+            dv = fy * y / z + cy - c1
+            d2 = du * du + dv * dv
+            if dead_zone > 0:
+                r_in = dead_zone * half_min[i] * fx / z
+                d2 = max(np.sqrt(d2) - r_in, 0.0)
+                d2 = d2 * d2
+            colour[tt, j] = 0.5 * t_w[tt] * min(d2, 9.0 * sig2) / sig2
+    if use_pairs:
+        m = pairs.shape[0]
+        cnt = 0
+        cols = np.empty(m, np.int64)
+        for mm in range(m):
+            if fresh or moved[pairs[mm, 0]] or moved[pairs[mm, 1]]:
+                cols[cnt] = mm
+                cnt += 1
+        pair_intersections(R, p, center, half, pairs, cols[:cnt], tol, pair_flags)
+    if use_table:
+        for i in range(k):
+            if not (fresh or moved[i]):
+                continue
+            h0, h1 = hull_off[i], hull_off[i + 1]
+            for j in range(n):
+                b0 = R[j, i, 0, 0] * normal[0] + R[j, i, 1, 0] * normal[1] + R[j, i, 2, 0] * normal[2]
+                b1 = R[j, i, 0, 1] * normal[0] + R[j, i, 1, 1] * normal[1] + R[j, i, 2, 1] * normal[2]
+                b2 = R[j, i, 0, 2] * normal[0] + R[j, i, 1, 2] * normal[1] + R[j, i, 2, 2] * normal[2]
+                base = p[j, i, 0] * normal[0] + p[j, i, 1] * normal[1] + p[j, i, 2] * normal[2] + offset
+                hmin = np.inf
+                for v in range(h0, h1):
+                    h = b0 * hull_all[v, 0] + b1 * hull_all[v, 1] + b2 * hull_all[v, 2] + base
+                    if h < hmin or np.isnan(h):
+                        hmin = h
+                heights[j, i] = hmin
+    for j in range(n):
+        acc = 0.0
+        for tt in range(t_obj.shape[0]):
+            acc -= colour[tt, j]
+        if use_pairs:
+            hit = False
+            for mm in range(pairs.shape[0]):
+                if pair_flags[j, mm]:
+                    hit = True
+                    break
+            acc += log_li if hit else 0.0
+        if use_table:
+            hm = np.inf
+            for i in range(k):
+                if heights[j, i] < hm or np.isnan(heights[j, i]):
+                    hm = heights[j, i]
+            acc += lambda_h * min(hm + table_tol, 0.0)
+        out[j] = acc
 
 
 @nb.njit(cache=True)
