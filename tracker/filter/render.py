@@ -71,12 +71,8 @@ def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
         return None
     cfg = trk.config
     intr = trk.intrinsics
-    z = depth[np.ix_(trk._vs, trk._us)].reshape(-1)
-    valid = np.isfinite(z) & (z > 0) & (z < cfg.max_depth)
-    if not valid.any():
-        return None
     k = len(trk.parts)
-    regions = np.zeros((k, z.size), bool)
+    bounds = np.empty((k, 4))
     f = cfg.wide_noise_fraction
     spread = np.sqrt((1.0 - f) + f * cfg.wide_noise_scale**2)
     for i in range(k):
@@ -86,30 +82,69 @@ def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
         scale = spread * trk._noise_scale[i]
         margin = (cfg.roi_margin_px * cfg.downsample
                   + 3.0 * scale * (cfg.sigma_v + cfg.sigma_w * radius) * intr.fx / zc)
-        regions[i] = ((trk._pu >= rect[0] - margin) & (trk._pu <= rect[1] + margin)
-                      & (trk._pv >= rect[2] - margin) & (trk._pv <= rect[3] + margin))
-    budget = cfg.likelihood_pixels_per_part
-    if budget > 0:
-        # a part that covers many grid pixels (a large mesh, a part close to the camera) is evaluated on an even
-        # subset of at most ``budget`` of them: the likelihood's cost stays bounded, the refinement after the
-        # filter restores the precision
-        # subset is a coarser lattice of the grid (every c-th pixel in each axis), so that a mesh part can be
-        # rasterised on that lattice only
-        keep = np.zeros(z.size, bool)
-        for i in range(k):
-            sel = regions[i] & valid
-            count = int(np.count_nonzero(sel))
-            c = max(int(np.ceil(np.sqrt(count / budget))), 1) if count > budget else 1
-            if c > 1:
-                sel &= (trk._gi % c == 0) & (trk._gj % c == 0)
-            trk._lattice[i] = c
-            keep |= sel
-    else:
-        keep = regions.any(axis=0) & valid
-    pix = np.nonzero(keep)[0].astype(np.int64)
-    if not pix.size:
+        bounds[i] = (rect[0] - margin, rect[1] + margin, rect[2] - margin, rect[3] + margin)
+    # a part that covers many grid pixels (a large mesh, a part close to the camera) is evaluated on an even subset
+    # of at most ``likelihood_pixels_per_part`` of them (0: all): the likelihood's cost stays bounded, the refinement
+    # after the filter restores the precision; the subset is a coarser lattice of the grid (every c-th pixel in each
+    # axis), so that a mesh part can be rasterised on that lattice only
+    depth = np.asarray(depth)
+    max_depth = depth.dtype.type(cfg.max_depth) if depth.dtype.kind == "f" else float(cfg.max_depth)
+    pix, regions, any_valid = _evaluated(depth, trk._vs, trk._us, max_depth, trk._pu, trk._pv, trk._gi, trk._gj,
+                                         bounds, int(cfg.likelihood_pixels_per_part), trk._lattice)
+    if not any_valid or not pix.size:
         return None
-    return pix, regions[:, pix]
+    return pix, regions
+
+
+@nb.njit(cache=True)
+def _evaluated(depth, vs, us, max_depth, pu, pv, gi, gj, bounds, budget, lattice):
+    """The evaluated grid pixels (P,), the parts' region masks at them (K, P) and whether any grid pixel has valid
+    depth (finite, > 0, < ``max_depth``; when none, nothing else is done). A pixel is evaluated when its depth is
+    valid and it lies in a part's rectangle ``bounds[k] = (umin, umax, vmin, vmax)`` (inclusive), on the part's
+    lattice ``lattice[k]``: every c-th grid pixel in each axis, c the smallest with at most ``budget`` of its valid
+    region pixels left (``budget`` 0: all pixels, ``lattice`` not written)."""
+    nu = us.shape[0]
+    ng = pu.shape[0]
+    k = bounds.shape[0]
+    valid = np.empty(ng, np.bool_)
+    any_valid = False
+    for g in range(ng):
+        z = depth[vs[g // nu], us[g % nu]]
+        valid[g] = np.isfinite(z) and z > 0 and z < max_depth
+        any_valid = any_valid or valid[g]
+    if not any_valid:
+        return np.empty(0, np.int64), np.empty((k, 0), np.bool_), False
+    inside = np.zeros((k, ng), np.bool_)
+    keep = np.zeros(ng, np.bool_)
+    for i in range(k):
+        umin, umax, vmin, vmax = bounds[i, 0], bounds[i, 1], bounds[i, 2], bounds[i, 3]
+        count = 0
+        for g in range(ng):
+            if pu[g] >= umin and pu[g] <= umax and pv[g] >= vmin and pv[g] <= vmax:
+                inside[i, g] = True
+                if valid[g]:
+                    count += 1
+        c = 1
+        if budget > 0:
+            if count > budget:
+                c = max(int(np.ceil(np.sqrt(count / budget))), 1)
+            lattice[i] = c
+        for g in range(ng):
+            if inside[i, g] and valid[g] and (budget <= 0 or c == 1 or (gi[g] % c == 0 and gj[g] % c == 0)):
+                keep[g] = True
+    n = 0
+    for g in range(ng):
+        n += keep[g]
+    pix = np.empty(n, np.int64)
+    regions = np.empty((k, n), np.bool_)
+    m = 0
+    for g in range(ng):
+        if keep[g]:
+            pix[m] = g
+            for i in range(k):
+                regions[i, m] = inside[i, g]
+            m += 1
+    return pix, regions, any_valid
 
 
 def union(a, b):

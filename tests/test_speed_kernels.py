@@ -1,0 +1,95 @@
+"""Numba kernels that replaced numpy code for speed give the numpy reference's results (random, seeded input)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tracker.filter import render
+from tracker.filter.motion_model import rotvec_to_matrix
+from tracker.filter.particle_filter import MultiObjectTracker
+from tracker.filter.tracker_config import TrackerConfig
+from tracker.geometry.camera import Intrinsics
+from tracker.geometry.parts import PartSpec
+from tracker.geometry.pose import Pose
+
+INTR = Intrinsics(640, 480, 600.0, 600.0, 320.0, 240.0)
+
+
+def evaluated_pixels_reference(trk, depth, p_prev, R_prev, p_det, R_det):
+    """The numpy form of :func:`tracker.filter.render.evaluated_pixels` (before its per-pixel work moved to numba)."""
+    cfg = trk.config
+    intr = trk.intrinsics
+    z = depth[np.ix_(trk._vs, trk._us)].reshape(-1)
+    valid = np.isfinite(z) & (z > 0) & (z < cfg.max_depth)
+    if not valid.any():
+        return None
+    k = len(trk.parts)
+    regions = np.zeros((k, z.size), bool)
+    f = cfg.wide_noise_fraction
+    spread = np.sqrt((1.0 - f) + f * cfg.wide_noise_scale**2)
+    for i in range(k):
+        rect = render.union(render.bbox(trk, i, p_prev[:, i], R_prev[:, i]),
+                            render.bbox(trk, i, p_det[:, i], R_det[:, i]))
+        zc = max(float(np.median(p_det[:, i, 2])), 0.05)
+        radius = float(np.linalg.norm(trk.half[i]) + np.linalg.norm(trk.center[i]))
+        scale = spread * trk._noise_scale[i]
+        margin = (cfg.roi_margin_px * cfg.downsample
+                  + 3.0 * scale * (cfg.sigma_v + cfg.sigma_w * radius) * intr.fx / zc)
+        regions[i] = ((trk._pu >= rect[0] - margin) & (trk._pu <= rect[1] + margin)
+                      & (trk._pv >= rect[2] - margin) & (trk._pv <= rect[3] + margin))
+    budget = cfg.likelihood_pixels_per_part
+    lattice = trk._lattice.copy()
+    if budget > 0:
+        keep = np.zeros(z.size, bool)
+        for i in range(k):
+            sel = regions[i] & valid
+            count = int(np.count_nonzero(sel))
+            c = max(int(np.ceil(np.sqrt(count / budget))), 1) if count > budget else 1
+            if c > 1:
+                sel &= (trk._gi % c == 0) & (trk._gj % c == 0)
+            lattice[i] = c
+            keep |= sel
+    else:
+        keep = regions.any(axis=0) & valid
+    pix = np.nonzero(keep)[0].astype(np.int64)
+    if not pix.size:
+        return None
+    return pix, regions[:, pix], lattice
+
+
+@pytest.mark.parametrize("budget", [0, 40, 250])
+def test_evaluated_pixels_match_the_numpy_reference(budget):
+    rng = np.random.default_rng(11)
+    parts = [PartSpec.cube(c, c) for c in ("red", "green", "blue")]
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=30, likelihood_pixels_per_part=budget)
+    trk = MultiObjectTracker(parts, INTR, cfg, seed=0)
+    poses = {p.name: Pose.from_rt(np.eye(3), np.array([x, 0.02, 0.45])) for p, x in zip(parts, (-0.08, 0.0, 0.07),
+                                                                                       strict=True)}
+    trk.initialize(poses)
+    for trial in range(6):
+        n, k = 30, len(parts)
+        p_prev = trk.p + rng.normal(0.0, 0.01, (n, k, 3))
+        R_prev = np.stack([rotvec_to_matrix(rng.normal(0.0, 0.3, (n, 3))) for _ in range(k)], axis=1)
+        p_det = p_prev + rng.normal(0.0, 0.005, (n, k, 3))
+        R_det = R_prev
+        trk._noise_scale = rng.uniform(0.3, 1.0, k)
+        depth = rng.uniform(0.2, 7.0, (INTR.height, INTR.width)).astype(np.float32)
+        depth[rng.random(depth.shape) < 0.2] = np.nan
+        depth[rng.random(depth.shape) < 0.05] = 0.0
+        if trial == 5:
+            depth[:] = np.nan  # no valid depth anywhere: None, and the lattice is left alone
+        want = evaluated_pixels_reference(trk, depth, p_prev, R_prev, p_det, R_det)
+        before = trk._lattice.copy()
+        got = render.evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det)
+        if want is None:
+            assert got is None
+            assert np.array_equal(trk._lattice, before)
+            continue
+        assert got is not None
+        assert np.array_equal(got[0], want[0])
+        assert np.array_equal(got[1], want[1])
+        assert np.array_equal(trk._lattice, want[2])
+        assert got[0].size > 0
+        if budget == 40:
+            assert trk._lattice.max() > 1  # the thinning to a coarser lattice is exercised
