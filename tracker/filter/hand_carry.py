@@ -16,7 +16,9 @@ moves rigidly with the hand. A registration rather than a centroid: a centroid s
 enters the window. Points on other parts' estimates are left out, so a hand passing a resting part does not take it
 along. The carry ends when the part is seen again in depth (visible fraction back above
 ``rest_prior_max_visibility``; the likelihood and re-seeding take over) or when fewer than ``carry_min_points`` hand
-points are left near the part (the hand is gone: the part was put down where it is).
+points are left near the part (the hand is gone: the part was put down where it is). The hidden-parts stage
+(:mod:`tracker.filter.hidden_parts`) also ends it when the part's blob shows up again away from the hand, or stays
+put while the hand moves on, and starts it for a part whose place the camera sees through (snatched while hidden).
 """
 
 from __future__ import annotations
@@ -90,6 +92,12 @@ class HandCarry:
         """End the carry of part ``obj`` (it was let go)."""
         self.patches[obj] = None
 
+    def start(self, obj: int, patch: np.ndarray) -> None:
+        """Carry part ``obj`` from now on with the hand points ``patch`` (M, 3) around it (camera frame, m)."""
+        self.patches[obj] = np.asarray(patch, np.float64)
+        self.last_step[obj] = 0.0
+        self.last_turn[obj] = 0.0
+
     def record(self, now: float, positions: np.ndarray) -> None:
         """Remember the parts' estimated positions (K, 3) at time ``now`` (s) for the motion test."""
         self.history.append((now, np.array(positions, np.float64)))
@@ -137,8 +145,10 @@ class HandCarry:
                     self.last_step[i] = 0.0
                     self.last_turn[i] = 0.0
                 continue
-            # search the current points in a window widened by the largest hand motion per frame
-            pts = self._points(depth, positions[i], cfg.carry_radius + cfg.carry_max_step, plane, exclude)
+            # search the current points around where last frame's hand motion would take the part, in a window
+            # widened by the largest hand motion per frame
+            pts = self._points(depth, positions[i] + self.last_step[i], cfg.carry_radius + cfg.carry_max_step, plane,
+                               exclude)
             if pts.shape[0] < cfg.carry_min_points:
                 self.patches[i] = None  # the hand left: the part stays where it was put down
                 continue

@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tracker.filter.blob_follow import recentre
+from tracker.filter.colour_input import reseed
 from tracker.filter.hand_carry import supported_by_other
 from tracker.filter.predict import adaptive_noise
 from tracker.geometry.pose import Pose
@@ -33,6 +35,7 @@ def hold_hidden_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, de
         for i in np.nonzero(trk._rest_on)[0]:
             if blob_left_rest(trk, i, detections.get(trk.names[i])):
                 trk._rest_on[i] = False  # a sliver of the part shows where it was not: it is moving
+        trk._rest_on &= ~trk._blob_moved  # seen to move with its blob (filter/blob_follow.py)
         if trk._rest_on.any():
             trk.v[:, trk._rest_on] = 0.0
     if cfg.detected_full_noise:
@@ -43,7 +46,8 @@ def hold_hidden_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, de
 def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: frozenset[str] = frozenset()) -> None:
     """Hand carry (:mod:`tracker.filter.hand_carry`): shift hidden carried parts with the hand that holds them
     (``plane``: the table's (normal, offset) or None; ``touched``: parts a tracked hand touches). A carried part
-    whose reliable colour blob stays put while the hand moves on has been let go: released."""
+    whose confident colour blob stays put while the hand moves on has been let go: released. A carried part whose
+    blob shows and keeps its area is put on the image position the blob says (filter/blob_follow.py)."""
     cfg = trk.config
     k = len(trk.parts)
     pos = np.array([trk.estimates[nm].t for nm in trk.names])
@@ -52,18 +56,29 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
         for i, nm in enumerate(trk.names):
             heights[i] = lowest_height(trk, i, trk.estimates[nm].R, pos[i], plane)
     hidden = trk.visibility < cfg.rest_prior_max_visibility  # little depth evidence (previous frame)
+    if cfg.carry_revealed_fraction > 0 and depth is not None:
+        for i in np.nonzero(hidden & ~trk._carry.carried & ~detected)[0]:
+            if revealed(trk, i, depth):
+                grab(trk, i, depth, pos, plane)
     rot, delta = trk._carry.update(depth, pos, hidden, ~hidden, heights, plane,
                                    np.array([nm in touched for nm in trk.names], bool))
-    centers = {}
-    for i, nm in enumerate(trk.names):
-        det = detections.get(nm) if detections else None
-        c = getattr(det, "center", None) if det is not None else None
-        if c is not None and detected[i]:
-            centers[i] = np.asarray(c, np.float64)
+    # confident blobs (filter/blob_follow.py), however small: a sliver that stays put while the hand moves on is
+    # the part left behind
+    centers = {i: b[0] for i, b in enumerate(trk._follow_blobs or []) if b is not None}
     moving = (np.abs(delta).sum(1) > 0) | (np.abs(rot - np.eye(3)).sum((1, 2)) > 0)
     for i in np.nonzero(moving)[0]:
         nm = trk.names[i]
         new_pos = rot[i] @ pos[i] + delta[i]
+        reappeared = centers.get(i) if trk._blob_reappeared[i] else None
+        if reappeared is not None and (trk._blob_off[i] or blob_disagrees(trk, i, new_pos, reappeared)):
+            # its blob shows up again away from where the hand would take it: the part is not in the hand (any
+            # more); it is put where the blob is (the colour stage has done so already for a blob off its silhouette)
+            trk._carry.release(i)
+            if not trk._blob_off[i]:
+                reseed(trk, i, detections.get(nm), depth)
+            continue
+        if trk._blob_off[i]:
+            continue  # the colour stage has just put it on its blob, which already shows this frame's motion
         if i in centers and i in trk._last_centers:
             uv = trk.intrinsics.project(np.array([pos[i], new_pos]))
             hand_px = float(np.linalg.norm(uv[1] - uv[0]))
@@ -77,8 +92,70 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
         est = trk.estimates[nm]
         trk.estimates[nm] = Pose.from_rt(rot[i] @ est.R, rot[i] @ est.t + delta[i])
         trk._rest_t[i] = rot[i] @ trk._rest_t[i] + delta[i]
+        recentre(trk, i)
     trk._last_centers = centers
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
+
+
+def revealed(trk, obj: int, depth: np.ndarray) -> bool:
+    """Does the depth camera see through hidden part ``obj``'s estimate: valid depth on at least
+    ``carry_revealed_fraction`` of its projected silhouette (bounding rectangle of its projected corners), nearly
+    all of it more than 1.5 cm behind the part's far side? Then the part is not where it was (a hand snatched it
+    while hiding it, or it was pushed away)."""
+    est = trk.estimates[trk.names[obj]]
+    pts = trk.corners[obj] @ est.R.T + est.t
+    if np.any(pts[:, 2] < 0.05):
+        return False
+    uv = trk.intrinsics.project(pts)
+    h, w = depth.shape
+    u0, v0 = np.maximum(np.floor(uv.min(axis=0)).astype(int), 0)
+    u1, v1 = np.minimum(np.ceil(uv.max(axis=0)).astype(int) + 1, [w, h])
+    # the middle half of the rectangle: the silhouette of a box, whatever its turn, covers it
+    du, dv = (u1 - u0) // 4, (v1 - v0) // 4
+    patch = depth[v0 + dv : v1 - dv, u0 + du : u1 - du]
+    if patch.size < 16:
+        return False
+    valid = np.isfinite(patch) & (patch > 0)
+    if valid.mean() < trk.config.carry_revealed_fraction:
+        return False
+    behind = patch[valid] > pts[:, 2].max() + 0.015
+    return bool(behind.mean() > 0.9)
+
+
+def grab(trk, obj: int, depth: np.ndarray, pos: np.ndarray, plane) -> None:
+    """Part ``obj`` is not where it was (:func:`revealed`): if a hand is near (enough points above the table within
+    1.5 × ``carry_radius``, other parts' estimates left out), the part is in it: moved to those points' centroid
+    and carried from there on; else nothing changes (re-seeding finds the part when its blob shows)."""
+    k = len(trk.parts)
+    carry = trk._carry
+    exclude = [(pos[o], carry.radii[o] + 0.005) for o in range(k) if o != obj and not carry.carried[o]]
+    pts = carry._points(depth, pos[obj], 1.5 * trk.config.carry_radius, plane, exclude)
+    if pts.shape[0] < trk.config.carry_min_points:
+        return
+    est = trk.estimates[trk.names[obj]]
+    c = est.R @ trk.center[obj] + est.t
+    d = pts.mean(axis=0) - c
+    trk.p[:, obj] += d
+    trk.v[:, obj] = 0.0
+    trk._rest_t[obj] = trk._rest_t[obj] + d
+    trk.estimates[trk.names[obj]] = Pose.from_rt(est.R, est.t + d)
+    pos[obj] = pos[obj] + d
+    near = ((pts - pts.mean(axis=0)) ** 2).sum(1) <= trk.config.carry_radius**2
+    carry.start(obj, pts[near] if near.sum() >= trk.config.carry_min_points else pts)
+
+
+def blob_disagrees(trk, obj: int, position: np.ndarray, centroid: np.ndarray | None) -> bool:
+    """Is the centroid (pixels) of part ``obj``'s confident blob farther than ``carry_blob_radii`` projected bounding
+    radii from the part's centre when its origin is at ``position`` (m, camera frame)? A sliver's centroid lies within
+    one radius of the centre, so a carried part whose blob shows farther away is not where the hand took it."""
+    if centroid is None or trk.config.carry_blob_radii <= 0:
+        return False
+    c = trk.estimates[trk.names[obj]].R @ trk.center[obj] + position
+    if c[2] <= 0.05:
+        return False
+    uv = trk.intrinsics.project(c[None])[0]
+    rpx = trk._radius[obj] * trk.intrinsics.fx / float(c[2])
+    return bool(np.hypot(*(uv - centroid)) > trk.config.carry_blob_radii * rpx)
 
 
 def update_support(trk, unseen: np.ndarray, pos: np.ndarray, heights: np.ndarray, plane) -> None:
@@ -88,7 +165,7 @@ def update_support(trk, unseen: np.ndarray, pos: np.ndarray, heights: np.ndarray
     trk._support_on = np.zeros(k, bool)
     if plane is None or trk.config.support_prior_sigma <= 0:
         return
-    for i in np.nonzero(unseen)[0]:
+    for i in np.nonzero(unseen & ~trk._blob_moved)[0]:
         if supported_by_other(i, pos, heights, trk._carry.radii, margin=0.01):
             continue
         trk._support_on[i] = True

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.filter import colour_input, hidden_parts, predict, render, weigh
+from tracker.filter import blob_follow, colour_input, hidden_parts, predict, render, scene_motion, weigh
 from tracker.filter.connection_particles import ResolvedConnection, resolve_hints
 from tracker.filter.depth_likelihood import (
     LikelihoodParams,
@@ -199,6 +199,11 @@ class MultiObjectTracker:
         self._est_vel = np.zeros((k, 6))  # constant-velocity model: per-frame velocity estimate per part
         self._prev_poses: dict | None = None
         self._cooldown = np.zeros(k, np.int64)
+        self._follow_blobs = None  # last frame's confident blobs (centroid, area) per part, for blob follow
+        self._blob_moved = np.zeros(k, bool)
+        self._blob_reappeared = np.zeros(k, bool)  # confident blob this frame but not in the last
+        self._landmarks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # scene motion: last frame's landmark poses
+        self._blob_uv_target: dict[int, np.ndarray] = {}  # carried parts: image position their blob says
         self._last_time: float | None = None
         self._initialized = True
 
@@ -225,6 +230,7 @@ class MultiObjectTracker:
         ctx = self._begin_frame(frame, table)
         ctx.occluders = occluders
         ctx.touched = frozenset(touched or ())
+        self._blob_moved = blob_follow.follow_blobs(self, ctx, detections)
         u, detected = colour_input.control_inputs(self, ctx, detections)
         noise_scale = hidden_parts.hold_hidden_parts(self, ctx, detections, detected)
         pred = predict.deterministic(self, u)
@@ -242,6 +248,7 @@ class MultiObjectTracker:
         hidden_parts.update_rest_anchors(self, detected)
         tg = time.perf_counter()
         refine_stage.refine(self, state, ctx.refine_depth, detections, ctx.table, ctx.depth)
+        scene_motion.follow_scene(self, state)
         ctx.timings["refine"] = (time.perf_counter() - tg) * 1e3
         predict.update_velocities(self, state.poses, detected & ~self._rest_on & ~self._carry.carried)
         if self.config.carry_follow:

@@ -110,6 +110,15 @@ class TrackerConfig(BaseModel):
     carry_max_turn: float = Field(
         0.2, gt=0.0, description="Largest hand rotation (rad) per frame a carried part follows.",
     )
+    carry_blob_radii: float = Field(
+        1.0, ge=0.0, description="A carried part whose confident colour blob (however small) shows farther than this "
+        "many projected bounding radii from its estimate is released and re-seeded at the blob (0 = off).",
+    )
+    carry_revealed_fraction: float = Field(
+        0.0, ge=0.0, le=1.0, description="A hidden part whose projected silhouette shows valid depth on at least this "
+        "fraction, nearly all well behind the part, is not there: it is put in the hand nearest to it and carried "
+        "(0 = off).",
+    )
     carry_stride: int = Field(2, ge=1, description="Pixel stride (full resolution) of the hand points.")
     visible_fraction_full: float = Field(
         0.5, gt=0.0, le=1.0, description="Visible fraction from which a part gets its full motion noise.",
@@ -167,6 +176,33 @@ class TrackerConfig(BaseModel):
     far_sliver_radii: float = Field(
         1.5, ge=0.0, description="A confident blob smaller than reseed_min_area_ratio of the part still re-seeds it "
         "when its centroid lies more than this many projected bounding radii from the estimate (0 = off).",
+    )
+    blob_follow: bool = Field(
+        False, description="Blob follow (not in the spec; filter/blob_follow.py): a part whose confident colour blob "
+        "has little valid depth moves with the blob's centroid between frames in which the blob keeps its area; its "
+        "rest and support priors are off meanwhile.",
+    )
+    blob_follow_max_area_change: float = Field(
+        0.25, gt=0.0, description="Largest relative change of the blob's area between two frames for blob follow.",
+    )
+    blob_follow_max_depth_fraction: float = Field(
+        0.2, ge=0.0, le=1.0, description="Blob follow applies while fewer than this fraction of the blob's pixels "
+        "have valid depth.",
+    )
+    blob_follow_min_px: float = Field(
+        1.0, ge=0.0, description="Smallest centroid motion (pixels) blob follow applies.",
+    )
+    scene_motion: bool = Field(
+        False, description="Scene motion (not in the spec; filter/scene_motion.py): hidden parts that are neither "
+        "carried nor visible follow the camera motion that the well-seen resting parts agree on.",
+    )
+    scene_motion_tolerance: float = Field(
+        0.003, gt=0.0, description="Metres: landmarks agree with a camera motion when it moves their centre within "
+        "this distance of their own motion (and turns them by less than tolerance / 0.05 rad from it).",
+    )
+    scene_motion_min_anchors: int = Field(2, ge=1, description="Fewest agreeing landmarks for a scene motion.")
+    scene_motion_deadband: float = Field(
+        0.0003, ge=0.0, description="Metres: smaller motions of a hidden part's centre are not applied.",
     )
     detected_full_noise: bool = Field(
         False, description="A part with a reliable colour detection (reseed_min_score/area) always gets its full "
@@ -418,5 +454,8 @@ PRESETS["default"] = {
     "rest_prior_sigma": 0.003,
     "carry_follow": True,
     "support_prior_sigma": 0.003,
+    "blob_follow": True,
+    "scene_motion": True,
+    "carry_revealed_fraction": 0.5,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""

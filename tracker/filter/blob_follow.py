@@ -1,0 +1,125 @@
+"""Blob-follow stage (not in the seed; an addition of the tracker): a part seen in colour but not in depth moves
+with its colour blob.
+
+A cube grasped by a hand often shows a confident sliver of colour while the depth camera has (almost) nothing on
+it: the hand covers most of it and its projector shadow takes the rest. The depth likelihood and the refinement
+then have no evidence, and the hidden-part priors (rest and support) would hold the part where it was, while the
+hand lifts it away. Between two frames in which the blob is confident and of about the same area, its centroid's
+image motion is the part's own image motion (a changing occlusion would change the area too), so the part's
+centre is moved by that motion, parallel to the image plane at its current depth, with its particles and rest
+anchor; the rest and support priors are off for it in this frame (it is seen to move), and the motion counts for
+the hand carry's motion test, so a part that then disappears in the hand is carried.
+
+Pixels are full-resolution image coordinates; positions camera frame, metres.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tracker.filter.colour_input import blob_mask
+from tracker.geometry.box_renderer import pixel_rays
+
+if TYPE_CHECKING:
+    from tracker.filter.frame_context import FrameContext
+    from tracker.filter.particle_filter import MultiObjectTracker
+
+
+def confident_blob(trk: MultiObjectTracker, det) -> tuple[np.ndarray, float] | None:
+    """``(centroid (2,), area px)`` of a detection confident enough to follow (reseed_min_score, reseed_min_area_px,
+    with an outline), else None."""
+    cfg = trk.config
+    if det is None or getattr(det, "center", None) is None or getattr(det, "contour", None) is None:
+        return None
+    score = float(getattr(det, "score", 0.0) or 0.0)
+    area = getattr(det, "area", None)
+    if score < cfg.reseed_min_score or area is None or not np.isfinite(area) or area < cfg.reseed_min_area_px:
+        return None
+    return np.asarray(det.center, np.float64), float(area)
+
+
+def depth_poor(trk: MultiObjectTracker, det, depth: np.ndarray) -> bool:
+    """Has the blob valid depth on fewer than ``blob_follow_max_depth_fraction`` of its pixels?"""
+    mask = blob_mask(trk, det, depth.shape)
+    if mask is None:
+        return False
+    n = int(np.count_nonzero(mask))
+    if n == 0:
+        return False
+    vals = depth[mask]
+    valid = int(np.count_nonzero(np.isfinite(vals) & (vals > 0)))
+    return valid < trk.config.blob_follow_max_depth_fraction * n
+
+
+def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.ndarray:
+    """Move every part seen in colour but not in depth with its blob (module docstring); returns (K,) bool, which
+    parts moved this way (their rest and support priors are off this frame). "Not in depth": few valid depth
+    values on the blob, or the last frame's dense-depth refinement of the part was not healthy."""
+    cfg = trk.config
+    k = len(trk.parts)
+    moved = np.zeros(k, bool)
+    blobs: list[tuple[np.ndarray, float] | None] = [None] * k
+    depth = ctx.depth
+    if detections and depth is not None:
+        for i, name in enumerate(trk.names):
+            blobs[i] = confident_blob(trk, detections.get(name))
+    previous = trk._follow_blobs
+    trk._follow_blobs = blobs
+    trk._blob_reappeared = np.array([b is not None and (previous is None or previous[i] is None)
+                                     for i, b in enumerate(blobs)], bool)
+    if not cfg.blob_follow or depth is None:
+        return moved
+    carried = trk._carry.carried
+    intr = trk.intrinsics
+    trk._blob_uv_target = {}
+    for i, name in enumerate(trk.names):
+        now, before = blobs[i], previous[i] if previous is not None else None
+        if now is None or before is None:
+            continue
+        if abs(now[1] / before[1] - 1.0) > cfg.blob_follow_max_area_change:
+            continue
+        shift = now[0] - before[0]
+        if float(np.hypot(*shift)) < cfg.blob_follow_min_px:
+            continue
+        last = trk._refiner.last[i] if trk._refiner is not None else None
+        unsupported = last is None or not last.healthy  # the depth could not place it in the last frame
+        if not (unsupported or depth_poor(trk, detections.get(name), depth)):
+            continue
+        est = trk.estimates[name]
+        c = est.R @ trk.center[i] + est.t
+        if c[2] <= 0.05:
+            continue
+        uv = intr.project(c[None])[0] + shift
+        if carried[i]:
+            trk._blob_uv_target[i] = uv  # applied after the hand carry has moved it (in depth too): recentre()
+            moved[i] = True
+            continue
+        d = pixel_rays(intr, np.array([uv[0]]), np.array([uv[1]]))[0] * c[2] - c
+        move(trk, i, d)
+        moved[i] = True
+    return moved
+
+
+def move(trk: MultiObjectTracker, obj: int, d: np.ndarray) -> None:
+    """Translate part ``obj``'s estimate, particles and rest anchor by ``d`` (m, camera frame); velocities zero."""
+    trk.p[:, obj] += d
+    trk.v[:, obj] = 0.0
+    trk._rest_t[obj] = trk._rest_t[obj] + d
+    est = trk.estimates[trk.names[obj]]
+    trk.estimates[trk.names[obj]] = type(est).from_rt(est.R, est.t + d)
+
+
+def recentre(trk: MultiObjectTracker, obj: int) -> None:
+    """After the hand carry moved part ``obj``: put its centre on the ray of the image position its blob says
+    (:func:`follow_blobs`), at the depth the carry gave it (the blob says nothing about depth, the hand does)."""
+    uv = getattr(trk, "_blob_uv_target", {}).get(obj)
+    if uv is None:
+        return
+    est = trk.estimates[trk.names[obj]]
+    c = est.R @ trk.center[obj] + est.t
+    if c[2] <= 0.05:
+        return
+    d = pixel_rays(trk.intrinsics, np.array([uv[0]]), np.array([uv[1]]))[0] * c[2] - c
+    move(trk, obj, d)

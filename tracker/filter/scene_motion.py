@@ -1,0 +1,122 @@
+"""Scene-motion stage (not in the seed; an addition of the tracker): hidden resting parts follow the camera's motion
+as the visible resting parts show it.
+
+The filter works in the camera frame, so when the camera moves (hand-held, a bumped tripod) a part that stays put
+in the world moves in the camera frame. Visible parts are pulled along by their depth; a part hidden under a hand
+is held by the rest prior at its last camera-frame position and drifts from the truth by the camera's motion. The
+parts that are seen well and refined (dense-depth refinement healthy, not carried, not moving with a blob) are
+landmarks: if they stay put in the world, each one's pose change between two frames, ``D_i = P_i(now) P_i(prev)⁻¹``
+(camera frame), is the same rigid motion of the camera. A consensus motion is taken from them (the candidate that
+the most landmarks agree with within ``scene_motion_tolerance``, averaged over those; at least
+``scene_motion_min_anchors`` must agree, and more than half of them, so that a part pushed by a hand is outvoted),
+and applied to the hidden parts that are neither carried nor visible: their particles, estimate and rest anchor.
+Motions smaller than ``scene_motion_deadband`` at the part are not applied (refinement noise would make a random
+walk of a hidden part under a still camera).
+
+Camera frame, metres, radians. With camera odometry on (:mod:`tracker.odometry.ego_motion`) the landmarks' pose
+changes are already near zero and nothing moves here.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tracker.geometry.pose import Pose
+
+if TYPE_CHECKING:
+    from tracker.filter.particle_filter import MultiObjectTracker, TrackerState
+
+
+def landmarks(trk: MultiObjectTracker) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Parts that can serve as landmarks this frame: index → (R, t) of the refined estimate."""
+    cfg = trk.config
+    out = {}
+    if trk._refiner is None:
+        return out
+    carried = trk._carry.carried
+    for i, name in enumerate(trk.names):
+        res = trk._refiner.last[i]
+        if (res is None or not res.healthy or carried[i] or trk._blob_moved[i]
+                or trk.visibility[i] < cfg.visible_fraction_full):
+            continue
+        est = trk.estimates[name]
+        out[i] = (est.R.copy(), est.t.copy())
+    return out
+
+
+def consensus_motion(pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], tolerance: float,
+                     min_agree: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The rigid motion ``(Rd, td)`` (x_now = Rd x_prev + td) most landmarks agree with, or None.
+
+    ``pairs``: per landmark (Rd_i, td_i, c_i): its own motion and its centre in the previous frame (m). A landmark
+    agrees with a candidate when the candidate moves its centre within ``tolerance`` m of where the landmark's own
+    motion moves it and the rotations differ by less than ``tolerance`` / 0.05 rad (about 3.4° at 3 mm)."""
+    if len(pairs) < min_agree:
+        return None
+    best: list[int] = []
+    for Rc, tc, _ in pairs:
+        agree = [j for j, (Rj, tj, cj) in enumerate(pairs)
+                 if np.linalg.norm((Rc @ cj + tc) - (Rj @ cj + tj)) < tolerance
+                 and _angle(Rc.T @ Rj) < tolerance / 0.05]
+        if len(agree) > len(best):
+            best = agree
+    if len(best) < min_agree or 2 * len(best) <= len(pairs):
+        return None
+    Rs = [pairs[j][0] for j in best]
+    Rm = _mean_rotation(Rs)
+    # translation: the one that moves the agreeing centres where their own motions move them, on average
+    cs = np.array([pairs[j][2] for j in best])
+    moved = np.array([pairs[j][0] @ pairs[j][2] + pairs[j][1] for j in best])
+    tm = (moved - cs @ Rm.T).mean(axis=0)
+    return Rm, tm
+
+
+def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
+    """Apply the landmarks' consensus motion since the previous frame to hidden, uncarried parts (module docstring)."""
+    cfg = trk.config
+    now = landmarks(trk)
+    prev, trk._landmarks = trk._landmarks, now
+    if not cfg.scene_motion or not prev:
+        return
+    pairs = []
+    for i, (R1, t1) in now.items():
+        if i not in prev:
+            continue
+        R0, t0 = prev[i]
+        Rd = R1 @ R0.T
+        pairs.append((Rd, t1 - Rd @ t0, R0 @ trk.center[i] + t0))
+    motion = consensus_motion(pairs, cfg.scene_motion_tolerance, cfg.scene_motion_min_anchors)
+    if motion is None:
+        return
+    Rd, td = motion
+    carried = trk._carry.carried
+    for i, name in enumerate(trk.names):
+        if i in now or carried[i] or trk.visibility[i] >= cfg.rest_prior_max_visibility:
+            continue
+        est = trk.estimates[name]
+        c = est.R @ trk.center[i] + est.t
+        if np.linalg.norm(Rd @ c + td - c) < cfg.scene_motion_deadband:
+            continue
+        trk.p[:, i] = trk.p[:, i] @ Rd.T + td
+        trk.R[:, i] = np.einsum("ij,njk->nik", Rd, trk.R[:, i])
+        trk.v[:, i] = 0.0
+        trk._rest_t[i] = Rd @ trk._rest_t[i] + td
+        moved = Pose.from_rt(Rd @ est.R, Rd @ est.t + td)
+        trk.estimates[name] = moved
+        state.poses[name] = moved
+        state.particles[name] = trk.p[:, i].astype(np.float32)
+
+
+def _angle(R: np.ndarray) -> float:
+    """Rotation angle (rad) of a rotation matrix."""
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def _mean_rotation(Rs: list[np.ndarray]) -> np.ndarray:
+    """Chordal mean of rotation matrices (the SVD projection of their sum onto SO(3))."""
+    U, _, Vt = np.linalg.svd(np.sum(Rs, axis=0))
+    S = np.eye(3)
+    S[2, 2] = np.sign(np.linalg.det(U @ Vt))
+    return U @ S @ Vt
