@@ -171,7 +171,9 @@ class SecurityHeaders:
 
 def panel_csp(viser_port: int | None) -> Callable[[Scope], str]:
     """The pages' policy: everything from this server; the viser scene framed from ``viser_port`` of the same
-    host name the page was loaded from; the API docs (``/docs``, ``/redoc``) may load FastAPI's CDN files."""
+    host name the page was loaded from (on a loopback name also of the other one: the panel frames the scene from
+    there so that the browser draws it in a process of its own); the API docs (``/docs``, ``/redoc``) may load
+    FastAPI's CDN files."""
 
     def csp(scope: Scope) -> str:
         path = scope.get("path", "")
@@ -180,8 +182,10 @@ def panel_csp(viser_port: int | None) -> Callable[[Scope], str]:
         frame = "'none'"
         host = split_host(header(scope, b"host") or "")
         if viser_port and host:
-            name = f"[{host}]" if ":" in host else host
-            frame = f"http://{name}:{viser_port} https://{name}:{viser_port}"
+            names = [f"[{host}]" if ":" in host else host]
+            if host in LOOPBACK_NAMES:  # the panel frames the scene from the other loopback name (own process)
+                names += [n for n in ("127.0.0.1", "localhost") if n != host]
+            frame = " ".join(f"{scheme}://{n}:{viser_port}" for n in names for scheme in ("http", "https"))
         return (
             "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; "
             f"connect-src 'self'; frame-src {frame}; object-src 'none'; base-uri 'none'; form-action 'self'; "

@@ -5,6 +5,15 @@ the camera measures lives under the node ``/camera`` whose pose is the camera in
 parts, particles and the depth cloud are set in camera coordinates as they come out of the pipeline.
 Handles are created once and updated in place; updates run on their own thread (latest snapshot only),
 so the pipeline worker never waits for the browser.
+
+Cost in the browser: every scene message makes viser's client redraw for a short while (its "settle" window,
+about 0.25 s), and a browser without a GPU draws in software on the CPU the server needs. So the scene sends
+little: at most :data:`SCENE_HZ` updates per second, only the nodes that moved visibly (a part's box and
+particles when the part moved by :data:`POSE_STEP_M` or :data:`POSE_STEP_DEG`, the depth cloud when the depth
+image changed), nothing at all while nothing moves; the lights cast no shadows (three extra shadow passes
+per frame) and no environment map (image-based lighting: ~0.5 s of CPU per frame in a software renderer,
+against ~15 ms for the whole scene without it), and the client redraws at most :data:`SCENE_RENDER_FPS` times
+per second unless the user is turning the view.
 """
 
 from __future__ import annotations
@@ -23,16 +32,33 @@ from tracker.snapshot import Snapshot
 
 log = logging.getLogger(__name__)
 
-DEPTH_POINTS = 3000
-"""About this many depth pixels (a regular subsample) make the point cloud (viser's native points)."""
+DEPTH_POINTS = 1200
+"""About this many depth pixels (a regular subsample) make the point cloud (viser's native points). A browser
+drawing in software spends about 9 µs per point and frame: 3000 points made a frame of the scene cost ~35 ms
+of CPU, 1200 points ~15 ms (benchmarks/bench_server.py's machine)."""
 DEPTH_EVERY = 3
-"""The depth cloud is refreshed on every this-many scene updates (the table hardly changes)."""
+"""The depth cloud is refreshed on every this-many scene updates at most (the table hardly changes)..."""
+DEPTH_CHANGE_M = 0.005
+"""...and only when at least :data:`DEPTH_CHANGED_SHARE` of its points moved by more than this (metres) or
+appeared or vanished since the cloud shown (sensor noise alone does not redraw the scene)."""
+DEPTH_CHANGED_SHARE = 0.01
 MAX_PARTICLES_SHOWN = 100
 """Particles per part sent to the browser (a random but fixed subset)."""
+POSE_STEP_M = 0.0005
+"""A part's box (and its particles) is moved in the scene when its estimate moved by more than this (metres)..."""
+POSE_STEP_DEG = 0.25
+"""...or turned by more than this (degrees) since the pose shown; smaller changes are not visible at the
+scene's scale (a 36 mm cube about 0.3 m away) and would only make the browser redraw."""
 SCENE_HZ = 4.0
-"""Scene updates per second at most. The embedded scene shares the page's main thread (same site): a browser
-drawing it in software (no GPU) at 10 Hz starved the panel (0.07 panel fps against 1.8 processed under heavy
-load); at 4 Hz and half resolution the panel showed every processed frame (benchmarks/bench_server.py)."""
+"""Scene updates per second at most (``Settings.scene_hz``). The embedded scene shares the page's main thread
+(same site): a browser drawing it in software (no GPU) at 10 Hz starved the panel (0.07 panel fps against 1.8
+processed under heavy load); at 4 Hz and half resolution the panel showed every processed frame
+(benchmarks/bench_server.py)."""
+SCENE_RENDER_FPS = 8.0
+"""The browser redraws the scene at most this many times per second (``Settings.scene_render_fps``; 0: as
+often as viser's client wants, up to the display's rate) except while the user turns, pans or zooms the view
+(and for a second after), when it draws at the display's rate. Twice :data:`SCENE_HZ`: each update is drawn
+(viser's client redraws for ~0.25 s after a message)."""
 CAMERA_PATH_POINTS = 900
 """Camera positions kept for the camera path (30 s at 30 fps)."""
 MAX_HANDS_SHOWN = 2
@@ -75,13 +101,73 @@ def ghost_target(mode_state: dict[str, Any]) -> tuple[str, Pose] | None:
     return None if pose is None else (str(step["part"]), pose)
 
 
+def _moved(shown: Pose | None, pose: Pose) -> bool:
+    """Whether ``pose`` differs visibly from the ``shown`` one (see :data:`POSE_STEP_M`, :data:`POSE_STEP_DEG`)."""
+    if shown is None:
+        return True
+    if float(np.linalg.norm(np.asarray(pose.t) - np.asarray(shown.t))) > POSE_STEP_M:
+        return True
+    dot = abs(float(np.dot(np.asarray(pose.q, float), np.asarray(shown.q, float))))
+    return float(np.degrees(2.0 * np.arccos(min(1.0, dot)))) > POSE_STEP_DEG
+
+
+def render_cap_js(fps: float) -> str:
+    """JavaScript for viser's client: its redraws (``requestAnimationFrame`` callbacks) at most ``fps`` per second,
+    except for a second after the user pressed, dragged, scrolled or typed in the scene (the view then follows at
+    the display's rate). Installs once per page; ``window.__sceneRenderCap`` tells the cap in force."""
+    gap_ms = 1000.0 / float(fps)
+    return f"""(() => {{
+  if (window.__sceneRenderCap) return;
+  window.__sceneRenderCap = {float(fps)};
+  const raf = window.requestAnimationFrame.bind(window), caf = window.cancelAnimationFrame.bind(window);
+  const gap = {gap_ms:.3f};
+  let last = -1e9, lastFrame = null, touched = -1e9, next = 1;
+  const waiting = new Map();  // our id -> [kind, handle] of the callback's pending timer or frame
+  const touch = (ev) => {{ if (ev.type !== "pointermove" || ev.buttons) touched = performance.now(); }};
+  for (const type of ["pointerdown", "pointermove", "wheel", "keydown", "touchmove"]) {{
+    window.addEventListener(type, touch, {{ capture: true, passive: true }});
+  }}
+  window.requestAnimationFrame = (cb) => {{
+    const id = next++;
+    const run = (t) => {{
+      const now = performance.now();
+      const wait = gap - (now - last);
+      if (t !== lastFrame && wait > 1 && now - touched > 1000) {{
+        waiting.set(id, ["timer", setTimeout(() => waiting.set(id, ["frame", raf(run)]), wait)]);
+        return;
+      }}
+      waiting.delete(id);
+      if (t !== lastFrame) {{ lastFrame = t; last = now; }}  // the callbacks of one frame all run in it
+      cb(t);
+    }};
+    waiting.set(id, ["frame", raf(run)]);
+    return id;
+  }};
+  window.cancelAnimationFrame = (id) => {{
+    const w = waiting.get(id);
+    if (!w) return;
+    waiting.delete(id);
+    if (w[0] === "timer") clearTimeout(w[1]); else caf(w[1]);
+  }};
+}})();"""
+
+
 class Scene:
     """A viser server showing the pipeline's snapshots."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 8080, parts: list[PartSpec] | None = None) -> None:
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        parts: list[PartSpec] | None = None,
+        render_fps: float = SCENE_RENDER_FPS,
+    ) -> None:
         import viser
 
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.render_fps = float(render_fps)
+        if self.render_fps > 0:
+            self._run_in_viewers(render_cap_js(self.render_fps))
         self.port = self.server.get_port()
         self.server.gui.configure_theme(control_width="small", show_logo=False, show_share_button=False)
         try:
@@ -92,6 +178,8 @@ class Scene:
         self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
         self.server.initial_camera.up = (0.0, 1.0, 0.0)
         sc = self.server.scene
+        sc.configure_default_lights(enabled=True, cast_shadow=False)  # shadows: 3 more passes for every frame
+        sc.configure_environment_map(hdri=None)  # lit by the two default lights only (see the module docstring)
         sc.set_up_direction("+y")
         sc.add_grid(
             "/table",
@@ -128,6 +216,8 @@ class Scene:
         self.particle_nodes: dict[str, Any] = {}
         self.label_nodes: dict[str, Any] = {}
         self._particle_idx: dict[str, np.ndarray] = {}
+        self._shown_poses: dict[str, Pose] = {}  # the pose each part's box shows
+        self._shown_depth: np.ndarray | None = None  # the subsampled depth image the cloud shows (metres)
         self._rng = np.random.default_rng(0)
         self._frames = 0
         if parts:
@@ -144,6 +234,7 @@ class Scene:
             handles.clear()
         sc = self.server.scene
         self.parts = list(parts)
+        self._shown_poses.clear()
         for p in parts:
             color = p.color or (180, 180, 180)
             if p.box is not None:
@@ -184,25 +275,19 @@ class Scene:
                     self.frustum.color = (40, 110, 220) if snap.camera_pose_ok else (230, 120, 30)
                     self.frustum.visible = True
             if frame is not None and frame.depth is not None and self._frames % DEPTH_EVERY == 1:
-                h, w = frame.depth.shape
-                k = max(1, int(round(np.sqrt(h * w / DEPTH_POINTS))))
-                d = frame.depth[::k, ::k]
-                v, u = np.mgrid[0:h:k, 0:w:k]
-                ok = np.isfinite(d)
-                if ok.any():
-                    pts = frame.intrinsics.backproject(u[ok], v[ok], d[ok])
-                    self.depth_cloud.points = pts.astype(np.float32)
-                    self.depth_cloud.colors = frame.color[::k, ::k][ok]
+                self._update_depth(frame)
             words = word_labels(snap.mode_state) if snap.mode == "learning" else {}
             for name, node in self.part_nodes.items():
                 pose = snap.poses.get(name)
-                if pose is not None:
+                moved = pose is not None and _moved(self._shown_poses.get(name), pose)
+                if moved:
                     node.wxyz = _wxyz(pose.q)
                     node.position = pose.t
                     node.visible = True
+                    self._shown_poses[name] = pose
                 cloud = snap.particles.get(name)
                 pnode = self.particle_nodes[name]
-                if cloud is not None and len(cloud):
+                if moved and cloud is not None and len(cloud):  # the particles go with the box
                     idx = self._particle_idx.get(name)
                     if idx is None or idx.max(initial=-1) >= len(cloud) or len(idx) > len(cloud):
                         n = min(MAX_PARTICLES_SHOWN, len(cloud))
@@ -230,6 +315,36 @@ class Scene:
                 self.ghost.visible = True
             elif self.ghost.visible:
                 self.ghost.visible = False
+
+    def _update_depth(self, frame: Frame) -> None:
+        """The depth cloud from a regular subsample of ``frame``'s depth, when it changed visibly."""
+        h, w = frame.depth.shape
+        k = max(1, int(round(np.sqrt(h * w / DEPTH_POINTS))))
+        d = np.asarray(frame.depth[::k, ::k], dtype=np.float32)
+        ok = np.isfinite(d) & (d > 0)
+        shown = self._shown_depth
+        if shown is not None and shown.shape == d.shape:
+            was = np.isfinite(shown) & (shown > 0)
+            with np.errstate(invalid="ignore"):
+                changed = (ok != was) | (ok & was & (np.abs(d - shown) > DEPTH_CHANGE_M))
+            if changed.mean() < DEPTH_CHANGED_SHARE:
+                return
+        if not ok.any():
+            return
+        v, u = np.mgrid[0:h:k, 0:w:k]
+        pts = frame.intrinsics.backproject(u[ok], v[ok], d[ok])
+        self.depth_cloud.points = pts.astype(np.float32)
+        self.depth_cloud.colors = frame.color[::k, ::k][ok]
+        self._shown_depth = d
+
+    def _run_in_viewers(self, source: str) -> None:
+        """Run JavaScript in every viewer, present and future (viser keeps the message for new clients)."""
+        try:
+            from viser import _messages
+
+            self.server._websock_server.queue_message(_messages.RunJavascriptMessage(source=source))
+        except (ImportError, AttributeError) as exc:  # another viser version: the scene works, uncapped
+            log.warning("cannot cap the scene's redraw rate in this viser version: %s", exc)
 
     def _update_hands(self, hands: list[dict[str, Any]]) -> None:
         """A sphere per tracked hand with a 3-D position (camera frame), labelled "holding the red cube" etc."""

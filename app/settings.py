@@ -26,6 +26,8 @@
   ``login_burst``/``login_refill_s`` (wrong teacher passwords allowed per client).
 * ``on_damaged_database``: a damaged or unwritable database at start stops the server with a message naming
   the file (``refuse``) or is served read-only (``read-only``; changes get 503, ``/api/status`` says why).
+* ``scene_hz``, ``scene_render_fps``: the 3D scene's updates per second (server → browser) and the browser's
+  redraws per second at most (see :mod:`app.scene`).
 * ``tracker_config``: tracker preset name or YAML/TOML path; ``seed``: random seed of tracker and modes.
 * ``n_particles``: the tracker's particle count N. Default :data:`SERVER_PARTICLES` = 100 rather than the
   tracker preset's 225 (a ``tracker_config`` given without ``n_particles`` keeps its own N): on a 2-core
@@ -93,6 +95,14 @@ class Settings(BaseSettings):
     )
     max_fps: float = Field(30.0, gt=0, description="upper bound on processed frames per second")
     jpeg_quality: int = Field(75, ge=10, le=100)
+    scene_hz: float = Field(4.0, gt=0, le=60, description="3D scene updates sent to the browser per second at most")
+    scene_render_fps: float = Field(
+        8.0,
+        ge=0,
+        le=240,
+        description="the browser redraws the 3D scene at most this often while the user is not turning the view "
+        "(0: uncapped); a browser without a GPU draws it on the CPU the server needs",
+    )
     autostart: bool = True
     # ---- security (see README "Security settings")
     allowed_hosts: list[str] = Field(

@@ -309,8 +309,8 @@ class AppState:
             try:
                 from app.scene import Scene, SceneUpdater
 
-                self.scene = Scene(host=s.host, port=s.viser_port)
-                self.scene_updater = SceneUpdater(self.scene, self.worker)
+                self.scene = Scene(host=s.host, port=s.viser_port, render_fps=s.scene_render_fps)
+                self.scene_updater = SceneUpdater(self.scene, self.worker, max_hz=s.scene_hz)
                 self.scene_updater.start()
             except Exception as exc:  # noqa: BLE001 - the panel works without the 3D view
                 self.worker.report("scene", f"viser scene unavailable: {exc}")

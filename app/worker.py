@@ -317,7 +317,7 @@ class PipelineWorker:
         """``hook(snapshot, frame)`` runs on the worker thread after each frame, before the snapshot is published
         (it may add to the snapshot, e.g. identical parts told apart in the image)."""
         self._lock = threading.Lock()
-        self._jpeg_cache: tuple[int, int, bytes] | None = None
+        self._jpeg_cache: tuple[int, int, bytes] | None = None  # (version, quality, JPEG)
         self._json_cache: tuple[int, str] | None = None
 
     # ------------------------------------------------------------------ control (any thread)
@@ -422,6 +422,27 @@ class PipelineWorker:
         version, snap, _frame = self._published
         if snap is None:
             return None
+        return self._json_of(version, snap)
+
+    def jpeg(self, quality: int = 75) -> tuple[int, bytes] | None:
+        """The latest colour image as JPEG ``(frame_index, bytes)``, encoded once per frame."""
+        version, _snap, frame = self._published
+        if frame is None:
+            return None
+        data = self._jpeg_of(version, frame, quality)
+        return None if data is None else (frame.index, data)
+
+    def frame_message(self, with_image: bool, quality: int = 75) -> tuple[int, str, bytes | None] | None:
+        """``(version, snapshot JSON, JPEG of its colour image or None)`` of the newest frame, both from the same
+        published frame (read once), so a client showing them together shows one consistent state. Each is
+        encoded once per frame however many clients read it. ``None`` before the first frame."""
+        version, snap, frame = self._published
+        if snap is None:
+            return None
+        image = self._jpeg_of(version, frame, quality) if with_image and frame is not None else None
+        return version, self._json_of(version, snap)[1], image
+
+    def _json_of(self, version: int, snap: Snapshot) -> tuple[int, str]:
         cache = self._json_cache
         if cache is not None and cache[0] == version:
             return cache
@@ -431,22 +452,18 @@ class PipelineWorker:
         self._json_cache = cache
         return cache
 
-    def jpeg(self, quality: int = 75) -> tuple[int, bytes] | None:
-        """The latest colour image as JPEG ``(frame_index, bytes)``, encoded once per frame."""
-        version, _snap, frame = self._published
-        if frame is None:
-            return None
+    def _jpeg_of(self, version: int, frame: Frame, quality: int) -> bytes | None:
         cache = self._jpeg_cache
-        if cache is not None and cache[1] == version:
-            return cache[0], cache[2]
+        if cache is not None and cache[0] == version and cache[1] == quality:
+            return cache[2]
         ok, buf = cv2.imencode(
             ".jpg", cv2.cvtColor(frame.color, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality]
         )
         if not ok:
             return None
         data = buf.tobytes()
-        self._jpeg_cache = (frame.index, version, data)
-        return frame.index, data
+        self._jpeg_cache = (version, quality, data)
+        return data
 
     # ------------------------------------------------------------------ the worker thread
     def _close_source(self) -> None:

@@ -241,3 +241,19 @@ def test_security_headers(client):
         assert "script-src 'self'" in h["content-security-policy"]
         assert h["x-content-type-options"] == "nosniff"
         assert h["referrer-policy"] == "no-referrer"
+
+
+def test_scene_may_be_framed_from_the_other_loopback_name_only():
+    """A page on 127.0.0.1 or localhost may frame the viser port of either loopback name (the panel uses the other
+    one, so the browser draws the scene in its own process); a page on another host only its own host's."""
+    from app.middleware import panel_csp
+
+    csp = panel_csp(8080)
+
+    def frame_src(host: str) -> set[str]:
+        policy = csp({"path": "/", "headers": [(b"host", host.encode())]})
+        return set(next(p for p in policy.split("; ") if p.startswith("frame-src")).split()[1:])
+
+    assert {"http://localhost:8080", "http://127.0.0.1:8080"} <= frame_src("127.0.0.1:8000")
+    assert {"http://localhost:8080", "http://127.0.0.1:8080"} <= frame_src("localhost:8000")
+    assert frame_src("lab-pc.example:8000") == {"http://lab-pc.example:8080", "https://lab-pc.example:8080"}

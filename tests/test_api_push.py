@@ -120,3 +120,35 @@ def test_server_default_particle_count(tmp_path):
     assert n_of() == 100
     assert n_of(tracker_config="seed-exp1") == 225
     assert n_of(tracker_config="seed-exp1", n_particles=60) == 60
+
+
+class NumberedTable(GatedTable):
+    """A gated table whose frame i carries its number in a corner patch of the colour image (grey level 20 i)."""
+
+    def _frames(self):
+        for frame in super()._frames():
+            frame.color[:16, :16] = min(255, 20 * frame.index)
+            yield frame
+
+
+def test_panel_websocket_sends_each_snapshot_with_the_jpeg_of_its_frame(tmp_path):
+    """``/ws?image=1``: the snapshot's JSON, then the JPEG of the same frame (the panel shows them together)."""
+    import cv2
+    import numpy as np
+
+    src = NumberedTable()
+    app = create_app(app_settings(tmp_path, source="synthetic:"), open_source=lambda spec: src)
+    with local_client(app) as client, client.websocket_connect("/ws?image=1") as ws:
+        for k in range(4):
+            src.gate.release()  # exactly one more frame exists
+            text, _ = receive(ws, 20.0)
+            snap = json.loads(text)
+            jpeg = ws.receive_bytes()
+            image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+            assert snap["frame_index"] == k
+            assert [image.shape[1], image.shape[0]] == snap["image_size"]
+            assert abs(float(image[2:14, 2:14].mean()) - 20 * k) < 6  # the image of frame k, not another one
+        with client.websocket_connect("/ws") as plain:  # other clients: snapshots only (text messages)
+            assert json.loads(receive(plain, 20.0)[0])["frame_index"] == 3  # the newest one at once
+            src.gate.release()
+            assert json.loads(receive(plain, 20.0)[0])["frame_index"] == 4  # no image between them

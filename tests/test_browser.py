@@ -133,15 +133,52 @@ def test_page_loads_and_updates(server, page):
     assert page.locator("#source-select option").count() >= 8  # the simulated scenarios and a camera
     page.wait_for_function("() => document.getElementById('instruction').textContent.startsWith('Step')")
     page.wait_for_function("() => document.getElementById('color-image').naturalWidth === 320")
-    assert page.locator("#viser-frame").get_attribute("src").startswith("http://127.0.0.1:")
+    # the scene comes from the other loopback name (another site: the browser draws it in its own process)
+    assert page.locator("#viser-frame").get_attribute("src").startswith("http://localhost:")
     # the page's Content-Security-Policy lets the viser scene load in its frame, and blocks nothing of ours
     scene = page.frame_locator("#viser-frame")
     scene.locator("canvas").first.wait_for(state="attached")
     assert not [m for m in console if "Content Security Policy" in m], console
+    # the scene's redraws are capped at the server's setting (viser ran the cap in the scene's page)
+    viser = next(f for f in page.frames if f.url.startswith("http://localhost:"))
+    viser.wait_for_function("() => window.__sceneRenderCap === 8")
     page.wait_for_timeout(2500)  # let the 3D scene draw before the screenshot
     ARTIFACTS.mkdir(exist_ok=True)
     page.screenshot(path=str(ARTIFACTS / "browser-panel.png"), full_page=True)
     assert (ARTIFACTS / "browser-panel.png").stat().st_size > 10_000
+
+
+def test_panel_shows_image_and_state_of_one_frame(server, page):
+    """Every time the panel shows a new frame, the image beside it is that frame's (the websocket brings them
+    together), and each shown frame's mode, instruction and progress are the ones of that frame's snapshot."""
+    page.goto(server + "/?scene=off")
+    page.wait_for_function("() => document.getElementById('color-image').dataset.frame !== undefined")
+    page.evaluate("""() => {
+      window.__shown = []; window.__mismatch = [];
+      const img = document.getElementById('color-image'), idx = document.getElementById('frame-index');
+      new MutationObserver(() => {
+        if (img.dataset.frame !== idx.textContent) window.__mismatch.push([img.dataset.frame, idx.textContent]);
+        window.__shown.push([Number(idx.textContent), document.getElementById('instruction').textContent,
+                             document.getElementById('progress-text').textContent]);
+      }).observe(idx, {childList: true, characterData: true, subtree: true});
+    }""")
+    page.wait_for_function("() => window.__shown.length >= 15")
+    assert page.evaluate("window.__mismatch") == []
+    for _ in range(30):  # a frame both the server reports and the panel showed (the panel may skip some)
+        snap = httpx.get(server + "/api/snapshot", timeout=10).json()
+        k, n = snap["frame_index"], page.evaluate("window.__shown.length")
+        # until the panel reached frame k (or, should the source have started over, 60 frames later)
+        page.wait_for_function(f"() => window.__shown.some((r) => r[0] >= {k}) || window.__shown.length > {n + 60}")
+        rows = [r for r in page.evaluate("window.__shown") if r[0] == k]
+        if rows:
+            break
+    else:
+        raise AssertionError("the panel never showed a frame the test looked up")
+    _, instruction, progress = rows[0]
+    assert instruction == snap["instruction"]
+    p = snap["mode_state"].get("progress") or {}
+    assert progress == f"{p['done']} of {p['total']} {p.get('unit') or 'connections'} done"
+    assert page.evaluate("window.__mismatch") == []
 
 
 def wait_snapshot(server: str, predicate, what: str, timeout: float = 90.0) -> dict:

@@ -1,4 +1,9 @@
-"""``/ws``: one JSON snapshot per processed frame; a slow client skips to the newest one."""
+"""``/ws``: one JSON snapshot per processed frame; a slow client skips to the newest one.
+
+``/ws?image=1`` (the panel): each snapshot's text message is followed by a binary message, the JPEG of that
+same frame's colour image, so the panel shows image and state of one frame together without an HTTP
+request per frame. Snapshot JSON and JPEG are encoded once per frame for all clients.
+"""
 
 from __future__ import annotations
 
@@ -14,8 +19,10 @@ router = APIRouter()
 
 @router.websocket("/ws")
 async def ws(websocket: WebSocket, state: State) -> None:
-    """Stream snapshots until the client leaves; the JSON is encoded once per snapshot for all clients."""
+    """Stream snapshots (and with ``?image=1`` their JPEGs) until the client leaves."""
     await websocket.accept()
+    with_image = websocket.query_params.get("image") in ("1", "true")
+    quality = state.settings.jpeg_quality
     loop = asyncio.get_running_loop()
     event = asyncio.Event()
     closed = asyncio.Event()
@@ -40,10 +47,15 @@ async def ws(websocket: WebSocket, state: State) -> None:
     try:
         while not closed.is_set():
             event.clear()  # cleared before reading: a snapshot published from now on wakes us again
-            got = state.worker.snapshot_json()
+            if with_image:  # JPEG encoding (once per frame) off the event loop
+                got = await asyncio.to_thread(state.worker.frame_message, True, quality)
+            else:
+                got = state.worker.frame_message(False)
             if got is not None and got[0] != sent:
                 sent = got[0]
                 await websocket.send_text(got[1])
+                if got[2] is not None:
+                    await websocket.send_bytes(got[2])
                 continue
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(event.wait(), timeout=5.0)

@@ -6,10 +6,9 @@ const $ = (id) => document.getElementById(id);
 // "?scene=off" shows the panel and colour image without the embedded 3D scene (small screens, slow machines).
 const SHOW_SCENE = new URLSearchParams(location.search).get("scene") !== "off";
 const state = {
-  snap: null, imageSize: [640, 480], parts: [], drag: null, lastBox: null, imgBusy: false, lastImg: 0,
-  recent: new Map(), newest: null, round: null, roundTimer: null,
+  snap: null, imageSize: [640, 480], parts: [], drag: null, lastBox: null, imgBusy: false,
+  waiting: null, round: null, roundTimer: null,
 };
-const RECENT_SNAPSHOTS = 90;  // ~3 s at 30 fps: the snapshot of the frame the image shows is among them
 
 function el(tag, text, cls) {
   const e = document.createElement(tag);
@@ -20,6 +19,21 @@ function el(tag, text, cls) {
 
 function setList(list, items, empty) {
   list.replaceChildren(...(items.length ? items : [el("li", empty, "muted")]));
+  delete list.dataset.key;
+}
+
+// Per-frame updates touch the page only where something changed: an unchanged text or list is not rewritten,
+// so the browser does not lay out and repaint the panel for every frame.
+function setText(e, text) {
+  const t = String(text);
+  if (e.textContent !== t) e.textContent = t;
+}
+
+// ``setList`` when ``key`` (what the list shows) differs from the last one; ``build()`` makes the items.
+function setListIf(list, key, build, empty) {
+  if (list.dataset.key === key) return;
+  setList(list, build(), empty);
+  list.dataset.key = key;
 }
 
 async function api(path, options = {}) {
@@ -43,6 +57,14 @@ function showMessage(id, text, isError) {
 }
 
 // ------------------------------------------------------------------ status, modes, tasks
+// The 3D scene is framed from the other loopback name when the page is on one (127.0.0.1 <-> localhost): a
+// frame of another site runs in its own browser process, so the scene's drawing (in software on a machine
+// without a GPU, and the page waits for each of its frames) never holds up the panel. Other hosts: the same.
+const OTHER_LOOPBACK = { "127.0.0.1": "localhost", "localhost": "127.0.0.1", "[::1]": "127.0.0.1" };
+function sceneHost(host) {
+  return OTHER_LOOPBACK[host] || host;
+}
+
 async function refreshStatus() {
   try {
     const s = await api("/api/status");
@@ -69,7 +91,7 @@ async function refreshStatus() {
       document.querySelector(".scene3d").classList.add("hidden");
     } else if (s.viser_port && frame.dataset.port !== String(s.viser_port)) {
       frame.dataset.port = String(s.viser_port);
-      frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/`;
+      frame.src = `${location.protocol}//${sceneHost(location.hostname)}:${s.viser_port}/`;
     } else if (!s.viser_port) {
       $("viser-message").textContent = "3D scene disabled (--viser-port 0)";
     }
@@ -212,69 +234,72 @@ function renderSnapshot(s) {
   state.snap = s;
   noteRound(s);
   state.imageSize = s.image_size && s.image_size[0] ? s.image_size : state.imageSize;
-  $("frame-index").textContent = s.frame_index;
-  $("fps").textContent = (s.fps || 0).toFixed(1);
-  if (s.worker) $("worker-state").textContent = s.worker.state;
+  setText($("frame-index"), s.frame_index);
+  setText($("fps"), (s.fps || 0).toFixed(1));
+  if (s.worker) setText($("worker-state"), s.worker.state);
   const ms = s.mode_state || {};
   const instr = $("instruction");
-  instr.textContent = s.instruction || (s.mode ? "…" : "Tracking only (no assembly mode)");
+  setText(instr, s.instruction || (s.mode ? "…" : "Tracking only (no assembly mode)"));
   instr.classList.toggle("ok", ms.complete === true);
   instr.classList.toggle("bad", !!ms.warning);
   const frac = progressOf(ms);
-  $("progress-bar").style.width = frac === null ? "0" : `${Math.round(Math.max(0, Math.min(1, frac)) * 100)}%`;
+  const width = frac === null ? "0" : `${Math.round(Math.max(0, Math.min(1, frac)) * 100)}%`;
+  if ($("progress-bar").style.width !== width) $("progress-bar").style.width = width;
   const p = ms.progress || {};
-  $("progress-text").textContent = frac === null ? "" : `${p.done ?? ""} of ${p.total ?? ""} ${p.unit || "connections"} done`;
+  setText($("progress-text"), frac === null ? "" : `${p.done ?? ""} of ${p.total ?? ""} ${p.unit || "connections"} done`);
 
   const conns = (s.connections || []).map((c) => {
     const st = String(c.state || c.status || "");
     const score = typeof c.score === "number" ? ` (${c.score.toFixed(2)})` : "";
-    const li = el("li", `${c.first} → ${c.second}: ${st}${score}`);
-    li.className = `state-${st.toLowerCase()}`;
-    return li;
+    return [`${c.first} → ${c.second}: ${st}${score}`, `state-${st.toLowerCase()}`];
   });
-  setList($("connection-list"), conns, "none yet");
+  setListIf($("connection-list"), JSON.stringify(conns), () => conns.map(([text, cls]) => el("li", text, cls)), "none yet");
 
-  $("warning").textContent = ms.warning || "";
+  setText($("warning"), ms.warning || "");
 
   const ranking = Array.isArray(ms.ranking) ? ms.ranking : [];
   $("ranking-box").classList.toggle("hidden", s.mode !== "guess" || ranking.length === 0);
-  const rItems = ranking.map((r) => {
-    const name = r.title || r.structure || "?";
-    const frac = Number(r.fraction ?? 0);
-    const li = el("li", `${name}: ${r.completed ?? 0}/${r.total ?? "?"} connections`);
-    if (r.structure === ms.guess && !ms.tied) li.classList.add("guess");
+  const rRows = ranking.map((r) => [
+    `${r.title || r.structure || "?"}: ${r.completed ?? 0}/${r.total ?? "?"} connections`,
+    r.structure === ms.guess && !ms.tied, Math.round(Number(r.fraction ?? 0) * 80),
+  ]);
+  setListIf($("ranking-list"), JSON.stringify(rRows), () => rRows.map(([text, isGuess, px]) => {
+    const li = el("li", text);
+    if (isGuess) li.classList.add("guess");
     const bar = el("span", null, "bar");
-    bar.style.width = `${Math.round(frac * 80)}px`;
+    bar.style.width = `${px}px`;
     li.appendChild(bar);
     return li;
-  });
-  setList($("ranking-list"), rItems, "");
+  }), "");
   const leader = ranking.length ? (ranking[0].title || ranking[0].structure) : ms.guess;
-  $("guess-text").textContent = !ms.guess ? "" : ms.tied
+  setText($("guess-text"), !ms.guess ? "" : ms.tied
     ? "not sure yet: no structure leads"
-    : `best guess: ${leader} (confidence ${Math.round((ms.confidence || 0) * 100)} %)`;
+    : `best guess: ${leader} (confidence ${Math.round((ms.confidence || 0) * 100)} %)`);
 
   const isLearning = s.mode === "learning";
   $("learning-box").classList.toggle("hidden", !isLearning);
   if (isLearning) {
-    $("source-sentence").textContent = ms.sentence || "";
-    const verdicts = Array.isArray(ms.verdicts) ? ms.verdicts : [];
-    const vItems = verdicts.map((v) => {
-      const cls = v.correct === true ? "correct" : v.correct === false ? "wrong" : "";
-      const li = el("li", v.placed ?? "·", cls);
-      li.title = `position ${v.position}`;
-      return li;
-    });
-    $("word-list").replaceChildren(...vItems);
-    const words = Array.isArray(ms.words) ? ms.words : [];
+    setText($("source-sentence"), ms.sentence || "");
+    const verdicts = (Array.isArray(ms.verdicts) ? ms.verdicts : []).map((v) => [
+      v.placed ?? "·", v.correct === true ? "correct" : v.correct === false ? "wrong" : "", `position ${v.position}`,
+    ]);
+    const wordList = $("word-list");
+    if (wordList.dataset.key !== JSON.stringify(verdicts)) {
+      wordList.replaceChildren(...verdicts.map(([text, cls, title]) => {
+        const li = el("li", text, cls);
+        li.title = title;
+        return li;
+      }));
+      wordList.dataset.key = JSON.stringify(verdicts);
+    }
+    const words = (Array.isArray(ms.words) ? ms.words : []).map((w) => `${w.cube}: ${w.word}`);
     // which words are distractors is for the learner to find out: the list shows cube and word only
-    const wItems = words.map((w) => el("li", `${w.cube}: ${w.word}`));
-    setList($("cube-words"), wItems, "");
+    setListIf($("cube-words"), JSON.stringify(words), () => words.map((w) => el("li", w)), "");
   }
   renderParts(s);
   renderIdentical(s);
-  const errs = (s.errors || []).map((e) => el("li", e));
-  if (errs.length) setList($("error-list"), errs, "none");
+  const errs = s.errors || [];
+  if (errs.length) setListIf($("error-list"), JSON.stringify(errs), () => errs.map((e) => el("li", e)), "none");
   drawOverlay();
 }
 
@@ -283,26 +308,28 @@ function renderParts(s) {
   const poses = s.poses || {};
   const carried = new Set(s.carried || []);
   const names = state.parts.length ? state.parts : Object.keys(poses);
-  const items = names.map((name) => {
-    const st = carried.has(name) ? "in hand" : name in poses ? "tracked" : "not placed";
+  const rows = names.map((name) => [name, carried.has(name) ? "in hand" : name in poses ? "tracked" : "not placed"]);
+  setListIf($("part-list"), JSON.stringify(rows), () => rows.map(([name, st]) => {
     const li = el("li", `${name}: ${st}`, `part-${st.replace(" ", "-")}`);
     li.dataset.part = name;
     return li;
-  });
-  setList($("part-list"), items, "–");
+  }), "–");
   renderHands(s);
 }
 
 // Tracked hands (hand tracking on): "hand 1: holding the red cube" (or touching, or just the hand).
 function renderHands(s) {
-  const hands = Array.isArray(s.hands) ? s.hands : [];
-  $("hand-list").classList.toggle("hidden", hands.length === 0);
-  const items = hands.map((h) => {
-    const li = el("li", `hand ${h.id}: ${h.text || "seen"}`, h.holding && h.holding.length ? "hand-holding" : "hand");
-    li.dataset.hand = String(h.id);
+  const hands = (Array.isArray(s.hands) ? s.hands : []).map((h) => [h.id, h.text || "seen", !!(h.holding && h.holding.length)]);
+  const list = $("hand-list");
+  list.classList.toggle("hidden", hands.length === 0);
+  const key = JSON.stringify(hands);
+  if (list.dataset.key === key) return;
+  list.dataset.key = key;
+  list.replaceChildren(...hands.map(([id, text, holding]) => {
+    const li = el("li", `hand ${id}: ${text}`, holding ? "hand-holding" : "hand");
+    li.dataset.hand = String(id);
     return li;
-  });
-  $("hand-list").replaceChildren(...items);
+  }));
 }
 
 $("btn-auto-place").addEventListener("click", async () => {
@@ -338,10 +365,19 @@ const PART_COLORS = {
   purple: "#8232aa", cyan: "#1eb4c8", pink: "#eb6eaa",
 };
 
+// The overlay's size follows the image's shown size (kept by a ResizeObserver, so drawing a frame never makes
+// the browser compute the layout in the middle of the frame).
+const shownSize = { w: 0, h: 0 };
+new ResizeObserver((entries) => {
+  const box = entries[entries.length - 1].contentRect;
+  shownSize.w = Math.round(box.width);
+  shownSize.h = Math.round(box.height);
+  drawOverlay();
+}).observe($("color-image"));
+
 function drawOverlay() {
   const canvas = $("overlay");
-  const img = $("color-image");
-  const w = img.clientWidth, h = img.clientHeight;
+  const { w, h } = shownSize;
   if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
   const ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, w, h);
@@ -430,34 +466,32 @@ function drawLabels(ctx, labels, w, h) {
   }
 }
 
-// The image and everything drawn or listed beside it come from the same frame: the JPEG says which frame
-// it is (X-Frame-Index) and the panel is rendered from that frame's snapshot (kept among the recent ones).
-function refreshImage() {
-  const now = performance.now();
-  if (state.imgBusy || now - state.lastImg < 30 || !state.newest) return;
-  if (state.snap && state.snap.frame_index === state.newest.frame_index && state.snap.round === state.newest.round) return;
+// The image and everything drawn or listed beside it come from the same frame: the websocket sends each
+// snapshot followed by the JPEG of that frame (/ws?image=1), and the panel shows a snapshot only together with
+// its image, once the image has loaded. While one image loads, newer frames replace the one waiting, so a slow
+// browser skips frames instead of falling behind.
+function showFrame(s, blob) {
+  if (state.imgBusy) { state.waiting = [s, blob]; return; }
   state.imgBusy = true;
-  state.lastImg = now;
-  fetch(`/api/frame.jpg?f=${state.newest.frame_index}`, { cache: "no-store" }).then(async (res) => {
-    if (!res.ok) throw new Error(res.statusText);
-    const index = Number(res.headers.get("X-Frame-Index"));
-    const url = URL.createObjectURL(await res.blob());
-    const img = $("color-image");
-    img.onload = () => {
-      URL.revokeObjectURL(url);
+  const url = URL.createObjectURL(blob);
+  const img = $("color-image");
+  const done = (ok) => {
+    URL.revokeObjectURL(url);
+    if (ok) {
       img.classList.remove("loading");
       $("image-wrap").classList.remove("loading");
-      renderSnapshot(state.recent.get(index) || state.newest);
-      state.imgBusy = false;
-    };
-    img.onerror = () => { URL.revokeObjectURL(url); state.imgBusy = false; };
-    img.src = url;
-  }).catch(() => {
-    renderSnapshot(state.newest);  // no image yet: the panel still shows the newest state
+      img.dataset.frame = String(s.frame_index);
+      renderSnapshot(s);
+    }
     state.imgBusy = false;
-  });
+    const next = state.waiting;
+    state.waiting = null;
+    if (next) showFrame(...next);
+  };
+  img.onload = () => done(true);
+  img.onerror = () => done(false);
+  img.src = url;
 }
-setInterval(refreshImage, 33);
 
 function imageCoords(ev) {
   const canvas = $("overlay");
@@ -534,14 +568,13 @@ $("btn-clear-identical").addEventListener("click", async () => {
 });
 
 function renderIdentical(s) {
-  const parts = Object.entries(s.identical_parts || {});
+  const parts = Object.entries(s.identical_parts || {}).map(([name, p]) => [name, !!p.seen]);
   $("identical-box").classList.toggle("hidden", parts.length === 0);
-  const items = parts.map(([name, p]) => {
-    const li = el("li", `${name}: ${p.seen ? "seen" : "hidden (box grows where it was)"}`);
+  setListIf($("identical-list"), JSON.stringify(parts), () => parts.map(([name, seen]) => {
+    const li = el("li", `${name}: ${seen ? "seen" : "hidden (box grows where it was)"}`);
     li.dataset.part = name;
     return li;
-  });
-  setList($("identical-list"), items, "");
+  }), "");
 }
 
 // The colour calibrations in force: "Undo calibration" restores the range before the newest one.
@@ -568,22 +601,22 @@ $("btn-undo-calibration").addEventListener("click", async () => {
 
 // ------------------------------------------------------------------ websocket
 function connect() {
-  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws?image=1`);
+  let pending = null;  // the snapshot whose JPEG comes next
   ws.onmessage = (ev) => {
+    if (typeof ev.data !== "string") {
+      if (pending) showFrame(pending, ev.data);
+      pending = null;
+      return;
+    }
     const s = JSON.parse(ev.data);
     s.round = s.source && s.source.round;
-    const prev = state.newest;
-    if (prev && (s.round !== prev.round || s.frame_index < prev.frame_index)) state.recent.clear();
-    state.recent.set(s.frame_index, s);
-    if (state.recent.size > RECENT_SNAPSHOTS) state.recent.delete(state.recent.keys().next().value);
-    state.newest = s;
-    if (s.worker) $("worker-state").textContent = s.worker.state;
-    refreshImage();
+    pending = s;
+    if (s.worker) setText($("worker-state"), s.worker.state);
   };
   ws.onclose = () => { $("worker-state").textContent = "reconnecting"; setTimeout(connect, 1000); };
 }
 
-window.addEventListener("resize", drawOverlay);
 refreshStatus();
 refreshSources().catch(() => {});
 refreshCalibrations();
