@@ -150,3 +150,32 @@ def test_numba_region_loop_matches_the_python_loop():
         assert np.allclose(fast.t, slow.t, rtol=0.0, atol=1e-10)
         assert np.allclose(fast.R, slow.R, rtol=0.0, atol=1e-10)
         assert yaw_error(fast.R, truth) < 1.0
+
+
+def test_signed_distance_kernel_is_the_exact_distance_transform():
+    """The numba distance transform gives the exact squared Euclidean distances (brute force) and signed distances
+    within a float32 rounding of OpenCV's (whose square root is not always correctly rounded), with np.gradient's
+    gradient of them."""
+    from tracker.refine.region_term import _signed_distance, _squared_edt
+
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        h, w = (int(x) for x in rng.integers(2, 60, 2))
+        crop = (rng.random((h, w)) < rng.uniform(0.02, 0.98)).astype(np.uint8)
+        if trial % 4 == 0:
+            crop[:] = 0
+            cv2.circle(crop, (int(rng.integers(0, w)), int(rng.integers(0, h))), int(rng.integers(1, 30)), 1, -1)
+        if crop.sum() in (0, crop.size):
+            continue
+        yy, xx = np.mgrid[0:h, 0:w]
+        for value in (0, 1):
+            ty, tx = np.nonzero(crop == value)
+            brute = ((yy[..., None] - ty) ** 2 + (xx[..., None] - tx) ** 2).min(axis=-1)
+            assert np.array_equal(_squared_edt(crop, value), brute.astype(np.float64))
+        outside = cv2.distanceTransform(1 - crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        inside = cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        ref = np.where(crop > 0, 0.5 - inside, outside - 0.5).astype(np.float64)
+        d, gu, gv = _signed_distance(crop)
+        assert np.allclose(d, ref, rtol=0.0, atol=1e-5)
+        rgv, rgu = np.gradient(d)
+        assert np.array_equal(gu, rgu) and np.array_equal(gv, rgv)

@@ -266,6 +266,104 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
     return H, g, n
 
 
+@nb.njit(cache=True)
+def _squared_edt(crop, target_value):
+    """Exact squared Euclidean distance (px²) from every pixel of ``crop`` to the nearest pixel whose value is
+    ``target_value`` (0 at such pixels): a column pass, then per row the lower envelope of parabolas (Felzenszwalb
+    and Huttenlocher), as OpenCV's ``distanceTransform(…, DIST_L2, DIST_MASK_PRECISE)`` computes it. Pixels with no
+    target in the image get a value larger than any distance in it."""
+    h, w = crop.shape
+    big = float((h + w) * (h + w) + 1)
+    f = np.empty((h, w))
+    for x in range(w):
+        last = -1
+        for y in range(h):
+            if (crop[y, x] != 0) == (target_value != 0):
+                last = y
+                f[y, x] = 0.0
+            elif last >= 0:
+                f[y, x] = float(y - last)
+            else:
+                f[y, x] = -1.0
+        last = -1
+        for y in range(h - 1, -1, -1):
+            if f[y, x] == 0.0:
+                last = y
+            elif last >= 0 and (f[y, x] < 0.0 or last - y < f[y, x]):
+                f[y, x] = float(last - y)
+        for y in range(h):
+            f[y, x] = big if f[y, x] < 0.0 else f[y, x] * f[y, x]
+    out = np.empty((h, w))
+    v = np.empty(w, np.int64)
+    z = np.empty(w + 1)
+    for y in range(h):
+        k = -1
+        for q in range(w):
+            if f[y, q] >= big:
+                continue
+            if k < 0:
+                k = 0
+                v[0] = q
+                z[0] = -np.inf
+                z[1] = np.inf
+                continue
+            fq = f[y, q] + q * q
+            s = (fq - (f[y, v[k]] + v[k] * v[k])) / (2.0 * (q - v[k]))
+            while s <= z[k]:
+                k -= 1
+                s = (fq - (f[y, v[k]] + v[k] * v[k])) / (2.0 * (q - v[k]))
+            k += 1
+            v[k] = q
+            z[k] = s
+            z[k + 1] = np.inf
+        if k < 0:
+            for q in range(w):
+                out[y, q] = big
+            continue
+        k = 0
+        for q in range(w):
+            while z[k + 1] < q:
+                k += 1
+            out[y, q] = (q - v[k]) * (q - v[k]) + f[y, v[k]]
+    return out
+
+
+@nb.njit(cache=True)
+def _signed_distance(crop):
+    """Signed distance (px, float64) of a binary crop's blob and its gradient (``gu`` along columns, ``gv`` along
+    rows; central differences inside, one-sided at the border, as ``np.gradient``): ``0.5 − d_in`` inside the blob,
+    ``d_out − 0.5`` outside, with the exact Euclidean distances taken in float32 as OpenCV returns them (the values of
+    ``np.where(crop > 0, 0.5 − inside, outside − 0.5)`` over OpenCV's float32 distance images)."""
+    h, w = crop.shape
+    inside = _squared_edt(crop, 0)
+    outside = _squared_edt(crop, 1)
+    half = np.float32(0.5)
+    d = np.empty((h, w))
+    for y in range(h):
+        for x in range(w):
+            if crop[y, x] > 0:
+                d[y, x] = half - np.float32(np.sqrt(inside[y, x]))
+            else:
+                d[y, x] = np.float32(np.sqrt(outside[y, x])) - half
+    gu = np.empty((h, w))
+    gv = np.empty((h, w))
+    for y in range(h):
+        for x in range(w):
+            if x == 0:
+                gu[y, x] = (d[y, 1] - d[y, 0]) / 1.0
+            elif x == w - 1:
+                gu[y, x] = (d[y, w - 1] - d[y, w - 2]) / 1.0
+            else:
+                gu[y, x] = (d[y, x + 1] - d[y, x - 1]) / 2.0
+            if y == 0:
+                gv[y, x] = (d[1, x] - d[0, x]) / 1.0
+            elif y == h - 1:
+                gv[y, x] = (d[h - 1, x] - d[h - 2, x]) / 1.0
+            else:
+                gv[y, x] = (d[y + 1, x] - d[y - 1, x]) / 2.0
+    return d, gu, gv
+
+
 @dataclass
 class SignedDistance:
     """Signed distance (px) to a blob's edge over the crop whose top-left image pixel is ``(u0, v0)``: negative
@@ -297,11 +395,9 @@ class SignedDistance:
         n_in = int(crop.sum())
         if n_in == 0 or n_in == crop.size:
             return None
-        outside = cv2.distanceTransform(1 - crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        inside = cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        # pixel centres on either side of the edge are 0.5 px from it
-        d = np.where(crop > 0, 0.5 - inside, outside - 0.5).astype(np.float64)
-        gv, gu = np.gradient(d)
+        if min(crop.shape) < 2:
+            return None  # no gradient across a one-pixel strip
+        d, gu, gv = _signed_distance(np.ascontiguousarray(crop, np.uint8))
         return cls(u0, v0, d, gu, gv)
 
 
