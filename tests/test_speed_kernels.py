@@ -93,3 +93,23 @@ def test_evaluated_pixels_match_the_numpy_reference(budget):
         assert got[0].size > 0
         if budget == 40:
             assert trk._lattice.max() > 1  # the thinning to a coarser lattice is exercised
+
+
+@pytest.mark.parametrize("p10,p11", [(0.1, 0.8), (0.2, 0.2), (0.0, 1.0)])
+def test_predicted_occlusion_matches_the_numpy_reference(p10, p11):
+    """ô of the coordinate passes (numba, transposed, with a hand's occluder prior as a floor) equals the numpy form:
+    ``np.maximum(predict_occlusion_rows(occ[pix], Δt, …).T, prior)``."""
+    from tracker.filter.depth_likelihood import occlusion_affine, predict_occlusion_rows, predicted_occlusion
+
+    rng = np.random.default_rng(2)
+    occ = rng.random((500, 40)).astype(np.float32)
+    pix = np.sort(rng.choice(500, 120, replace=False)).astype(np.int64)
+    dt = np.where(rng.random(120) < 0.2, 0.0, rng.uniform(0.01, 0.5, 120))
+    ab = occlusion_affine(dt, p10, p11)
+    a, b = ab if ab is not None else (np.ones(120, np.float32), np.zeros(120, np.float32))
+    want = np.ascontiguousarray(predict_occlusion_rows(occ[pix], dt, p10, p11).T)
+    got = predicted_occlusion(occ, pix, a, b, np.full(120, -np.inf, np.float32))
+    assert got.dtype == np.float32 and np.array_equal(got, want)
+    prior = np.where(rng.random(120) < 0.3, np.float32(0.9) * rng.random(120).astype(np.float32), np.float32(0.0))
+    got = predicted_occlusion(occ, pix, a, b, prior.astype(np.float32))
+    assert np.array_equal(got, np.maximum(want, prior.astype(np.float32)[None, :]))

@@ -86,14 +86,13 @@ def predict_occlusion(o: np.ndarray, dt: np.ndarray | float, p_occ_vis: float, p
     return 1.0 - (cd * (1.0 - o) + (1.0 - p_occ_occ) * (cd - 1.0) / (c - 1.0))
 
 
-def predict_occlusion_rows(o: np.ndarray, dt: np.ndarray, p_occ_vis: float, p_occ_occ: float) -> np.ndarray:
-    """:func:`predict_occlusion` for pixel-major float32 rows ``o`` (P, N) with one Δt per pixel ``dt`` (P,);
-    the affine map is computed once per pixel. Returns float32 (P, N)."""
-    o = np.asarray(o, np.float32)
+def occlusion_affine(dt: np.ndarray, p_occ_vis: float, p_occ_occ: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The prediction of :func:`predict_occlusion` over Δt per pixel ``dt`` (P,) as the affine map ô = a·o + b,
+    ``a``, ``b`` float32 (P,); None when it is the identity (c = 1)."""
     c = p_occ_occ - p_occ_vis
     dt = np.asarray(dt, np.float64)
     if abs(c - 1.0) < 1e-12:
-        return o.copy()
+        return None
     if c <= 0.0:
         a = np.full(dt.shape, p_occ_occ - p_occ_vis)
         b = np.full(dt.shape, p_occ_vis)
@@ -101,7 +100,38 @@ def predict_occlusion_rows(o: np.ndarray, dt: np.ndarray, p_occ_vis: float, p_oc
         cd = np.power(c, dt)
         a = cd
         b = 1.0 - cd - (1.0 - p_occ_occ) * (cd - 1.0) / (c - 1.0)
-    return (o * a.astype(np.float32)[:, None] + b.astype(np.float32)[:, None]).astype(np.float32, copy=False)
+    return a.astype(np.float32), b.astype(np.float32)
+
+
+def predict_occlusion_rows(o: np.ndarray, dt: np.ndarray, p_occ_vis: float, p_occ_occ: float) -> np.ndarray:
+    """:func:`predict_occlusion` for pixel-major float32 rows ``o`` (P, N) with one Δt per pixel ``dt`` (P,);
+    the affine map is computed once per pixel. Returns float32 (P, N)."""
+    o = np.asarray(o, np.float32)
+    ab = occlusion_affine(dt, p_occ_vis, p_occ_occ)
+    if ab is None:
+        return o.copy()
+    a, b = ab
+    return (o * a[:, None] + b[:, None]).astype(np.float32, copy=False)
+
+
+@nb.njit(cache=True)
+def predicted_occlusion(occ, pix, a, b, floor):
+    """ô (N, P) float32, particle-major, of the stored pixel-major posteriors ``occ`` (P_grid, N) at the grid pixels
+    ``pix`` (P,): ``max(a·o + b, floor)`` per pixel (:func:`occlusion_affine`; ``a`` None-equivalent: pass a = 1,
+    b = 0), the float32 arithmetic of :func:`predict_occlusion_rows` followed by ``np.maximum`` with ``floor`` (P,)
+    (e.g. a hand's occluder prior; zeros for none)."""
+    n = occ.shape[1]
+    p = pix.shape[0]
+    out = np.empty((n, p), np.float32)
+    for i in range(p):
+        row = pix[i]
+        ai = a[i]
+        bi = b[i]
+        fl = floor[i]
+        for j in range(n):
+            v = occ[row, j] * ai + bi
+            out[j, i] = v if v >= fl or v != v else fl
+    return out
 
 
 def pixel_constants(z: np.ndarray, prm: LikelihoodParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -19,7 +19,12 @@ import numpy as np
 from tracker.filter import hidden_parts, predict, render
 from tracker.filter.colour_input import color_masks
 from tracker.filter.connection_particles import apply_connections
-from tracker.filter.depth_likelihood import pixel_constants, predict_occlusion_rows, update_log_likelihood
+from tracker.filter.depth_likelihood import (
+    occlusion_affine,
+    pixel_constants,
+    predicted_occlusion,
+    update_log_likelihood,
+)
 from tracker.filter.frame_context import FrameContext, PassResult
 from tracker.filter.penalties import _obb_overlap, intersection_log_penalty, lowest_heights, table_log_penalty
 from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, systematic_resample
@@ -52,13 +57,15 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     if cfg.use_occlusion_model:
         last = trk.occ_time[pix]
         dtp = np.where(np.isfinite(last), now - last, 0.0)
-        o_hat = np.ascontiguousarray(predict_occlusion_rows(trk.occ[pix], dtp, cfg.p_occ_given_vis,
-                                                            cfg.p_occ_given_occ).T)
+        ab = occlusion_affine(dtp, cfg.p_occ_given_vis, cfg.p_occ_given_occ)
+        a, b = ab if ab is not None else (np.ones(npix, np.float32), np.zeros(npix, np.float32))
+        # ô' = max(ô, o_hand·H): pixels under a hand are likely occluded (hand spec §14.5)
+        hand_prior = ctx.occluder_prior(trk._us, trk._vs, gi, gj)
+        floor = (np.full(npix, -np.inf, np.float32) if hand_prior is None
+                 else np.ascontiguousarray(hand_prior, np.float32))
+        o_hat = predicted_occlusion(trk.occ, pix, a, b, floor)  # (N, P), the rows of ``pix`` predicted, transposed
     else:
         o_hat = np.zeros((n, npix), np.float32)
-    hand_prior = ctx.occluder_prior(trk._us, trk._vs, gi, gj) if cfg.use_occlusion_model else None
-    if hand_prior is not None:  # ô' = max(ô, o_hand·H): pixels under a hand are likely occluded (hand spec §14.5)
-        o_hat = np.maximum(o_hat, hand_prior[None, :])
 
     # full render + likelihood at the deterministic prediction
     t1 = time.perf_counter()
