@@ -17,7 +17,7 @@ processed frame rate (``/api/status``), websocket snapshots per second per viewe
 the median) and the answers by status code. Reported: per-phase medians, the ratio hostile / quiet, the RSS
 slope over the hostile part (MiB per hour, least squares), and any 5xx answer (there should be none).
 
-Writes benchmarks/results/soak.json and soak.md.
+Writes benchmarks/results/soak.json and soak.md (``--name NAME``: NAME.json and NAME.md).
 
     .venv/bin/python benchmarks/bench_soak.py [--minutes 60] [--viewers 10] [--interval 10]
 """
@@ -256,7 +256,11 @@ def main() -> int:
     ap.add_argument("--hostile-hz", type=float, default=20.0, help="hostile requests per second")
     ap.add_argument("--quiet-fraction", type=float, default=1 / 6, help="first part of the run without hostiles")
     ap.add_argument("--note", default="", help="a sentence appended to the markdown")
+    ap.add_argument("--name", default="soak", help="result files benchmarks/results/NAME.json and NAME.md (default "
+                    "soak; e.g. soak_short for a short run that keeps the full soak's figures)")
     args = ap.parse_args()
+    if not args.name.replace("_", "").isalnum():
+        ap.error("--name: letters, digits and underscores only")
     RESULTS.mkdir(parents=True, exist_ok=True)
     mach = machine_info()
     db = Path("/tmp") / f"bench-soak-{os.getpid()}.sqlite3"
@@ -300,11 +304,12 @@ def main() -> int:
         "answers": codes,
         "samples": samples,
     }
-    (RESULTS / "soak.json").write_text(json.dumps(result, indent=2, ensure_ascii=False) + "\n")
+    (RESULTS / f"{args.name}.json").write_text(json.dumps(result, indent=2, ensure_ascii=False) + "\n")
     m = mach
     q, h = summary.get("quiet", {}), summary.get("hostile", {})
     lines = [
-        "## Soak under hostile load (benchmarks/bench_soak.py)",
+        "## Soak under hostile load (benchmarks/bench_soak.py)"
+        + ("" if args.name == "soak" else f" — {args.minutes:g}-minute run (`--name {args.name}`)"),
         "",
         f"`assembly-agent serve` with its defaults (sim:guidance-demo in real time at 30 fps, guidance mode, N = 100,"
         f" viser off) for {args.minutes:g} min: {args.viewers} websocket viewers and a 15 Hz colour-image client"
@@ -341,7 +346,7 @@ def main() -> int:
     if args.note:
         lines += ["", args.note]
     lines.append("")
-    (RESULTS / "soak.md").write_text("\n".join(lines))
+    (RESULTS / f"{args.name}.md").write_text("\n".join(lines))
     print("\n".join(lines))
     return 0
 
