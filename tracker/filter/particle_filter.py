@@ -207,6 +207,12 @@ class MultiObjectTracker:
         self._last_time: float | None = None
         self._initialized = True
 
+    @property
+    def landmark_poses(self) -> dict[str, Pose]:
+        """This frame's well-seen resting parts (:func:`tracker.filter.scene_motion.landmarks`): name → camera-frame
+        pose (the camera's pose from them: :mod:`tracker.odometry.part_landmarks`)."""
+        return {self.names[i]: Pose.from_rt(R, t) for i, (R, t) in self._landmarks.items()}
+
     def set_connection_hints(self, hints: list) -> None:
         """Connections for Algorithm 6 (:class:`~tracker.filter.connection_hint.ConnectionHint`); [] clears them."""
         self._hints = resolve_hints(list(hints or []), self.names, self.config.n_particles,
