@@ -163,6 +163,30 @@ def test_odometry_command_writes_a_pose_per_frame_and_survives_bad_frames(tmp_pa
     assert max(p.translation_error(w0 @ src.camera_pose_at(i)) for i, p in enumerate(poses)) < 0.003
 
 
+def test_odometry_command_parts_method_follows_a_swaying_camera_from_the_resting_parts(tmp_path, capsys):
+    """``--method parts``: the camera pose from the recording's resting cubes, within a millimetre on a swaying
+    camera; a frame without depth keeps the last pose and is flagged."""
+    src = SimulatedTable("static", seed=0, options=SimOptions(camera_motion="sway"), n_frames=40)
+    rec = tmp_path / "rec"
+    with RecordingWriter(rec, src.intrinsics, parts=src.parts, initial_poses=src.initial_poses) as w:
+        for i in range(40):
+            f = src.render(i)
+            if i == 20:
+                f = Frame(f.index, f.timestamp, f.color, None, f.intrinsics, f.meta)
+            w.write(f, f.meta["groundtruth"])
+    out = tmp_path / "traj.tum"
+    assert main(["odometry", str(rec), "--out", str(out), "--method", "parts"]) == 0
+    captured = capsys.readouterr()
+    assert "wrote 40 poses" in captured.out and "(1 extrapolated)" in captured.out
+    assert "no depth" in captured.err
+    _, poses = read_tum(out)
+    w0 = src.camera_pose_at(0).inverse()
+    errs = [p.translation_error(w0 @ src.camera_pose_at(i)) for i, p in enumerate(poses)]
+    moved = max(Pose().translation_error(w0 @ src.camera_pose_at(i)) for i in range(40))
+    assert moved > 0.005  # the camera really moves
+    assert max(errs[:20] + errs[21:]) < 0.001, max(errs)
+
+
 def test_odometry_command_reports_a_missing_recording(tmp_path, capsys):
     assert main(["odometry", str(tmp_path / "nope"), "--out", str(tmp_path / "t.tum")]) == 1
     assert "recording directory not found" in capsys.readouterr().err

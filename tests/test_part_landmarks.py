@@ -49,3 +49,4 @@ def test_the_last_pose_is_kept_without_agreeing_landmarks():
     est = odo.update({"a": Pose.from_rt(np.eye(3), [0.05, 0.0, 0.6]), "b": Pose.from_rt(np.eye(3), [0.1, 0.0, 0.6])},
                      centres)
     assert odo.used == 0 and np.allclose(est.t, 0.0)
+

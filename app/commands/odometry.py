@@ -6,7 +6,10 @@ cannot be measured — no depth, an unreadable or corrupt image, a failed alignm
 get the constant-velocity pose, flagged by a ``#`` comment on the line before them, so the trajectory has a pose
 for every frame.
 
-``--method default`` is the dense RGB-D odometry, ``--method fastslam`` the seed's AKAZE + FastSLAM 1.0.
+``--method default`` is the dense RGB-D odometry, ``--method fastslam`` the seed's AKAZE + FastSLAM 1.0, ``--method
+parts`` the camera pose from the parts of objects.json that stay put (the tracker of ``track`` runs on the frames;
+:mod:`tracker.odometry.part_landmarks`; parts without a first-frame pose are found as ``track`` finds them; the
+mask does not apply). A frame on which no resting part agrees keeps the last pose (flagged).
 ``--mask`` chooses what is excluded from the static scene: ``hand`` (default) the hand's box when the recording's
 ground truth has one (simulated recordings), ``parts`` also the colour-detected parts of objects.json, ``none``
 nothing (the robust weights alone then deal with hands and moving parts). When the recording has the simulator's
@@ -25,8 +28,9 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("odometry", help="estimate the camera's motion over a recording (TUM trajectory)")
     p.add_argument("recording", help="recording directory (README 'Recording format')")
     p.add_argument("--out", required=True, help="output trajectory file (TUM format)")
-    p.add_argument("--method", default="default", choices=("default", "fastslam"),
-                   help="default: dense RGB-D odometry; fastslam: AKAZE features + FastSLAM 1.0 (the seed)")
+    p.add_argument("--method", default="default", choices=("default", "fastslam", "parts"),
+                   help="default: dense RGB-D odometry; fastslam: AKAZE features + FastSLAM 1.0 (the seed); parts: "
+                        "from the tracked parts that stay put (objects.json)")
     p.add_argument("--mask", default="hand", choices=("hand", "parts", "none"),
                    help="what to exclude: hand (ground-truth hand box when recorded), parts (also colour-detected "
                         "parts), none")
@@ -44,6 +48,52 @@ def _part_detector(src, mode: str):
     return ColorDetector.from_parts(coloured) if coloured else None
 
 
+class _PartsOdometry:
+    """``--method parts``: the tracker of ``track`` on the recording's parts, the camera pose from its resting ones
+    (the odometry interface: ``step(frame, mask)`` and ``skip(timestamp, reason)`` give an OdometryResult)."""
+
+    def __init__(self, recording: str, seed: int) -> None:
+        from app.commands.track import TrackSession, _auto_poses, load_recording_parts
+        from tracker.filter.tracker_config import TrackerConfig
+        from tracker.odometry.part_landmarks import PartLandmarkOdometry
+
+        src, parts, poses = load_recording_parts(recording)
+        try:
+            missing = [p for p in parts if p.name not in poses]
+            table = None
+            if missing:
+                poses, table = _auto_poses(src, parts, missing, dict(poses), True)
+        finally:
+            src.close()
+        self.session = TrackSession(parts, src.intrinsics, poses, TrackerConfig.preset("default"), seed=seed,
+                                    table=table)
+        trk = self.session.tracker
+        self.corners = {name: trk.corners[i] for i, name in enumerate(trk.names)}
+        self.landmarks = PartLandmarkOdometry()
+
+    def _result(self, pose, ok: bool, t0: float, timestamp: float, message: str):
+        from tracker.odometry.odometry_result import OdometryResult
+
+        return OdometryResult(pose, ok, self.landmarks.used, 1e3 * (time.perf_counter() - t0), float(timestamp),
+                              message=message)
+
+    def step(self, frame, mask=None):
+        t0 = time.perf_counter()
+        if frame.depth is None:
+            return self.skip(frame.timestamp, f"frame {frame.index}: no depth image — last pose kept")
+        self.session.step(frame)
+        pose = self.landmarks.update(self.session.tracker.landmark_poses, self.corners)
+        ok = self.landmarks.used > 0
+        return self._result(pose, ok, t0, frame.timestamp,
+                            "" if ok else f"frame {frame.index}: no resting part agreed — last pose kept")
+
+    def skip(self, timestamp: float, reason: str):
+        from tracker.geometry.pose import Pose
+
+        pose = self.landmarks.pose_world_camera or Pose()
+        return self._result(pose, False, time.perf_counter(), timestamp, reason)
+
+
 def run(args: argparse.Namespace) -> int:
     from tracker.geometry.pose import Pose
     from tracker.odometry import make_odometry
@@ -59,7 +109,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {out} is a directory; give a file name such as traj.tum")
     src = RecordingSource(args.recording)
     detector = _part_detector(src, args.mask)
-    odo = make_odometry(args.method, src.intrinsics, seed=args.seed)
+    if args.method == "parts":
+        odo = _PartsOdometry(args.recording, args.seed)
+    else:
+        odo = make_odometry(args.method, src.intrinsics, seed=args.seed)
     n = len(src) if args.frames is None else min(len(src), args.frames)
     rows: list[tuple[float, Pose, str]] = []
     truth: list[Pose | None] = []

@@ -73,11 +73,12 @@ class PartLandmarkOdometry:
             R_cw, t_cw = motion
             agree = [n for n, (R, t, c) in zip(names, pairs, strict=True)
                      if np.linalg.norm((R_cw @ c + t_cw) - (R @ c + t)) < self.tolerance]
-            world_pts = np.vstack([self.world[n].transform_points(points[n]) for n in agree])
-            camera_pts = np.vstack([observed[n].transform_points(points[n]) for n in agree])
-            R_cw, t_cw = rigid_fit(world_pts, camera_pts)
+            if agree:  # (the averaged consensus may agree with none of them: then it stands as it is)
+                world_pts = np.vstack([self.world[n].transform_points(points[n]) for n in agree])
+                camera_pts = np.vstack([observed[n].transform_points(points[n]) for n in agree])
+                R_cw, t_cw = rigid_fit(world_pts, camera_pts)
             self.pose_world_camera = Pose.from_rt(R_cw, t_cw).inverse()
-            self.used = len(agree)
+            self.used = max(len(agree), 1)
         self._maintain(observed, centres)
         return self.pose_world_camera
 
