@@ -12,7 +12,7 @@ image).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -37,6 +37,8 @@ class HandFeatures:
     cc_area: np.ndarray
     cc_box: np.ndarray
     cc_cut: np.ndarray
+    anchors: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    """Palm anchors of the frame (:mod:`tracker.hands.palm_cut`): inclusive boxes [K, 4] in image (working) px."""
 
     @property
     def origin(self) -> np.ndarray:

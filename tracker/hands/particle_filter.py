@@ -22,6 +22,7 @@ import numpy as np
 from tracker.hands.box_stats import box_observation, box_of, observation_likelihood, transition_stats
 from tracker.hands.certainty import TAU_D, certain_state
 from tracker.hands.features import HandFeatures
+from tracker.hands.palm_cut import anchor_state, match_anchor
 
 
 @dataclass(frozen=True)
@@ -193,6 +194,16 @@ class HandParticleFilter:
         new, det = _propagate(self.particles, stats, cent, feats.cc, feats.n_comp, feats.cc_area, feats.cc_box,
                               feats.cc_cut, ox, oy, float(W), float(H), u3, z, prm.n_min, prm.tau_d, prm.sigma_p0,
                               prm.sigma_s0, prm.sigma_vfb)  # fmt: skip
+        if len(feats.anchors):
+            # wrist cut (product extension of the section-6 mode, tracker.hands.palm_cut): if the track's predicted
+            # box overlaps a palm anchor, every particle not in the section-6 mode takes the anchor's box
+            e = self.estimate
+            k = int(match_anchor(np.array([box_of(e[0] + e[4], e[1] + e[5], e[2], e[3])], np.float64),
+                                 feats.anchors)[0])  # fmt: skip
+            if k >= 0:
+                for i in np.nonzero(~det)[0]:
+                    new[i] = anchor_state(feats.anchors[k], (self.particles[i, 0], self.particles[i, 1]))
+                    det[i] = True
         lik, _ = observe(new, feats, self.n_clusters, prm)
         w = self.weights * lik
         s = w.sum()

@@ -39,6 +39,7 @@ from tracker.hands.box_stats import box_observation, box_of
 from tracker.hands.features import HandFeatures, compute_features
 from tracker.hands.kalman import HandKalmanFilter
 from tracker.hands.motion_clusters import MotionClusters
+from tracker.hands.palm_cut import palm_anchors, palm_cut
 from tracker.hands.particle_filter import HandParticleFilter, PFParams
 from tracker.hands.skin_model import SkinModel
 
@@ -73,7 +74,8 @@ class HandTrackerConfig:
     min_area_frac: float = 0.0015
     n_init: int = 3
     n_lost: int = 10
-    hand_length_m: float = 0.19
+    hand_length_m: float = 0.08
+    palm_cut: bool = True
     ac_hat: float = 0.55
     am_hat: float = 0.45
 
@@ -177,6 +179,7 @@ class HandTracker:
         self._prev_grey: np.ndarray | None = None
         self._excl: np.ndarray | None = None  # this frame's working-resolution "cannot be a hand" mask (or None)
         self._prev_excl: np.ndarray | None = None
+        self._depth: np.ndarray | None = None
         self._mask_cur: np.ndarray | None = None  # this frame's colour mask B^c over the whole working frame
         self._mask_prev: np.ndarray | None = None
         self._candidates: list[_Candidate] = []
@@ -275,6 +278,7 @@ class HandTracker:
         grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
         size = (small.shape[1], small.shape[0])
         self._excl = self._working_mask(exclude, H, W, size)
+        self._depth = depth
         self.frame_index += 1
         out: list[HandEstimate] = []
         if self._prev_rgb is None:
@@ -340,6 +344,9 @@ class HandTracker:
         mcur = np.ascontiguousarray(self._frame_mask(rgb)[y0:y1, x0:x1])
         feats = compute_features(self._prev_grey, grey, mprev, mcur, roi, size, self.clusters, cfg.flow,
                                  max(8, cfg.roi_limit // self.s), backward=cfg.method == "pf")  # fmt: skip
+        if cfg.palm_cut:
+            feats.anchors = palm_anchors(self._frame_mask(rgb), self._depth, self.s, self._focal_px(),
+                                         cfg.hand_length_m, cfg.min_area_frac * size[0] * size[1])  # fmt: skip
         self.last_features = feats
         for tr in self.tracks:
             tr.filt.step(feats, size)
@@ -457,25 +464,13 @@ class HandTracker:
 
     def _initial_state(self, comp: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
         """Palm box (working resolution) of a border-entering component: its pixels within L_hand of its far end."""
-        h, w = comp.shape
-        ys, xs = np.nonzero(comp)
-        b = max(1, int(round(2.0 / self.s)))
-        edge = (xs < b) | (ys < b) | (xs >= w - b) | (ys >= h - b)
-        e = np.array([xs[edge].mean(), ys[edge].mean()]) if edge.any() else np.array([xs.mean(), ys.mean()])
-        d = np.hypot(xs - e[0], ys - e[1])
-        z = 0.75
-        if depth is not None:
-            dmap = np.asarray(depth)
-            dz = dmap[np.minimum(ys * self.s, dmap.shape[0] - 1), np.minimum(xs * self.s, dmap.shape[1] - 1)]
-            dz = dz[np.isfinite(dz) & (dz > 0)]
-            if len(dz):
-                z = float(np.median(dz))
-        assert self.full_size is not None
-        focal = self.focal if self.focal else 0.82 * self.full_size[0]
-        l_hand = focal / self.s * self.config.hand_length_m / z
-        sel = d >= d.max() - l_hand if d.max() > l_hand else np.ones(len(d), bool)
-        u0, u1, v0, v1 = xs[sel].min(), xs[sel].max(), ys[sel].min(), ys[sel].max()
+        u0, v0, u1, v1 = palm_cut(comp, depth, self.s, self._focal_px(), self.config.hand_length_m).box
         return np.array([(u0 + u1) / 2.0, (v0 + v1) / 2.0, float(u1 - u0), float(v1 - v0), 0.0, 0.0])
+
+    def _focal_px(self) -> float:
+        """Focal length in full-resolution pixels (0.82·width without intrinsics)."""
+        assert self.full_size is not None
+        return float(self.focal) if self.focal else 0.82 * self.full_size[0]
 
 
 def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:

@@ -1,0 +1,120 @@
+"""The wrist cut: the palm box of a skin component that enters the image with its forearm (hand-tracking spec §14.3;
+product extension of the section-6 mode to bare forearms).
+
+Spec §14.3 starts a track on a border-entering component with the pixels within L_hand of the component's far end
+from its entry point. The product also uses the same cut while tracking (:func:`palm_anchors`): with a bare forearm
+the hand, wrist and forearm form one colour component that reaches the image border, so the thesis's section-6
+test (the box must hold ≥ 80 % of its component) never passes (thesis ASL sequence). Every such component longer
+than :data:`MIN_ARM` × L_hand yields one "anchor" box per frame, the palm end of the arm; a track's particles
+whose predicted box overlaps an anchor (box F-score ≥ :data:`ANCHOR_MIN_F`) take the anchor's box, as particles
+that pass the section-6 test take their component's box (:mod:`tracker.hands.particle_filter`); the Kalman
+reference uses it as its section-6 observation.
+
+Units: working-resolution pixels (the tracker's downscaled image), inclusive boxes (u0, v0, u1, v1), x right,
+y down; depth in metres at full resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+MIN_ARM = 1.5
+"""A border component counts as hand + forearm when its extent from the entry point exceeds 1.5 L_hand."""
+ANCHOR_MIN_F = 0.3
+"""Box F-score a predicted box needs with an anchor to take it."""
+
+
+@dataclass(frozen=True)
+class PalmCut:
+    """``box`` inclusive palm box; ``extent`` d_max (px) and ``l_hand`` L_hand (px) of the component; ``border``:
+    whether the component touches the image border."""
+
+    box: tuple[int, int, int, int]
+    extent: float
+    l_hand: float
+    border: bool
+
+
+def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: float, hand_length_m: float,
+             far_frac: float = 0.25) -> PalmCut:  # fmt: skip
+    """Palm of a skin component ``comp`` (bool, working resolution): e = mean of the component's pixels within
+    b = 2 full-resolution px of an image edge (its entry point; the centroid if none), d = each pixel's distance from
+    e, and the palm is the pixels with d ≥ d_max − L_hand, L_hand = f_x · ``hand_length_m`` / Z̄ in working pixels
+    (``focal`` f_x in full-resolution px, ``scale`` the working downscale factor).
+
+    Product choice: Z̄ is the median valid depth (``depth`` in metres, full resolution) of the component's far end
+    (the ``far_frac`` of its pixels farthest from e) rather than of the whole component — a bare forearm reaches
+    towards the camera and its depth lengthened L_hand about twofold; without depth Z̄ = 0.75 m."""
+    h, w = comp.shape
+    ys, xs = np.nonzero(comp)
+    b = max(1, int(round(2.0 / scale)))
+    edge = (xs < b) | (ys < b) | (xs >= w - b) | (ys >= h - b)
+    border = bool(edge.any())
+    e = np.array([xs[edge].mean(), ys[edge].mean()]) if border else np.array([xs.mean(), ys.mean()])
+    d = np.hypot(xs - e[0], ys - e[1])
+    z = 0.75
+    if depth is not None:
+        far = d >= np.quantile(d, 1.0 - far_frac)
+        dmap = np.asarray(depth)
+        dz = dmap[np.minimum(ys[far] * scale, dmap.shape[0] - 1), np.minimum(xs[far] * scale, dmap.shape[1] - 1)]
+        dz = dz[np.isfinite(dz) & (dz > 0)]
+        if len(dz):
+            z = float(np.median(dz))
+    l_hand = focal / scale * hand_length_m / z
+    dmax = float(d.max())
+    sel = d >= dmax - l_hand if dmax > l_hand else np.ones(len(d), bool)
+    box = (int(xs[sel].min()), int(ys[sel].min()), int(xs[sel].max()), int(ys[sel].max()))
+    return PalmCut(box, dmax, float(l_hand), border)
+
+
+def palm_anchors(mask: np.ndarray, depth: np.ndarray | None, scale: int, focal: float, hand_length_m: float,
+                 min_area: float) -> np.ndarray:  # fmt: skip
+    """Anchor boxes [K, 4] (float64, inclusive, working px) of the frame's colour mask ``mask`` (uint8 0/1, whole
+    working frame): one per 4-connected component of area ≥ ``min_area`` that touches the image border and reaches
+    farther than MIN_ARM·L_hand from it."""
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4, ltype=cv2.CV_32S)
+    h, w = mask.shape
+    b = max(1, int(round(2.0 / scale)))
+    out = []
+    for i in range(1, n):
+        x, y, bw, bh, area = (int(v) for v in stats[i])
+        if area < min_area or not (x < b or y < b or x + bw > w - b or y + bh > h - b):
+            continue
+        sub = lab[y : y + bh, x : x + bw] == i
+        cut = palm_cut(_embed(sub, x, y, w, h), depth, scale, focal, hand_length_m)
+        if cut.border and cut.extent > MIN_ARM * cut.l_hand:
+            out.append(cut.box)
+    return np.asarray(out, np.float64).reshape(-1, 4)
+
+
+def _embed(sub: np.ndarray, x: int, y: int, w: int, h: int) -> np.ndarray:
+    full = np.zeros((h, w), bool)
+    full[y : y + sub.shape[0], x : x + sub.shape[1]] = sub
+    return full
+
+
+def match_anchor(boxes: np.ndarray, anchors: np.ndarray, min_f: float = ANCHOR_MIN_F) -> np.ndarray:
+    """For inclusive boxes [N, 4], the index of the anchor with the highest box F-score if it is ≥ ``min_f``, else
+    −1 ([N] int)."""
+    if len(anchors) == 0 or len(boxes) == 0:
+        return np.full(len(boxes), -1, np.int64)
+    a = anchors[None]
+    q = np.asarray(boxes, np.float64)[:, None]
+    iw = np.minimum(q[..., 2], a[..., 2]) - np.maximum(q[..., 0], a[..., 0]) + 1
+    ih = np.minimum(q[..., 3], a[..., 3]) - np.maximum(q[..., 1], a[..., 1]) + 1
+    inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
+    sa = (q[..., 2] - q[..., 0] + 1) * (q[..., 3] - q[..., 1] + 1)
+    sb = (a[..., 2] - a[..., 0] + 1) * (a[..., 3] - a[..., 1] + 1)
+    f = 2 * inter / np.maximum(sa + sb, 1)
+    best = f.argmax(axis=1)
+    return np.where(f[np.arange(len(boxes)), best] >= min_f, best, -1)
+
+
+def anchor_state(box: np.ndarray, prev_xy: tuple[float, float]) -> np.ndarray:
+    """State (x, y, w, h, x', y') of an anchor box (tight-box convention of spec §6), velocity from ``prev_xy``."""
+    u0, v0, u1, v1 = (float(v) for v in box)
+    x, y = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+    return np.array([x, y, u1 - u0, v1 - v0, x - prev_xy[0], y - prev_xy[1]])
