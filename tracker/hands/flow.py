@@ -18,6 +18,8 @@ import numba as nb
 import numpy as np
 
 METHODS = ("dis", "farneback")
+MIN_SIDE = 32
+"""Crops with a side shorter than this are padded (edge replication) before the flow and the flow cropped back."""
 
 _DIS: dict[int, cv2.DISOpticalFlow] = {}
 
@@ -54,8 +56,13 @@ def forward_backward(prev: np.ndarray, cur: np.ndarray, method: str = "dis",
     if min(p.shape) < 8:  # DIS needs a few pixels; a tiny crop has no usable motion
         z = np.zeros((h, w, 2), np.float32)
         return z, z.copy()
-    fw = flow(p, c, method)
-    bw = flow(c, p, method)
+    ph, pw = p.shape
+    if min(ph, pw) < MIN_SIDE:  # OpenCV's DIS crashes on thin images (seen at 13×79): pad by edge replication
+        pad = ((0, max(0, MIN_SIDE - ph)), (0, max(0, MIN_SIDE - pw)))
+        p, c = np.pad(p, pad, mode="edge"), np.pad(c, pad, mode="edge")
+    fw = np.ascontiguousarray(flow(p, c, method)[:ph, :pw])
+    bw = np.ascontiguousarray(flow(c, p, method)[:ph, :pw])
+    p = p[:ph, :pw]
     if f > 1:
         sx, sy = w / float(p.shape[1]), h / float(p.shape[0])
         fw = cv2.resize(fw, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32([sx, sy])

@@ -5,7 +5,7 @@ Spec §14.3 starts a track on a border-entering component with the pixels within
 from its entry point. The product also uses the same cut while tracking (:func:`palm_anchors`): with a bare forearm
 the hand, wrist and forearm form one colour component that reaches the image border, so the thesis's section-6
 test (the box must hold ≥ 80 % of its component) never passes (thesis ASL sequence). Every such component longer
-than :data:`MIN_ARM` × L_hand yields one "anchor" box per frame, the palm end of the arm; a track's particles
+than :data:`MIN_ARM_M` yields one "anchor" box per frame, the palm end of the arm; a track's particles
 whose predicted box overlaps an anchor (box F-score ≥ :data:`ANCHOR_MIN_F`) take the anchor's box, as particles
 that pass the section-6 test take their component's box (:mod:`tracker.hands.particle_filter`); the Kalman
 reference uses it as its section-6 observation.
@@ -21,8 +21,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-MIN_ARM = 1.5
-"""A border component counts as hand + forearm when its extent from the entry point exceeds 1.5 L_hand."""
+MIN_ARM_M = 0.15
+"""A border component counts as hand + forearm when its extent from the entry point exceeds this length (m) at the
+far end's depth (an adult hand is about 0.19 m long)."""
 ANCHOR_MIN_F = 0.3
 """Box F-score a predicted box needs with an anchor to take it."""
 
@@ -30,12 +31,18 @@ ANCHOR_MIN_F = 0.3
 @dataclass(frozen=True)
 class PalmCut:
     """``box`` inclusive palm box; ``extent`` d_max (px) and ``l_hand`` L_hand (px) of the component; ``border``:
-    whether the component touches the image border."""
+    whether the component touches the image border; ``px_per_m`` f_x / Z̄ in working px per metre."""
 
     box: tuple[int, int, int, int]
     extent: float
     l_hand: float
     border: bool
+    px_per_m: float = 0.0
+
+    @property
+    def has_forearm(self) -> bool:
+        """Whether the component is longer than a hand (:data:`MIN_ARM_M`)."""
+        return self.extent > MIN_ARM_M * self.px_per_m
 
 
 def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: float, hand_length_m: float,
@@ -67,14 +74,19 @@ def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: floa
     dmax = float(d.max())
     sel = d >= dmax - l_hand if dmax > l_hand else np.ones(len(d), bool)
     box = (int(xs[sel].min()), int(ys[sel].min()), int(xs[sel].max()), int(ys[sel].max()))
-    return PalmCut(box, dmax, float(l_hand), border)
+    return PalmCut(box, dmax, float(l_hand), border, focal / scale / z)
 
 
 def palm_anchors(mask: np.ndarray, depth: np.ndarray | None, scale: int, focal: float, hand_length_m: float,
                  min_area: float) -> np.ndarray:  # fmt: skip
     """Anchor boxes [K, 4] (float64, inclusive, working px) of the frame's colour mask ``mask`` (uint8 0/1, whole
     working frame): one per 4-connected component of area ≥ ``min_area`` that touches the image border and reaches
-    farther than MIN_ARM·L_hand from it."""
+    farther than MIN_ARM_M from it. The mask is opened with a 5×5 disk first (isolated false skin pixels on a
+    sleeve would otherwise chain into an "arm"). Without ``depth`` there are no anchors: the hand's length in pixels
+    would be a guess, and a wrong cut is worse than none."""
+    if depth is None:
+        return np.zeros((0, 4))
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4, ltype=cv2.CV_32S)
     h, w = mask.shape
     b = max(1, int(round(2.0 / scale)))
@@ -85,7 +97,7 @@ def palm_anchors(mask: np.ndarray, depth: np.ndarray | None, scale: int, focal: 
             continue
         sub = lab[y : y + bh, x : x + bw] == i
         cut = palm_cut(_embed(sub, x, y, w, h), depth, scale, focal, hand_length_m)
-        if cut.border and cut.extent > MIN_ARM * cut.l_hand:
+        if cut.border and cut.has_forearm:
             out.append(cut.box)
     return np.asarray(out, np.float64).reshape(-1, 4)
 

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from tracker.hands import identity
 from tracker.hands.box_stats import box_observation, box_of
 from tracker.hands.features import HandFeatures, compute_features
 from tracker.hands.kalman import HandKalmanFilter
@@ -44,6 +45,10 @@ from tracker.hands.particle_filter import HandParticleFilter, PFParams
 from tracker.hands.skin_model import SkinModel
 
 METHODS = ("pf", "kalman")
+REACQUIRE_MOVE = 2.0
+SWAP_FRAMES = 3
+"""Consecutive frames the exchanged id assignment must fit better before two tracks' ids are swapped."""
+"""Working px a candidate away from the border must move over its n_init frames to re-acquire a lost track."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +81,8 @@ class HandTrackerConfig:
     n_lost: int = 10
     hand_length_m: float = 0.08
     palm_cut: bool = True
+    reacquire: bool = True
+    keep_lost: int = 300
     ac_hat: float = 0.55
     am_hat: float = 0.45
 
@@ -114,12 +121,27 @@ class _Track:
     tiny: int = 0
     dup: dict[int, int] = field(default_factory=dict)
     score: float = 1.0
+    app: np.ndarray | None = None
+    swap: dict[int, int] = field(default_factory=dict)
+
+
+@dataclass
+class _Lost:
+    """A track that ended (left the image, lost its hand, or duplicated another track) and keeps its id for
+    re-acquisition: ``state`` its last estimate (working px), ``frames`` since it ended."""
+
+    id: int
+    state: np.ndarray
+    frames: int = 0
+    app: np.ndarray | None = None
 
 
 @dataclass
 class _Candidate:
     box: tuple[int, int, int, int]
     seen: int
+    border: bool = True
+    first: tuple[float, float] = (0.0, 0.0)
 
 
 def state_box(state: np.ndarray) -> tuple[int, int, int, int]:
@@ -172,6 +194,7 @@ class HandTracker:
         self.rng = np.random.default_rng(cfg.seed)
         self.clusters = MotionClusters(cfg.n_clusters, seed=cfg.seed)
         self.tracks: list[_Track] = []
+        self.lost: list[_Lost] = []
         self.next_id = 1
         self.frame_index = -1
         self.full_size: tuple[int, int] | None = None
@@ -180,6 +203,9 @@ class HandTracker:
         self._excl: np.ndarray | None = None  # this frame's working-resolution "cannot be a hand" mask (or None)
         self._prev_excl: np.ndarray | None = None
         self._depth: np.ndarray | None = None
+        self._bins: np.ndarray | None = None  # this frame's appearance bin image (tracker.hands.identity)
+        self._bg_bins: np.ndarray | None = None
+        self._cur_rgb: np.ndarray | None = None
         self._mask_cur: np.ndarray | None = None  # this frame's colour mask B^c over the whole working frame
         self._mask_prev: np.ndarray | None = None
         self._candidates: list[_Candidate] = []
@@ -220,15 +246,16 @@ class HandTracker:
             raise RuntimeError("hand tracker: process a frame before starting a track on it")
         return self._start(self.from_full_box(box_excl))
 
-    def _start(self, x1: np.ndarray) -> int:
+    def _start(self, x1: np.ndarray, tid: int | None = None) -> int:
         cfg = self.config
         if cfg.method == "pf":
             filt: HandParticleFilter | HandKalmanFilter = HandParticleFilter(
                 x1, self.pf_params, cfg.n_clusters, np.random.default_rng(self.rng.integers(1 << 62)))
         else:
             filt = HandKalmanFilter(x1, cfg.n_clusters, sigma_q=2.0 / self.s)
-        tid = self.next_id
-        self.next_id += 1
+        if tid is None:
+            tid = self.next_id
+            self.next_id += 1
         self.tracks.append(_Track(tid, filt))
         return tid
 
@@ -281,16 +308,28 @@ class HandTracker:
         self._depth = depth
         self.frame_index += 1
         out: list[HandEstimate] = []
+        self._bins = None
+        self._cur_rgb = small
         if self._prev_rgb is None:
+            self._bg_bins = identity.background_bins(self._bin_image(small))
             if self.config.session_background:
                 self.skin = self.skin.with_background(small, step=2, keep=None if self._excl is None else ~self._excl)
         self._mask_cur = None
         if self._prev_rgb is not None and self.tracks:
             out = self._step_tracks(small, grey, size)
-        if self.config.auto_init and len(self.tracks) < self.config.max_tracks:
-            new = self._auto_init(small, depth)
+        for lo in self.lost:
+            lo.frames += 1
+        self.lost = [lo for lo in self.lost if lo.frames <= self.config.keep_lost]
+        new_ok = self.config.auto_init and len(self.tracks) + len(self.lost) < self.config.max_tracks
+        if new_ok or self.lost:
+            new = self._auto_init(small, depth, reacquire=bool(self.lost))
             if new is not None:
-                self._start(new)
+                if self.lost:  # a lost track comes back with its id (see _pick_lost)
+                    lo = self.lost.pop(self._pick_lost(new, small))
+                    self._start(new, lo.id)
+                    self.tracks[-1].app = lo.app
+                else:
+                    self._start(new)
                 out.append(self._estimate(self.tracks[-1], size))
         self._prev_rgb = small
         self._prev_grey = grey
@@ -334,6 +373,7 @@ class HandTracker:
         roi = self._roi(size)
         x0, y0, x1, y1 = roi
         if x1 - x0 < 8 or y1 - y0 < 8:
+            self._end([True] * len(self.tracks))
             self.tracks = []
             return []
         assert self._prev_rgb is not None and self._prev_grey is not None
@@ -353,8 +393,13 @@ class HandTracker:
             tr.age += 1
         ests = [self._estimate(tr, size, feats) for tr in self.tracks]
         keep = self._terminate(size)
+        self._end([not k for k in keep])
         self.tracks = [tr for tr, k in zip(self.tracks, keep, strict=True) if k]
         ests = [e for e, k in zip(ests, keep, strict=True) if k]
+        if cfg.reacquire:
+            self._identity(rgb)
+            for e, tr in zip(ests, self.tracks, strict=True):
+                e.id = tr.id
         if cfg.adapt:
             for tr in self.tracks:
                 if tr.score >= 0.5:
@@ -369,6 +414,14 @@ class HandTracker:
                 self._adapt_pixels = []
                 self._mask_cur = None  # the frame's mask under the adapted model, if it is needed again
         return ests
+
+    def _end(self, ending: list[bool]) -> None:
+        """Tracks flagged in ``ending`` become lost tracks (re-acquirable with their ids) if ``reacquire``."""
+        if not self.config.reacquire:
+            return
+        for tr, e in zip(self.tracks, ending, strict=True):
+            if e:
+                self.lost.append(_Lost(tr.id, np.asarray(tr.filt.estimate, float).copy(), app=tr.app))
 
     def _estimate(self, tr: _Track, size: tuple[int, int], feats: HandFeatures | None = None) -> HandEstimate:
         f = tr.filt
@@ -405,14 +458,96 @@ class HandTracker:
                 if box_f_score(boxes[i], boxes[j]) >= 0.8:
                     a.dup[b.id] = a.dup.get(b.id, 0) + 1
                     if a.dup[b.id] >= cfg.n_lost:
-                        keep[j if b.id > a.id else i] = False
+                        keep[self._duplicate_loser(i, j)] = False
                 else:
                     a.dup.pop(b.id, None)
         return keep
 
+    # ------------------------------------------------------------------ identity (tracker.hands.identity)
+    def _bin_image(self, rgb: np.ndarray) -> np.ndarray:
+        return identity.bin_image(cv2.cvtColor(rgb, cv2.COLOR_RGB2YCrCb))
+
+    def _appearance(self, rgb: np.ndarray, state: np.ndarray) -> np.ndarray | None:
+        """Appearance histogram around a working-resolution state's box in this frame."""
+        if self._bg_bins is None:
+            return None
+        if self._bins is None:
+            self._bins = self._bin_image(rgb)
+        return identity.appearance(self._bins, self._frame_mask(rgb), self._bg_bins, state_box(state))
+
+    def _duplicate_loser(self, i: int, j: int) -> int:
+        """Index of the one of two duplicate tracks whose appearance fits their shared box worse (ties: the
+        younger)."""
+        a, b = self.tracks[i], self.tracks[j]
+        if a.app is not None and b.app is not None:
+            assert self._cur_rgb is not None
+            obs = self._appearance(self._cur_rgb, a.filt.estimate)
+            sa, sb = identity.similarity(a.app, obs), identity.similarity(b.app, obs)
+            if abs(sa - sb) > 0.05:
+                return j if sa > sb else i
+        return j if b.id > a.id else i
+
+    def _pick_lost(self, state: np.ndarray, rgb: np.ndarray) -> int:
+        """Index of the lost track a re-acquired hand at ``state`` continues: the best appearance match if the lost
+        tracks have appearance models and the hand has an appearance measurement, else the one last seen nearest."""
+        obs = self._appearance(rgb, state)
+        sims = [identity.similarity(lo.app, obs) for lo in self.lost]
+        if obs is not None and any(lo.app is not None for lo in self.lost) and max(sims) - min(sims) > 0.05:
+            return int(np.argmax(sims))
+        d = [np.hypot(*(lo.state[:2] - state[:2])) for lo in self.lost]
+        return int(np.argmin(d))
+
+    def _identity(self, rgb: np.ndarray) -> None:
+        """Swap back ids that moved to the other hand, then learn the isolated tracks' appearance."""
+        n = len(self.tracks)
+        boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
+        obs = [self._appearance(rgb, tr.filt.estimate) for tr in self.tracks]
+        isolated = []
+        for i in range(n):
+            b = boxes[i]
+            mx, my = identity.MARGIN * (b[2] - b[0] + 1), identity.MARGIN * (b[3] - b[1] + 1)
+            big = (b[0] - mx, b[1] - my, b[2] + mx, b[3] + my)
+            isolated.append(obs[i] is not None and not any(
+                _overlap_f(big, boxes[j]) for j in range(n) if j != i))  # fmt: skip
+        sim = identity.similarity
+        for i in range(n):
+            for j in range(i + 1, n):
+                a, b = self.tracks[i], self.tracks[j]
+                if not (isolated[i] and isolated[j] and a.app is not None and b.app is not None):
+                    a.swap.pop(b.id, None)
+                    continue
+                gain = sim(a.app, obs[j]) + sim(b.app, obs[i]) - sim(a.app, obs[i]) - sim(b.app, obs[j])
+                a.swap[b.id] = a.swap.get(b.id, 0) + 1 if gain > identity.SWAP_MARGIN else 0
+                if a.swap[b.id] >= SWAP_FRAMES:
+                    a.id, b.id = b.id, a.id
+                    a.app, b.app = b.app, a.app
+                    a.swap, b.swap = {}, {}
+                    a.dup, b.dup = {}, {}
+        for i, tr in enumerate(self.tracks):
+            if not isolated[i] or tr.app is None:
+                continue
+            for lo in self.lost:
+                if lo.app is None:
+                    continue
+                gain = sim(lo.app, obs[i]) - sim(tr.app, obs[i])
+                key = -lo.id
+                tr.swap[key] = tr.swap.get(key, 0) + 1 if gain > identity.SWAP_MARGIN / 2 else 0
+                if tr.swap[key] >= SWAP_FRAMES:
+                    tr.id, lo.id = lo.id, tr.id
+                    tr.app, lo.app = lo.app, tr.app
+                    tr.swap = {}
+                    break
+        for i, tr in enumerate(self.tracks):
+            if isolated[i] and tr.score >= 0.5 and not any(v > 0 for v in tr.swap.values()):
+                assert obs[i] is not None
+                tr.app = identity.learn(tr.app, obs[i])
+
     # ------------------------------------------------------------------ automatic initialisation
-    def _auto_init(self, rgb: np.ndarray, depth: np.ndarray | None) -> np.ndarray | None:
-        """A new track's initial working-resolution state, or None (see the module docstring)."""
+    def _auto_init(self, rgb: np.ndarray, depth: np.ndarray | None, reacquire: bool = False) -> np.ndarray | None:
+        """A new track's initial working-resolution state, or None (see the module docstring). With ``reacquire``
+        (a lost track waits for its hand) a candidate need not touch the image border when first seen if its box
+        centre has moved by ≥ :data:`REACQUIRE_MOVE` working px over its n_init frames (a moving skin region that no
+        track explains)."""
         cfg = self.config
         h, w = rgb.shape[:2]
         mask = self._frame_mask(rgb)
@@ -445,14 +580,17 @@ class HandTracker:
         cands: list[_Candidate] = []
         best: tuple[int, int, _Candidate] | None = None
         for area, box, i, border in found:
+            centre = (0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3]))
             prev = [c for c in self._candidates if _overlap(c.box, box)]
             if prev:
-                c = _Candidate(box, max(p.seen for p in prev) + 1)
-            elif border:
-                c = _Candidate(box, 1)
+                p = max(prev, key=lambda c: c.seen)
+                c = _Candidate(box, p.seen + 1, p.border, p.first)
             else:
-                continue
+                c = _Candidate(box, 1, border, centre)
             cands.append(c)
+            moved = float(np.hypot(centre[0] - c.first[0], centre[1] - c.first[1])) >= REACQUIRE_MOVE
+            if not (c.border or (reacquire and moved)):
+                continue
             if c.seen >= cfg.n_init and (best is None or area > best[0]):
                 best = (area, i, c)
         self._candidates = cands
@@ -464,13 +602,21 @@ class HandTracker:
 
     def _initial_state(self, comp: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
         """Palm box (working resolution) of a border-entering component: its pixels within L_hand of its far end."""
-        u0, v0, u1, v1 = palm_cut(comp, depth, self.s, self._focal_px(), self.config.hand_length_m).box
+        cut = palm_cut(comp, depth, self.s, self._focal_px(), self.config.hand_length_m)
+        u0, v0, u1, v1 = cut.box
+        if not cut.has_forearm:  # no forearm in the component (sleeve): the whole component
+            ys, xs = np.nonzero(comp)
+            u0, v0, u1, v1 = int(xs.min()), int(ys.min()), int(xs.max()), int(ys.max())
         return np.array([(u0 + u1) / 2.0, (v0 + v1) / 2.0, float(u1 - u0), float(v1 - v0), 0.0, 0.0])
 
     def _focal_px(self) -> float:
         """Focal length in full-resolution pixels (0.82·width without intrinsics)."""
         assert self.full_size is not None
         return float(self.focal) if self.focal else 0.82 * self.full_size[0]
+
+
+def _overlap_f(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return min(a[2], b[2]) >= max(a[0], b[0]) and min(a[3], b[3]) >= max(a[1], b[1])
 
 
 def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
