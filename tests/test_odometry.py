@@ -140,15 +140,22 @@ def test_make_odometry_refuses_unknown_method():
         OdometryConfig().with_overrides(levels_=1)
 
 
-def test_odometry_command_writes_a_pose_per_frame_and_survives_bad_frames(tmp_path, capsys):
-    src = SimulatedTable("static", seed=0, options=SimOptions(camera_motion="sway"), n_frames=12)
-    rec = tmp_path / "rec"
+def _sway_recording(rec, n: int, no_depth_at: int) -> SimulatedTable:
+    """A static scene seen by a swaying camera, ``n`` frames written to ``rec``, frame ``no_depth_at`` without
+    depth; returns the simulator (its camera poses are the truth)."""
+    src = SimulatedTable("static", seed=0, options=SimOptions(camera_motion="sway"), n_frames=n)
     with RecordingWriter(rec, src.intrinsics, parts=src.parts, initial_poses=src.initial_poses) as w:
-        for i in range(12):
+        for i in range(n):
             f = src.render(i)
-            if i == 5:
+            if i == no_depth_at:
                 f = Frame(f.index, f.timestamp, f.color, None, f.intrinsics, f.meta)
             w.write(f, f.meta["groundtruth"])
+    return src
+
+
+def test_odometry_command_writes_a_pose_per_frame_and_survives_bad_frames(tmp_path, capsys):
+    rec = tmp_path / "rec"
+    src = _sway_recording(rec, 12, 5)
     (rec / "color" / "000008.png").write_bytes(b"not a png")
     out = tmp_path / "traj.tum"
     assert main(["odometry", str(rec), "--out", str(out), "--mask", "parts"]) == 0
@@ -166,14 +173,8 @@ def test_odometry_command_writes_a_pose_per_frame_and_survives_bad_frames(tmp_pa
 def test_odometry_command_parts_method_follows_a_swaying_camera_from_the_resting_parts(tmp_path, capsys):
     """``--method parts``: the camera pose from the recording's resting cubes, within a millimetre on a swaying
     camera; a frame without depth keeps the last pose and is flagged."""
-    src = SimulatedTable("static", seed=0, options=SimOptions(camera_motion="sway"), n_frames=40)
     rec = tmp_path / "rec"
-    with RecordingWriter(rec, src.intrinsics, parts=src.parts, initial_poses=src.initial_poses) as w:
-        for i in range(40):
-            f = src.render(i)
-            if i == 20:
-                f = Frame(f.index, f.timestamp, f.color, None, f.intrinsics, f.meta)
-            w.write(f, f.meta["groundtruth"])
+    src = _sway_recording(rec, 40, 20)
     out = tmp_path / "traj.tum"
     assert main(["odometry", str(rec), "--out", str(out), "--method", "parts"]) == 0
     captured = capsys.readouterr()
