@@ -200,5 +200,8 @@ def run(args: argparse.Namespace) -> int:
             "note: other machines reach this server only by a name given with --allowed-host (e.g. this machine's "
             "LAN address); others are refused against DNS rebinding"
         )
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning", timeout_graceful_shutdown=5)
+    # no per-message compression on /ws: the panel's messages are mostly JPEG (incompressible) and compressing
+    # them cost the event loop about a quarter of its time (py-spy, benchmarks/bench_server.py's browser run)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level="warning", timeout_graceful_shutdown=5,
+                ws_per_message_deflate=False)
     return 0
