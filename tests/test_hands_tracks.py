@@ -1,0 +1,180 @@
+"""Hand tracks (tracker/hands): the wrist cut, the mode-restricted estimate, the appearance histograms, lost tracks
+that come back with their ids, two tracks on one hand, ids swapped back, thin flow crops, determinism. Synthetic
+images and a short seeded simulator sequence (training seed 3)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tracker.hands import identity
+from tracker.hands.flow import forward_backward
+from tracker.hands.metrics import dice
+from tracker.hands.palm_cut import match_anchor, palm_anchors
+from tracker.hands.particle_filter import mode_estimate
+from tracker.hands.tracker import HandTracker, HandTrackerConfig
+from tracker.sources.simulator import SimulatedTable
+
+N_FRAMES = 70
+SKIN = (215, 160, 130)  # RGB of a light skin tone (inside the shipped skin model's region)
+TABLE = (120, 130, 140)
+
+
+@pytest.fixture(scope="module")
+def s1() -> tuple[list[np.ndarray], list[np.ndarray], list[dict]]:
+    src = SimulatedTable("hands-s1", seed=3, n_frames=N_FRAMES)
+    frames, depths, boxes = [], [], []
+    for f in src:
+        frames.append(f.color.copy())
+        depths.append(f.depth.copy())
+        gt = f.meta["groundtruth"]
+        boxes.append(dict(zip(gt["hand_box_ids"], gt["hand_boxes"], strict=True)))
+    return frames, depths, boxes
+
+
+def _inside(b: list[int]) -> bool:
+    return b[0] > 2 and b[1] > 2 and b[2] < 638 and b[3] < 478
+
+
+def _arm_mask() -> np.ndarray:
+    """Working-resolution mask: an 8 px wide arm from the bottom-right corner up-left, a 16 px palm at its end."""
+    m = np.zeros((240, 320), np.uint8)
+    for t in np.linspace(0.0, 1.0, 400):
+        x, y = int(319 - 150 * t), int(239 - 150 * t)
+        m[max(y - 4, 0) : y + 4, max(x - 4, 0) : x + 4] = 1
+    m[80:100, 160:180] = 1  # palm at the far end (around (170, 90))
+    return m
+
+
+def test_wrist_cut_anchors_the_far_end_of_an_arm():
+    depth = np.full((480, 640), 0.7, np.float32)
+    a = palm_anchors(_arm_mask(), depth, scale=2, focal=525.0, hand_length_m=0.08, min_area=50)
+    assert a.shape == (1, 4)
+    u0, v0, u1, v1 = a[0]
+    # L_hand = 525/2 · 0.08 / 0.7 = 30 px: the palm end (palm at 160–179 × 80–99), not the 150 px long arm
+    assert (u0, v0) == (160, 80) and 180 <= u1 <= 192 and 100 <= v1 <= 112
+    assert len(palm_anchors(_arm_mask(), None, 2, 525.0, 0.08, 50)) == 0  # no depth: no anchor
+    short = np.zeros((240, 320), np.uint8)
+    short[200:240, 150:175] = 1  # a sleeved palm entering from the bottom: no forearm in it
+    assert len(palm_anchors(short, depth, 2, 525.0, 0.08, 50)) == 0
+    speck = np.zeros((240, 320), np.uint8)
+    speck[::3, ::3] = 1  # isolated false skin pixels do not chain into an arm
+    assert len(palm_anchors(speck, depth, 2, 525.0, 0.08, 50)) == 0
+
+
+def test_match_anchor_takes_the_best_overlap_above_the_threshold():
+    anchors = np.array([[0, 0, 9, 9], [100, 100, 119, 119]], float)
+    boxes = np.array([[1, 1, 10, 10], [102, 98, 121, 117], [50, 50, 60, 60]], float)
+    assert match_anchor(boxes, anchors).tolist() == [0, 1, -1]
+    assert match_anchor(boxes, np.zeros((0, 4))).tolist() == [-1, -1, -1]
+
+
+def test_mode_estimate_is_not_between_two_hands():
+    left = np.array([[50.0, 50, 20, 20, 1, 0]] * 6) + np.linspace(-1, 1, 6)[:, None] * [1, 1, 0, 0, 0, 0]
+    right = np.array([[150.0, 50, 20, 20, -1, 0]] * 4)
+    parts = np.vstack([left, right])
+    w = np.array([0.12] * 6 + [0.07] * 4)
+    w /= w.sum()
+    est = mode_estimate(parts, w)
+    assert est[0] == pytest.approx(50.0, abs=1.0) and est[4] == pytest.approx(1.0)
+    assert np.allclose(mode_estimate(left, np.full(6, 1 / 6)), left.mean(axis=0))  # one mode: the MMSE mean
+
+
+def test_appearance_tells_two_sleeves_apart():
+    bins = identity.bin_image(np.zeros((100, 200, 3), np.uint8) + np.uint8([100, 128, 128]))  # grey YCrCb table
+    bg = identity.background_bins(bins)
+    img = np.zeros((100, 200, 3), np.uint8) + np.uint8([100, 128, 128])
+    img[60:100, 30:60] = [60, 110, 150]  # sleeve A below hand A (YCrCb)
+    img[60:100, 130:160] = [90, 100, 110]  # sleeve B below hand B
+    b = identity.bin_image(img)
+    skin = np.zeros((100, 200), np.uint8)
+    skin[35:60, 30:60] = skin[35:60, 130:160] = 1
+    ha = identity.appearance(b, skin, bg, (30, 35, 59, 59))
+    hb = identity.appearance(b, skin, bg, (130, 35, 159, 59))
+    assert ha is not None and hb is not None
+    assert identity.similarity(ha, ha) == pytest.approx(1.0)
+    assert identity.similarity(ha, hb) < 0.1
+    assert identity.appearance(bins, skin, bg, (30, 35, 59, 59)) is None  # only table around: no measurement
+    assert identity.similarity(None, ha) == 0.5
+
+
+def _two_hands(offset: int = 0) -> np.ndarray:
+    """RGB frame: two skin squares with differently coloured sleeves below them (hand A left, hand B right)."""
+    img = np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE)
+    for x0, sleeve in ((60 + offset, (20, 120, 40)), (200 - offset, (40, 40, 160))):
+        img[150:240, x0 + 4 : x0 + 26] = sleeve
+        img[110:150, x0 : x0 + 30] = SKIN
+    return img
+
+
+def test_two_tracks_that_swapped_hands_get_their_ids_back():
+    tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0))
+    tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE))  # hand-free first frame
+    tr.process(_two_hands())
+    a = tr.start_track([60, 110, 90, 150])
+    b = tr.start_track([200, 110, 230, 150])
+    for _ in range(6):  # learn what surrounds each hand
+        ests = {e.id: e.box for e in tr.process(_two_hands())}
+    assert dice(ests[a], [60, 110, 90, 150]) > 0.8 and dice(ests[b], [200, 110, 230, 150]) > 0.8
+    ta, tb = (next(t for t in tr.tracks if t.id == i) for i in (a, b))
+    ta.filt, tb.filt = tb.filt, ta.filt  # the two tracks come out of an overlap on each other's hands
+    for _ in range(6):
+        ests = {e.id: e.box for e in tr.process(_two_hands())}
+    assert set(ests) == {a, b}
+    assert dice(ests[a], [60, 110, 90, 150]) > 0.8 and dice(ests[b], [200, 110, 230, 150]) > 0.8
+
+
+def test_two_tracks_on_one_hand_leave_one_track_and_the_other_comes_back_on_the_free_hand():
+    tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0))
+    tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE))
+    tr.process(_two_hands())
+    a = tr.start_track([60, 110, 90, 150])
+    b = tr.start_track([60, 110, 90, 150])  # both on hand A; hand B has no track
+    seen = []
+    for i in range(30):
+        ests = tr.process(_two_hands(offset=i // 2))  # the hands move apart, 0.5 px per frame each
+        seen.append({e.id: e.box for e in ests})
+        boxes = list(seen[-1].values())
+        if len(boxes) == 2:
+            assert dice(boxes[0], boxes[1]) < 0.8 or i < 12  # never both on one hand after the duplicate ends
+    last = seen[-1]
+    assert set(last) == {a, b}  # the ended track came back with its id, no new id
+    on_b = [i for i, bx in last.items() if dice(bx, [186, 110, 216, 150]) > 0.7]
+    on_a = [i for i, bx in last.items() if dice(bx, [74, 110, 104, 150]) > 0.7]
+    assert len(on_a) == 1 and len(on_b) == 1
+
+
+def test_a_track_that_left_comes_back_with_its_id(s1):
+    frames, depths, boxes = s1
+    i0 = next(i for i, b in enumerate(boxes) if b.get(0) and _inside(b[0]))
+    tr = HandTracker(HandTrackerConfig(auto_init=False, seed=0), focal=525.0)
+    tr.process(frames[0], depths[0])
+    tr.process(frames[i0], depths[i0])
+    tid = tr.start_track(boxes[i0][0])
+    for _ in range(14):  # the hand disappears: the track ends (lost) after n_lost frames
+        ests = tr.process(frames[0], depths[0])
+    assert ests == [] and [lo.id for lo in tr.lost] == [tid]
+    back = []
+    for i in range(i0, i0 + 20):  # the hand is back, moving: re-acquired with the same id
+        back.append({e.id: e.box for e in tr.process(frames[i], depths[i])})
+    assert back[-1] and set(back[-1]) == {tid} and tr.next_id == tid + 1
+    assert dice(back[-1][tid], boxes[i0 + 19][0]) > 0.6
+
+
+def test_thin_crops_get_a_flow():
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 255, (13, 79), dtype=np.uint8)
+    fw, bw = forward_backward(a, np.roll(a, 1, axis=1))
+    assert fw.shape == (13, 79, 2) and bw.shape == (13, 79, 2) and fw.flags.c_contiguous
+
+
+def test_same_seed_same_tracks(s1):
+    frames, depths, boxes = s1
+    i0 = next(i for i, b in enumerate(boxes) if b.get(0) and _inside(b[0]))
+
+    def run(seed: int) -> list:
+        tr = HandTracker(HandTrackerConfig(seed=seed), focal=525.0)
+        return [[(e.id, tuple(e.box)) for e in tr.process(f, d)] for f, d in zip(frames[: i0 + 25], depths[: i0 + 25],
+                                                                                 strict=True)]  # fmt: skip
+
+    assert run(4) == run(4)
