@@ -60,3 +60,31 @@ def test_table_and_part_pixels_are_not_hand():
     assert (skin & ~excl).mean() < 0.01
     loop.perceive(frame.color, frame.depth, None, {})
     assert loop.touched_parts() is None and loop.occluder_mask() is None  # no hand: the gate stays open
+
+
+def test_occluder_mask_covers_a_bare_forearm():
+    """A skin palm with a bare forearm reaching the image border: H_k holds the forearm too (spec §14.5), not only
+    the palm box's skin; with ``occluder_arm`` off only the palm's neighbourhood."""
+    from tracker.hands.loop import HandLoopConfig
+    from tracker.hands.tracker import HandTrackerConfig
+
+    table = np.zeros((480, 640, 3), np.uint8) + np.uint8([120, 130, 140])
+    img = table.copy()
+    for t in np.linspace(0.0, 1.0, 600):  # forearm from the bottom-right corner up-left, 24 px wide
+        x, y = int(639 - 300 * t), int(479 - 300 * t)
+        img[max(y - 12, 0) : y + 12, max(x - 12, 0) : x + 12] = [215, 160, 130]
+    img[130:190, 300:360] = [215, 160, 130]  # the palm at its far end
+    masks = {}
+    for arm in (True, False):
+        cfg = HandLoopConfig(tracker=HandTrackerConfig(auto_init=False, seed=0), occluder_arm=arm)
+        loop = HandLoop([], Intrinsics.default(), cfg)
+        loop.perceive(table, None, None, {})
+        loop.perceive(img, None, None, {})
+        loop.tracker.start_track([300, 130, 360, 190])
+        for _ in range(2):
+            loop.perceive(img, None, None, {})
+        masks[arm] = loop.occluder_mask()
+    assert masks[True] is not None and masks[False] is not None
+    assert masks[True][400, 560] and not masks[False][400, 560]  # a forearm pixel far from the palm
+    assert masks[True][160, 330] and masks[False][160, 330]  # the palm in both
+    assert not masks[True][50, 50]  # the table stays free

@@ -8,8 +8,8 @@
    inside a part's silhouette whose measured depth is not in front of the part's rendered surface by more than
    δ_z = ``part_clearance_m`` (spec §14.1: the part's own surface; the parts are taken at their last estimated poses).
    Then one :class:`~tracker.hands.tracker.HandTracker` step and the hand masks M^h_k.
-2. :meth:`HandLoop.occluder_mask` (spec §14.5): H_k = the union of the hand masks dilated by r_occ = 5 px (the
-   forearm components of B^c are not added: documented simplification), full resolution, for the cube tracker's
+2. :meth:`HandLoop.occluder_mask` (spec §14.5): H_k = the union of the hand masks and of the colour components
+   that reach into a hand's box (a bare forearm), dilated by r_occ = 5 px, full resolution, for the cube tracker's
    occluder prior (``MultiObjectTracker.step(..., occluders=H_k)``).
 3. :meth:`HandLoop.update_contacts` (after the cube tracker's step, spec §14.6): each part's silhouette S_j and its
    rendered depth at the new estimated pose, computed by a ray–box test only in a window around the hand boxes, go
@@ -42,13 +42,14 @@ class HandLoopConfig:
     """``tracker``: the hand tracker's configuration; ``occluder_prior``: give the cube tracker the hand mask as its
     occluder prior (spec §14.5; switchable); ``table_clearance_m``: pixels closer than this to the table plane
     are not hand; ``part_clearance_m``: δ_z of the part-surface exclusion (spec §14.1); ``occluder_radius_px``: r_occ
-    (spec §14.5)."""
+    (spec §14.5); ``occluder_arm``: add the forearm (the colour components reaching into a hand's box) to H_k."""
 
     tracker: HandTrackerConfig = field(default_factory=HandTrackerConfig)
     occluder_prior: bool = True
     table_clearance_m: float = 0.015
     part_clearance_m: float = 0.01
     occluder_radius_px: int = 5
+    occluder_arm: bool = True
 
 
 @nb.njit(cache=True)
@@ -175,22 +176,26 @@ class HandLoop:
         return (u0, v0, u1, v1) if u1 > u0 and v1 > v0 else None
 
     def occluder_mask(self) -> np.ndarray | None:
-        """H_k (spec §14.5): full-resolution bool H×W, the hand masks' union dilated by r_occ; None without hands."""
-        boxes = [e.box for e in self.estimates if e.id in self.masks and e.box[2] > e.box[0] and e.box[3] > e.box[1]]
-        if not boxes:
+        """H_k (spec §14.5): full-resolution bool H×W, the dilation by r_occ of the union of the hand masks and of
+        the colour components that reach into a hand's box (a bare forearm; :meth:`HandTracker.arm_mask`); None
+        without hands."""
+        if not any(e.id in self.masks and e.box[2] > e.box[0] and e.box[3] > e.box[1] for e in self.estimates):
+            return None
+        union: np.ndarray | None = None
+        for m in self.masks.values():
+            union = m.copy() if union is None else union | m
+        arm = self.tracker.arm_mask() if self.config.occluder_arm else None
+        if arm is not None:
+            union = arm if union is None else union | arm
+        if union is None or not union.any():
             return None
         r = int(self.config.occluder_radius_px)
-        H, W = self.masks[next(iter(self.masks))].shape
-        x0, y0 = max(min(b[0] for b in boxes) - r, 0), max(min(b[1] for b in boxes) - r, 0)
-        x1, y1 = min(max(b[2] for b in boxes) + r, W), min(max(b[3] for b in boxes) + r, H)
-        union = np.zeros((y1 - y0, x1 - x0), np.uint8)
-        for m in self.masks.values():  # a hand's mask lies inside its box
-            union |= m[y0:y1, x0:x1]
-        if not union.any():
-            return None
+        H, W = union.shape
+        x, y, w, h = cv2.boundingRect(union.astype(np.uint8))
+        x0, y0, x1, y1 = max(x - r, 0), max(y - r, 0), min(x + w + r, W), min(y + h + r, H)
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         out = np.zeros((H, W), bool)
-        out[y0:y1, x0:x1] = cv2.dilate(union, k).astype(bool)
+        out[y0:y1, x0:x1] = cv2.dilate(union[y0:y1, x0:x1].astype(np.uint8), k).astype(bool)
         return out
 
     def update_contacts(self, poses: dict[str, Pose], depth: np.ndarray | None) -> dict[tuple[int, str], str]:

@@ -3,7 +3,9 @@
 Per frame (:meth:`HandTracker.process`): the ROI around all tracks' particles (§14.2: each box expanded by
 m_ROI = max(24 px, 0.5·max(w, h), 2‖v‖), clipped), the colour masks of frames k−1 and k inside it, the four flows
 and motion segmentations (:mod:`tracker.hands.features`), one filter step per track (particle filter or Kalman
-reference), track termination, then automatic initialisation of new tracks:
+reference; the palm anchors of :mod:`tracker.hands.palm_cut` extend the section-6 mode to bare forearms), track
+termination, track identity (:mod:`tracker.hands.identity`), then re-acquisition of lost tracks and automatic
+initialisation of new tracks:
 
 * Candidates (§14.3): 4-connected components of the colour mask after an opening (disk radius 2 px),
   computed at the working resolution over the whole frame (radius 2/scale there), with area ≥ A_min = 0.15 % of
@@ -12,20 +14,30 @@ reference), track termination, then automatic initialisation of new tracks:
   overlapping boxes). A candidate must touch the image border (within b = 2 px) when first seen; product
   deviation: it need not touch it on the next two frames (a long-sleeved hand's skin touches the border only
   briefly while it enters). The largest one starts a track; at most one new track per frame, at most
-  ``max_tracks``.
+  ``max_tracks`` tracks, live and lost together.
 * Initial box: the component's pixels farther than d_max − L_hand from its entry point e (mean of its border
-  pixels), L_hand = f_x · 0.19 m / Z̄ (Z̄ the component's median depth; without depth Z̄ = 0.75 m), their tight
-  box; velocity 0.
+  pixels), L_hand = f_x · ``hand_length_m`` / Z̄ (Z̄ the median depth of the component's far end; without depth
+  Z̄ = 0.75 m), their tight box, velocity 0 (:func:`tracker.hands.palm_cut.palm_cut`); the whole component if it is
+  no longer than a hand (a sleeve: no forearm in it).
 * Termination: < 50 % of the estimate's box inside the image; a_{c,1} of the estimate < 0.2 for 10 consecutive
-  frames; two tracks with box F-score ≥ 0.8 for 10 consecutive frames (the younger ends); product addition: the
-  box smaller than A_min for 10 consecutive frames (a lost track otherwise shrinks onto a speck of skin colour).
+  frames; two tracks with box F-score ≥ 0.8 for 10 consecutive frames (product change: the one whose appearance
+  fits the shared box worse ends, the younger on a tie); product addition: the box smaller than A_min for 10
+  consecutive frames (a lost track otherwise shrinks onto a speck of skin colour).
+* Lost tracks (product addition, ``reacquire``): an ended track keeps its id for ``keep_lost`` frames. While one
+  waits, a candidate as above also qualifies away from the border if its box centre moved ≥ REACQUIRE_MOVE working
+  px over its n_init frames (a moving skin region no track explains: the hand a track lost, or left to the other
+  hand); it restarts the lost track whose appearance fits best (else the one last seen nearest) with that id. This
+  runs with ``auto_init`` off too (a track started by hand comes back). Two live tracks whose appearance fits the
+  other's hand better for SWAP_FRAMES frames exchange ids (they came out of an overlap on each other's hands); a
+  live track that fits a lost track's appearance better takes that id.
 
 Skin model: the shipped generic model (:mod:`tracker.hands.skin_model`); with ``session_background`` its ω2 is
 refitted on the session's first frame (assumed hand-free, as thesis Application 2 trains ω2 on the first frames),
 and with ``adapt`` the skin means are MAP-adapted every ``adapt_every`` frames to the colour-mask pixels inside
 confident track boxes (a_{c,1} ≥ 0.5).
 
-Track ids are 1, 2, 3, … in order of creation and never reused.
+Track ids are 1, 2, 3, … in order of creation; a re-acquired or swapped track carries an earlier id back, a new
+hand gets a new id.
 """
 
 from __future__ import annotations
@@ -60,8 +72,11 @@ class HandTrackerConfig:
     ``adapt_every``; ``log_tau`` LRT threshold (None: the model's; −2 tuned on simulator seeds 0–4);
     ``ac_hat`` / ``am_hat`` â_{c,1} (thesis 0.9; 0.55 = the mean colour coverage of the ground-truth palm boxes of
     the rendered hands, measured on seeds 0–2: the fingers are spread), â_{m,1} (thesis 0.85; 0.45 tuned on seeds 0
-    and 2 of S2, S3: the principal motion cluster covers at most the skin part of the box); ``seed`` of the
-    filters' random numbers."""
+    and 2 of S2, S3: the principal motion cluster covers at most the skin part of the box); ``hand_length_m``: the
+    length of the palm box along the arm in L_hand (spec 0.19 m, a whole hand; 0.08 m tuned on seeds 0–2 of S3: the
+    ground-truth palm box of a hand grasping from above is foreshortened and starts at the wrist); ``palm_cut``: the
+    wrist-cut anchors (:mod:`tracker.hands.palm_cut`, needs depth); ``reacquire`` / ``keep_lost``: lost tracks and
+    identity (see the module docstring); ``seed`` of the filters' random numbers."""
 
     method: str = "pf"
     scale: int = 2
@@ -281,6 +296,32 @@ class HandTracker:
                 hh, ww = min(up.shape[0], H - v0 * s), min(up.shape[1], W - u0 * s)
                 m[v0 * s : v0 * s + hh, u0 * s : u0 * s + ww] = up[:hh, :ww]
             out[tr.id] = m
+        return out
+
+    def arm_mask(self) -> np.ndarray | None:
+        """The colour components of the last processed frame that reach into a live track's box (the hand with a
+        bare forearm, spec §14.5): the 4-connected components of B^c_k (opened with a 3×3 cross, so that scattered
+        false skin pixels do not join) that hold a pixel of some track's box, as a full-resolution bool H×W image; None
+        without tracks."""
+        if self._prev_rgb is None or self.full_size is None or not self.tracks:
+            return None
+        m = self._mask_prev if self._mask_prev is not None else self._skin(self._prev_rgb, self._prev_excl)
+        m = cv2.morphologyEx(m, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)))
+        _, lab = cv2.connectedComponents(m, connectivity=4, ltype=cv2.CV_32S)
+        h, w = lab.shape
+        keep: set[int] = set()
+        for tr in self.tracks:
+            u0, v0, u1, v1 = state_box(tr.filt.estimate)
+            sub = lab[max(v0, 0) : max(min(v1 + 1, h), 0), max(u0, 0) : max(min(u1 + 1, w), 0)]
+            keep.update(int(v) for v in np.unique(sub) if v)
+        if not keep:
+            return None
+        small = np.isin(lab, np.fromiter(keep, np.int32))
+        W, H = self.full_size
+        s = self.s
+        out = np.zeros((H, W), bool)
+        up = np.repeat(np.repeat(small, s, axis=0), s, axis=1)
+        out[: min(H, up.shape[0]), : min(W, up.shape[1])] = up[:H, :W]
         return out
 
     # ------------------------------------------------------------------ frames
