@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tracker.filter.blob_follow import recentre
+from tracker.filter.blob_follow import move, recentre
 from tracker.filter.colour_input import reseed
 from tracker.filter.hand_carry import supported_by_other
 from tracker.filter.predict import adaptive_noise
@@ -133,12 +133,8 @@ def grab(trk, obj: int, depth: np.ndarray, pos: np.ndarray, plane) -> None:
     if pts.shape[0] < trk.config.carry_min_points:
         return
     est = trk.estimates[trk.names[obj]]
-    c = est.R @ trk.center[obj] + est.t
-    d = pts.mean(axis=0) - c
-    trk.p[:, obj] += d
-    trk.v[:, obj] = 0.0
-    trk._rest_t[obj] = trk._rest_t[obj] + d
-    trk.estimates[trk.names[obj]] = Pose.from_rt(est.R, est.t + d)
+    d = pts.mean(axis=0) - (est.R @ trk.center[obj] + est.t)
+    move(trk, obj, d)
     pos[obj] = pos[obj] + d
     near = ((pts - pts.mean(axis=0)) ** 2).sum(1) <= trk.config.carry_radius**2
     carry.start(obj, pts[near] if near.sum() >= trk.config.carry_min_points else pts)
