@@ -47,12 +47,15 @@ class Gmm2D:
     @staticmethod
     def fit(x: np.ndarray, k: int, seed: int = 0, max_samples: int = 60000) -> Gmm2D:
         """EM fit (scikit-learn GaussianMixture, full covariances, k-means initialisation) on ``x`` [N, 2]; at
-        most ``max_samples`` rows (a seeded random subsample) are used."""
+        most ``max_samples`` rows (a seeded random subsample) are used, and at most as many components as there are
+        distinct rows."""
         from sklearn.mixture import GaussianMixture
 
         x = np.asarray(x, np.float64).reshape(-1, 2)
         if len(x) > max_samples:
             x = x[np.random.default_rng(seed).choice(len(x), max_samples, replace=False)]
+        k = max(1, min(int(k), len(np.unique(x, axis=0))))  # no more components than distinct colours (a uniform
+        # frame has one): k-means would otherwise warn that it found fewer clusters than asked
         g = GaussianMixture(k, covariance_type="full", random_state=seed, reg_covar=1e-3).fit(x)
         return Gmm2D(g.weights_.copy(), g.means_.copy(), g.covariances_.copy())
 
