@@ -23,7 +23,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tracker.filter.motion_model import mean_rotation
 from tracker.geometry.pose import Pose
+from tracker.refine.part_refiner import rotation_angle
 
 if TYPE_CHECKING:
     from tracker.filter.particle_filter import MultiObjectTracker, TrackerState
@@ -59,13 +61,12 @@ def consensus_motion(pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], tol
     for Rc, tc, _ in pairs:
         agree = [j for j, (Rj, tj, cj) in enumerate(pairs)
                  if np.linalg.norm((Rc @ cj + tc) - (Rj @ cj + tj)) < tolerance
-                 and _angle(Rc.T @ Rj) < tolerance / 0.05]
+                 and rotation_angle(Rc.T @ Rj) < tolerance / 0.05]
         if len(agree) > len(best):
             best = agree
     if len(best) < min_agree or 2 * len(best) <= len(pairs):
         return None
-    Rs = [pairs[j][0] for j in best]
-    Rm = _mean_rotation(Rs)
+    Rm = mean_rotation(np.array([pairs[j][0] for j in best]), np.ones(len(best)))
     # translation: the one that moves the agreeing centres where their own motions move them, on average
     cs = np.array([pairs[j][2] for j in best])
     moved = np.array([pairs[j][0] @ pairs[j][2] + pairs[j][1] for j in best])
@@ -108,15 +109,3 @@ def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
         state.poses[name] = moved
         state.particles[name] = trk.p[:, i].astype(np.float32)
 
-
-def _angle(R: np.ndarray) -> float:
-    """Rotation angle (rad) of a rotation matrix."""
-    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
-
-
-def _mean_rotation(Rs: list[np.ndarray]) -> np.ndarray:
-    """Chordal mean of rotation matrices (the SVD projection of their sum onto SO(3))."""
-    U, _, Vt = np.linalg.svd(np.sum(Rs, axis=0))
-    S = np.eye(3)
-    S[2, 2] = np.sign(np.linalg.det(U @ Vt))
-    return U @ S @ Vt

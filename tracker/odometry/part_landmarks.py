@@ -24,6 +24,7 @@ import numpy as np
 
 from tracker.filter.scene_motion import consensus_motion
 from tracker.geometry.pose import Pose
+from tracker.odometry.akaze_features import kabsch
 
 
 @dataclass
@@ -76,7 +77,7 @@ class PartLandmarkOdometry:
             if agree:  # (the averaged consensus may agree with none of them: then it stands as it is)
                 world_pts = np.vstack([self.world[n].transform_points(points[n]) for n in agree])
                 camera_pts = np.vstack([observed[n].transform_points(points[n]) for n in agree])
-                R_cw, t_cw = rigid_fit(world_pts, camera_pts)
+                R_cw, t_cw = kabsch(world_pts, camera_pts)
             self.pose_world_camera = Pose.from_rt(R_cw, t_cw).inverse()
             self.used = max(len(agree), 1)
         self._maintain(observed, centres)
@@ -107,13 +108,3 @@ class PartLandmarkOdometry:
             else:
                 self.pending[name] = _Pending(implied, 1)
 
-
-def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rigid motion ``(R, t)`` with ``dst ≈ R src + t`` for corresponding points (N, 3) (Kabsch: SVD
-    of the cross-covariance of the centred sets, reflection excluded)."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    U, _, Vt = np.linalg.svd((dst - cd).T @ (src - cs))
-    S = np.eye(3)
-    S[2, 2] = np.sign(np.linalg.det(U @ Vt))
-    R = U @ S @ Vt
-    return R, cd - R @ cs
