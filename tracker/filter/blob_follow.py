@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tracker.filter.colour_input import blob_mask
+from tracker.filter.camera_motion import move_part
+from tracker.filter.colour_input import blob_mask, confident
 from tracker.geometry.box_renderer import pixel_rays
 
 if TYPE_CHECKING:
@@ -30,12 +31,10 @@ if TYPE_CHECKING:
 def confident_blob(trk: MultiObjectTracker, det) -> tuple[np.ndarray, float] | None:
     """``(centroid (2,), area px)`` of a detection confident enough to follow (reseed_min_score, reseed_min_area_px,
     with an outline), else None."""
-    cfg = trk.config
     if det is None or getattr(det, "center", None) is None or getattr(det, "contour", None) is None:
         return None
-    score = float(getattr(det, "score", 0.0) or 0.0)
     area = getattr(det, "area", None)
-    if score < cfg.reseed_min_score or area is None or not np.isfinite(area) or area < cfg.reseed_min_area_px:
+    if not confident(trk, float(getattr(det, "score", 0.0) or 0.0), area):
         return None
     return np.asarray(det.center, np.float64), float(area)
 
@@ -67,13 +66,12 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
             blobs[i] = confident_blob(trk, detections.get(name))
     previous = trk._follow_blobs
     trk._follow_blobs = blobs
+    trk._blob_uv_target = {}
     trk._blob_reappeared = np.array([b is not None and (previous is None or previous[i] is None)
                                      for i, b in enumerate(blobs)], bool)
     if not cfg.blob_follow or depth is None:
         return moved
     carried = trk._carry.carried
-    intr = trk.intrinsics
-    trk._blob_uv_target = {}
     for i, name in enumerate(trk.names):
         now, before = blobs[i], previous[i] if previous is not None else None
         if now is None or before is None:
@@ -87,39 +85,37 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
         unsupported = last is None or not last.healthy  # the depth could not place it in the last frame
         if not (unsupported or depth_poor(trk, detections.get(name), depth)):
             continue
-        est = trk.estimates[name]
-        c = est.R @ trk.center[i] + est.t
+        c = centre(trk, i)
         if c[2] <= 0.05:
             continue
-        uv = intr.project(c[None])[0] + shift
+        uv = trk.intrinsics.project(c[None])[0] + shift
         if carried[i]:
             trk._blob_uv_target[i] = uv  # applied after the hand carry has moved it (in depth too): recentre()
-            moved[i] = True
-            continue
-        d = pixel_rays(intr, np.array([uv[0]]), np.array([uv[1]]))[0] * c[2] - c
-        move(trk, i, d)
+        else:
+            put_centre_on(trk, i, uv)
         moved[i] = True
     return moved
 
 
-def move(trk: MultiObjectTracker, obj: int, d: np.ndarray) -> None:
-    """Translate part ``obj``'s estimate, particles and rest anchor by ``d`` (m, camera frame); velocities zero."""
-    trk.p[:, obj] += d
-    trk.v[:, obj] = 0.0
-    trk._rest_t[obj] = trk._rest_t[obj] + d
+def centre(trk: MultiObjectTracker, obj: int) -> np.ndarray:
+    """Camera-frame centre (m) of part ``obj``'s estimate."""
     est = trk.estimates[trk.names[obj]]
-    trk.estimates[trk.names[obj]] = type(est).from_rt(est.R, est.t + d)
+    return est.R @ trk.center[obj] + est.t
+
+
+def put_centre_on(trk: MultiObjectTracker, obj: int, uv: np.ndarray) -> None:
+    """Translate part ``obj`` parallel to the image plane so that its centre, at its current depth, projects to
+    the pixel ``uv``."""
+    c = centre(trk, obj)
+    if c[2] <= 0.05:
+        return
+    d = pixel_rays(trk.intrinsics, np.array([uv[0]]), np.array([uv[1]]))[0] * c[2] - c
+    move_part(trk, obj, np.eye(3), d)
 
 
 def recentre(trk: MultiObjectTracker, obj: int) -> None:
     """After the hand carry moved part ``obj``: put its centre on the ray of the image position its blob says
     (:func:`follow_blobs`), at the depth the carry gave it (the blob says nothing about depth, the hand does)."""
-    uv = getattr(trk, "_blob_uv_target", {}).get(obj)
-    if uv is None:
-        return
-    est = trk.estimates[trk.names[obj]]
-    c = est.R @ trk.center[obj] + est.t
-    if c[2] <= 0.05:
-        return
-    d = pixel_rays(trk.intrinsics, np.array([uv[0]]), np.array([uv[1]]))[0] * c[2] - c
-    move(trk, obj, d)
+    uv = trk._blob_uv_target.get(obj)
+    if uv is not None:
+        put_centre_on(trk, obj, uv)

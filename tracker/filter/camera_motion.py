@@ -46,3 +46,15 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
         carry.history = type(carry.history)((t, pos @ Rd.T + td) for t, pos in carry.history)
         carry.patches = [None if pts is None else pts @ Rd.T + td for pts in carry.patches]
         carry.last_step = carry.last_step @ Rd.T
+
+
+def move_part(trk, obj: int, R: np.ndarray, t: np.ndarray) -> None:
+    """Move part ``obj`` of ``trk`` rigidly in the camera frame, x ↦ ``R`` x + ``t`` (metres): its particles, estimate
+    and rest anchor; its velocities are zeroed. (A part carried by a hand, moved with its blob, or kept in place
+    while the camera moves.)"""
+    trk.p[:, obj] = trk.p[:, obj] @ R.T + t
+    trk.R[:, obj] = np.einsum("ij,njk->nik", R, trk.R[:, obj])
+    trk.v[:, obj] = 0.0
+    trk._rest_t[obj] = R @ trk._rest_t[obj] + t
+    est = trk.estimates[trk.names[obj]]
+    trk.estimates[trk.names[obj]] = Pose.from_rt(R @ est.R, R @ est.t + t)

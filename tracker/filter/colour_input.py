@@ -40,8 +40,7 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
                 continue
             area = getattr(det, "area", None)
             ratio = None  # area_ratio(trk, i, area), computed when first needed (the estimate does not move before)
-            if score >= cfg.reseed_min_score and area is not None and np.isfinite(area) \
-                    and area >= cfg.reseed_min_area_px:
+            if confident(trk, score, area):
                 ratio = area_ratio(trk, i, area)
             reliable = ratio is not None and ratio >= cfg.reseed_min_area_ratio
             if ratio is not None and not reliable and far_sliver(trk, i, score, area, center):
@@ -65,6 +64,15 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
             u[i] = color_input(center, min(score, 1.0), est, depth, intr, cfg.lambda_z, cfg.depth_radius_px,
                                offset, mask=blob)
     return u, detected
+
+
+def confident(trk, score: float, area) -> bool:
+    """Is a detection with this ``score`` and blob ``area`` (pixels) confident enough to re-seed or follow a part
+    (``reseed_min_score``, ``reseed_min_area_px``)? Its centroid may still be biased (a sliver): see
+    ``reseed_min_area_ratio`` and :func:`far_sliver`."""
+    cfg = trk.config
+    return (score >= cfg.reseed_min_score and area is not None and bool(np.isfinite(area))
+            and area >= cfg.reseed_min_area_px)
 
 
 def blob_mask(trk, det, shape) -> np.ndarray | None:
@@ -161,8 +169,7 @@ def far_sliver(trk, obj: int, score: float, area, center) -> bool:
     the visible piece by at most that radius, so it still says where the part went (a part snatched by a fast hand
     and mostly hidden in it); near the estimate the bias would outweigh the information."""
     cfg = trk.config
-    if (cfg.far_sliver_radii <= 0 or score < cfg.reseed_min_score or area is None or not np.isfinite(area)
-            or area < cfg.reseed_min_area_px):
+    if cfg.far_sliver_radii <= 0 or not confident(trk, score, area):
         return False
     est = trk.estimates[trk.names[obj]]
     c = est.R @ trk.center[obj] + est.t

@@ -9,11 +9,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tracker.filter.blob_follow import move, recentre
+from tracker.filter.blob_follow import recentre
+from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import reseed
 from tracker.filter.hand_carry import supported_by_other
 from tracker.filter.predict import adaptive_noise
-from tracker.geometry.pose import Pose
 
 if TYPE_CHECKING:
     from tracker.filter.frame_context import FrameContext
@@ -86,12 +86,7 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
             if hand_px > 3.0 and blob_px < 0.3 * hand_px:
                 trk._carry.release(i)
                 continue
-        trk.p[:, i] = trk.p[:, i] @ rot[i].T + delta[i]
-        trk.R[:, i] = np.einsum("ij,njk->nik", rot[i], trk.R[:, i])
-        trk.v[:, i] = 0.0
-        est = trk.estimates[nm]
-        trk.estimates[nm] = Pose.from_rt(rot[i] @ est.R, rot[i] @ est.t + delta[i])
-        trk._rest_t[i] = rot[i] @ trk._rest_t[i] + delta[i]
+        move_part(trk, i, rot[i], delta[i])
         recentre(trk, i)
     trk._last_centers = centers
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
@@ -134,7 +129,7 @@ def grab(trk, obj: int, depth: np.ndarray, pos: np.ndarray, plane) -> None:
         return
     est = trk.estimates[trk.names[obj]]
     d = pts.mean(axis=0) - (est.R @ trk.center[obj] + est.t)
-    move(trk, obj, d)
+    move_part(trk, obj, np.eye(3), d)
     pos[obj] = pos[obj] + d
     near = ((pts - pts.mean(axis=0)) ** 2).sum(1) <= trk.config.carry_radius**2
     carry.start(obj, pts[near] if near.sum() >= trk.config.carry_min_points else pts)

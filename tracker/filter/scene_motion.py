@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tracker.filter.camera_motion import move_part
 from tracker.filter.motion_model import mean_rotation
-from tracker.geometry.pose import Pose
 from tracker.refine.part_refiner import rotation_angle
 
 if TYPE_CHECKING:
@@ -59,9 +59,7 @@ def consensus_motion(pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], tol
         return None
     best: list[int] = []
     for Rc, tc, _ in pairs:
-        agree = [j for j, (Rj, tj, cj) in enumerate(pairs)
-                 if np.linalg.norm((Rc @ cj + tc) - (Rj @ cj + tj)) < tolerance
-                 and rotation_angle(Rc.T @ Rj) < tolerance / 0.05]
+        agree = [j for j, (Rj, tj, cj) in enumerate(pairs) if agrees(Rc, tc, Rj, tj, cj, tolerance)]
         if len(agree) > len(best):
             best = agree
     if len(best) < min_agree or 2 * len(best) <= len(pairs):
@@ -72,6 +70,13 @@ def consensus_motion(pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], tol
     moved = np.array([pairs[j][0] @ pairs[j][2] + pairs[j][1] for j in best])
     tm = (moved - cs @ Rm.T).mean(axis=0)
     return Rm, tm
+
+
+def agrees(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray, c: np.ndarray, tolerance: float) -> bool:
+    """Do the rigid transforms ``(Ra, ta)`` and ``(Rb, tb)`` agree at the point ``c`` (m): they take it within
+    ``tolerance`` m of each other and differ by less than ``tolerance`` / 0.05 rad in rotation (about 3.4° at 3 mm)?"""
+    return bool(np.linalg.norm((Ra @ c + ta) - (Rb @ c + tb)) < tolerance
+                and rotation_angle(Ra.T @ Rb) < tolerance / 0.05)
 
 
 def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
@@ -100,12 +105,7 @@ def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
         c = est.R @ trk.center[i] + est.t
         if np.linalg.norm(Rd @ c + td - c) < cfg.scene_motion_deadband:
             continue
-        trk.p[:, i] = trk.p[:, i] @ Rd.T + td
-        trk.R[:, i] = np.einsum("ij,njk->nik", Rd, trk.R[:, i])
-        trk.v[:, i] = 0.0
-        trk._rest_t[i] = Rd @ trk._rest_t[i] + td
-        moved = Pose.from_rt(Rd @ est.R, Rd @ est.t + td)
-        trk.estimates[name] = moved
-        state.poses[name] = moved
+        move_part(trk, i, Rd, td)
+        state.poses[name] = trk.estimates[name]
         state.particles[name] = trk.p[:, i].astype(np.float32)
 

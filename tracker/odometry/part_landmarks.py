@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.filter.scene_motion import consensus_motion
+from tracker.filter.scene_motion import agrees, consensus_motion
 from tracker.geometry.pose import Pose
 from tracker.odometry.akaze_features import kabsch
 
@@ -84,9 +84,7 @@ class PartLandmarkOdometry:
         return self.pose_world_camera
 
     def _agree(self, a: Pose, b: Pose, centre: np.ndarray) -> bool:
-        gap = np.linalg.norm((a.R @ centre + a.t) - (b.R @ centre + b.t))
-        cos = np.clip((np.trace(a.R.T @ b.R) - 1.0) / 2.0, -1.0, 1.0)
-        return bool(gap < self.tolerance and np.arccos(cos) < self.tolerance / 0.05)
+        return agrees(a.R, a.t, b.R, b.t, centre, self.tolerance)
 
     def _maintain(self, observed: dict[str, Pose], centres: dict[str, np.ndarray]) -> None:
         """Drop landmarks that moved; adopt parts whose world pose has stayed the same for adopt_frames calls."""
