@@ -141,9 +141,8 @@ class HandCarry:
                 grasped = touched is not None and bool(touched[i])
                 if grasped or moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights):
                     pts = self._points(depth, positions[i], cfg.carry_radius, plane, exclude)
-                    self.patches[i] = pts if pts.shape[0] >= cfg.carry_min_points else None
-                    self.last_step[i] = 0.0
-                    self.last_turn[i] = 0.0
+                    if pts.shape[0] >= cfg.carry_min_points:
+                        self.start(i, pts)
                 continue
             # search the current points around where last frame's hand motion would take the part, in a window
             # widened by the largest hand motion per frame
