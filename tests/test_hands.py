@@ -248,3 +248,18 @@ def test_hand_masks_are_skin_inside_the_track_box(s1):
     assert not m[:v0].any() and not m[v1:].any() and not m[:, :u0].any() and not m[:, u1:].any()
     skin = SimulatedTable("hands-s1", seed=3).render(i0 + 5).meta["groundtruth"]["skin_mask"] > 0
     assert np.count_nonzero(m & skin) > 0.8 * np.count_nonzero(m)
+
+
+def test_gmm_fit_uses_no_more_components_than_distinct_colours():
+    """A uniform frame has one colour: the fit gives one component (and k-means does not warn of fewer clusters);
+    a varied sample keeps the asked-for four."""
+    import warnings
+
+    from tracker.hands.skin_model import Gmm2D
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        one = Gmm2D.fit(np.tile([[140.0, 110.0]], (500, 1)), 4)
+    assert len(one.weights) == 1 and np.allclose(one.means, [[140.0, 110.0]])
+    varied = Gmm2D.fit(np.random.default_rng(0).normal([140.0, 110.0], 8.0, (500, 2)), 4)
+    assert len(varied.weights) == 4
