@@ -47,6 +47,10 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 METHODS = ("default", "fastslam", "opencv-rgb")
 IN_TRACKER = "in-tracker"
 PARTS = "parts"
+FUSED = "fused"
+"""The dense odometry and the resting parts checking each other (:mod:`tracker.odometry.fused_odometry`): the dense
+odometry with the simulator's hand box as mask, and the tracker of ``track`` (odometry off) for the landmarks; CPU
+time is the dense step plus the fusion (the tracker runs anyway)."""
 """The camera pose from the tracked parts that stay put (:mod:`tracker.odometry.part_landmarks`), the tracker of
 ``track`` (default preset, odometry off) running on the frames; CPU time is the landmark step's alone."""
 """The default odometry run inside the tracker (``track --odometry default``: its own mask of foreground, hand/arm
@@ -122,19 +126,50 @@ def _run_parts(src, frames) -> dict:
     return {"est": est, "cpu": cpu, "wall": wall, "ok": ok}
 
 
+def _run_fused(src, frames, masks) -> dict:
+    """The dense odometry and the tracker of ``track`` (odometry off) on the frames, fused."""
+    from app.commands.track import TrackSession
+    from tracker.filter.tracker_config import TrackerConfig
+    from tracker.odometry.fused_odometry import FusedOdometry
+
+    session = TrackSession(src.parts, src.intrinsics, src.initial_poses, TrackerConfig.preset("default"), seed=0)
+    trk = session.tracker
+    corners = {name: trk.corners[i] for i, name in enumerate(trk.names)}
+    dense = make_odometry("default", src.intrinsics, seed=0)
+    fused = FusedOdometry()
+    est, cpu, wall, ok = [], [], [], []
+    for f, m in zip(frames(), masks(), strict=True):
+        c0, w0 = time.thread_time(), time.perf_counter()
+        r = dense.step(f, m)
+        c1, w1 = time.thread_time(), time.perf_counter()
+        session.step(f)
+        c2, w2 = time.thread_time(), time.perf_counter()
+        step = fused.update(float(f.timestamp), r.pose_world_camera if r.ok else None, trk.landmark_poses, corners)
+        cpu.append(1e3 * (c1 - c0 + time.thread_time() - c2))
+        wall.append(1e3 * (w1 - w0 + time.perf_counter() - w2))
+        est.append(step.pose)
+        ok.append(step.source != "hold")
+    return {"est": est, "cpu": cpu, "wall": wall, "ok": ok,
+            "checks": f"{fused.dense_rejected} dense rejected, {fused.dense_overridden} overridden, "
+                      f"{fused.parts_rejected} part consensus rejected"}
+
+
 def _run_methods(label: str, intrinsics, frames, masks, times, truth, methods=METHODS, src=None) -> tuple[dict, dict]:
     """Every method on the same frames: per-method summaries and estimated trajectories (with the truth)."""
     out, trajs = {}, {"truth": truth}
     for method in methods:
-        if method in (IN_TRACKER, PARTS):
+        if method in (IN_TRACKER, PARTS, FUSED):
             if src is None:
                 continue
-            run = _run_in_tracker(src, frames) if method == IN_TRACKER else _run_parts(src, frames)
+            run = (_run_in_tracker(src, frames) if method == IN_TRACKER else _run_parts(src, frames)
+                   if method == PARTS else _run_fused(src, frames, masks))
         else:
             run = _run_frames(method, intrinsics, frames, masks)
         out[method] = _summary(run, times, truth)
         if "jumps" in run:
             out[method]["jumps"] = run["jumps"]
+        if "checks" in run:
+            out[method]["checks"] = run["checks"]
         trajs[method] = run["est"]
         print(f"  {label} {method}: {json.dumps(out[method])}", flush=True)
     return out, trajs
@@ -198,7 +233,8 @@ def plot(name: str, trajs: dict, title: str) -> str:
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     colours = {"truth": "k", "default": "tab:blue", "fastslam": "tab:orange", "opencv-rgb": "tab:green",
-               IN_TRACKER: "tab:purple", PARTS: "tab:red"}
+               IN_TRACKER: "tab:purple", PARTS: "tab:red",
+               FUSED: "tab:brown"}
     n = len(trajs["truth"])
     tt = np.arange(n) / 30.0
     for key, poses in trajs.items():
@@ -231,7 +267,9 @@ def markdown(res: dict) -> str:
     m = res["machine"]
     in_tracker = any(IN_TRACKER in s["methods"] for s in res["sessions"])
     parts = any(PARTS in s["methods"] for s in res["sessions"])
+    fused = any(FUSED in s["methods"] for s in res["sessions"])
     title = ("## Camera odometry inside the tracker (issue 15)" if in_tracker else
+             "## Dense odometry and resting parts fused (issue 15)" if fused else
              "## Camera pose from the tracked parts (issue 15)" if parts else "## Camera odometry (issue 15)")
     lines = [
         title,
@@ -258,7 +296,13 @@ def markdown(res: dict) -> str:
            "parts it sees well and refines are landmarks at their first world pose, the camera pose is the consensus "
            "of the landmarks (a part a hand moves is outvoted and re-adopted when it rests again); its CPU time is "
            "the landmark step alone (the tracker runs anyway). `measured`: frames with an agreeing landmark."
-           if parts else ""),
+           if parts else "")
+        + (f" `{FUSED}` = the dense odometry and the resting parts checking each other "
+           "(`tracker/odometry/fused_odometry.py`): the dense pose is the prior; a dense step that leaves the "
+           "constant-velocity prediction by over 2 mm / 0.3° is taken only when the resting parts fit it better; the "
+           "parts that agree with the prior (6 mm) correct its translation; a disagreeing consensus of ≥ 3 parts "
+           "overrules it, a smaller one is ignored. Its CPU time is the dense step plus the fusion (the tracker runs "
+           "anyway); `measured`: frames not held on the prediction." if fused else ""),
         "",
         "| session | camera moved mm / ° | hand frames | method | ATE RMSE mm (max) | rot RMSE ° | RPE mm/s | "
         "RPE °/s | measured | CPU ms median / p95 | wall ms median / p95 |",
@@ -267,7 +311,8 @@ def markdown(res: dict) -> str:
     for s in res["sessions"]:
         name = f"{s['scenario']} {s['motion']}" + (f" seed {s['seed']}" if s["seed"] is not None else "")
         for method, e in s["methods"].items():
-            label = method + (f" ({e['jumps']} jumps)" if "jumps" in e else "")
+            label = method + (f" ({e['jumps']} jumps)" if "jumps" in e else "") + (
+                f" ({e['checks']})" if "checks" in e else "")
             lines.append(
                 f"| {name} | {s['camera_max_shift_mm']:.0f} / {s['camera_max_turn_deg']:.1f} | {s['frames_with_hand']} "
                 f"| {label} | {e['ate_rmse_mm']:.2f} ({e['ate_max_mm']:.1f}) | {e['rot_rmse_deg']:.3f} | "
@@ -308,16 +353,16 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="two sessions of 90 frames, no castle")
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--methods", default=",".join(METHODS),
-                    help=f"comma-separated methods of {', '.join((*METHODS, IN_TRACKER, PARTS))} "
+                    help=f"comma-separated methods of {', '.join((*METHODS, IN_TRACKER, PARTS, FUSED))} "
                     f"(default: {','.join(METHODS)})")
     ap.add_argument("--sessions", default=None, help="only these sessions, e.g. guess-1/handheld/100,static/sway/102 "
                     "(no castle)")
     ap.add_argument("--stem", default="odometry", help="results file name: results/STEM.md/.json (default odometry)")
     args = ap.parse_args(argv)
     methods = tuple(m for m in args.methods.split(",") if m)
-    bad = [m for m in methods if m not in (*METHODS, IN_TRACKER, PARTS)]
+    bad = [m for m in methods if m not in (*METHODS, IN_TRACKER, PARTS, FUSED)]
     if bad or "default" not in methods:
-        known = ", ".join((*METHODS, IN_TRACKER, PARTS))
+        known = ", ".join((*METHODS, IN_TRACKER, PARTS, FUSED))
         print(f"error: --methods {args.methods!r}: give methods of {known}, including default", file=sys.stderr)
         return 2
     info = machine_info()

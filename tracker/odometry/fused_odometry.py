@@ -1,0 +1,284 @@
+"""Camera pose from the dense odometry and the resting parts together (issue 15; not in the seed).
+
+The two sources fail in different ways. The dense RGB-D odometry (:mod:`.camera_odometry`) measures the motion
+between neighbouring frames well but, while a hand hides the parts, can register a frame wrongly and keep the offset;
+the parts that stay put (:mod:`.part_landmarks`) give the camera's pose in the world without drift, but their
+consensus can be wrong when only two parts remain and a hand moves one of them. :class:`FusedOdometry` lets each
+check the other, once per frame:
+
+1. **Prior** from the dense odometry: the fused pose is kept as ``O · T_dense`` (``O`` a correction, changed only
+   by accepted steps), so the prior is ``O · T_dense(now)``. A dense pose that leaves the constant-velocity prediction
+   of the fused path (velocity from the accepted dense steps, exponentially averaged) by more than ``jump_m`` /
+   ``jump_deg`` is accepted only when the resting parts fit it better than the prediction (median corner distance);
+   otherwise it is taken for a wrong registration and the prediction stands (``dense_rejected``). After
+   ``reanchor_frames`` rejections in a row the dense odometry's offset is absorbed into ``O``.
+2. **Gate of the parts**: every landmark (a part resting at a known world pose) implies where its centre is; the
+   landmarks that agree with the prior (centre within ``gate_m``, orientation within ``gate_deg``) correct it. A
+   consensus of at least ``override_parts`` landmarks that puts the camera farther than ``gate_m`` from the prior
+   overrules the dense odometry (``dense_overridden``); a smaller disagreeing consensus is ignored
+   (``parts_rejected``: the wrong two-part consensus of the parts method).
+3. **Correction**: the prior's translation is moved by ``gain(k)`` × the mean offset of the ``k`` agreeing landmarks'
+   centres; its rotation is kept (the dense rotation is better than the parts' fit, whose rotation error would move
+   the camera by the lever arm to the parts). An override takes the landmarks' rigid fit when it turns the camera by
+   more than ``override_turn_deg``.
+4. **Landmarks** are kept as in :class:`~.part_landmarks.PartLandmarkOdometry` (dropped when their implied world
+   pose leaves the stored one by ``tolerance``, adopted after ``adopt_frames`` frames at the same world pose), but
+   only on frames at least ``pin_parts`` landmarks pinned (a drifting camera must not re-anchor the landmarks).
+
+World frame = the camera frame of the first call (metres, x right, y down, z forward); poses are camera → world.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tracker.filter.scene_motion import agrees, consensus_motion
+from tracker.geometry.pose import Pose
+from tracker.odometry.akaze_features import kabsch
+from tracker.odometry.se3 import exp_se3, invert, log_se3, motion_size
+from tracker.refine.part_refiner import rotation_angle
+
+
+@dataclass(frozen=True)
+class FusedConfig:
+    """Settings of :class:`FusedOdometry` (metres, degrees). Tuned on simulator seeds 0–4 only.
+
+    * ``tolerance``: a landmark whose implied world pose moves by more than this at its centre is dropped; two
+      landmarks agree among themselves within it.
+    * ``adopt_frames``: frames a part's world pose must stay the same (within ``tolerance``) to become a landmark.
+    * ``gate_m`` / ``gate_deg``: a landmark agrees with the prior when the two camera poses put its centre within
+      ``gate_m`` and its orientation within ``gate_deg`` (a cube the tracker flipped to a symmetric orientation
+      keeps its centre but would spoil the fit of its corners).
+    * ``override_parts``: fewest landmarks agreeing among themselves that overrule a disagreeing dense prior;
+      ``override_turn_deg``: an override turning the camera by more than this takes the landmarks' rigid fit.
+    * ``gains``: share of the landmarks' mean centre offset applied for 1, 2, 3, … agreeing landmarks (the last one
+      for more; 0: one landmark alone does not move the camera).
+    * ``jump_m`` / ``jump_deg``: a dense pose farther than this from the constant-velocity prediction is rejected
+      unless the landmarks fit it better than the prediction (the simulated hand-held camera moves smoothly: its
+      true poses leave that prediction by < 0.4 mm / 0.05° on tuning seeds); after ``reanchor_frames`` rejections
+      in a row the dense odometry is taken again from the predicted pose (its keyframes have kept an offset: the
+      offset is absorbed).
+    * ``pin_parts``: fewest landmarks fitting a frame for the landmarks to be maintained (dropped, adopted) on it.
+    * ``velocity_smoothing``: weight of the newest accepted dense step in the camera's velocity (an exponential
+      average: one wrong step must not throw the prediction off).
+    """
+
+    tolerance: float = 0.003
+    adopt_frames: int = 5
+    gate_m: float = 0.006
+    gate_deg: float = 2.0
+    override_parts: int = 3
+    gains: tuple[float, ...] = (0.0, 0.5, 1.0)
+    override_turn_deg: float = 0.5
+    jump_m: float = 0.002
+    jump_deg: float = 0.3
+    reanchor_frames: int = 10
+    velocity_smoothing: float = 0.3
+    pin_parts: int = 2
+
+
+@dataclass(frozen=True)
+class FusedStep:
+    """One frame of :class:`FusedOdometry`: ``pose`` (camera → world); ``used`` landmarks fitted (0: prior only);
+    ``source``: ``"parts"`` (prior corrected by the landmarks), ``"override"`` (the landmarks overruled the dense
+    prior), ``"dense"`` (the dense motion alone) or ``"hold"`` (constant-velocity prediction: no dense pose or a
+    rejected one, and no landmark)."""
+
+    pose: Pose
+    used: int
+    source: str
+
+
+@dataclass
+class _Pending:
+    pose: Pose
+    count: int
+
+
+@dataclass
+class FusedOdometry:
+    """See the module docstring. ``update(timestamp, dense, observed, corners)`` once per frame."""
+
+    config: FusedConfig = field(default_factory=FusedConfig)
+    world: dict[str, Pose] = field(default_factory=dict)
+    pending: dict[str, _Pending] = field(default_factory=dict)
+    pose_world_camera: Pose | None = None
+    dense_rejected: int = 0
+    dense_overridden: int = 0
+    parts_rejected: int = 0
+
+    def __post_init__(self) -> None:
+        self._O: np.ndarray | None = None  # fused = O @ dense
+        self._last: tuple[float, np.ndarray] = (0.0, np.eye(4))  # time and fused pose of the last frame
+        self._twist = np.zeros(6)  # body-frame velocity twist per second (from accepted dense steps)
+        self._held = 0  # frames in a row without an accepted dense step
+        self._rejected = 0  # dense steps rejected in a row
+
+    def update(self, timestamp: float, dense: Pose | None, observed: dict[str, Pose],
+               corners: dict[str, np.ndarray]) -> FusedStep:
+        """One frame at ``timestamp`` (s): ``dense`` the dense odometry's measured camera → world pose (None when it
+        failed), ``observed`` part → camera poses of the parts seen well and resting, ``corners`` each part's corner
+        points (M, 3) in its body frame (metres; their mean is its centre). Returns the fused camera pose."""
+        cfg = self.config
+        Td = None if dense is None else dense.as_matrix()
+        if self.pose_world_camera is None:
+            self.pose_world_camera = Pose()
+            self._O = np.eye(4) if Td is None else invert(Td)
+            self.world = dict(observed)
+            self._last = (float(timestamp), np.eye(4))
+            return FusedStep(self.pose_world_camera, len(observed), "parts")
+        t_last, T_last = self._last
+        dt_s = max(0.0, float(timestamp) - t_last)
+        cv = T_last @ exp_se3(self._twist * dt_s)
+        prior, source = cv, "hold"
+        accepted = False
+        if Td is not None and self._O is not None:
+            cand = self._O @ Td
+            dt, dr = motion_size(invert(cv) @ cand)
+            smooth = dt <= cfg.jump_m and np.degrees(dr) <= cfg.jump_deg
+            if smooth or self._residual(cand, observed, corners) < self._residual(cv, observed, corners):
+                prior, source, accepted = cand, "dense", True
+                self._rejected = 0
+            elif self._rejected >= cfg.reanchor_frames:  # the dense odometry kept an offset: absorb it
+                self._O = cv @ invert(Td)
+                prior, source, accepted = cv, "dense", True
+                self._rejected = 0
+            else:
+                self.dense_rejected += 1
+                self._rejected += 1
+        T, used, source = self._correct(prior, source, observed, corners)
+        self.pose_world_camera = Pose.from_matrix(T)
+        if accepted:
+            self._O = T @ invert(Td)
+        # the velocity follows the dense odometry's own steps (not the landmarks' corrections, which would make a jump
+        # of the prediction); it decays while no dense step is accepted
+        if not accepted or prior is cv:  # (a re-anchored step has no velocity of its own either)
+            self._held += 1
+            if self._held > 2:  # a gap without a dense pose: stop extrapolating
+                self._twist = 0.5 * self._twist
+        else:
+            self._held = 0
+            if dt_s > 1e-6:
+                b = cfg.velocity_smoothing
+                self._twist = (1.0 - b) * self._twist + b * log_se3(invert(T_last) @ prior) / dt_s
+        self._last = (float(timestamp), T)
+        if len(used) >= cfg.pin_parts:  # landmarks are kept only while the camera is pinned by landmarks
+            self._maintain(observed, corners, used)
+        return FusedStep(self.pose_world_camera, len(used), source)
+
+    # ------------------------------------------------------------------------------------------------------
+    def _correct(self, prior: np.ndarray, source: str, observed: dict[str, Pose],
+                 corners: dict[str, np.ndarray]) -> tuple[np.ndarray, list[str], str]:
+        """The prior corrected by the landmarks (see the module docstring, steps 2 and 3)."""
+        cfg = self.config
+        names = [n for n in observed if n in self.world]
+        if not names:
+            return prior, [], source
+        centres = {n: np.asarray(corners[n], np.float64).mean(axis=0) for n in names}
+        Rp, tp = prior[:3, :3], prior[:3, 3]
+        with_prior = []
+        for n in names:
+            P, W = observed[n], self.world[n]
+            c = centres[n]
+            if (np.linalg.norm(Rp @ (P.R @ c + P.t) + tp - (W.R @ c + W.t)) < cfg.gate_m
+                    and np.degrees(rotation_angle(W.R.T @ Rp @ P.R)) < cfg.gate_deg):
+                with_prior.append(n)
+        # consensus of the landmarks among themselves (world → camera motions, as in part_landmarks)
+        pairs = []
+        for n in names:
+            P, W = observed[n], self.world[n]
+            R = P.R @ W.R.T
+            pairs.append((R, P.t - R @ W.t, W.R @ centres[n] + W.t))
+        among: list[str] = []
+        motion = consensus_motion(pairs, cfg.tolerance, min(2, len(pairs))) if len(pairs) >= 2 else None
+        if motion is not None:
+            R_cw, t_cw = motion
+            among = [n for n, (R, t, c) in zip(names, pairs, strict=True)
+                     if agrees(R_cw, t_cw, R, t, c, cfg.tolerance)]
+        if len(among) >= cfg.override_parts and np.linalg.norm(
+                self._shift(prior, among, observed, centres, 1.0)[:3, 3] - prior[:3, 3]) > cfg.gate_m:
+            self.dense_overridden += 1
+            fit = self._fit(among, observed, corners)
+            if np.degrees(rotation_angle(prior[:3, :3].T @ fit[:3, :3])) > cfg.override_turn_deg:
+                return fit, among, "override"
+            return self._shift(prior, among, observed, centres, 1.0), among, "override"
+        if not with_prior:
+            if among:
+                self.parts_rejected += 1
+            return prior, [], source
+        fit = self._cluster(prior, with_prior, observed, centres)
+        g = cfg.gains[min(len(fit), len(cfg.gains)) - 1]
+        return self._shift(prior, fit, observed, centres, g), fit, "parts"
+
+    def _cluster(self, T: np.ndarray, names: list[str], observed: dict[str, Pose],
+                 centres: dict[str, np.ndarray]) -> list[str]:
+        """The largest group of the named landmarks whose centre offsets under ``T`` agree within ``tolerance``
+        (ties: the group closest to ``T``): two parts a hand slides together must not pull the camera halfway."""
+        off = {n: self._offset(T, n, observed, centres) for n in names}
+        best: list[str] = []
+        best_norm = np.inf
+        for a in names:
+            group = [b for b in names if np.linalg.norm(off[a] - off[b]) < self.config.tolerance]
+            if len(group) > len(best) or (len(group) == len(best) and np.linalg.norm(off[a]) < best_norm):
+                best, best_norm = group, float(np.linalg.norm(off[a]))
+        return best
+
+    def _offset(self, T: np.ndarray, n: str, observed: dict[str, Pose], centres: dict[str, np.ndarray]) -> np.ndarray:
+        """World position of landmark ``n``'s centre minus where the camera pose ``T`` puts it (m)."""
+        W, P, c = self.world[n], observed[n], centres[n]
+        return W.R @ c + W.t - (T[:3, :3] @ (P.R @ c + P.t) + T[:3, 3])
+
+    def _residual(self, T: np.ndarray, observed: dict[str, Pose], corners: dict[str, np.ndarray]) -> float:
+        """Median distance (m) between the landmarks' corners seen from the camera pose ``T`` and their world
+        positions (inf without landmarks): which of two candidate poses the resting parts support."""
+        names = [n for n in observed if n in self.world]
+        if not names:
+            return np.inf
+        R, t = T[:3, :3], T[:3, 3]
+        return float(np.median([np.linalg.norm(self.world[n].transform_points(corners[n])
+                                               - (observed[n].transform_points(corners[n]) @ R.T + t), axis=1).mean()
+                                for n in names]))
+
+    def _shift(self, T: np.ndarray, names: list[str], observed: dict[str, Pose], centres: dict[str, np.ndarray],
+               gain: float) -> np.ndarray:
+        """``T`` (camera → world) moved by ``gain`` × the mean offset that puts the named landmarks' centres, seen
+        from ``T``, on their world positions (the rotation is kept: the dense odometry's rotation is better than the
+        parts' fit, whose rotation error moves the camera by the lever arm to the parts)."""
+        off = np.mean([self._offset(T, n, observed, centres) for n in names], axis=0)
+        out = T.copy()
+        out[:3, 3] += gain * off
+        return out
+
+    def _fit(self, names: list[str], observed: dict[str, Pose], corners: dict[str, np.ndarray]) -> np.ndarray:
+        """Camera → world pose fitting the named landmarks' corners (world against camera frame)."""
+        world_pts = np.vstack([self.world[n].transform_points(corners[n]) for n in names])
+        camera_pts = np.vstack([observed[n].transform_points(corners[n]) for n in names])
+        R, t = kabsch(camera_pts, world_pts)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, t
+        return T
+
+    def _maintain(self, observed: dict[str, Pose], corners: dict[str, np.ndarray], used: list[str]) -> None:
+        """Drop landmarks that moved (not among the ``used`` ones that pinned the pose); adopt parts whose world pose
+        stayed the same for ``adopt_frames`` frames."""
+        cfg = self.config
+        for name, P in observed.items():
+            c = np.asarray(corners[name], np.float64).mean(axis=0)
+            implied = self.pose_world_camera @ P
+            W = self.world.get(name)
+            if W is not None:
+                if name not in used and not agrees(W.R, W.t, implied.R, implied.t, c, cfg.tolerance):
+                    del self.world[name]
+                    self.pending[name] = _Pending(implied, 1)
+                continue
+            p = self.pending.get(name)
+            if p is not None and agrees(p.pose.R, p.pose.t, implied.R, implied.t, c, cfg.tolerance):
+                p.count += 1
+                p.pose = implied
+                if p.count >= cfg.adopt_frames:
+                    self.world[name] = implied
+                    del self.pending[name]
+            else:
+                self.pending[name] = _Pending(implied, 1)
