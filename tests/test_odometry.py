@@ -188,6 +188,22 @@ def test_odometry_command_parts_method_follows_a_swaying_camera_from_the_resting
     assert max(errs[:20] + errs[21:]) < 0.001, max(errs)
 
 
+def test_odometry_command_fused_method_follows_a_swaying_camera(tmp_path, capsys):
+    """``--method fused``: dense odometry and resting cubes together, within a millimetre on a swaying camera; a
+    frame without depth is predicted and flagged."""
+    rec = tmp_path / "rec"
+    src = _sway_recording(rec, 30, 15)
+    out = tmp_path / "traj.tum"
+    assert main(["odometry", str(rec), "--out", str(out), "--method", "fused"]) == 0
+    captured = capsys.readouterr()
+    assert "wrote 30 poses" in captured.out and "(1 extrapolated)" in captured.out
+    _, poses = read_tum(out)
+    w0 = src.camera_pose_at(0).inverse()
+    errs = [p.translation_error(w0 @ src.camera_pose_at(i)) for i, p in enumerate(poses)]
+    assert max(Pose().translation_error(w0 @ src.camera_pose_at(i)) for i in range(30)) > 0.005
+    assert max(errs) < 0.001, max(errs)
+
+
 def test_odometry_command_reports_a_missing_recording(tmp_path, capsys):
     assert main(["odometry", str(tmp_path / "nope"), "--out", str(tmp_path / "t.tum")]) == 1
     assert "recording directory not found" in capsys.readouterr().err

@@ -9,7 +9,9 @@ for every frame.
 ``--method default`` is the dense RGB-D odometry, ``--method fastslam`` the seed's AKAZE + FastSLAM 1.0, ``--method
 parts`` the camera pose from the parts of objects.json that stay put (the tracker of ``track`` runs on the frames;
 :mod:`tracker.odometry.part_landmarks`; parts without a first-frame pose are found as ``track`` finds them; the
-mask does not apply). A frame on which no resting part agrees keeps the last pose (flagged).
+mask does not apply). A frame on which no resting part agrees keeps the last pose (flagged). ``--method fused`` runs
+both, the dense odometry (with ``--mask``) and the tracker, and lets them check each other
+(:mod:`tracker.odometry.fused_odometry`); frames held on the constant-velocity prediction are flagged.
 ``--mask`` chooses what is excluded from the static scene: ``hand`` (default) the hand's box when the recording's
 ground truth has one (simulated recordings), ``parts`` also the colour-detected parts of objects.json, ``none``
 nothing (the robust weights alone then deal with hands and moving parts). When the recording has the simulator's
@@ -28,9 +30,10 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("odometry", help="estimate the camera's motion over a recording (TUM trajectory)")
     p.add_argument("recording", help="recording directory (README 'Recording format')")
     p.add_argument("--out", required=True, help="output trajectory file (TUM format)")
-    p.add_argument("--method", default="default", choices=("default", "fastslam", "parts"),
+    p.add_argument("--method", default="default", choices=("default", "fastslam", "parts", "fused"),
                    help="default: dense RGB-D odometry; fastslam: AKAZE features + FastSLAM 1.0 (the seed); parts: "
-                        "from the tracked parts that stay put (objects.json)")
+                        "from the tracked parts that stay put (objects.json); fused: dense and parts checking each "
+                        "other")
     p.add_argument("--mask", default="hand", choices=("hand", "parts", "none"),
                    help="what to exclude: hand (ground-truth hand box when recorded), parts (also colour-detected "
                         "parts), none")
@@ -94,6 +97,39 @@ class _PartsOdometry:
         return self._result(pose, False, time.perf_counter(), timestamp, reason)
 
 
+class _FusedOdometry(_PartsOdometry):
+    """``--method fused``: the dense odometry and the tracker's resting parts checking each other
+    (:class:`tracker.odometry.fused_odometry.FusedOdometry`)."""
+
+    def __init__(self, recording: str, seed: int, intrinsics) -> None:
+        from tracker.odometry import make_odometry
+        from tracker.odometry.fused_odometry import FusedOdometry
+
+        super().__init__(recording, seed)
+        self.dense = make_odometry("default", intrinsics, seed=seed)
+        self.fused = FusedOdometry()
+        self.used = 0
+
+    def step(self, frame, mask=None):
+        t0 = time.perf_counter()
+        if frame.depth is None:
+            return self.skip(frame.timestamp, f"frame {frame.index}: no depth image — pose extrapolated")
+        r = self.dense.step(frame, mask)
+        self.session.step(frame)
+        s = self.fused.update(float(frame.timestamp), r.pose_world_camera if r.ok else None,
+                              self.session.tracker.landmark_poses, self.corners)
+        ok = s.source != "hold"
+        return self._result(s.pose, ok, t0, frame.timestamp, "" if ok else
+                            f"frame {frame.index}: no dense pose accepted, no resting part agreed — pose predicted")
+
+    def skip(self, timestamp: float, reason: str):
+        from tracker.geometry.pose import Pose
+
+        self.dense.skip(timestamp, reason)
+        pose = self.fused.pose_world_camera or Pose()
+        return self._result(pose, False, time.perf_counter(), timestamp, reason)
+
+
 def run(args: argparse.Namespace) -> int:
     from tracker.geometry.pose import Pose
     from tracker.odometry import make_odometry
@@ -111,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
     detector = _part_detector(src, args.mask)
     if args.method == "parts":
         odo = _PartsOdometry(args.recording, args.seed)
+    elif args.method == "fused":
+        odo = _FusedOdometry(args.recording, args.seed, src.intrinsics)
     else:
         odo = make_odometry(args.method, src.intrinsics, seed=args.seed)
     n = len(src) if args.frames is None else min(len(src), args.frames)

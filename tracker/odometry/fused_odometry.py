@@ -17,10 +17,12 @@ check the other, once per frame:
    consensus of at least ``override_parts`` landmarks that puts the camera farther than ``gate_m`` from the prior
    overrules the dense odometry (``dense_overridden``); a smaller disagreeing consensus is ignored
    (``parts_rejected``: the wrong two-part consensus of the parts method).
-3. **Correction**: the prior's translation is moved by ``gain(k)`` × the mean offset of the ``k`` agreeing landmarks'
-   centres; its rotation is kept (the dense rotation is better than the parts' fit, whose rotation error would move
-   the camera by the lever arm to the parts). An override takes the landmarks' rigid fit when it turns the camera by
-   more than ``override_turn_deg``.
+3. **Correction**: with at least ``override_parts`` agreeing landmarks (those whose centre offsets agree among
+   themselves, :meth:`FusedOdometry._cluster`) the prior's rotation is pulled towards their rigid fit (Kabsch on
+   the corners) by ``rotation_gain`` × the part of the difference beyond ``rotation_deadband_deg`` (the dense rotation
+   is better than the parts' fit, ~0.1–0.2°, unless it went wrong); then its translation is moved by ``gain(k)`` ×
+   the mean offset of the ``k`` landmarks' centres. An override takes the landmarks' rigid fit when it turns the
+   camera by more than ``override_turn_deg``, else it shifts the translation.
 4. **Landmarks** are kept as in :class:`~.part_landmarks.PartLandmarkOdometry` (dropped when their implied world
    pose leaves the stored one by ``tolerance``, adopted after ``adopt_frames`` frames at the same world pose), but
    only on frames at least ``pin_parts`` landmarks pinned (a drifting camera must not re-anchor the landmarks).
@@ -60,6 +62,8 @@ class FusedConfig:
       true poses leave that prediction by < 0.4 mm / 0.05° on tuning seeds); after ``reanchor_frames`` rejections
       in a row the dense odometry is taken again from the predicted pose (its keyframes have kept an offset: the
       offset is absorbed).
+    * ``rotation_gain`` / ``rotation_deadband_deg``: share of the rotation difference to the landmarks' fit beyond
+      the dead band applied per frame (≥ ``override_parts`` landmarks).
     * ``pin_parts``: fewest landmarks fitting a frame for the landmarks to be maintained (dropped, adopted) on it.
     * ``velocity_smoothing``: weight of the newest accepted dense step in the camera's velocity (an exponential
       average: one wrong step must not throw the prediction off).
@@ -72,11 +76,19 @@ class FusedConfig:
     override_parts: int = 3
     gains: tuple[float, ...] = (0.0, 0.5, 1.0)
     override_turn_deg: float = 0.5
+    rotation_gain: float = 0.1
+    rotation_deadband_deg: float = 0.3
     jump_m: float = 0.002
     jump_deg: float = 0.3
     reanchor_frames: int = 10
     velocity_smoothing: float = 0.3
     pin_parts: int = 2
+
+
+def _rot4(R: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    return T
 
 
 @dataclass(frozen=True)
@@ -209,8 +221,17 @@ class FusedOdometry:
                 self.parts_rejected += 1
             return prior, [], source
         fit = self._cluster(prior, with_prior, observed, centres)
+        T = prior
+        if len(fit) >= cfg.override_parts and cfg.rotation_gain > 0:  # enough parts to pull the rotation too
+            F = self._fit(fit, observed, corners)
+            w = log_se3(_rot4(prior[:3, :3].T @ F[:3, :3]))[3:]
+            excess = np.linalg.norm(w) - np.radians(cfg.rotation_deadband_deg)
+            if excess > 0:
+                T = prior.copy()
+                w = cfg.rotation_gain * excess * w / np.linalg.norm(w)
+                T[:3, :3] = prior[:3, :3] @ exp_se3(np.r_[0.0, 0.0, 0.0, w])[:3, :3]
         g = cfg.gains[min(len(fit), len(cfg.gains)) - 1]
-        return self._shift(prior, fit, observed, centres, g), fit, "parts"
+        return self._shift(T, fit, observed, centres, g), fit, "parts"
 
     def _cluster(self, T: np.ndarray, names: list[str], observed: dict[str, Pose],
                  centres: dict[str, np.ndarray]) -> list[str]:
