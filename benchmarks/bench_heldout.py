@@ -302,7 +302,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sessions", default=None, help="run only these sessions of the design (1-based, e.g. 2,4-6)")
     ap.add_argument("--jobs", type=int, default=1, help="sessions run in parallel (processes)")
     ap.add_argument("--particles", type=int, default=None, help="N of our tracker (default: the preset's)")
-    ap.add_argument("--odometry", default="off", choices=("default", "fastslam", "off"),
+    ap.add_argument("--odometry", default="off", choices=("default", "fastslam", "fused", "off"),
                     help="camera odometry of our tracker (issue 15); when on, the same tracker with odometry off "
                     "runs beside it on the same frames and the results go to results/heldout_odometry[_dev].*")
     ap.add_argument("--note", default="", help="a sentence added to the figures' notes")

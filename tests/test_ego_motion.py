@@ -164,3 +164,30 @@ def test_jumps_and_failures_are_not_applied_and_the_table_stays_in_the_camera_fr
     assert abs(tables[2].offset - tables[1].offset) < 1e-9 and np.allclose(tables[2].normal, tables[1].normal)
     assert not steps[3].ok and steps[3].camera_motion is None and ego.failures == 1
     assert steps[4].ok and steps[4].camera_motion is None  # after a failure: re-anchored, nothing applied
+
+
+def test_fused_odometry_applies_the_smooth_motion_instead_of_a_wrong_registration():
+    """``fused``: the camera slides 1 mm per frame along x; at frame 4 the dense odometry registers 4 mm too far (under
+    the 8 mm jump bound, so ``default`` applies it to the parts). Fused applies the constant-velocity step there and
+    the dense steps again after it, and the resting parts seen after the tracker's step are taken as landmarks."""
+    from tracker.frame import Frame
+
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    f0 = src.render(0)
+    frames = [Frame(i, i / 30.0, f0.color, f0.depth, f0.intrinsics, {}) for i in range(7)]
+    truth = [Pose(np.array([0.001 * k, 0.0, 0.0])) for k in range(7)]
+    dense = list(truth)
+    dense[4] = Pose(np.array([0.008, 0.0, 0.0]))
+    applied = {}
+    for method in ("default", "fused"):
+        ego = EgoMotion(method, src.intrinsics, src.parts)
+        ego.odometry = _ScriptedOdometry(dense)
+        steps = []
+        for f, cam in zip(frames, truth, strict=True):
+            steps.append(ego.step(f))
+            landmarks = {n: cam.inverse() @ p for n, p in src.initial_poses.items()}
+            ego.observe(landmarks, {p.name: p.vertices() for p in src.parts})
+        applied[method] = [s.camera_motion[0, 3] if s.camera_motion is not None else 0.0 for s in steps]
+    assert np.isclose(applied["default"][4], -0.005)  # the wrong registration moved the parts by 5 mm
+    assert np.allclose(applied["fused"][1:], -0.001, atol=2e-4)  # fused: every applied step the camera's 1 mm
+    assert ego.fused is not None and ego.fused.dense_rejected >= 1 and len(ego.fused.world) == len(src.parts)

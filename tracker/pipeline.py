@@ -581,6 +581,9 @@ class AssemblyPipeline:
                 state = self.tracker.step(frame, detections or None, self.table, occluders=self._occluders(),
                                           touched=touched)
                 self.poses.update(state.poses)
+                if self.ego is not None and self.ego.fused is not None:  # odometry fused: parts check the camera
+                    self.ego.observe(self.tracker.landmark_poses,
+                                     {n: self.tracker.corners[i] for i, n in enumerate(self.tracker.names)})
                 self.carried = [str(n) for n in (getattr(state, "carried", None) or [])]
                 particles = {k: np.asarray(v, np.float32) for k, v in state.particles.items()}
                 for k, v in (getattr(state, "timings", None) or {}).items():

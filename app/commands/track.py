@@ -53,7 +53,7 @@ def register(subparsers) -> None:
     p.add_argument("--no-color", action="store_true", help="depth only (ignore part colours)")
     p.add_argument("--no-table", action="store_true",
                    help="do not look for a table plane (e.g. a recording with depth of the object only)")
-    p.add_argument("--odometry", default="off", choices=("default", "fastslam", "off"),
+    p.add_argument("--odometry", default="off", choices=("default", "fastslam", "fused", "off"),
                    help="camera ego-motion (default off): the parts are moved by the camera's motion before each "
                         "step and the table plane is propagated; --out still gets camera-frame poses")
     p.add_argument("--init", default=None, choices=("given", "auto"),
@@ -244,6 +244,7 @@ class TrackSession:
         self.last_ego_cpu = 0.0  # thread CPU seconds of the last odometry stage (mask, odometry, camera motion)
         self.ego = None if odometry == "off" else EgoMotion(odometry, intrinsics, self.parts, seed=seed)
         self.ego_step = None  # the last EgoMotionStep (odometry on)
+        self._corners = {n: self.tracker.corners[i] for i, n in enumerate(self.tracker.names)}
         if self.ego is not None and table is not None:
             self.ego.anchor_table(table)
 
@@ -261,6 +262,10 @@ class TrackSession:
         state = self.tracker.step(frame, dets, self.table)
         dt = time.perf_counter() - t0
         self.last_cpu = time.thread_time() - c0
+        if self.ego is not None and self.ego.fused is not None:  # odometry fused: the resting parts check the camera
+            c0 = time.thread_time()
+            self.ego.observe(self.tracker.landmark_poses, self._corners)
+            self.last_ego_cpu += time.thread_time() - c0
         self.track_seconds += dt
         self.poses = dict(state.poses)
         self.carried = list(state.carried)

@@ -65,8 +65,9 @@ for the camera's motion: it is not applied, and the tracker and the table plane 
 The tracker needs only the frame-to-frame motion, so an offset the odometry keeps after a jump does no harm."""
 MAX_STEP_DEG = 1.5
 """Rotation bound of :data:`MAX_STEP_M`, degrees."""
-MODES = ("default", "fastslam", "off")
-"""Values of the ``--odometry`` option: an odometry method of :data:`tracker.odometry.METHODS` or ``off``."""
+MODES = ("default", "fastslam", "fused", "off")
+"""Values of the ``--odometry`` option: an odometry method of :data:`tracker.odometry.METHODS`, ``fused`` (the dense
+odometry checked by the tracker's resting parts, :mod:`tracker.odometry.fused_odometry`) or ``off``."""
 
 
 @dataclass(frozen=True)
@@ -167,12 +168,17 @@ class EgoMotion:
         self.method = method
         self.intrinsics = intrinsics
         self.parts = list(parts)
-        self.odometry = make_odometry(method, intrinsics, seed=seed)
+        self.odometry = make_odometry("default" if method == "fused" else method, intrinsics, seed=seed)
+        self.fused = None
         self.reset()
 
     def reset(self) -> None:
         """Forget the camera's path: the next frame defines the world frame again."""
         self.odometry.reset()
+        if self.method == "fused":
+            from tracker.odometry.fused_odometry import FusedOdometry
+
+            self.fused = FusedOdometry()
         self.pose = Pose()
         self.ok = True
         self._applied: np.ndarray | None = None  # camera pose the tracker's state refers to (None: none yet)
@@ -180,6 +186,7 @@ class EgoMotion:
         self._history: deque[tuple[float, dict[str, np.ndarray]]] = deque()
         self.failures = 0
         self.jumps = 0
+        self._observe_pending = False
         self.last_mask: np.ndarray | None = None
 
     # ------------------------------------------------------------------------------------------- per frame
@@ -215,7 +222,10 @@ class EgoMotion:
         self.last_mask = mask
         res = self.odometry.step(frame, mask)
         self.pose, self.ok = res.pose_world_camera, bool(res.ok)
-        T_wc = res.pose_world_camera.as_matrix()
+        if self.fused is not None and res.ok:  # the dense pose checked against the smooth path (parts: observe())
+            self.pose = self.fused.predict(float(frame.timestamp), res.pose_world_camera)
+            self._observe_pending = True
+        T_wc = self.pose.as_matrix()
         motion = None
         if not res.ok:
             self.failures += 1
@@ -232,8 +242,21 @@ class EgoMotion:
                 motion = D
                 self._applied = T_wc
         self._remember(float(frame.timestamp), poses, motion)
-        return EgoMotionStep(res.pose_world_camera, bool(res.ok), motion, 1e3 * (time.perf_counter() - t0),
-                             res.message)
+        return EgoMotionStep(self.pose, bool(res.ok), motion, 1e3 * (time.perf_counter() - t0), res.message)
+
+    def observe(self, landmarks: Mapping[str, Pose], corners: Mapping[str, np.ndarray]) -> None:
+        """``fused`` only, after the tracker's step on the frame of :meth:`step`: its resting parts seen well
+        (``landmarks``, part → camera poses; ``corners`` body-frame corner points per part, metres) correct the
+        camera's world pose (:meth:`tracker.odometry.fused_odometry.FusedOdometry.correct`). The tracker's state
+        refers to the corrected pose from now on, so the next frame's motion is the dense odometry's step; the
+        correction itself reaches the world pose (the propagated table plane, the camera path), not the parts."""
+        if self.fused is None or not self._observe_pending:
+            return
+        self._observe_pending = False
+        step = self.fused.correct(dict(landmarks), dict(corners))
+        self.pose = step.pose
+        if self._applied is not None:
+            self._applied = step.pose.as_matrix()
 
     def _restart(self, T_wc: np.ndarray, table) -> None:
         """Take the tracker's camera frame for the camera at ``T_wc`` (no motion applied) and anchor the camera-frame

@@ -126,26 +126,39 @@ class FusedOdometry:
         self._last: tuple[float, np.ndarray] = (0.0, np.eye(4))  # time and fused pose of the last frame
         self._twist = np.zeros(6)  # body-frame velocity twist per second (from accepted dense steps)
         self._held = 0  # frames in a row without an accepted dense step
+        self._moving = False  # a velocity has been measured
         self._rejected = 0  # dense steps rejected in a row
+        self._frame: tuple | None = ()  # predict() → correct(): this frame's prior and how it was made
 
     def update(self, timestamp: float, dense: Pose | None, observed: dict[str, Pose],
                corners: dict[str, np.ndarray]) -> FusedStep:
         """One frame at ``timestamp`` (s): ``dense`` the dense odometry's measured camera → world pose (None when it
         failed), ``observed`` part → camera poses of the parts seen well and resting, ``corners`` each part's corner
-        points (M, 3) in its body frame (metres; their mean is its centre). Returns the fused camera pose."""
+        points (M, 3) in its body frame (metres; their mean is its centre). Returns the fused camera pose. Same as
+        :meth:`predict` then :meth:`correct`."""
+        self.predict(timestamp, dense, observed, corners)
+        return self.correct(observed, corners)
+
+    def predict(self, timestamp: float, dense: Pose | None, observed: dict[str, Pose] | None = None,
+                corners: dict[str, np.ndarray] | None = None) -> Pose:
+        """First half of a frame (step 1 of the module docstring): the prior camera pose from the dense pose (or the
+        prediction). Without ``observed`` landmarks (a tracker that measures the parts only after the camera's
+        motion is applied) a dense pose off the smooth path is rejected. :meth:`correct` must follow."""
         cfg = self.config
+        observed, corners = observed or {}, corners or {}
         Td = None if dense is None else dense.as_matrix()
         if self.pose_world_camera is None:
             self.pose_world_camera = Pose()
             self._O = np.eye(4) if Td is None else invert(Td)
-            self.world = dict(observed)
             self._last = (float(timestamp), np.eye(4))
-            return FusedStep(self.pose_world_camera, len(observed), "parts")
+            self._frame = None  # first frame: correct() takes the landmarks as they are
+            return self.pose_world_camera
         t_last, T_last = self._last
         dt_s = max(0.0, float(timestamp) - t_last)
         cv = T_last @ exp_se3(self._twist * dt_s)
         prior, source = cv, "hold"
         accepted = False
+        alt = None  # a rejected dense pose the landmarks of correct() may still prefer
         if Td is not None and self._O is not None:
             cand = self._O @ Td
             dt, dr = motion_size(invert(cv) @ cand)
@@ -160,23 +173,47 @@ class FusedOdometry:
             else:
                 self.dense_rejected += 1
                 self._rejected += 1
+                alt = None if observed else (cand, Td)
+        self._frame = (float(timestamp), T_last, dt_s, prior, source, accepted and prior is not cv,
+                       Td if accepted else None, alt)
+        self.pose_world_camera = Pose.from_matrix(prior)
+        return self.pose_world_camera
+
+    def correct(self, observed: dict[str, Pose], corners: dict[str, np.ndarray]) -> FusedStep:
+        """Second half of a frame (steps 2–4 of the module docstring): the prior of :meth:`predict` corrected by the
+        resting parts ``observed`` in this frame (part → camera poses; ``corners`` as in :meth:`update`)."""
+        cfg = self.config
+        if self._frame is None:  # the first frame: its parts are the first landmarks
+            self.world = dict(observed)
+            self._frame = ()
+            return FusedStep(self.pose_world_camera, len(observed), "parts")
+        if not self._frame:
+            raise RuntimeError("FusedOdometry.correct() needs a predict() first")
+        timestamp, T_last, dt_s, prior, source, stepped, Td, alt = self._frame
+        self._frame = ()
+        if alt is not None and self._residual(alt[0], observed, corners) < self._residual(prior, observed, corners):
+            # the landmarks seen only now support the dense pose rejected by predict(): take it after all
+            prior, Td, source, stepped = alt[0], alt[1], "dense", True
+            self.dense_rejected -= 1
+            self._rejected = 0
         T, used, source = self._correct(prior, source, observed, corners)
         self.pose_world_camera = Pose.from_matrix(T)
-        if accepted:
+        if Td is not None:
             self._O = T @ invert(Td)
         # the velocity follows the dense odometry's own steps (not the landmarks' corrections, which would make a jump
         # of the prediction); it decays while no dense step is accepted
-        if not accepted or prior is cv:  # (a re-anchored step has no velocity of its own either)
+        if not stepped:  # (a re-anchored step has no velocity of its own either)
             self._held += 1
             if self._held > 2:  # a gap without a dense pose: stop extrapolating
                 self._twist = 0.5 * self._twist
         else:
             self._held = 0
             if dt_s > 1e-6:
-                b = cfg.velocity_smoothing
+                b = cfg.velocity_smoothing if self._moving else 1.0  # (the first step sets the velocity)
                 self._twist = (1.0 - b) * self._twist + b * log_se3(invert(T_last) @ prior) / dt_s
-        self._last = (float(timestamp), T)
-        if len(used) >= cfg.pin_parts:  # landmarks are kept only while the camera is pinned by landmarks
+                self._moving = True
+        self._last = (timestamp, T)
+        if len(used) >= cfg.pin_parts or len(self.world) < cfg.pin_parts:  # (only while the camera is pinned)
             self._maintain(observed, corners, used)
         return FusedStep(self.pose_world_camera, len(used), source)
 
