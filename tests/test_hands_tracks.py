@@ -178,3 +178,49 @@ def test_same_seed_same_tracks(s1):
                                                                                  strict=True)]  # fmt: skip
 
     assert run(4) == run(4)
+
+
+def _crossing(t: int, n: int = 60) -> np.ndarray:
+    """RGB frame t of n: hand A (green sleeve) moves from the left to the right, hand B (blue sleeve) from the right to
+    the left, 4 px per frame; they cover each other completely half way (A in front) and part again."""
+    img = np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE)
+    xa = 40 + 4 * t
+    xb = 40 + 4 * (n - t)
+    for x0, sleeve in ((xb, (40, 40, 160)), (xa, (20, 120, 40))):  # B drawn first: A in front
+        img[150:240, x0 + 4 : x0 + 26] = sleeve
+        img[110:150, x0 : x0 + 30] = SKIN
+    return img
+
+
+def test_two_hands_crossing_keep_their_ids():
+    tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0))
+    tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE))
+    tr.process(_crossing(0))
+    a = tr.start_track([40, 110, 70, 150])
+    b = tr.start_track([280, 110, 310, 150])
+    for t in range(1, 61):
+        ests = {e.id: e.box for e in tr.process(_crossing(t))}
+        assert set(ests) == {a, b}  # neither track ends while the hands cover each other
+    for t in range(59, 55, -1):  # the hands go back a little, apart: each track on its own hand
+        ests = {e.id: e.box for e in tr.process(_crossing(t))}
+    xa, xb = 40 + 4 * 56, 40 + 4 * 4
+    box_a, box_b = [xa, 110, xa + 30, 150], [xb, 110, xb + 30, 150]
+    assert dice(ests[a], box_a) > 0.3 and dice(ests[a], box_b) == 0  # A's track came out on A, on the right
+    assert dice(ests[b], box_b) > 0.3 and dice(ests[b], box_a) == 0
+
+
+def test_session_adaptation_stays_near_the_trained_skin_model():
+    from tracker.hands.skin_model import SkinModel, crcb
+
+    base = SkinModel.load()
+    sleeve = np.tile(np.uint8([[120, 95, 80]]), (3000, 1))  # a brownish cloth next to the skin region
+    free = base.adapted(sleeve)  # unbounded MAP adaptation: the means go most of the way to the cloth
+    bounded = base.adapted(sleeve, max_shift=1.0)
+    cloth = crcb(sleeve[:1].reshape(1, 1, 3))
+    for j, c in enumerate(base.skin.covs):
+        d = bounded.skin.means[j] - base.skin.means[j]
+        assert float(d @ np.linalg.solve(c, d)) <= 1.0 + 1e-9
+    moved_free = max(np.linalg.norm(free.skin.means - base.skin.means, axis=1))
+    moved_bounded = max(np.linalg.norm(bounded.skin.means - base.skin.means, axis=1))
+    assert moved_free > 2 * moved_bounded  # the bound is what holds the model back
+    assert free.classify(cloth)[0, 0] == 1 and bounded.classify(cloth)[0, 0] == base.classify(cloth)[0, 0]

@@ -25,6 +25,9 @@ MIN_PIXELS = 20
 """Fewer counted pixels than this: no appearance measurement."""
 RATE = 0.2
 """Learning rate of a track's histogram (running average over frames)."""
+LEARN_MIN_SIM = 0.6
+"""An observation less similar than this to a track's histogram is not learnt (the track may be on the other hand:
+learning it would make the two hands' models alike and the id swap undecidable)."""
 SWAP_MARGIN = 0.2
 """The exchanged assignment must be better by this much (sum of two similarities) to swap ids."""
 

@@ -41,6 +41,12 @@ class HandKalmanFilter:
     def boxes_for_roi(self) -> np.ndarray:
         return self.m[None]
 
+    def coast(self) -> None:
+        """Constant-velocity prediction without a measurement: position += velocity."""
+        self.m = self.m.copy()
+        self.m[:2] += self.m[4:6]
+        self.estimate = self.m.copy()
+
     def step(self, feats: HandFeatures, image_size: tuple[int, int]) -> np.ndarray:
         m0 = self.m
         ox, oy = float(feats.roi[0]), float(feats.roi[1])

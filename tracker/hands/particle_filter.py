@@ -201,6 +201,11 @@ class HandParticleFilter:
         """The particles' states (for the ROI of the next step)."""
         return self.particles
 
+    def coast(self) -> None:
+        """Constant-velocity move of every particle (no measurement): x ← x + x'."""
+        self.particles[:, :2] += self.particles[:, 4:6]
+        self.estimate = mode_estimate(self.particles, self.weights)
+
     def step(self, feats: HandFeatures, image_size: tuple[int, int]) -> np.ndarray:
         """One step of Algorithm 10 on the frame's features; returns the MMSE estimate (6,)."""
         prm = self.params

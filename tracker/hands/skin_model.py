@@ -14,7 +14,8 @@ lookup table over (Cr, Cb), so a frame's mask is one table lookup.
   spec §14.1; 4 components), mixed with a uniform floor of weight :data:`UNIFORM_FLOOR` so that colours seen in
   neither model fall back to the thesis's uniform ω2.
 * Per-session adaptation: :meth:`SkinModel.adapted` moves the skin GMM's means towards the colours of tracked
-  hand pixels (MAP adaptation of the means, Reynolds et al. 2000, relevance factor 16).
+  hand pixels (MAP adaptation of the means, Reynolds et al. 2000, relevance factor 16), each mean by a bounded
+  Mahalanobis distance from the unadapted model.
 """
 
 from __future__ import annotations
@@ -72,8 +73,10 @@ class Gmm2D:
             out = np.logaddexp(out, np.log(w) - np.log(2 * np.pi) - 0.5 * np.log(det) - 0.5 * q)
         return out
 
-    def map_adapt(self, x: np.ndarray, relevance: float = 16.0) -> Gmm2D:
-        """MAP adaptation of the means to the samples ``x`` [N, 2] (weights and covariances kept)."""
+    def map_adapt(self, x: np.ndarray, relevance: float = 16.0, max_shift: float | None = None) -> Gmm2D:
+        """MAP adaptation of the means to the samples ``x`` [N, 2] (weights and covariances kept); ``max_shift``:
+        no mean moves farther than this Mahalanobis distance (in its own component's covariance) from where it was
+        (None: unbounded)."""
         x = np.asarray(x, np.float64).reshape(-1, 2)
         if len(x) == 0:
             return self
@@ -84,7 +87,14 @@ class Gmm2D:
         n = resp.sum(axis=0)
         ex = (resp.T @ x) / np.maximum(n, 1e-9)[:, None]
         a = (n / (n + relevance))[:, None]
-        return Gmm2D(self.weights, a * ex + (1 - a) * self.means, self.covs)
+        means = a * ex + (1 - a) * self.means
+        if max_shift is not None:
+            for j, c in enumerate(self.covs):
+                d = means[j] - self.means[j]
+                m = float(np.sqrt(max(d @ np.linalg.solve(c, d), 0.0)))
+                if m > max_shift:
+                    means[j] = self.means[j] + d * (max_shift / m)
+        return Gmm2D(self.weights, means, self.covs)
 
     def to_dict(self) -> dict:
         return {"weights": self.weights.tolist(), "means": self.means.tolist(), "covs": self.covs.tolist()}
@@ -160,11 +170,13 @@ class SkinModel:
         return SkinModel(self.skin, bg, self.log_tau, UNIFORM_FLOOR, {**self.info, "background": "session"},
                          _ls=self._ls)  # fmt: skip
 
-    def adapted(self, skin_rgb: np.ndarray, relevance: float = 16.0) -> SkinModel:
-        """This model with the skin means MAP-adapted to the RGB pixels ``skin_rgb`` [N, 3]."""
+    def adapted(self, skin_rgb: np.ndarray, relevance: float = 16.0, max_shift: float | None = None) -> SkinModel:
+        """This model with the skin means MAP-adapted to the RGB pixels ``skin_rgb`` [N, 3], each mean moving at most
+        ``max_shift`` Mahalanobis units (None: unbounded). Adapt from the session's unadapted model each time (not from
+        the last adapted one), so that the shifts do not add up."""
         x = crcb(np.asarray(skin_rgb, np.uint8).reshape(-1, 1, 3)).reshape(-1, 2)
-        return SkinModel(self.skin.map_adapt(x, relevance), self.background, self.log_tau, self.floor, self.info,
-                         _lb=self._lb)  # fmt: skip
+        return SkinModel(self.skin.map_adapt(x, relevance, max_shift), self.background, self.log_tau, self.floor,
+                         self.info, _lb=self._lb)  # fmt: skip
 
     def with_threshold(self, log_tau: float) -> SkinModel:
         return SkinModel(self.skin, self.background, log_tau, self.floor, self.info, _ls=self._ls, _lb=self._lb)

@@ -33,8 +33,9 @@ initialisation of new tracks:
 
 Skin model: the shipped generic model (:mod:`tracker.hands.skin_model`); with ``session_background`` its ω2 is
 refitted on the session's first frame (assumed hand-free, as thesis Application 2 trains ω2 on the first frames),
-and with ``adapt`` the skin means are MAP-adapted every ``adapt_every`` frames to the colour-mask pixels inside
-confident track boxes (a_{c,1} ≥ 0.5).
+and with ``adapt`` the skin means are MAP-adapted every ``adapt_every`` frames to the inner colour-mask pixels of
+confident, isolated track boxes (a_{c,1} ≥ 0.5) of the last ``adapt_every`` frames, always from the unadapted session
+model and by at most :data:`ADAPT_MAX_SHIFT` (the unbounded, chained adaptation drifted onto sleeve and table colours).
 
 Track ids are 1, 2, 3, … in order of creation; a re-acquired or swapped track carries an earlier id back, a new
 hand gets a new id.
@@ -42,6 +43,7 @@ hand gets a new id.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import cv2
@@ -58,9 +60,19 @@ from tracker.hands.skin_model import SkinModel
 
 METHODS = ("pf", "kalman")
 REACQUIRE_MOVE = 2.0
+"""Working px a candidate away from the border must move over its n_init frames to re-acquire a lost track."""
+ADAPT_MAX_SHIFT = 1.0
+"""Largest move (Mahalanobis distance in its component's covariance) of a skin mean by the session adaptation."""
+APART_F = 0.5
+"""Box F-score with every other track below which a track counts as following a hand of its own."""
+ESTABLISHED = 5
+"""Frames a track must have spent apart (:data:`APART_F`) for a later duplicate of it to count as a second hand."""
+MERGED_KEEP = 120
+"""Frames two established tracks may share one box (two hands on top of each other) before the worse one ends."""
+SETTLE = 15
+"""Frames after two tracks part during which their appearance is not learnt (their ids may still be swapped)."""
 SWAP_FRAMES = 3
 """Consecutive frames the exchanged id assignment must fit better before two tracks' ids are swapped."""
-"""Working px a candidate away from the border must move over its n_init frames to re-acquire a lost track."""
 
 
 @dataclass(frozen=True)
@@ -138,6 +150,9 @@ class _Track:
     score: float = 1.0
     app: np.ndarray | None = None
     swap: dict[int, int] = field(default_factory=dict)
+    merged: bool = False
+    apart: int = 0
+    since_merge: int = 1 << 30
 
 
 @dataclass
@@ -224,7 +239,8 @@ class HandTracker:
         self._mask_cur: np.ndarray | None = None  # this frame's colour mask B^c over the whole working frame
         self._mask_prev: np.ndarray | None = None
         self._candidates: list[_Candidate] = []
-        self._adapt_pixels: list[np.ndarray] = []
+        self._adapt_pixels: deque[np.ndarray] = deque(maxlen=2 * self.config.max_tracks * self.config.adapt_every)
+        self._skin_base = model  # the session's unadapted model (adaptation starts from it every time)
         self.last_features: HandFeatures | None = None
 
     # ------------------------------------------------------------------ resolution
@@ -355,6 +371,7 @@ class HandTracker:
             self._bg_bins = identity.background_bins(self._bin_image(small))
             if self.config.session_background:
                 self.skin = self.skin.with_background(small, step=2, keep=None if self._excl is None else ~self._excl)
+            self._skin_base = self.skin
         self._mask_cur = None
         if self._prev_rgb is not None and self.tracks:
             out = self._step_tracks(small, grey, size)
@@ -362,13 +379,18 @@ class HandTracker:
             lo.frames += 1
         self.lost = [lo for lo in self.lost if lo.frames <= self.config.keep_lost]
         new_ok = self.config.auto_init and len(self.tracks) + len(self.lost) < self.config.max_tracks
-        if new_ok or self.lost:
-            new = self._auto_init(small, depth, reacquire=bool(self.lost))
+        pair = self._merged_pair() if self.config.reacquire else None
+        if new_ok or self.lost or pair is not None:
+            new = self._auto_init(small, depth, reacquire=bool(self.lost) or pair is not None)
             if new is not None:
                 if self.lost:  # a lost track comes back with its id (see _pick_lost)
                     lo = self.lost.pop(self._pick_lost(new, small))
                     self._start(new, lo.id)
                     self.tracks[-1].app = lo.app
+                    self.tracks[-1].since_merge = 0
+                elif pair is not None and not new_ok:  # a free hand while two tracks share one: one moves to it
+                    moved = self._transfer(pair, new, small)
+                    out = [e for e in out if e.id != moved]
                 else:
                     self._start(new)
                 out.append(self._estimate(self.tracks[-1], size))
@@ -429,9 +451,11 @@ class HandTracker:
             feats.anchors = palm_anchors(self._frame_mask(rgb), self._depth, self.s, self._focal_px(),
                                          cfg.hand_length_m, cfg.min_area_frac * size[0] * size[1])  # fmt: skip
         self.last_features = feats
+        before = [(_snapshot(tr.filt), state_box(tr.filt.estimate)) for tr in self.tracks]
         for tr in self.tracks:
             tr.filt.step(feats, size)
             tr.age += 1
+        self._undo_jumps(before)
         ests = [self._estimate(tr, size, feats) for tr in self.tracks]
         keep = self._terminate(size)
         self._end([not k for k in keep])
@@ -442,19 +466,57 @@ class HandTracker:
             for e, tr in zip(ests, self.tracks, strict=True):
                 e.id = tr.id
         if cfg.adapt:
-            for tr in self.tracks:
-                if tr.score >= 0.5:
-                    u0, v0, u1, v1 = state_box(tr.filt.estimate)
-                    a0, b0 = max(u0 - x0, 0), max(v0 - y0, 0)
-                    a1, b1 = max(min(u1 + 1, x1) - x0, 0), max(min(v1 + 1, y1) - y0, 0)
-                    px = rgb[y0:y1, x0:x1][b0:b1, a0:a1][mcur[b0:b1, a0:a1].astype(bool)]
-                    if len(px):
-                        self._adapt_pixels.append(px[:: max(1, len(px) // 200)])
+            self._collect_adapt_pixels(rgb, mcur, roi)
             if self.frame_index % cfg.adapt_every == 0 and self._adapt_pixels:
-                self.skin = self.skin.adapted(np.concatenate(self._adapt_pixels))
-                self._adapt_pixels = []
+                self.skin = self._skin_base.adapted(np.concatenate(list(self._adapt_pixels)), max_shift=ADAPT_MAX_SHIFT)
                 self._mask_cur = None  # the frame's mask under the adapted model, if it is needed again
         return ests
+
+    def _collect_adapt_pixels(self, rgb: np.ndarray, mcur: np.ndarray, roi: tuple[int, int, int, int]) -> None:
+        """Skin samples for the session adaptation: the colour-mask pixels inside a confident (a_{c,1} ≥ 0.5)
+        track's box that are not on the mask's edge (3×3 erosion: edge pixels blend skin with sleeve or table), only
+        for tracks whose box expanded by half its size meets no other track's box (two hands together may hold a
+        wrong box); at most 200 per track and frame, kept over the last ``adapt_every`` frames."""
+        x0, y0, x1, y1 = roi
+        boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
+        for i, tr in enumerate(self.tracks):
+            if tr.score < 0.5 or tr.merged:
+                continue
+            b = boxes[i]
+            mx, my = 0.5 * (b[2] - b[0] + 1), 0.5 * (b[3] - b[1] + 1)
+            big = (b[0] - mx, b[1] - my, b[2] + mx, b[3] + my)
+            if any(_overlap_f(big, boxes[j]) for j in range(len(boxes)) if j != i):
+                continue
+            u0, v0, u1, v1 = b
+            a0, b0 = max(u0 - x0, 0), max(v0 - y0, 0)
+            a1, b1 = max(min(u1 + 1, x1) - x0, 0), max(min(v1 + 1, y1) - y0, 0)
+            if a1 - a0 < 3 or b1 - b0 < 3:
+                continue
+            inner = cv2.erode(mcur[b0:b1, a0:a1], np.ones((3, 3), np.uint8)).astype(bool)
+            px = rgb[y0:y1, x0:x1][b0:b1, a0:a1][inner]
+            if len(px):
+                self._adapt_pixels.append(px[:: max(1, len(px) // 200)])
+
+    def _undo_jumps(self, before: list[tuple[dict, tuple[int, int, int, int]]]) -> None:
+        """A track that lands in one step on the box of another track it was apart from (box F-score < APART_F the
+        frame before, ≥ APART_F now) jumped hands (e.g. a section-6 box of the other hand's colour component): the
+        one that moved farther (in units of its box size) is put back and moved by its velocity instead."""
+        n = len(self.tracks)
+        now = [state_box(tr.filt.estimate) for tr in self.tracks]
+        for i in range(n):
+            for j in range(i + 1, n):
+                if box_f_score(before[i][1], before[j][1]) >= APART_F or box_f_score(now[i], now[j]) < APART_F:
+                    continue
+                moved = []
+                for k in (i, j):
+                    b0, b1 = before[k][1], now[k]
+                    d = np.hypot(0.5 * (b1[0] + b1[2] - b0[0] - b0[2]), 0.5 * (b1[1] + b1[3] - b0[1] - b0[3]))
+                    moved.append(d / max(b0[2] - b0[0] + 1, b0[3] - b0[1] + 1, 1))
+                k = i if moved[0] >= moved[1] else j
+                filt = self.tracks[k].filt
+                filt.__dict__.update(before[k][0])
+                filt.coast()
+                now[k] = state_box(filt.estimate)
 
     def _end(self, ending: list[bool]) -> None:
         """Tracks flagged in ``ending`` become lost tracks (re-acquirable with their ids) if ``reacquire``."""
@@ -493,15 +555,31 @@ class HandTracker:
             tr.tiny = tr.tiny + 1 if full < cfg.min_area_frac * size[0] * size[1] else 0
             if tr.low >= cfg.n_lost or tr.tiny >= cfg.n_lost:
                 keep[i] = False
+        fs = np.zeros((len(boxes), len(boxes)))
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                fs[i, j] = fs[j, i] = box_f_score(boxes[i], boxes[j])
+        for i, tr in enumerate(self.tracks):
+            tr.apart = tr.apart + 1 if all(fs[i, j] < APART_F for j in range(len(boxes)) if j != i) else tr.apart
+            tr.since_merge += 1
         for i in range(len(boxes)):
             for j in range(i + 1, len(boxes)):
                 a, b = self.tracks[i], self.tracks[j]
-                if box_f_score(boxes[i], boxes[j]) >= 0.8:
+                if fs[i, j] >= 0.8:
                     a.dup[b.id] = a.dup.get(b.id, 0) + 1
-                    if a.dup[b.id] >= cfg.n_lost:
+                    # two tracks that each followed a hand of their own before are two hands on top of each other:
+                    # both stay (ids frozen) until the hands part or a free hand turns up (_transfer)
+                    two_hands = a.apart >= ESTABLISHED and b.apart >= ESTABLISHED
+                    a.merged = b.merged = two_hands
+                    if a.dup[b.id] >= (MERGED_KEEP if two_hands else cfg.n_lost):
                         keep[self._duplicate_loser(i, j)] = False
-                else:
+                elif fs[i, j] < APART_F:
                     a.dup.pop(b.id, None)
+        for i, tr in enumerate(self.tracks):
+            if tr.merged and not any(fs[i, j] >= APART_F for j in range(len(boxes)) if j != i):
+                tr.merged = False
+            if tr.merged:
+                tr.since_merge = 0
         return keep
 
     # ------------------------------------------------------------------ identity (tracker.hands.identity)
@@ -527,6 +605,34 @@ class HandTracker:
             if abs(sa - sb) > 0.05:
                 return j if sa > sb else i
         return j if b.id > a.id else i
+
+    def _merged_pair(self) -> tuple[int, int] | None:
+        """Indices of two live tracks that share one box as two hands on top of each other (see _terminate)."""
+        for i, a in enumerate(self.tracks):
+            for j in range(i + 1, len(self.tracks)):
+                b = self.tracks[j]
+                if a.merged and b.merged and (a.dup.get(b.id, 0) > 0 or b.dup.get(a.id, 0) > 0):
+                    return i, j
+        return None
+
+    def _transfer(self, pair: tuple[int, int], state: np.ndarray, rgb: np.ndarray) -> int:
+        """A skin region no track explains appeared while two tracks share one hand's box: the one whose appearance
+        fits the new region better (the younger on a tie) restarts there with its id; returns that id."""
+        a, b = self.tracks[pair[0]], self.tracks[pair[1]]
+        obs = self._appearance(rgb, state)
+        sa, sb = identity.similarity(a.app, obs), identity.similarity(b.app, obs)
+        if a.app is not None and b.app is not None and obs is not None and abs(sa - sb) > 0.05:
+            mover = a if sa > sb else b
+        else:
+            mover = b if b.id > a.id else a
+        stay = b if mover is a else a
+        self.tracks.remove(mover)
+        self._start(state, mover.id)
+        new = self.tracks[-1]
+        new.app, new.since_merge, new.apart = mover.app, 0, ESTABLISHED
+        stay.merged, stay.dup = False, {}
+        stay.since_merge = 0
+        return mover.id
 
     def _pick_lost(self, state: np.ndarray, rgb: np.ndarray) -> int:
         """Index of the lost track a re-acquired hand at ``state`` continues: the best appearance match if the lost
@@ -579,8 +685,11 @@ class HandTracker:
                     tr.swap = {}
                     break
         for i, tr in enumerate(self.tracks):
-            if isolated[i] and tr.score >= 0.5 and not any(v > 0 for v in tr.swap.values()):
+            settled = tr.since_merge >= SETTLE and not tr.merged and not self.lost
+            if isolated[i] and settled and tr.score >= 0.5 and not any(v > 0 for v in tr.swap.values()):
                 assert obs[i] is not None
+                if tr.app is not None and sim(tr.app, obs[i]) < identity.LEARN_MIN_SIM:
+                    continue  # not the hand the model was learnt on (or its look changed): keep the model as it is
                 tr.app = identity.learn(tr.app, obs[i])
 
     # ------------------------------------------------------------------ automatic initialisation
@@ -654,6 +763,11 @@ class HandTracker:
         """Focal length in full-resolution pixels (0.82·width without intrinsics)."""
         assert self.full_size is not None
         return float(self.focal) if self.focal else 0.82 * self.full_size[0]
+
+
+def _snapshot(filt: HandParticleFilter | HandKalmanFilter) -> dict:
+    """A filter's attributes, arrays copied (to put a filter back after a step)."""
+    return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in filt.__dict__.items()}
 
 
 def _overlap_f(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
