@@ -144,7 +144,11 @@ def _run_fused(src, frames, masks) -> dict:
         c1, w1 = time.thread_time(), time.perf_counter()
         session.step(f)
         c2, w2 = time.thread_time(), time.perf_counter()
-        step = fused.update(float(f.timestamp), r.pose_world_camera if r.ok else None, trk.landmark_poses, corners)
+        lm = trk.landmark_poses
+        fused.predict(float(f.timestamp), r.pose_world_camera if r.ok else None, lm, corners)
+        table = None if session.table is None else (session.table.normal, session.table.offset)
+        plane = fused.measure_table(f.depth, src.intrinsics, m, guess=table) if f.depth is not None else None
+        step = fused.correct(lm, corners, plane)
         cpu.append(1e3 * (c1 - c0 + time.thread_time() - c2))
         wall.append(1e3 * (w1 - w0 + time.perf_counter() - w2))
         est.append(step.pose)
@@ -300,9 +304,11 @@ def markdown(res: dict) -> str:
         + (f" `{FUSED}` = the dense odometry and the resting parts checking each other "
            "(`tracker/odometry/fused_odometry.py`): the dense pose is the prior; a dense step that leaves the "
            "constant-velocity prediction by over 2 mm / 0.3° is taken only when the resting parts fit it better; the "
-           "parts that agree with the prior (6 mm) correct its translation; a disagreeing consensus of ≥ 3 parts "
-           "overrules it, a smaller one is ignored. Its CPU time is the dense step plus the fusion (the tracker runs "
-           "anyway); `measured`: frames not held on the prediction." if fused else ""),
+           "table plane, measured in each frame near where the pose puts it, fixes the tilt and the height; the parts "
+           "that agree with the prior (6 mm) correct its translation along the table and, with ≥ 3 of them, its turn "
+           "about the table's normal beyond 0.1°; a disagreeing consensus of ≥ 3 parts overrules it, a smaller one "
+           "is ignored. Its CPU time is the dense step plus the fusion and the plane fit (the tracker runs anyway); "
+           "`measured`: frames not held on the prediction." if fused else ""),
         "",
         "| session | camera moved mm / ° | hand frames | method | ATE RMSE mm (max) | rot RMSE ° | RPE mm/s | "
         "RPE °/s | measured | CPU ms median / p95 | wall ms median / p95 |",

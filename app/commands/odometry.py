@@ -116,8 +116,12 @@ class _FusedOdometry(_PartsOdometry):
             return self.skip(frame.timestamp, f"frame {frame.index}: no depth image — pose extrapolated")
         r = self.dense.step(frame, mask)
         self.session.step(frame)
-        s = self.fused.update(float(frame.timestamp), r.pose_world_camera if r.ok else None,
-                              self.session.tracker.landmark_poses, self.corners)
+        lm = self.session.tracker.landmark_poses
+        self.fused.predict(float(frame.timestamp), r.pose_world_camera if r.ok else None, lm, self.corners)
+        table = self.session.table
+        plane = self.fused.measure_table(frame.depth, frame.intrinsics, mask,
+                                         guess=None if table is None else (table.normal, table.offset))
+        s = self.fused.correct(lm, self.corners, plane)
         ok = s.source != "hold"
         return self._result(s.pose, ok, t0, frame.timestamp, "" if ok else
                             f"frame {frame.index}: no dense pose accepted, no resting part agreed — pose predicted")

@@ -187,6 +187,7 @@ class EgoMotion:
         self.failures = 0
         self.jumps = 0
         self._observe_pending = False
+        self._plane = None  # fused: the table plane measured in the frame of step() (camera frame)
         self.last_mask: np.ndarray | None = None
 
     # ------------------------------------------------------------------------------------------- per frame
@@ -224,6 +225,8 @@ class EgoMotion:
         self.pose, self.ok = res.pose_world_camera, bool(res.ok)
         if self.fused is not None and res.ok:  # the dense pose checked against the smooth path (parts: observe())
             self.pose = self.fused.predict(float(frame.timestamp), res.pose_world_camera)
+            guess = None if table is None else (table.normal, table.offset)
+            self._plane = self.fused.measure_table(frame.depth, self.intrinsics, mask, guess=guess)
             self._observe_pending = True
         T_wc = self.pose.as_matrix()
         motion = None
@@ -253,7 +256,7 @@ class EgoMotion:
         if self.fused is None or not self._observe_pending:
             return
         self._observe_pending = False
-        step = self.fused.correct(dict(landmarks), dict(corners))
+        step = self.fused.correct(dict(landmarks), dict(corners), self._plane)
         self.pose = step.pose
         if self._applied is not None:
             self._applied = step.pose.as_matrix()

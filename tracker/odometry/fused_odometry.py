@@ -12,18 +12,23 @@ check the other, once per frame:
    ``jump_deg`` is accepted only when the resting parts fit it better than the prediction (median corner distance);
    otherwise it is taken for a wrong registration and the prediction stands (``dense_rejected``). After
    ``reanchor_frames`` rejections in a row the dense odometry's offset is absorbed into ``O``.
-2. **Gate of the parts**: every landmark (a part resting at a known world pose) implies where its centre is; the
+2. **Table** (when one is set, :meth:`FusedOdometry.set_table`): the plane measured in the frame near where the
+   prior puts it (:mod:`.table_constraint`) turns the prior about the camera centre and moves it along the normal
+   so that the plane matches (``table_gain``): the tilt and the height are then fixed; the parts correct only the
+   turn about the normal and the sliding along the table.
+3. **Gate of the parts**: every landmark (a part resting at a known world pose) implies where its centre is; the
    landmarks that agree with the prior (centre within ``gate_m``, orientation within ``gate_deg``) correct it. A
    consensus of at least ``override_parts`` landmarks that puts the camera farther than ``gate_m`` from the prior
    overrules the dense odometry (``dense_overridden``); a smaller disagreeing consensus is ignored
    (``parts_rejected``: the wrong two-part consensus of the parts method).
-3. **Correction**: with at least ``override_parts`` agreeing landmarks (those whose centre offsets agree among
+4. **Correction**: with at least ``override_parts`` agreeing landmarks (those whose centre offsets agree among
    themselves, :meth:`FusedOdometry._cluster`) the prior's rotation is pulled towards their rigid fit (Kabsch on
-   the corners) by ``rotation_gain`` × the part of the difference beyond ``rotation_deadband_deg`` (the dense rotation
-   is better than the parts' fit, ~0.1–0.2°, unless it went wrong); then its translation is moved by ``gain(k)`` ×
-   the mean offset of the ``k`` landmarks' centres. An override takes the landmarks' rigid fit when it turns the
+   the corners) by ``rotation_gain`` × the part of the difference beyond ``rotation_deadband_deg`` (about the table's
+   normal only when the table was measured; the dense rotation is better than the parts' fit unless it went wrong);
+   then its translation is moved by ``gain(k)`` × the mean offset of the ``k`` landmarks' centres (along the table
+   only when it was measured). An override takes the landmarks' rigid fit when it turns the
    camera by more than ``override_turn_deg``, else it shifts the translation.
-4. **Landmarks** are kept as in :class:`~.part_landmarks.PartLandmarkOdometry` (dropped when their implied world
+5. **Landmarks** are kept as in :class:`~.part_landmarks.PartLandmarkOdometry` (dropped when their implied world
    pose leaves the stored one by ``tolerance``, adopted after ``adopt_frames`` frames at the same world pose), but
    only on frames at least ``pin_parts`` landmarks pinned (a drifting camera must not re-anchor the landmarks).
 
@@ -37,9 +42,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tracker.filter.scene_motion import agrees, consensus_motion
+from tracker.geometry.camera import Intrinsics
 from tracker.geometry.pose import Pose
 from tracker.odometry.akaze_features import kabsch
 from tracker.odometry.se3 import exp_se3, invert, log_se3, motion_size
+from tracker.odometry.table_constraint import BAND_M, apply_plane, plane_in_camera, refit_plane
 from tracker.refine.part_refiner import rotation_angle
 
 
@@ -65,6 +72,7 @@ class FusedConfig:
     * ``rotation_gain`` / ``rotation_deadband_deg``: share of the rotation difference to the landmarks' fit beyond
       the dead band applied per frame (≥ ``override_parts`` landmarks).
     * ``pin_parts``: fewest landmarks fitting a frame for the landmarks to be maintained (dropped, adopted) on it.
+    * ``table_gain``: share of the measured table plane's correction applied (1: the tilt and height it gives).
     * ``velocity_smoothing``: weight of the newest accepted dense step in the camera's velocity (an exponential
       average: one wrong step must not throw the prediction off).
     """
@@ -76,13 +84,14 @@ class FusedConfig:
     override_parts: int = 3
     gains: tuple[float, ...] = (0.0, 0.5, 1.0)
     override_turn_deg: float = 0.5
-    rotation_gain: float = 0.1
-    rotation_deadband_deg: float = 0.3
+    rotation_gain: float = 0.2
+    rotation_deadband_deg: float = 0.1
     jump_m: float = 0.002
     jump_deg: float = 0.3
     reanchor_frames: int = 10
     velocity_smoothing: float = 0.3
     pin_parts: int = 2
+    table_gain: float = 1.0
 
 
 def _rot4(R: np.ndarray) -> np.ndarray:
@@ -117,6 +126,8 @@ class FusedOdometry:
     world: dict[str, Pose] = field(default_factory=dict)
     pending: dict[str, _Pending] = field(default_factory=dict)
     pose_world_camera: Pose | None = None
+    table: tuple[np.ndarray, float] | None = None
+    """The table plane in the world frame ``(n_w, d_w)`` (set with :meth:`set_table`), or None."""
     dense_rejected: int = 0
     dense_overridden: int = 0
     parts_rejected: int = 0
@@ -127,8 +138,34 @@ class FusedOdometry:
         self._twist = np.zeros(6)  # body-frame velocity twist per second (from accepted dense steps)
         self._held = 0  # frames in a row without an accepted dense step
         self._moving = False  # a velocity has been measured
+        self._plane_normal: np.ndarray | None = None  # this frame's measured table normal (camera frame)
         self._rejected = 0  # dense steps rejected in a row
         self._frame: tuple | None = ()  # predict() → correct(): this frame's prior and how it was made
+
+    def set_table(self, normal: np.ndarray, offset: float) -> None:
+        """The table plane (``normal · x + offset = 0``, camera frame of the current pose) as a constraint: from now
+        on a plane measured in a frame (``correct(..., plane=)``) fixes the camera's tilt and height above it."""
+        T = (self.pose_world_camera or Pose()).as_matrix()
+        R, t = T[:3, :3], T[:3, 3]
+        n_w = R @ np.asarray(normal, np.float64)
+        self.table = (n_w, float(offset) - float(n_w @ t))
+
+    def measure_table(self, depth: np.ndarray, intrinsics: Intrinsics, mask: np.ndarray | None = None,
+                      guess: tuple[np.ndarray, float] | None = None) -> tuple[np.ndarray, float] | None:
+        """The table plane measured in ``depth`` (metres; ``mask`` True = exclude) near where the pose of
+        :meth:`predict` puts it (:func:`~tracker.odometry.table_constraint.refit_plane`), for ``correct(...,
+        plane=)``. Before a table is set, ``guess`` (a plane detected in this frame, camera frame) is refined and set
+        as the world's table (None is returned then). Camera frame, metres."""
+        if self.table is None:
+            if guess is not None:
+                fit = refit_plane(depth, intrinsics, np.asarray(guess[0], np.float64), float(guess[1]), mask,
+                                  band=2 * BAND_M)
+                if fit is not None:
+                    self.set_table(*fit)
+            return None
+        if self.pose_world_camera is None:
+            return None
+        return refit_plane(depth, intrinsics, *plane_in_camera(self.pose_world_camera.as_matrix(), *self.table), mask)
 
     def update(self, timestamp: float, dense: Pose | None, observed: dict[str, Pose],
                corners: dict[str, np.ndarray]) -> FusedStep:
@@ -179,7 +216,8 @@ class FusedOdometry:
         self.pose_world_camera = Pose.from_matrix(prior)
         return self.pose_world_camera
 
-    def correct(self, observed: dict[str, Pose], corners: dict[str, np.ndarray]) -> FusedStep:
+    def correct(self, observed: dict[str, Pose], corners: dict[str, np.ndarray],
+                plane: tuple[np.ndarray, float] | None = None) -> FusedStep:
         """Second half of a frame (steps 2–4 of the module docstring): the prior of :meth:`predict` corrected by the
         resting parts ``observed`` in this frame (part → camera poses; ``corners`` as in :meth:`update`)."""
         cfg = self.config
@@ -196,6 +234,11 @@ class FusedOdometry:
             prior, Td, source, stepped = alt[0], alt[1], "dense", True
             self.dense_rejected -= 1
             self._rejected = 0
+        if plane is not None and self.table is not None and cfg.table_gain > 0:
+            prior = apply_plane(prior, *self.table, *plane, gain=cfg.table_gain)
+            self._plane_normal = plane[0]
+        else:
+            self._plane_normal = None
         T, used, source = self._correct(prior, source, observed, corners)
         self.pose_world_camera = Pose.from_matrix(T)
         if Td is not None:
@@ -262,6 +305,8 @@ class FusedOdometry:
         if len(fit) >= cfg.override_parts and cfg.rotation_gain > 0:  # enough parts to pull the rotation too
             F = self._fit(fit, observed, corners)
             w = log_se3(_rot4(prior[:3, :3].T @ F[:3, :3]))[3:]
+            if self._plane_normal is not None:  # the table fixed the tilt: only the turn about its normal is left
+                w = (w @ self._plane_normal) * self._plane_normal
             excess = np.linalg.norm(w) - np.radians(cfg.rotation_deadband_deg)
             if excess > 0:
                 T = prior.copy()
@@ -305,6 +350,9 @@ class FusedOdometry:
         from ``T``, on their world positions (the rotation is kept: the dense odometry's rotation is better than the
         parts' fit, whose rotation error moves the camera by the lever arm to the parts)."""
         off = np.mean([self._offset(T, n, observed, centres) for n in names], axis=0)
+        if self._plane_normal is not None:  # the table fixed the height: slide along it only
+            n_w = self.table[0]
+            off = off - (off @ n_w) * n_w
         out = T.copy()
         out[:3, 3] += gain * off
         return out
