@@ -41,3 +41,45 @@ def test_no_motion_without_enough_agreeing_landmarks():
     assert consensus_motion([a, b, c, d], 0.003, 2) is None  # a tie is no majority
     R, t = consensus_motion([a, b, c], 0.003, 2)
     assert np.allclose(R, np.eye(3), atol=1e-3) and np.linalg.norm(t - [0.01, 0.0, 0.0]) < 0.001
+
+
+def _healthy(ok: bool):
+    """A dense-depth refinement outcome that is (not) healthy."""
+    from tracker.refine.dense_depth import RefineResult
+
+    return RefineResult(np.eye(3), np.zeros(3), ok, 400, 300 if ok else 5, 0.7 if ok else 0.01, 0.001)
+
+
+def test_a_part_seen_in_colour_without_depth_follows_the_scene_and_a_part_the_depth_placed_does_not():
+    """Three well-seen resting cubes (landmarks) move by the camera's motion between two frames. A fourth cube is in
+    view (visible fraction 0.8) but its depth is missing, so its refinement failed: it follows the landmarks'
+    motion. A fifth is partly visible (0.4, not a landmark) but its refinement placed it: it is left where the depth
+    put it. (Before, only parts below the rest prior's visible fraction followed: the fourth stayed behind.)"""
+    from tracker.filter.particle_filter import MultiObjectTracker, TrackerState
+    from tracker.filter.scene_motion import follow_scene
+    from tracker.filter.tracker_config import TrackerConfig
+    from tracker.geometry.camera import Intrinsics
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+
+    names = ["a", "b", "c", "shadowed", "placed"]
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=20)
+    tr = MultiObjectTracker([PartSpec.cube(n, "red") for n in names], Intrinsics.default(640, 480), cfg, seed=0)
+    xs = [-0.12, -0.06, 0.0, 0.06, 0.12]
+    tr.initialize({n: Pose([x, 0.02, 0.65], [0, 0, 0, 1]) for n, x in zip(names, xs, strict=True)})
+    tr.visibility = np.array([1.0, 1.0, 1.0, 0.8, 0.4])
+    tr._refiner.last = [_healthy(n != "shadowed") for n in names]
+    state = TrackerState(0, 0.0, dict(tr.estimates), {}, np.ones(20) / 20)
+    follow_scene(tr, state)  # first frame: the landmarks are recorded
+    Rd = Rotation.from_euler("xyz", [0.3, -0.5, 0.2], degrees=True).as_matrix()
+    td = np.array([0.003, -0.002, 0.001])
+    before = {n: tr.estimates[n] for n in names}
+    for n in ("a", "b", "c"):  # the camera moved: the landmarks' refined estimates show it
+        e = tr.estimates[n]
+        tr.estimates[n] = Pose.from_rt(Rd @ e.R, Rd @ e.t + td)
+    follow_scene(tr, state)
+    s0, s1 = before["shadowed"], tr.estimates["shadowed"]
+    assert np.linalg.norm(s1.t - (Rd @ s0.t + td)) < 1e-6
+    assert np.allclose(s1.R, Rd @ s0.R, atol=1e-9)
+    assert np.linalg.norm(tr._rest_t[3] - (Rd @ s0.t + td)) < 1e-6  # its rest anchor moved with it
+    assert np.allclose(tr.estimates["placed"].t, before["placed"].t)

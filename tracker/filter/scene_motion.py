@@ -9,7 +9,9 @@ landmarks: if they stay put in the world, each one's pose change between two fra
 (camera frame), is the same rigid motion of the camera. A consensus motion is taken from them (the candidate that
 the most landmarks agree with within ``scene_motion_tolerance``, averaged over those; at least
 ``scene_motion_min_anchors`` must agree, and more than half of them, so that a part pushed by a hand is outvoted),
-and applied to the hidden parts that are neither carried nor visible: their particles, estimate and rest anchor.
+and applied to the parts that no landmark is and that the depth did not place this frame (hidden, or seen in colour
+with no depth on them, as in a hand's projector shadow), unless carried or moving with their blob: their particles,
+estimate and rest anchor.
 Motions smaller than ``scene_motion_deadband`` at the part are not applied (refinement noise would make a random
 walk of a hidden part under a still camera).
 
@@ -79,8 +81,16 @@ def agrees(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray, c: np
                 and rotation_angle(Ra.T @ Rb) < tolerance / 0.05)
 
 
+def placed_by_depth(trk: MultiObjectTracker, obj: int) -> bool:
+    """Did this frame's dense-depth refinement place part ``obj`` (healthy)? A part seen in colour whose depth is
+    missing (the hand's projector shadow) or hidden is not placed, and follows the scene."""
+    res = trk._refiner.last[obj] if trk._refiner is not None else None
+    return res is not None and res.healthy
+
+
 def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
-    """Apply the landmarks' consensus motion since the previous frame to hidden, uncarried parts (module docstring)."""
+    """Apply the landmarks' consensus motion since the previous frame to the parts the depth did not place
+    (module docstring)."""
     cfg = trk.config
     now = landmarks(trk)
     prev, trk._landmarks = trk._landmarks, now
@@ -99,7 +109,7 @@ def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
     Rd, td = motion
     carried = trk._carry.carried
     for i, name in enumerate(trk.names):
-        if i in now or carried[i] or trk.visibility[i] >= cfg.rest_prior_max_visibility:
+        if i in now or carried[i] or trk._blob_moved[i] or placed_by_depth(trk, i):
             continue
         est = trk.estimates[name]
         c = est.R @ trk.center[i] + est.t

@@ -193,8 +193,9 @@ class TrackerConfig(BaseModel):
         1.0, ge=0.0, description="Smallest centroid motion (pixels) blob follow applies.",
     )
     scene_motion: bool = Field(
-        False, description="Scene motion (not in the spec; filter/scene_motion.py): hidden parts that are neither "
-        "carried nor visible follow the camera motion that the well-seen resting parts agree on.",
+        False, description="Scene motion (not in the spec; filter/scene_motion.py): parts that the depth did not place "
+        "this frame (hidden, or seen in colour without depth) and that are neither carried nor moving with their blob "
+        "follow the camera motion that the well-seen resting parts agree on.",
     )
     scene_motion_tolerance: float = Field(
         0.003, gt=0.0, description="Metres: landmarks agree with a camera motion when it moves their centre within "
