@@ -179,3 +179,63 @@ def test_signed_distance_kernel_is_the_exact_distance_transform():
         assert np.allclose(d, ref, rtol=0.0, atol=1e-5)
         rgv, rgu = np.gradient(d)
         assert np.array_equal(gu, rgu) and np.array_equal(gv, rgv)
+
+
+def _outline_reference(intr, shapes, poses, rect, obj, max_points):
+    """:func:`OutlineScene.outline_at`'s points computed the long way, operation for operation as it does them: the
+    whole rectangle rendered at stride 1, its outline cells (:func:`_outline_pixels`), evenly thinned, back-projected
+    and turned into the body frame."""
+    from tracker.refine.region_term import _outline_pixels
+
+    render = render_surfaces(intr, shapes, poses, rect, 1)
+    rows, cols = _outline_pixels(render.label, render.depth, obj)
+    n = rows.shape[0]
+    if n > max_points:
+        step = (n - 1) / (max_points - 1)
+        sel = np.array([n - 1 if a == max_points - 1 else int(np.rint(a * step)) for a in range(max_points)])
+        rows, cols = rows[sel], cols[sel]
+    R, t = poses[obj]
+    d = render.depth[rows, cols]
+    p = [(rect[0] + cols - intr.cx) / intr.fx * d - t[0], (rect[1] + rows - intr.cy) / intr.fy * d - t[1], d - t[2]]
+    return np.stack([p[0] * R[0, b] + p[1] * R[1, b] + p[2] * R[2, b] for b in range(3)], axis=1).reshape(-1, 3)
+
+
+def test_box_outline_shortcut_gives_the_full_renders_outline_bit_for_bit():
+    """For a box, :class:`OutlineScene` ray-casts only the cells near its projected outline (and where other parts
+    overlap it): its points equal, bit for bit, those of the whole rectangle's render at stride 1
+    (:func:`_outline_reference`) — for boxes crowded together (overlapping each other and a mesh), cut by
+    the rectangle's border, squarely face-on with their edges on whole pixel rows and columns, and near the camera
+    plane (where the whole rectangle is rendered)."""
+    rng = np.random.default_rng(11)
+    intr = Intrinsics(320, 240, 300.0, 300.0, 160.0, 120.0)
+    tet_v = np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.05, 0.0], [0.0, 0.0, 0.05]]) - 0.0125
+    tet_f = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], np.int64)
+    checked = 0
+    for trial in range(60):
+        shapes = [SHAPE, ("box", np.array([0.003, 0.0, -0.002]), np.array([0.03, 0.015, 0.02])), SHAPE,
+                  ("mesh", tet_v, tet_f)]
+        poses = []
+        for _ in shapes:
+            R = Rotation.from_rotvec(rng.normal(0.0, 1.0, 3)).as_matrix()
+            poses.append((R, np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.3, 0.45)])))
+        kind = trial % 4
+        if kind == 1:  # face-on, the front face's edges exactly on pixel rows and columns (u, v = 160 ± 15)
+            poses[0] = (np.eye(3), np.array([0.0, 0.0, 0.42]))
+        elif kind == 2:  # face-on, turned a little, half of it beyond the rectangle's right border
+            poses[0] = (Rotation.from_euler("z", rng.uniform(-3.0, 3.0), degrees=True).as_matrix(),
+                        np.array([0.05, 0.0, 0.42]))
+        elif kind == 3 and trial % 8 == 3:  # a corner in front of the camera plane
+            poses[0] = (poses[0][0], np.array([0.0, 0.0, 0.01]))
+        rect = (100, 60, 200, 180) if kind == 2 else (60, 20, 260, 220)
+        for obj in (0, 1, 2):
+            if obj == 2 and trial % 5 == 0:
+                poses[obj] = None
+                continue
+            scene = OutlineScene.of(shapes, poses, obj, rect, 200)
+            R, t = poses[obj]
+            ref = _outline_reference(intr, shapes, poses, rect, obj, 200)
+            got = scene.outline_at(R, t, intr)
+            assert got.shape == ref.shape
+            assert np.array_equal(got, ref), (trial, obj)
+            checked += ref.shape[0] > 0
+    assert checked > 100

@@ -220,7 +220,8 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
     :class:`~tracker.refine.region_term.OutlineScene` (its arrays, then the term's: contour points ``rpts`` extracted
     at ``(rR, rt)``, the blob's signed distance ``sd``, ``gu``, ``gv`` with crop origin ``(su0, sv0)``, the depth
     ``fdepth`` that tells what hides the outline, and the settings). The same steps as the Python loop: the outline
-    is re-extracted whenever the pose differs from the one its points came from (kept when fewer than 8 points),
+    is re-extracted whenever the pose differs from the one its points came from (kept when fewer than 8 points; for a
+    box :func:`~tracker.refine.region_term._scene_outline` ray-casts only near its projected outline, same points),
     the update solves ``(H + H_r + Λ) ξ = −(g + g_r)`` and turns by Rodrigues' formula of
     :func:`~tracker.filter.motion_model.rotvec_to_matrix`. Updates ``R``, ``t`` in place; same return values as
     :func:`_gauss_newton`."""

@@ -34,7 +34,14 @@ import numpy as np
 
 from tracker.geometry.camera import Intrinsics
 from tracker.refine.normal_equations import add_huber, twist_row
-from tracker.refine.surface_render import SurfaceRender, _render_box, _render_mesh
+from tracker.refine.surface_render import (
+    SurfaceRender,
+    _box_bounds,
+    _box_origin,
+    _box_ray,
+    _render_box,
+    _render_mesh,
+)
 
 
 @dataclass(frozen=True)
@@ -94,32 +101,236 @@ def contour_points(render: SurfaceRender, obj: int, intrinsics: Intrinsics) -> n
 
 
 @nb.njit(cache=True)
-def _scene_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, R, t, rect, fx, fy, cx, cy,
-                   max_points):
-    """Body-frame outline points of part ``obj`` at pose ``(R, t)``, every other drawn part at ``(Rs[k], ts[k])``:
-    the full-resolution render over ``rect = (u0, v0, u1, v1)`` (:func:`~tracker.refine.surface_render.render_surfaces`
-    at stride 1), its outline pixels (:func:`_outline_pixels`), their surface points, evenly thinned to at most
-    ``max_points`` (as ``np.linspace(0, C − 1, max_points).round()`` picks them). The numba form of
-    :func:`body_outline` of such a render; ``kinds[k]``: 0 box (``centers``, ``halves``), 1 mesh (vertices
-    ``verts[voff[k]:voff[k+1]]``, faces ``faces[foff[k]:foff[k+1]]`` indexing them), −1 not drawn."""
+def _outline_window_pixels(label, z, obj, wi0, wj0, nu, nv):
+    """:func:`_outline_pixels` of a window of a grid: ``label``, ``z`` hold the grid cells ``(wj0 + j, wi0 + i)`` of a
+    grid of ``nv`` × ``nu`` cells; rows and columns returned in grid cells. A neighbour outside the grid does not make
+    an outline (as there); one outside the window but inside the grid counts as empty (the caller's window holds
+    every neighbour of the part's pixels, so this does not arise)."""
+    mv, mu = label.shape
+    rows = np.empty(mv * mu, np.int64)
+    cols = np.empty(mv * mu, np.int64)
+    n = 0
+    for j in range(mv):
+        for i in range(mu):
+            if label[j, i] != obj:
+                continue
+            edge = False
+            for k in range(4):
+                jj = j + (1 if k == 0 else -1 if k == 1 else 0)
+                ii = i + (1 if k == 2 else -1 if k == 3 else 0)
+                if jj + wj0 < 0 or jj + wj0 >= nv or ii + wi0 < 0 or ii + wi0 >= nu:
+                    continue  # the image border is not an outline
+                if jj < 0 or jj >= mv or ii < 0 or ii >= mu:
+                    edge = True
+                    break
+                lab = label[jj, ii]
+                if lab != obj and (lab < 0 or z[jj, ii] > z[j, i]):
+                    edge = True
+                    break
+            if edge:
+                rows[n] = j + wj0
+                cols[n] = i + wi0
+                n += 1
+    return rows[:n], cols[:n]
+
+
+@nb.njit(cache=True)
+def _own_window(kind, R, t, center, half, verts, u0, v0, nu, nv, fx, fy, cx, cy):
+    """Grid cells ``(i0, i1, j0, j1)`` (inclusive, stride 1, grid origin ``(u0, v0)``, ``nu`` × ``nv`` cells) that hold
+    every pixel a part at ``(R, t)`` can cover and their 4-neighbours: its projected corners' (a box) or vertices'
+    (a mesh) rectangle widened by 2 cells, within the grid (all of it when a box corner lies near the camera plane).
+    Empty (``i0 > i1``) when nothing of the part can be drawn."""
+    umin, umax, vmin, vmax = np.inf, -np.inf, np.inf, -np.inf
+    if kind == 0:
+        for sx in (-1.0, 1.0):
+            for sy in (-1.0, 1.0):
+                for sz in (-1.0, 1.0):
+                    bx, by, bz = center[0] + sx * half[0], center[1] + sy * half[1], center[2] + sz * half[2]
+                    x = R[0, 0] * bx + R[0, 1] * by + R[0, 2] * bz + t[0]
+                    y = R[1, 0] * bx + R[1, 1] * by + R[1, 2] * bz + t[1]
+                    z = R[2, 0] * bx + R[2, 1] * by + R[2, 2] * bz + t[2]
+                    if z < 1e-3:
+                        return 0, nu - 1, 0, nv - 1
+                    umin, umax = min(umin, fx * x / z + cx), max(umax, fx * x / z + cx)
+                    vmin, vmax = min(vmin, fy * y / z + cy), max(vmax, fy * y / z + cy)
+    else:  # a mesh draws only triangles whose three vertices lie beyond 1 mm
+        for a in range(verts.shape[0]):
+            x = R[0, 0] * verts[a, 0] + R[0, 1] * verts[a, 1] + R[0, 2] * verts[a, 2] + t[0]
+            y = R[1, 0] * verts[a, 0] + R[1, 1] * verts[a, 1] + R[1, 2] * verts[a, 2] + t[1]
+            z = R[2, 0] * verts[a, 0] + R[2, 1] * verts[a, 1] + R[2, 2] * verts[a, 2] + t[2]
+            if z < 1e-3:
+                continue
+            umin, umax = min(umin, fx * x / z + cx), max(umax, fx * x / z + cx)
+            vmin, vmax = min(vmin, fy * y / z + cy), max(vmax, fy * y / z + cy)
+    if not (umin <= umax and vmin <= vmax and np.isfinite(umin) and np.isfinite(umax) and np.isfinite(vmin)
+            and np.isfinite(vmax)):
+        return 0, -1, 0, -1
+    lo_u, hi_u = np.floor(umin - u0) - 2.0, np.ceil(umax - u0) + 2.0
+    lo_v, hi_v = np.floor(vmin - v0) - 2.0, np.ceil(vmax - v0) + 2.0
+    if hi_u < 0.0 or hi_v < 0.0 or lo_u > nu - 1 or lo_v > nv - 1:
+        return 0, -1, 0, -1
+    return (int(max(lo_u, 0.0)), int(min(hi_u, nu - 1.0)), int(max(lo_v, 0.0)), int(min(hi_v, nv - 1.0)))
+
+
+_BOX_EDGES = np.array([[0, 1], [2, 3], [4, 5], [6, 7], [0, 2], [1, 3], [4, 6], [5, 7], [0, 4], [1, 5], [2, 6], [3, 7]],
+                      np.int64)
+"""Corner pairs of a box's 12 edges, corners numbered as the loops over (±x, ±y, ±z) visit them (z fastest)."""
+_SURE_PX = 1e-4
+"""A pixel centre this far (px) or farther from a box's projected outline is inside or outside it for sure: the ray
+cast's rounding moves the outline by about 1e-12 px."""
+
+
+@nb.njit(cache=True)
+def _box_row_span(cu, cv, v, lo_v, hi_v):
+    """The u-extent ``(lo, hi)`` (pixels) of a box's projected outline (corners ``cu``, ``cv``) between the rows
+    ``v + lo_v`` and ``v + hi_v``: its corners in that band and where its edges cross the band's two rows
+    (``(inf, −inf)`` when it has nothing there)."""
+    lo, hi = np.inf, -np.inf
+    for c in range(8):
+        if v + lo_v <= cv[c] <= v + hi_v:
+            lo, hi = min(lo, cu[c]), max(hi, cu[c])
+    for e in range(12):  # the outline is made of projected edges of the box
+        p, q = _BOX_EDGES[e, 0], _BOX_EDGES[e, 1]
+        if cv[p] == cv[q]:
+            continue
+        for row in (v + lo_v, v + hi_v):
+            if (cv[p] - row) * (cv[q] - row) <= 0.0:
+                x = cu[p] + (row - cv[p]) * (cu[q] - cu[p]) / (cv[q] - cv[p])
+                lo, hi = min(lo, x), max(hi, x)
+    return lo, hi
+
+
+@nb.njit(cache=True)
+def _box_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, R, t, rect, fx, fy, cx, cy):
+    """Outline pixels of box ``obj`` at ``(R, t)`` among the drawn parts, exactly as the full render over ``rect``
+    (stride 1) and :func:`_outline_pixels` find them; ``None`` when a corner of the box lies near the camera plane
+    (the caller renders everything then).
+
+    A box in front of the camera covers the cells inside its projected outline (the convex hull of its projected
+    corners, whose sides are projected edges): a cell farther than ``_SURE_PX`` from that outline is inside or
+    outside for sure (the ray cast's rounding is many orders of magnitude smaller), and only the cells closer to it
+    are ray-cast (:func:`~tracker.refine.surface_render._box_ray`, the render's own arithmetic), as are cells that
+    another part also covers (which one is in front) and outline cells next to another part. The other parts are
+    rendered as usual over the box's window (its projected rectangle and 2 cells around it). Returns the outline
+    cells' grid rows and columns (row-major, as :func:`_outline_pixels` lists them) and the box's origin for
+    :func:`_thinned_points`."""
     u0, v0, u1, v1 = rect[0], rect[1], rect[2], rect[3]
     nu = max(u1 - u0, 0)
     nv = max(v1 - v0, 0)
-    zbuf = np.full((nv, nu), np.inf)
-    label = np.full((nv, nu), -1, np.int32)
-    normal = np.zeros((nv, nu, 3))
-    if nu > 0 and nv > 0:
-        for k in range(kinds.shape[0]):
-            if kinds[k] < 0:
+    center, half = centers[obj], halves[obj]
+    umin, umax, vmin, vmax, near = _box_bounds(R, t, center, half, fx, fy, cx, cy)
+    if near:
+        return None
+    o = _box_origin(R, t, center)
+    empty = np.empty(0, np.int64)
+    lo_u, hi_u = np.floor(umin - u0) - 2.0, np.ceil(umax - u0) + 2.0
+    lo_v, hi_v = np.floor(vmin - v0) - 2.0, np.ceil(vmax - v0) + 2.0
+    if nu == 0 or nv == 0 or hi_u < 0.0 or hi_v < 0.0 or lo_u > nu - 1 or lo_v > nv - 1:
+        return empty, empty, o
+    wi0, wi1 = int(max(lo_u, 0.0)), int(min(hi_u, nu - 1.0))
+    wj0, wj1 = int(max(lo_v, 0.0)), int(min(hi_v, nv - 1.0))
+    mu, mv = wi1 - wi0 + 1, wj1 - wj0 + 1
+    # the other parts, as the render draws them (index order, nearest kept, the first on a tie)
+    zo = np.full((mv, mu), np.inf)
+    lo = np.full((mv, mu), -1, np.int32)
+    no_normal = np.empty((0, 0, 3))
+    for k in range(kinds.shape[0]):
+        if kinds[k] < 0 or k == obj:
+            continue
+        if kinds[k] == 0:
+            _render_box(zo, lo, no_normal, u0, v0, 1, fx, fy, cx, cy, Rs[k], ts[k], centers[k], halves[k], k, wi0, wj0)
+        else:
+            _render_mesh(zo, lo, no_normal, u0, v0, 1, fx, fy, cx, cy, Rs[k], ts[k], verts[voff[k]:voff[k + 1]],
+                         faces[foff[k]:foff[k + 1]], k, wi0, wj0)
+    others = False
+    for jr in range(mv):
+        for ir in range(mu):
+            if lo[jr, ir] >= 0:
+                others = True
+    cu = np.empty(8)
+    cv = np.empty(8)
+    c = 0
+    for sx in (-1.0, 1.0):
+        for sy in (-1.0, 1.0):
+            for sz in (-1.0, 1.0):
+                bx, by, bz = center[0] + sx * half[0], center[1] + sy * half[1], center[2] + sz * half[2]
+                x = R[0, 0] * bx + R[0, 1] * by + R[0, 2] * bz + t[0]
+                y = R[1, 0] * bx + R[1, 1] * by + R[1, 2] * bz + t[1]
+                z = R[2, 0] * bx + R[2, 1] * by + R[2, 2] * bz + t[2]
+                cu[c] = fx * x / z + cx
+                cv[c] = fy * y / z + cy
+                c += 1
+    sure = _SURE_PX
+    own = np.zeros((mv, mu), np.uint8)
+    for j in range(wj0, wj1 + 1):
+        v = float(v0 + j)
+        if v < vmin - sure or v > vmax + sure:
+            continue  # the row passes above or below the box
+        yv = (v - cy) / fy
+        jr = j - wj0
+        if v < vmin + sure or v > vmax - sure:  # the row grazes a corner or an edge: cast where it could hit
+            a, b = _box_row_span(cu, cv, v, -sure, sure)
+            for i in range(max(int(np.floor(a - u0)) - 1, wi0), min(int(np.ceil(b - u0)) + 1, wi1) + 1):
+                if _box_ray(o, R, half, (u0 + i - cx) / fx, yv)[0] < np.inf:
+                    own[jr, i - wi0] = 1
+            continue
+        a, b = _box_row_span(cu, cv, v, 0.0, 0.0)
+        for i in range(max(int(np.floor(a - u0 - sure)), wi0), min(int(np.ceil(b - u0 + sure)), wi1) + 1):
+            u = float(u0 + i)
+            if a + sure < u < b - sure:
+                own[jr, i - wi0] = 1
+            elif a - sure <= u <= b + sure and _box_ray(o, R, half, (u - cx) / fx, yv)[0] < np.inf:
+                own[jr, i - wi0] = 1
+    if others:  # where another part covers a cell of the box too, the nearer keeps it (the lower index on a tie)
+        for jr in range(mv):
+            yv = (v0 + wj0 + jr - cy) / fy
+            for ir in range(mu):
+                if own[jr, ir] == 1 and lo[jr, ir] >= 0:
+                    z = _box_ray(o, R, half, (u0 + wi0 + ir - cx) / fx, yv)[0]
+                    if not (z < zo[jr, ir] or (z == zo[jr, ir] and obj < lo[jr, ir])):
+                        own[jr, ir] = 0
+    # outline cells: a 4-neighbour (inside the grid) that shows nothing or a farther part
+    rows = np.empty(mv * mu, np.int64)
+    cols = np.empty(mv * mu, np.int64)
+    n = 0
+    for jr in range(mv):
+        for ir in range(mu):
+            if own[jr, ir] == 0:
                 continue
-            Rk = R if k == obj else Rs[k]
-            tk = t if k == obj else ts[k]
-            if kinds[k] == 0:
-                _render_box(zbuf, label, normal, u0, v0, 1, fx, fy, cx, cy, Rk, tk, centers[k], halves[k], k)
-            else:
-                _render_mesh(zbuf, label, normal, u0, v0, 1, fx, fy, cx, cy, Rk, tk, verts[voff[k]:voff[k + 1]],
-                             faces[foff[k]:foff[k + 1]], k)
-    rows, cols = _outline_pixels(label, zbuf, obj)
+            if (0 < jr < mv - 1 and 0 < ir < mu - 1 and own[jr - 1, ir] == 1 and own[jr + 1, ir] == 1
+                    and own[jr, ir - 1] == 1 and own[jr, ir + 1] == 1):
+                continue  # all four neighbours are the box's own
+            edge = False
+            z = np.nan
+            for k in range(4):
+                jj = jr + (1 if k == 0 else -1 if k == 1 else 0)
+                ii = ir + (1 if k == 2 else -1 if k == 3 else 0)
+                if jj + wj0 < 0 or jj + wj0 >= nv or ii + wi0 < 0 or ii + wi0 >= nu:
+                    continue  # the image border is not an outline
+                if jj < 0 or jj >= mv or ii < 0 or ii >= mu:
+                    edge = True  # beyond the window: nothing there (the window holds the box and a margin)
+                    break
+                if own[jj, ii] == 1:
+                    continue
+                if lo[jj, ii] < 0:
+                    edge = True
+                    break
+                if z != z:
+                    z = _box_ray(o, R, half, (u0 + wi0 + ir - cx) / fx, (v0 + wj0 + jr - cy) / fy)[0]
+                if zo[jj, ii] > z:
+                    edge = True
+                    break
+            if edge:
+                rows[n] = jr + wj0
+                cols[n] = ir + wi0
+                n += 1
+    return rows[:n], cols[:n], o
+
+
+@nb.njit(cache=True)
+def _thinned_points(rows, cols, o, R, t, half, u0, v0, fx, fy, cx, cy, max_points):
+    """Body-frame points of a box's outline cells (grid rows, columns; the box's ray cast there, ``o`` from
+    :func:`~tracker.refine.surface_render._box_origin`), evenly thinned as :func:`_scene_outline` does."""
     n = rows.shape[0]
     m = n
     if n > max_points:
@@ -130,7 +341,66 @@ def _scene_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj
         j = a
         if n > max_points:
             j = n - 1 if a == m - 1 and m > 1 else int(np.rint(a * step))
-        d = zbuf[rows[j], cols[j]]
+        d = _box_ray(o, R, half, (u0 + cols[j] - cx) / fx, (v0 + rows[j] - cy) / fy)[0]
+        p0 = (u0 + cols[j] - cx) / fx * d - t[0]
+        p1 = (v0 + rows[j] - cy) / fy * d - t[1]
+        p2 = d - t[2]
+        for b in range(3):
+            out[a, b] = p0 * R[0, b] + p1 * R[1, b] + p2 * R[2, b]
+    return out
+
+
+@nb.njit(cache=True)
+def _scene_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, R, t, rect, fx, fy, cx, cy,
+                   max_points):
+    """Body-frame outline points of part ``obj`` at pose ``(R, t)``, every other drawn part at ``(Rs[k], ts[k])``:
+    the full-resolution render over ``rect = (u0, v0, u1, v1)`` (:func:`~tracker.refine.surface_render.render_surfaces`
+    at stride 1), its outline pixels (:func:`_outline_pixels`), their surface points, evenly thinned to at most
+    ``max_points`` (as ``np.linspace(0, C − 1, max_points).round()`` picks them). The numba form of
+    :func:`body_outline` of such a render; ``kinds[k]``: 0 box (``centers``, ``halves``), 1 mesh (vertices
+    ``verts[voff[k]:voff[k+1]]``, faces ``faces[foff[k]:foff[k+1]]`` indexing them), −1 not drawn. Only the window of
+    the rectangle around the part itself is rendered (:func:`_own_window`; the outline depends on nothing else), with
+    the same arithmetic per pixel: the points are those of the whole rectangle's render."""
+    u0, v0, u1, v1 = rect[0], rect[1], rect[2], rect[3]
+    if kinds[obj] == 0:
+        found = _box_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, R, t, rect, fx, fy, cx, cy)
+        if found is not None:
+            brows, bcols, o = found
+            return _thinned_points(brows, bcols, o, R, t, halves[obj], u0, v0, fx, fy, cx, cy, max_points)
+    nu = max(u1 - u0, 0)
+    nv = max(v1 - v0, 0)
+    wi0, wi1, wj0, wj1 = 0, -1, 0, -1
+    if nu > 0 and nv > 0 and kinds[obj] >= 0:
+        wi0, wi1, wj0, wj1 = _own_window(kinds[obj], R, t, centers[obj], halves[obj], verts[voff[obj]:voff[obj + 1]],
+                                         u0, v0, nu, nv, fx, fy, cx, cy)
+    mu = max(wi1 - wi0 + 1, 0)
+    mv = max(wj1 - wj0 + 1, 0)
+    zbuf = np.full((mv, mu), np.inf)
+    label = np.full((mv, mu), -1, np.int32)
+    normal = np.empty((0, 0, 3))  # not needed: not written
+    if mu > 0 and mv > 0:
+        for k in range(kinds.shape[0]):
+            if kinds[k] < 0:
+                continue
+            Rk = R if k == obj else Rs[k]
+            tk = t if k == obj else ts[k]
+            if kinds[k] == 0:
+                _render_box(zbuf, label, normal, u0, v0, 1, fx, fy, cx, cy, Rk, tk, centers[k], halves[k], k, wi0, wj0)
+            else:
+                _render_mesh(zbuf, label, normal, u0, v0, 1, fx, fy, cx, cy, Rk, tk, verts[voff[k]:voff[k + 1]],
+                             faces[foff[k]:foff[k + 1]], k, wi0, wj0)
+    rows, cols = _outline_window_pixels(label, zbuf, obj, wi0, wj0, nu, nv)
+    n = rows.shape[0]
+    m = n
+    if n > max_points:
+        m = max_points
+    out = np.empty((m, 3))
+    step = (n - 1) / (max_points - 1) if max_points > 1 else 0.0
+    for a in range(m):
+        j = a
+        if n > max_points:
+            j = n - 1 if a == m - 1 and m > 1 else int(np.rint(a * step))
+        d = zbuf[rows[j] - wj0, cols[j] - wi0]
         p0 = (u0 + cols[j] - cx) / fx * d - t[0]
         p1 = (v0 + rows[j] - cy) / fy * d - t[1]
         p2 = d - t[2]

@@ -25,17 +25,51 @@ import numpy as np
 from tracker.geometry.camera import Intrinsics
 
 
-@nb.njit(cache=True)
-def _render_box(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, center, half, obj):
-    """Ray-cast one box (body → camera ``R``, ``t``; body-frame ``center`` and ``half`` extents) into the grid."""
-    nv, nu = zbuf.shape
-    # ray origin in the box frame (relative to the box centre): o = Rᵀ(0 − t) − center
+@nb.njit(cache=True, inline="always")
+def _box_origin(R, t, center):
+    """The camera's centre in a box's frame, relative to the box centre: ``o = Rᵀ(0 − t) − center`` (3,)."""
     o = np.empty(3)
     for j in range(3):
         o[j] = -(R[0, j] * t[0] + R[1, j] * t[1] + R[2, j] * t[2]) - center[j]
-    # only the grid cells within the box's projected corners (and a cell around them) can see it; the whole grid
-    # when a corner lies near or behind the camera plane
-    imin, imax, jmin, jmax = 0, nu - 1, 0, nv - 1
+    return o
+
+
+@nb.njit(cache=True, inline="always")
+def _box_ray(o, R, half, xu, yv):
+    """First hit of the ray ``(xu, yv, 1)`` (camera frame) with a box (slab test; ``o`` from :func:`_box_origin`):
+    ``(depth, axis, sign)`` — the hit face is body axis ``axis`` with outward sign ``sign`` — or ``(inf, −1, 0)``
+    when it misses (or hits within 0.1 mm of the camera)."""
+    tnear = -1e30
+    tfar = 1e30
+    axis = -1
+    sign = 0.0
+    for j in range(3):
+        dj = R[0, j] * xu + R[1, j] * yv + R[2, j]
+        if abs(dj) < 1e-12:
+            if o[j] < -half[j] or o[j] > half[j]:
+                return np.inf, -1, 0.0
+            continue
+        ta = (-half[j] - o[j]) / dj
+        tb = (half[j] - o[j]) / dj
+        sg = -1.0
+        if ta > tb:
+            ta, tb = tb, ta
+            sg = 1.0
+        if ta > tnear:
+            tnear = ta
+            axis = j
+            sign = sg
+        if tb < tfar:
+            tfar = tb
+    if axis < 0 or tnear > tfar or tnear <= 1e-4:
+        return np.inf, -1, 0.0
+    return tnear, axis, sign
+
+
+@nb.njit(cache=True)
+def _box_bounds(R, t, center, half, fx, fy, cx, cy):
+    """Projected rectangle ``(umin, umax, vmin, vmax)`` (pixels) of a box's 8 corners and whether a corner lies
+    within 1 mm of the camera plane or behind it (then the rectangle holds the other corners only)."""
     umin, umax, vmin, vmax = np.inf, -np.inf, np.inf, -np.inf
     near = False
     for sx in (-1.0, 1.0):
@@ -50,55 +84,49 @@ def _render_box(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, center, ha
                 else:
                     umin, umax = min(umin, fx * x / z + cx), max(umax, fx * x / z + cx)
                     vmin, vmax = min(vmin, fy * y / z + cy), max(vmax, fy * y / z + cy)
+    return umin, umax, vmin, vmax, near
+
+
+@nb.njit(cache=True)
+def _render_box(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, center, half, obj, wi0, wj0):
+    """Ray-cast one box (body → camera ``R``, ``t``; body-frame ``center`` and ``half`` extents) into the grid.
+
+    The buffers hold the window of grid cells ``(wj0 + j, wi0 + i)`` (``0, 0`` and the whole grid's shape: all of
+    it); cells outside the window are not drawn. An empty ``normal`` (shape ``(0, 0, 3)``) is not written."""
+    nv, nu = zbuf.shape
+    with_normal = normal.shape[0] > 0
+    o = _box_origin(R, t, center)
+    # only the grid cells within the box's projected corners (and a cell around them) can see it; the whole grid
+    # when a corner lies near or behind the camera plane
+    imin, imax, jmin, jmax = wi0, wi0 + nu - 1, wj0, wj0 + nv - 1
+    umin, umax, vmin, vmax, near = _box_bounds(R, t, center, half, fx, fy, cx, cy)
     if not near:
         imin = max(imin, int(np.floor((umin - u0) / s)) - 1)
         imax = min(imax, int(np.ceil((umax - u0) / s)) + 1)
         jmin = max(jmin, int(np.floor((vmin - v0) / s)) - 1)
         jmax = min(jmax, int(np.ceil((vmax - v0) / s)) + 1)
-    d = np.empty(3)
     for jj in range(jmin, jmax + 1):
         yv = (v0 + jj * s - cy) / fy
         for ii in range(imin, imax + 1):
             xu = (u0 + ii * s - cx) / fx
-            for j in range(3):
-                d[j] = R[0, j] * xu + R[1, j] * yv + R[2, j]
-            tnear = -1e30
-            tfar = 1e30
-            axis = -1
-            sign = 0.0
-            miss = False
-            for j in range(3):
-                if abs(d[j]) < 1e-12:
-                    if o[j] < -half[j] or o[j] > half[j]:
-                        miss = True
-                        break
-                    continue
-                ta = (-half[j] - o[j]) / d[j]
-                tb = (half[j] - o[j]) / d[j]
-                sg = -1.0
-                if ta > tb:
-                    ta, tb = tb, ta
-                    sg = 1.0
-                if ta > tnear:
-                    tnear = ta
-                    axis = j
-                    sign = sg
-                if tb < tfar:
-                    tfar = tb
-            if miss or axis < 0 or tnear > tfar or tnear <= 1e-4:
+            tnear, axis, sign = _box_ray(o, R, half, xu, yv)
+            if axis < 0:
                 continue
-            if tnear < zbuf[jj, ii]:
-                zbuf[jj, ii] = tnear
-                label[jj, ii] = obj
-                # outward face normal: body axis ``axis`` with sign opposite to the ray's component
-                for r in range(3):
-                    normal[jj, ii, r] = R[r, axis] * sign
+            bj, bi = jj - wj0, ii - wi0
+            if tnear < zbuf[bj, bi]:
+                zbuf[bj, bi] = tnear
+                label[bj, bi] = obj
+                if with_normal:  # outward face normal: body axis ``axis`` with sign opposite to the ray's component
+                    for r in range(3):
+                        normal[bj, bi, r] = R[r, axis] * sign
 
 
 @nb.njit(cache=True)
-def _render_mesh(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, vertices, faces, obj):
-    """Rasterise one triangle mesh (body → camera ``R``, ``t``) into the grid (normals facing the camera)."""
+def _render_mesh(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, vertices, faces, obj, wi0, wj0):
+    """Rasterise one triangle mesh (body → camera ``R``, ``t``) into the grid (normals facing the camera); the
+    window ``wi0``, ``wj0`` and an empty ``normal`` as in :func:`_render_box`."""
     nv, nu = zbuf.shape
+    with_normal = normal.shape[0] > 0
     nvert = vertices.shape[0]
     cam = np.empty((nvert, 3))
     for a in range(nvert):
@@ -119,10 +147,10 @@ def _render_mesh(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, vertices,
         area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
         if abs(area) < 1e-12:
             continue
-        imin = max(int(np.ceil(min(x0, x1, x2))), 0)
-        imax = min(int(np.floor(max(x0, x1, x2))), nu - 1)
-        jmin = max(int(np.ceil(min(y0, y1, y2))), 0)
-        jmax = min(int(np.floor(max(y0, y1, y2))), nv - 1)
+        imin = max(int(np.ceil(min(x0, x1, x2))), wi0)
+        imax = min(int(np.floor(max(x0, x1, x2))), wi0 + nu - 1)
+        jmin = max(int(np.ceil(min(y0, y1, y2))), wj0)
+        jmax = min(int(np.floor(max(y0, y1, y2))), wj0 + nv - 1)
         if imin > imax or jmin > jmax:
             continue
         # face normal (camera frame), turned toward the camera
@@ -144,12 +172,14 @@ def _render_mesh(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, vertices,
                 if w0 < -1e-9 or w1 < -1e-9 or w2 < -1e-9:
                     continue
                 z = 1.0 / (w0 * iz0 + w1 * iz1 + w2 * iz2)
-                if z < zbuf[jj, ii]:
-                    zbuf[jj, ii] = z
-                    label[jj, ii] = obj
-                    normal[jj, ii, 0] = nx
-                    normal[jj, ii, 1] = ny
-                    normal[jj, ii, 2] = nz
+                bj, bi = jj - wj0, ii - wi0
+                if z < zbuf[bj, bi]:
+                    zbuf[bj, bi] = z
+                    label[bj, bi] = obj
+                    if with_normal:
+                        normal[bj, bi, 0] = nx
+                        normal[bj, bi, 1] = ny
+                        normal[bj, bi, 2] = nz
 
 
 @dataclass
@@ -203,7 +233,7 @@ def render_surfaces(
             t = np.ascontiguousarray(pose[1], np.float64)
             if shape[0] == "box":
                 _render_box(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t,
-                            np.asarray(shape[1], np.float64), np.asarray(shape[2], np.float64), k)
+                            np.asarray(shape[1], np.float64), np.asarray(shape[2], np.float64), k, 0, 0)
             else:
-                _render_mesh(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, shape[1], shape[2], k)
+                _render_mesh(zbuf, label, normal, u0, v0, s, fx, fy, cx, cy, R, t, shape[1], shape[2], k, 0, 0)
     return SurfaceRender(u0, v0, s, zbuf, label, normal)
