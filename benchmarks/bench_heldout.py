@@ -304,13 +304,14 @@ def main(argv=None) -> int:
     ap.add_argument("--particles", type=int, default=None, help="N of our tracker (default: the preset's)")
     ap.add_argument("--odometry", default="off", choices=("default", "fastslam", "fused", "off"),
                     help="camera odometry of our tracker (issue 15); when on, the same tracker with odometry off "
-                    "runs beside it on the same frames and the results go to results/heldout_odometry[_dev].*")
+                    "runs beside it on the same frames and the results go to results/heldout_odometry[_MODE][_dev].* "
+                    "(MODE: fastslam, fused)")
     ap.add_argument("--note", default="", help="a sentence added to the figures' notes")
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite the .md from the .json and exit")
     args = ap.parse_args(argv)
     stem = ("heldout_dev" if args.dev else "heldout") if args.odometry == "off" else (
-        "heldout_odometry_dev" if args.dev else "heldout_odometry")
+        "heldout_odometry" + ("" if args.odometry == "default" else f"_{args.odometry}") + ("_dev" if args.dev else ""))
     if args.markdown_only:
         print(rewrite_markdown(stem, markdown))
         return 0

@@ -191,3 +191,20 @@ def test_fused_odometry_applies_the_smooth_motion_instead_of_a_wrong_registratio
     assert np.isclose(applied["default"][4], -0.005)  # the wrong registration moved the parts by 5 mm
     assert np.allclose(applied["fused"][1:], -0.001, atol=2e-4)  # fused: every applied step the camera's 1 mm
     assert ego.fused is not None and ego.fused.dense_rejected >= 1 and len(ego.fused.world) == len(src.parts)
+
+
+def test_camera_motion_moves_the_blob_memory_with_the_image_motion_of_each_part():
+    """Blob follow differences a blob's centroid between frames; the camera's share of that shift is applied by the
+    camera motion already, so the remembered centroid moves by the image motion the camera gives the part's centre."""
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
+        n_particles=20), seed=0)
+    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    c = [trk.estimates[n].R @ trk.center[i] + trk.estimates[n].t for i, n in enumerate(trk.names)]
+    uv = src.intrinsics.project(np.array(c))
+    trk._follow_blobs = [(uv[0] + [3.0, -2.0], 400.0), None]
+    apply_camera_motion(trk, _transform([0.0, 0.0, 0.0], [0.01, 0.0, 0.0]))  # the parts move 1 cm right
+    expected = src.intrinsics.project((c[0] + [0.01, 0.0, 0.0])[None])[0] + [3.0, -2.0]
+    assert np.allclose(trk._follow_blobs[0][0], expected, atol=1e-9) and trk._follow_blobs[0][1] == 400.0
+    assert trk._follow_blobs[1] is None
+    assert expected[0] - uv[0][0] - 3.0 > 5.0  # ~9 px at 0.6 m: a shift blob follow would have counted twice

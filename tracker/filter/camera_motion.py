@@ -11,8 +11,9 @@ part now appears and the filter only has to explain the parts' own motion:
 * the estimates, the rest-prior anchors, the last dense-refinement result that may be reused, and the hand-carry
   memory (past positions, hand points, last hand step).
 
-Pixel-indexed state (occlusion posteriors, blob centres of the previous frame) is left as it is: it is renewed
-from the image every frame.
+The last frame's blob centroids (blob follow) are moved by the image motion the camera's motion gives each part's
+centre (otherwise the camera's share of a blob's shift would be applied twice). Other pixel-indexed state
+(occlusion posteriors) is left as it is: it is renewed from the image every frame.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
     Rd, td = T[:3, :3], T[:3, 3]
     if not getattr(trk, "_initialized", False):
         return
+    _move_blob_memory(trk, Rd, td)
     trk.p = trk.p @ Rd.T + td
     trk.R = np.einsum("ij,nkjl->nkil", Rd, trk.R)
     v = trk.v.copy()
@@ -46,6 +48,27 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
         carry.history = type(carry.history)((t, pos @ Rd.T + td) for t, pos in carry.history)
         carry.patches = [None if pts is None else pts @ Rd.T + td for pts in carry.patches]
         carry.last_step = carry.last_step @ Rd.T
+
+
+def _move_blob_memory(trk, Rd: np.ndarray, td: np.ndarray) -> None:
+    """The last frame's blob centroids (blob follow, :mod:`tracker.filter.blob_follow`) moved by the image motion
+    the camera's motion gives each part's centre, so that a blob's shift to this frame is the part's own motion (the
+    camera's share is applied to the part already here; unmoved, it would be counted twice)."""
+    blobs = getattr(trk, "_follow_blobs", None)
+    if not blobs:
+        return
+    moved = list(blobs)
+    for i, blob in enumerate(blobs):
+        est = trk.estimates.get(trk.names[i]) if blob is not None else None
+        if est is None:
+            continue
+        c = est.R @ trk.center[i] + est.t
+        c_new = Rd @ c + td
+        if c[2] <= 0.05 or c_new[2] <= 0.05:
+            continue
+        uv = trk.intrinsics.project(np.stack([c, c_new]))
+        moved[i] = (np.asarray(blob[0], np.float64) + (uv[1] - uv[0]), blob[1])
+    trk._follow_blobs = moved
 
 
 def move_part(trk, obj: int, R: np.ndarray, t: np.ndarray) -> None:

@@ -223,6 +223,7 @@ class EgoMotion:
         self.last_mask = mask
         res = self.odometry.step(frame, mask)
         self.pose, self.ok = res.pose_world_camera, bool(res.ok)
+        self._plane = None
         if self.fused is not None and res.ok:  # the dense pose checked against the smooth path (parts: observe())
             self.pose = self.fused.predict(float(frame.timestamp), res.pose_world_camera)
             guess = None if table is None else (table.normal, table.offset)
@@ -299,10 +300,14 @@ class EgoMotion:
         self._table_world = (n_w, d_w, table)
 
     def table_in_camera(self):
-        """The anchored table plane in the current camera frame (None when none is anchored)."""
+        """The anchored table plane in the current camera frame (None when none is anchored); with ``fused``, the
+        plane measured in the current frame where there is one."""
         if self._table_world is None:
             return None
         n_w, d_w, plane = self._table_world
+        if self._plane is not None:  # fused: the plane measured in this frame (tilt and height exact)
+            return dataclasses.replace(plane, normal=np.asarray(self._plane[0], np.float64),
+                                       offset=float(self._plane[1]))
         R, t = self.pose.R, self.pose.t
         n_c = R.T @ n_w
         return dataclasses.replace(plane, normal=n_c, offset=d_w + float(n_w @ t))
