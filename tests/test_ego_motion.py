@@ -208,3 +208,21 @@ def test_camera_motion_moves_the_blob_memory_with_the_image_motion_of_each_part(
     assert np.allclose(trk._follow_blobs[0][0], expected, atol=1e-9) and trk._follow_blobs[0][1] == 400.0
     assert trk._follow_blobs[1] is None
     assert expected[0] - uv[0][0] - 3.0 > 5.0  # ~9 px at 0.6 m: a shift blob follow would have counted twice
+
+
+def test_camera_motion_moves_scene_motions_landmark_memory():
+    """Scene motion compares this frame's landmark poses with the last frame's; with the camera's motion applied to
+    the state, the remembered poses must move with it, or the camera's motion would be applied to hidden parts
+    twice (once here, once as the landmarks' consensus motion)."""
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
+        n_particles=20), seed=0)
+    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    est = trk.estimates[trk.names[0]]
+    trk._landmarks = {0: (est.R.copy(), est.t.copy())}
+    T = _transform([0.0, 0.02, 0.0], [0.01, 0.0, 0.0])
+    apply_camera_motion(trk, T)
+    R, t = trk._landmarks[0]
+    moved = Pose.from_matrix(T) @ est
+    assert np.allclose(R, moved.R) and np.allclose(t, moved.t)
+    assert np.allclose(t, trk.estimates[trk.names[0]].t)  # the landmark and its estimate moved alike

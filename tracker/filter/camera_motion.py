@@ -8,8 +8,8 @@ part now appears and the filter only has to explain the parts' own motion:
 
 * particle positions ``p`` and rotations ``R`` (``R_new = R_d R``);
 * particle velocities (translation and rotation-vector parts are camera-frame vectors: rotated by ``R_d``);
-* the estimates, the rest-prior anchors, the last dense-refinement result that may be reused, and the hand-carry
-  memory (past positions, hand points, last hand step).
+* the estimates, the rest-prior anchors, the last dense-refinement result that may be reused, the hand-carry
+  memory (past positions, hand points, last hand step) and scene motion's landmark poses of the last frame.
 
 The last frame's blob centroids (blob follow) are moved by the image motion the camera's motion gives each part's
 centre (otherwise the camera's share of a blob's shift would be applied twice). Other pixel-indexed state
@@ -43,6 +43,9 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
     trk.estimates = {name: D @ pose for name, pose in trk.estimates.items()}
     trk._rest_t = trk._rest_t @ Rd.T + td
     trk._icp_last = [None if last is None else (D @ last[0], *last[1:]) for last in trk._icp_last]
+    # scene motion's landmark poses of the last frame: unmoved, the camera's motion would show up as the landmarks'
+    # consensus motion and be applied to the hidden parts a second time
+    trk._landmarks = {i: (Rd @ R, Rd @ t + td) for i, (R, t) in getattr(trk, "_landmarks", {}).items()}
     carry = getattr(trk, "_carry", None)
     if carry is not None:
         carry.history = type(carry.history)((t, pos @ Rd.T + td) for t, pos in carry.history)
