@@ -224,3 +224,29 @@ def test_session_adaptation_stays_near_the_trained_skin_model():
     moved_bounded = max(np.linalg.norm(bounded.skin.means - base.skin.means, axis=1))
     assert moved_free > 2 * moved_bounded  # the bound is what holds the model back
     assert free.classify(cloth)[0, 0] == 1 and bounded.classify(cloth)[0, 0] == base.classify(cloth)[0, 0]
+
+
+def test_reseed_takes_a_better_box_and_refuses_a_worse_one():
+    from tracker.hands.particle_filter import HandParticleFilter, PFParams
+
+    def frame(t: int) -> np.ndarray:  # one hand with a sleeve, moving right 1 px per frame
+        img = np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE)
+        img[150:240, 64 + t : 86 + t] = (20, 120, 40)
+        img[110:150, 60 + t : 90 + t] = SKIN
+        return img
+
+    tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0))
+    tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE))
+    tr.process(frame(0))
+    tr.start_track([60, 110, 90, 150])
+    tr.process(frame(1))
+    feats = tr.last_features
+    good = np.array([75.5, 129.5, 40.0, 54.0, 1.0, 0.0])  # around the hand (colour coverage near â_{c,1})
+    off = np.array([100.5, 129.5, 40.0, 54.0, 1.0, 0.0])  # mostly beside it
+    pf = HandParticleFilter(off, PFParams(n_particles=10), rng=np.random.default_rng(0))
+    assert pf.reseed(good, feats)
+    assert np.count_nonzero(np.all(pf.particles == good, axis=1)) == 5  # the lighter half replaced
+    assert np.allclose(pf.estimate[:2], good[:2]) and pf.weights.sum() == pytest.approx(1.0)
+    pf2 = HandParticleFilter(good, PFParams(n_particles=10), rng=np.random.default_rng(0))
+    assert not pf2.reseed(off, feats)
+    assert np.allclose(pf2.particles[:, :4], good[:4])  # unchanged

@@ -8,10 +8,11 @@ its size on every side (the wrist and sleeve lie there), learnt while the track 
 histograms decide which lost track a re-acquired hand is, which of two duplicate tracks keeps the hand, and when
 two tracks have swapped hands (their ids are exchanged back).
 
-Bins: 8 (Y) × 16 (Cr) × 16 (Cb) of 8-bit YCrCb (OpenCV). Background bins: those holding more than
-:data:`BG_FRAC` of the session's first frame (assumed hand-free, as for the session background colour model);
-pixels in them are not counted (the table and the parts look the same around both hands). Similarity: the
-Bhattacharyya coefficient Σ √(p q) of two normalised histograms, in [0, 1].
+Bins: 8 (Y) × 16 (Cr) × 16 (Cb) of 8-bit YCrCb (OpenCV), once for the pixels left of the palm box's centre and once
+for those right of it (each hand's arm comes from its own side, so two sleeves of one colour still differ).
+Background bins: those holding more than :data:`BG_FRAC` of the session's first frame (assumed hand-free, as for the
+session background colour model); pixels in them are not counted (the table and the parts look the same around both
+hands). Similarity: the Bhattacharyya coefficient Σ √(p q) of two normalised histograms, in [0, 1].
 """
 
 from __future__ import annotations
@@ -47,8 +48,9 @@ def background_bins(bins: np.ndarray) -> np.ndarray:
 
 
 def appearance(bins: np.ndarray, skin: np.ndarray, bg: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray | None:
-    """Normalised histogram [N_BINS] of the non-skin, non-background pixels in the inclusive box (u0, v0, u1, v1)
-    expanded by MARGIN × its size on every side (clipped to the image), or None with fewer than MIN_PIXELS."""
+    """Normalised histogram [2·N_BINS] of the non-skin, non-background pixels in the inclusive box (u0, v0, u1, v1)
+    expanded by MARGIN × its size on every side (clipped to the image), the pixels left and right of the box centre
+    counted apart, or None with fewer than MIN_PIXELS."""
     H, W = bins.shape
     u0, v0, u1, v1 = box
     mx = MARGIN * (u1 - u0 + 1)
@@ -59,10 +61,13 @@ def appearance(bins: np.ndarray, skin: np.ndarray, bg: np.ndarray, box: tuple[in
         return None
     sub = bins[b0:b1, a0:a1]
     keep = ~skin[b0:b1, a0:a1].astype(bool) & ~bg[sub]
-    vals = sub[keep]
+    # the right half (columns right of the box centre) counts in bins N_BINS…2·N_BINS−1: an arm that comes from the
+    # right has its sleeve there, one from the left on the other side, whatever their colours
+    right = np.arange(a0, a1) > 0.5 * (u0 + u1)
+    vals = (sub + np.where(right, N_BINS, 0)[None, :])[keep]
     if len(vals) < MIN_PIXELS:
         return None
-    h = np.bincount(vals, minlength=N_BINS).astype(np.float64)
+    h = np.bincount(vals, minlength=2 * N_BINS).astype(np.float64)
     return h / h.sum()
 
 

@@ -201,6 +201,22 @@ class HandParticleFilter:
         """The particles' states (for the ROI of the next step)."""
         return self.particles
 
+    def reseed(self, state: np.ndarray, feats: HandFeatures) -> bool:
+        """Product addition: offer ``state`` (e.g. the tight box of the hand's own colour component) to the filter. If
+        its likelihood beats the estimate's, the lighter half of the particles is replaced by it, weighted above the
+        heaviest particle by the likelihood ratio, and the estimate recomputed; returns whether it was taken."""
+        lik, _ = observe(np.stack([np.asarray(state, float), self.estimate]), feats, self.n_clusters, self.params)
+        if not lik[0] > lik[1]:
+            return False
+        n = len(self.particles)
+        idx = np.argsort(self.weights)[: n // 2]
+        w = self.weights.copy()
+        w[idx] = w.max() * (lik[0] / lik[1] if lik[1] > 0 else 2.0)
+        self.particles[idx] = state
+        self.weights = w / w.sum()
+        self.estimate = mode_estimate(self.particles, self.weights)
+        return True
+
     def coast(self) -> None:
         """Constant-velocity move of every particle (no measurement): x ← x + x'."""
         self.particles[:, :2] += self.particles[:, 4:6]

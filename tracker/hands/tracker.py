@@ -23,13 +23,22 @@ initialisation of new tracks:
   frames; two tracks with box F-score ≥ 0.8 for 10 consecutive frames (product change: the one whose appearance
   fits the shared box worse ends, the younger on a tie); product addition: the box smaller than A_min for 10
   consecutive frames (a lost track otherwise shrinks onto a speck of skin colour).
+* Two hands on top of each other (product addition): if both tracks of such a duplicate had each spent
+  ESTABLISHED frames apart (box F-score < APART_F with every other track), they are two hands that overlap, not two
+  tracks on one hand: both stay, "merged", for up to MERGED_KEEP frames, their appearance models frozen; if a skin
+  region no track explains turns up meanwhile (a candidate as for re-acquisition), the track whose appearance fits
+  it better (the younger on a tie) restarts there with its id. A track that lands within one step on the box of a
+  track it was apart from the frame before (a jump onto the other hand's colour component) is put back and moved
+  by its own velocity instead.
 * Lost tracks (product addition, ``reacquire``): an ended track keeps its id for ``keep_lost`` frames. While one
   waits, a candidate as above also qualifies away from the border if its box centre moved ≥ REACQUIRE_MOVE working
   px over its n_init frames (a moving skin region no track explains: the hand a track lost, or left to the other
   hand); it restarts the lost track whose appearance fits best (else the one last seen nearest) with that id. This
   runs with ``auto_init`` off too (a track started by hand comes back). Two live tracks whose appearance fits the
   other's hand better for SWAP_FRAMES frames exchange ids (they came out of an overlap on each other's hands); a
-  live track that fits a lost track's appearance better takes that id.
+  live track that fits a lost track's appearance better takes that id. Appearance is learnt only while a track is
+  isolated, confident and settled (SETTLE frames after a merge or a restart, no lost track waiting) and only from
+  observations that resemble its model (identity.LEARN_MIN_SIM).
 
 Skin model: the shipped generic model (:mod:`tracker.hands.skin_model`); with ``session_background`` its ω2 is
 refitted on the session's first frame (assumed hand-free, as thesis Application 2 trains ω2 on the first frames),
@@ -50,11 +59,11 @@ import cv2
 import numpy as np
 
 from tracker.hands import identity
-from tracker.hands.box_stats import box_observation, box_of
+from tracker.hands.box_stats import box_observation, box_of, dominant_component
 from tracker.hands.features import HandFeatures, compute_features
 from tracker.hands.kalman import HandKalmanFilter
 from tracker.hands.motion_clusters import MotionClusters
-from tracker.hands.palm_cut import palm_anchors, palm_cut
+from tracker.hands.palm_cut import match_anchor, palm_anchors, palm_cut
 from tracker.hands.particle_filter import HandParticleFilter, PFParams
 from tracker.hands.skin_model import SkinModel
 
@@ -69,6 +78,14 @@ ESTABLISHED = 5
 """Frames a track must have spent apart (:data:`APART_F`) for a later duplicate of it to count as a second hand."""
 MERGED_KEEP = 120
 """Frames two established tracks may share one box (two hands on top of each other) before the worse one ends."""
+RESEED_F = 0.7
+"""Box F-score with its colour component below which a track is offered the component's box (_reseed)."""
+RESEED_SHARE = 0.8
+"""Share of a track box's colour pixels that must belong to the component it is offered (_reseed)."""
+RESEED_HAND_M = 0.25
+"""Longest side (m) of a colour component that can be one hand (fingers spread) for _reseed."""
+SHARED_FRAC = 0.5
+"""Two tracks share a region when this fraction of one's box lies inside the other's (a free hand may take one)."""
 SETTLE = 15
 """Frames after two tracks part during which their appearance is not learnt (their ids may still be swapped)."""
 SWAP_FRAMES = 3
@@ -88,7 +105,8 @@ class HandTrackerConfig:
     length of the palm box along the arm in L_hand (spec 0.19 m, a whole hand; 0.08 m tuned on seeds 0–2 of S3: the
     ground-truth palm box of a hand grasping from above is foreshortened and starts at the wrist); ``palm_cut``: the
     wrist-cut anchors (:mod:`tracker.hands.palm_cut`, needs depth); ``reacquire`` / ``keep_lost``: lost tracks and
-    identity (see the module docstring); ``seed`` of the filters' random numbers."""
+    identity (see the module docstring); ``reseed``: offer a particle-filter track the box of its hand's own colour
+    component (:meth:`HandTracker._reseed`); ``seed`` of the filters' random numbers."""
 
     method: str = "pf"
     scale: int = 2
@@ -110,6 +128,7 @@ class HandTrackerConfig:
     palm_cut: bool = True
     reacquire: bool = True
     keep_lost: int = 300
+    reseed: bool = True
     ac_hat: float = 0.55
     am_hat: float = 0.45
 
@@ -379,7 +398,7 @@ class HandTracker:
             lo.frames += 1
         self.lost = [lo for lo in self.lost if lo.frames <= self.config.keep_lost]
         new_ok = self.config.auto_init and len(self.tracks) + len(self.lost) < self.config.max_tracks
-        pair = self._merged_pair() if self.config.reacquire else None
+        pair = self._shared_pair() if self.config.reacquire and len(self.tracks) > 1 else None
         if new_ok or self.lost or pair is not None:
             new = self._auto_init(small, depth, reacquire=bool(self.lost) or pair is not None)
             if new is not None:
@@ -388,7 +407,7 @@ class HandTracker:
                     self._start(new, lo.id)
                     self.tracks[-1].app = lo.app
                     self.tracks[-1].since_merge = 0
-                elif pair is not None and not new_ok:  # a free hand while two tracks share one: one moves to it
+                elif pair is not None and not new_ok:  # a free hand while two tracks share one region: one moves to it
                     moved = self._transfer(pair, new, small)
                     out = [e for e in out if e.id != moved]
                 else:
@@ -456,6 +475,8 @@ class HandTracker:
             tr.filt.step(feats, size)
             tr.age += 1
         self._undo_jumps(before)
+        if cfg.method == "pf" and cfg.reseed:
+            self._reseed(feats, size)
         ests = [self._estimate(tr, size, feats) for tr in self.tracks]
         keep = self._terminate(size)
         self._end([not k for k in keep])
@@ -496,6 +517,53 @@ class HandTracker:
             px = rgb[y0:y1, x0:x1][b0:b1, a0:a1][inner]
             if len(px):
                 self._adapt_pixels.append(px[:: max(1, len(px) // 200)])
+
+    def _reseed(self, feats: HandFeatures, size: tuple[int, int]) -> None:
+        """Product addition (particle filter): a track whose box covers part of a hand-sized colour component that no
+        other track's box touches is offered the component's tight box (HandParticleFilter.reseed; the likelihood
+        decides). The section-6 test needs the box to hold 80 % of the component already, so a box that has shrunk
+        to a sliver of its hand, or grown over the table, never comes back by it. Hand-sized: the component's
+        longer side ≤ RESEED_HAND_M at its median depth (0.75 m without depth); not cut by the ROI edge; holding
+        RESEED_SHARE of the box's colour pixels; not for a track on a wrist-cut anchor."""
+        ox, oy = feats.roi[0], feats.roi[1]
+        boxes = [box_of(tr.filt.estimate[0] - ox, tr.filt.estimate[1] - oy, tr.filt.estimate[2], tr.filt.estimate[3])
+                 for tr in self.tracks]  # fmt: skip
+        min_area = self.config.min_area_frac * size[0] * size[1]
+        for i, tr in enumerate(self.tracks):
+            if not isinstance(tr.filt, HandParticleFilter) or tr.merged:
+                continue
+            lab, cnt = dominant_component(*boxes[i], feats.cc, feats.n_comp)
+            if lab == 0 or feats.cc_cut[lab] or feats.cc_area[lab] < min_area:
+                continue
+            u0, v0, u1, v1 = (max(v, 0) for v in boxes[i])
+            if cnt < RESEED_SHARE * np.count_nonzero(feats.mcur[v0 : v1 + 1, u0 : u1 + 1]):
+                continue  # the box's skin is not mostly this one component (a hand beside a skin-like part)
+            if len(feats.anchors) and match_anchor(np.array([state_box(tr.filt.estimate)], np.float64),
+                                                   feats.anchors)[0] >= 0:  # fmt: skip
+                continue  # the wrist cut holds this track
+            cb = tuple(int(v) for v in feats.cc_box[lab])
+            if box_f_score(cb, boxes[i]) >= RESEED_F:
+                continue
+            if any(_overlap(cb, boxes[j]) for j in range(len(boxes)) if j != i):
+                continue
+            z = self._component_depth(feats, lab)
+            if max(cb[2] - cb[0], cb[3] - cb[1]) > self._focal_px() / self.s * RESEED_HAND_M / z:
+                continue
+            e = tr.filt.estimate
+            cx, cy = 0.5 * (cb[0] + cb[2]) + ox, 0.5 * (cb[1] + cb[3]) + oy
+            state = np.array([cx, cy, cb[2] - cb[0], cb[3] - cb[1], e[4], e[5]], float)
+            tr.filt.reseed(state, feats)
+
+    def _component_depth(self, feats: HandFeatures, lab: int) -> float:
+        """Median valid depth (m) of a colour component of the features' ROI (0.75 m without depth)."""
+        if self._depth is None:
+            return 0.75
+        ys, xs = np.nonzero(feats.cc == lab)
+        ys, xs = ys[::7] + feats.roi[1], xs[::7] + feats.roi[0]
+        d = np.asarray(self._depth)
+        z = d[np.minimum(ys * self.s, d.shape[0] - 1), np.minimum(xs * self.s, d.shape[1] - 1)]
+        z = z[np.isfinite(z) & (z > 0)]
+        return float(np.median(z)) if len(z) else 0.75
 
     def _undo_jumps(self, before: list[tuple[dict, tuple[int, int, int, int]]]) -> None:
         """A track that lands in one step on the box of another track it was apart from (box F-score < APART_F the
@@ -606,23 +674,29 @@ class HandTracker:
                 return j if sa > sb else i
         return j if b.id > a.id else i
 
-    def _merged_pair(self) -> tuple[int, int] | None:
-        """Indices of two live tracks that share one box as two hands on top of each other (see _terminate)."""
-        for i, a in enumerate(self.tracks):
-            for j in range(i + 1, len(self.tracks)):
-                b = self.tracks[j]
-                if a.merged and b.merged and (a.dup.get(b.id, 0) > 0 or b.dup.get(a.id, 0) > 0):
+    def _shared_pair(self) -> tuple[int, int] | None:
+        """Indices of two live tracks on one region: their boxes overlap by at least SHARED_FRAC of the smaller box
+        (two hands on top of each other, or two tracks on one hand)."""
+        boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                if max(_inside_frac(boxes[i], boxes[j]), _inside_frac(boxes[j], boxes[i])) >= SHARED_FRAC:
                     return i, j
         return None
 
     def _transfer(self, pair: tuple[int, int], state: np.ndarray, rgb: np.ndarray) -> int:
-        """A skin region no track explains appeared while two tracks share one hand's box: the one whose appearance
-        fits the new region better (the younger on a tie) restarts there with its id; returns that id."""
+        """A skin region no track explains appeared while two tracks share one region: the one whose appearance fits
+        the new region better restarts there with its id (without a clear appearance answer: the one whose box lies
+        more inside the other's, then the younger); returns that id."""
         a, b = self.tracks[pair[0]], self.tracks[pair[1]]
         obs = self._appearance(rgb, state)
         sa, sb = identity.similarity(a.app, obs), identity.similarity(b.app, obs)
+        ba, bb = state_box(a.filt.estimate), state_box(b.filt.estimate)
+        ia, ib = _inside_frac(ba, bb), _inside_frac(bb, ba)
         if a.app is not None and b.app is not None and obs is not None and abs(sa - sb) > 0.05:
             mover = a if sa > sb else b
+        elif abs(ia - ib) > 0.1:
+            mover = a if ia > ib else b
         else:
             mover = b if b.id > a.id else a
         stay = b if mover is a else a
@@ -768,6 +842,14 @@ class HandTracker:
 def _snapshot(filt: HandParticleFilter | HandKalmanFilter) -> dict:
     """A filter's attributes, arrays copied (to put a filter back after a step)."""
     return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in filt.__dict__.items()}
+
+
+def _inside_frac(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> float:
+    """Fraction of inclusive box a's area that lies inside inclusive box b."""
+    iw = min(a[2], b[2]) - max(a[0], b[0]) + 1
+    ih = min(a[3], b[3]) - max(a[1], b[1]) + 1
+    area = (a[2] - a[0] + 1) * (a[3] - a[1] + 1)
+    return max(iw, 0) * max(ih, 0) / area if area > 0 else 0.0
 
 
 def _overlap_f(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
