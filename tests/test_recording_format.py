@@ -158,6 +158,44 @@ def test_depth_quantisation_rules():
     assert np.isnan(m[0, 0]) and m[0, 1] == np.float32(0.001) and m[0, 2] == np.float32(65.535)
 
 
+def test_depth_lookup_table_is_the_per_pixel_conversion():
+    """Every uint16 value converts to ``float32(value × depth_scale)`` (the product in float64), 0 to NaN, for
+    several scales."""
+    raw = np.arange(65536, dtype=np.uint16).reshape(256, 256)
+    for scale in (0.001, 0.0005, 0.000125, 1e-4 / 3.0):
+        ref = (raw.astype(np.float64) * scale).astype(np.float32)
+        ref[raw == 0] = np.nan
+        got = depth_units_to_metres(raw, scale)
+        assert got.dtype == np.float32 and got.shape == raw.shape
+        assert np.array_equal(got, ref, equal_nan=True)
+
+
+def test_writer_stores_depth_unfiltered_and_reads_it_back(tmp_path):
+    """The writer's depth PNGs have every row unfiltered (PNG filter type 0: they decode faster) and read back
+    exactly."""
+    import zlib
+
+    rng = np.random.default_rng(2)
+    f = synthetic_frame(0, rng)
+    with RecordingWriter(tmp_path / "rec", SMALL) as w:
+        w.write(f)
+    data = (tmp_path / "rec" / "depth" / "000000.png").read_bytes()
+    idat, pos = b"", 8
+    while pos < len(data):
+        n = int.from_bytes(data[pos:pos + 4], "big")
+        if data[pos + 4:pos + 8] == b"IDAT":
+            idat += data[pos + 8:pos + 8 + n]
+        pos += 12 + n
+    rows = zlib.decompress(idat)
+    stride = 1 + 2 * SMALL.width  # filter byte + 16-bit grey pixels
+    assert len(rows) == stride * SMALL.height
+    assert all(rows[r * stride] == 0 for r in range(SMALL.height))
+    back = RecordingSource(tmp_path / "rec").read(0)
+    ok = np.isfinite(f.depth)
+    np.testing.assert_array_equal(back.depth[ok], depth_units_to_metres(depth_metres_to_units(f.depth, 0.001),
+                                                                        0.001)[ok])
+
+
 def test_frame_without_depth_and_jpeg(tmp_path):
     rng = np.random.default_rng(1)
     f = synthetic_frame(0, rng)

@@ -198,13 +198,39 @@ class SurfaceRender:
     normal: np.ndarray
 
     def points_of(self, obj: int, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
-        """Visible surface points (camera frame, (M, 3)) of part ``obj`` and their normals (M, 3)."""
-        jj, ii = np.nonzero(self.label == obj)
-        z = self.depth[jj, ii].astype(np.float64)
-        u = self.u0 + ii * self.stride
-        v = self.v0 + jj * self.stride
-        pts = np.stack([(u - intrinsics.cx) / intrinsics.fx * z, (v - intrinsics.cy) / intrinsics.fy * z, z], axis=1)
-        return pts, self.normal[jj, ii].astype(np.float64)
+        """Visible surface points (camera frame, (M, 3)) of part ``obj`` and their normals (M, 3), in row-major
+        order of their pixels."""
+        return _points_of(self.label, np.asarray(self.depth, np.float64), np.asarray(self.normal, np.float64), obj,
+                          self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy)
+
+
+@nb.njit(cache=True)
+def _points_of(label, depth, normal, obj, u0, v0, stride, fx, fy, cx, cy):
+    """:meth:`SurfaceRender.points_of` in one pass: the cells labelled ``obj``, back-projected
+    (``x = (u − cx)/fx · z``, ``y = (v − cy)/fy · z``), and their normals."""
+    nv, nu = label.shape
+    n = 0
+    for j in range(nv):
+        for i in range(nu):
+            if label[j, i] == obj:
+                n += 1
+    pts = np.empty((n, 3))
+    nrm = np.empty((n, 3))
+    m = 0
+    for j in range(nv):
+        v = v0 + j * stride
+        for i in range(nu):
+            if label[j, i] != obj:
+                continue
+            u = u0 + i * stride
+            z = depth[j, i]
+            pts[m, 0] = (u - cx) / fx * z
+            pts[m, 1] = (v - cy) / fy * z
+            pts[m, 2] = z
+            for r in range(3):
+                nrm[m, r] = normal[j, i, r]
+            m += 1
+    return pts, nrm
 
 
 def render_surfaces(
