@@ -42,6 +42,7 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
     D = Pose.from_matrix(T)
     trk.estimates = {name: D @ pose for name, pose in trk.estimates.items()}
     trk._rest_t = trk._rest_t @ Rd.T + td
+    trk._rest_R = np.einsum("ij,kjl->kil", Rd, trk._rest_R)
     trk._icp_last = [None if last is None else (D @ last[0], *last[1:]) for last in trk._icp_last]
     # scene motion's landmark poses of the last frame: unmoved, the camera's motion would show up as the landmarks'
     # consensus motion and be applied to the hidden parts a second time
@@ -82,5 +83,6 @@ def move_part(trk, obj: int, R: np.ndarray, t: np.ndarray) -> None:
     trk.R[:, obj] = np.einsum("ij,njk->nik", R, trk.R[:, obj])
     trk.v[:, obj] = 0.0
     trk._rest_t[obj] = R @ trk._rest_t[obj] + t
+    trk._rest_R[obj] = R @ trk._rest_R[obj]
     est = trk.estimates[trk.names[obj]]
     trk.estimates[trk.names[obj]] = Pose.from_rt(R @ est.R, R @ est.t + t)

@@ -38,6 +38,8 @@ def hold_hidden_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, de
         trk._rest_on &= ~trk._blob_moved  # seen to move with its blob (filter/blob_follow.py)
         if trk._rest_on.any():
             trk.v[:, trk._rest_on] = 0.0
+            if cfg.rest_prior_rotation:  # the depth cannot turn it; the last good view's rotation holds
+                trk.R[:, trk._rest_on] = trk._rest_R[trk._rest_on][None]
     if cfg.detected_full_noise:
         noise_scale[detected] = 1.0
     return noise_scale
@@ -220,3 +222,4 @@ def update_rest_anchors(trk: MultiObjectTracker, detected: np.ndarray) -> None:
         well = detected & (trk.visibility >= cfg.visible_fraction_full)
         for i in np.nonzero(well)[0]:
             trk._rest_t[i] = trk.estimates[trk.names[i]].t
+            trk._rest_R[i] = trk.estimates[trk.names[i]].R

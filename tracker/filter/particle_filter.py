@@ -187,6 +187,7 @@ class MultiObjectTracker:
         self._noise_scale = np.ones(k)
         self._icp_last = [None] * k
         self._rest_t = np.array([poses[name].t for name in self.names], np.float64)  # rest-prior anchors
+        self._rest_R = np.array([poses[name].R for name in self.names], np.float64)  # and their rotations
         self._rest_on = np.zeros(k, bool)
         self._blob_seen = np.zeros(k, bool)  # has the colour detector found the part's blob since initialize?
         self._support_on = np.zeros(k, bool)

@@ -69,6 +69,12 @@ class TrackerConfig(BaseModel):
     rest_prior_max_visibility: float = Field(
         0.3, ge=0.0, le=1.0, description="Visible fraction below which an undetected part gets the rest prior.",
     )
+    rest_prior_rotation: bool = Field(
+        False, description="While the rest prior holds a part, its particles keep the rotation of its rest anchor "
+        "(the estimate of the last frame with a reliable blob and visibility >= visible_fraction_full, moved with the "
+        "camera and the hand like the anchor's position): a refinement pulled by a hand covering the part does not "
+        "leave it turned for as long as it stays hidden.",
+    )
     rest_release_px: float = Field(
         4.0, ge=0.0, description="The rest prior is off for a part whose colour blob (however small) reaches more "
         "than this many pixels beyond the part's projected bounding rectangle at its rest position: it is moving "
@@ -453,6 +459,7 @@ PRESETS["default"] = {
     "color_term_dead_zone": 1.0,
     "occluded_evidence_cap": 3.0,
     "rest_prior_sigma": 0.003,
+    "rest_prior_rotation": True,
     "carry_follow": True,
     "support_prior_sigma": 0.003,
     "blob_follow": True,
