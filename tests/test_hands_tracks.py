@@ -10,7 +10,7 @@ import pytest
 from tracker.hands import identity
 from tracker.hands.flow import forward_backward
 from tracker.hands.metrics import dice
-from tracker.hands.palm_cut import match_anchor, palm_anchors
+from tracker.hands.palm_cut import holds_anchor, match_anchor, palm_anchors
 from tracker.hands.particle_filter import mode_estimate
 from tracker.hands.tracker import HandTracker, HandTrackerConfig
 from tracker.sources.simulator import SimulatedTable
@@ -67,6 +67,9 @@ def test_match_anchor_takes_the_best_overlap_above_the_threshold():
     boxes = np.array([[1, 1, 10, 10], [102, 98, 121, 117], [50, 50, 60, 60]], float)
     assert match_anchor(boxes, anchors).tolist() == [0, 1, -1]
     assert match_anchor(boxes, np.zeros((0, 4))).tolist() == [-1, -1, -1]
+    arm = np.array([[60, 60, 239, 239]], float)  # a box grown over a whole arm, the palm anchor 1 at its far end
+    assert match_anchor(arm, anchors).tolist() == [1]
+    assert holds_anchor((60, 60, 239, 239), anchors[1]) and not holds_anchor((105, 105, 119, 119), anchors[1])
 
 
 def test_mode_estimate_is_not_between_two_hands():

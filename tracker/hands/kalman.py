@@ -15,7 +15,7 @@ import numpy as np
 from tracker.hands.box_stats import box_of, flow_cov, mask_count, transition_stats
 from tracker.hands.certainty import TAU_D, certain_state
 from tracker.hands.features import HandFeatures
-from tracker.hands.palm_cut import anchor_state, match_anchor
+from tracker.hands.palm_cut import anchor_state, holds_anchor, match_anchor
 
 SIGMA_Q = 2.0
 TAU_C = 0.6
@@ -79,9 +79,11 @@ class HandKalmanFilter:
         ratio = np.array([[st[0][5], st[0][6]], [st[1][5], st[1][6]]])
         passed, cert = certain_state(m0[0], m0[1], m0[2], m0[3], cent, ratio, feats.cc, feats.n_comp, feats.cc_area,
                                      feats.cc_box, feats.cc_cut, ox, oy, TAU_D)  # fmt: skip
-        if not passed and len(feats.anchors):
+        if len(feats.anchors):
             k = match_anchor(np.array([box_of(mp[0], mp[1], mp[2], mp[3])], np.float64), feats.anchors)[0]
-            if k >= 0:  # wrist cut (tracker.hands.palm_cut) as the section-6 observation
+            # wrist cut (tracker.hands.palm_cut) as the section-6 observation, also instead of a section-6 box that
+            # is the whole arm around the anchor
+            if k >= 0 and (not passed or holds_anchor(box_of(cert[0], cert[1], cert[2], cert[3]), feats.anchors[k])):
                 passed, cert = True, anchor_state(feats.anchors[k], (m0[0], m0[1]))
         self.det_fraction = 1.0 if passed else 0.0
         if passed:

@@ -26,6 +26,9 @@ MIN_ARM_M = 0.15
 far end's depth (an adult hand is about 0.19 m long)."""
 ANCHOR_MIN_F = 0.3
 """Box F-score a predicted box needs with an anchor to take it."""
+ANCHOR_INSIDE = 0.8
+"""Share of an anchor's area inside a larger predicted box with which that box takes the anchor (a box grown over the
+whole arm)."""
 
 
 @dataclass(frozen=True)
@@ -109,8 +112,9 @@ def _embed(sub: np.ndarray, x: int, y: int, w: int, h: int) -> np.ndarray:
 
 
 def match_anchor(boxes: np.ndarray, anchors: np.ndarray, min_f: float = ANCHOR_MIN_F) -> np.ndarray:
-    """For inclusive boxes [N, 4], the index of the anchor with the highest box F-score if it is ≥ ``min_f``, else
-    −1 ([N] int)."""
+    """For inclusive boxes [N, 4], the index of the anchor with the highest box F-score if it is ≥ ``min_f``; else,
+    for a box larger than an anchor that holds ≥ ANCHOR_INSIDE of that anchor's area, that anchor; else −1 ([N]
+    int)."""
     if len(anchors) == 0 or len(boxes) == 0:
         return np.full(len(boxes), -1, np.int64)
     a = anchors[None]
@@ -122,7 +126,23 @@ def match_anchor(boxes: np.ndarray, anchors: np.ndarray, min_f: float = ANCHOR_M
     sb = (a[..., 2] - a[..., 0] + 1) * (a[..., 3] - a[..., 1] + 1)
     f = 2 * inter / np.maximum(sa + sb, 1)
     best = f.argmax(axis=1)
-    return np.where(f[np.arange(len(boxes)), best] >= min_f, best, -1)
+    out = np.where(f[np.arange(len(boxes)), best] >= min_f, best, -1)
+    # a box grown over a whole arm (e.g. a track started on a hand that had just entered with its forearm) holds the
+    # anchor of its palm: the anchor with the largest share of its area inside the box, if that share is high enough
+    inside = inter / np.maximum(sb, 1)
+    big = inside.argmax(axis=1)
+    grown = (out < 0) & (inside[np.arange(len(boxes)), big] >= ANCHOR_INSIDE) & (sa[:, 0] > sb[0, big])
+    return np.where(grown, big, out)
+
+
+def holds_anchor(box: tuple[float, float, float, float], anchor: np.ndarray) -> bool:
+    """Whether an inclusive box larger than an anchor holds ≥ ANCHOR_INSIDE of the anchor's area (a box over the
+    whole arm)."""
+    iw = min(box[2], anchor[2]) - max(box[0], anchor[0]) + 1
+    ih = min(box[3], anchor[3]) - max(box[1], anchor[1]) + 1
+    sa = (box[2] - box[0] + 1) * (box[3] - box[1] + 1)
+    sb = (anchor[2] - anchor[0] + 1) * (anchor[3] - anchor[1] + 1)
+    return sa > sb and max(iw, 0) * max(ih, 0) >= ANCHOR_INSIDE * sb
 
 
 def anchor_state(box: np.ndarray, prev_xy: tuple[float, float]) -> np.ndarray:

@@ -22,7 +22,7 @@ import numpy as np
 from tracker.hands.box_stats import box_observation, box_of, observation_likelihood, transition_stats
 from tracker.hands.certainty import TAU_D, certain_state
 from tracker.hands.features import HandFeatures
-from tracker.hands.palm_cut import anchor_state, match_anchor
+from tracker.hands.palm_cut import anchor_state, holds_anchor, match_anchor
 
 
 @dataclass(frozen=True)
@@ -237,13 +237,17 @@ class HandParticleFilter:
                               prm.sigma_s0, prm.sigma_vfb)  # fmt: skip
         if len(feats.anchors):
             # wrist cut (product extension of the section-6 mode, tracker.hands.palm_cut): if the track's predicted
-            # box overlaps a palm anchor, every particle not in the section-6 mode takes the anchor's box
+            # box overlaps a palm anchor, every particle not in the section-6 mode takes the anchor's box, and so
+            # does a particle whose section-6 box is the whole arm around the anchor
             e = self.estimate
             k = int(match_anchor(np.array([box_of(e[0] + e[4], e[1] + e[5], e[2], e[3])], np.float64),
                                  feats.anchors)[0])  # fmt: skip
             if k >= 0:
-                for i in np.nonzero(~det)[0]:
-                    new[i] = anchor_state(feats.anchors[k], (self.particles[i, 0], self.particles[i, 1]))
+                anc = feats.anchors[k]
+                for i in range(n):
+                    if det[i] and not holds_anchor(box_of(new[i, 0], new[i, 1], new[i, 2], new[i, 3]), anc):
+                        continue
+                    new[i] = anchor_state(anc, (self.particles[i, 0], self.particles[i, 1]))
                     det[i] = True
         lik, _ = observe(new, feats, self.n_clusters, prm)
         w = self.weights * lik

@@ -88,6 +88,8 @@ SHARED_FRAC = 0.5
 """Two tracks share a region when this fraction of one's box lies inside the other's (a free hand may take one)."""
 SETTLE = 15
 """Frames after two tracks part during which their appearance is not learnt (their ids may still be swapped)."""
+ALONE_EVERY = 3
+"""A lone track's appearance is learnt on every ALONE_EVERY-th frame only (it costs a colour-bin image per frame)."""
 SWAP_FRAMES = 3
 """Consecutive frames the exchanged id assignment must fit better before two tracks' ids are swapped."""
 
@@ -719,8 +721,11 @@ class HandTracker:
         return int(np.argmin(d))
 
     def _identity(self, rgb: np.ndarray) -> None:
-        """Swap back ids that moved to the other hand, then learn the isolated tracks' appearance."""
+        """Swap back ids that moved to the other hand, then learn the isolated tracks' appearance (a lone track with
+        no lost track waiting only every ALONE_EVERY-th frame: there is nothing to tell apart yet)."""
         n = len(self.tracks)
+        if n == 1 and not self.lost and self.frame_index % ALONE_EVERY:
+            return
         boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
         obs = [self._appearance(rgb, tr.filt.estimate) for tr in self.tracks]
         isolated = []
