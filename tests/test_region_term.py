@@ -239,3 +239,27 @@ def test_box_outline_shortcut_gives_the_full_renders_outline_bit_for_bit():
             assert np.array_equal(got, ref), (trial, obj)
             checked += ref.shape[0] > 0
     assert checked > 100
+
+
+def test_signed_distance_inside_window_gives_the_whole_crops_values():
+    """The signed distance takes the distances inside the blob from the blob's bounding box and a ring around it:
+    bit for bit those of the whole crop's distance transform, for blobs anywhere (touching the crop's border too)."""
+    from tracker.refine.region_term import _signed_distance, _squared_edt
+
+    rng = np.random.default_rng(9)
+    for trial in range(60):
+        h, w = (int(x) for x in rng.integers(3, 70, 2))
+        crop = np.zeros((h, w), np.uint8)
+        for _ in range(1 + trial % 3):
+            cv2.circle(crop, (int(rng.integers(-5, w + 5)), int(rng.integers(-5, h + 5))), int(rng.integers(1, 25)), 1,
+                       -1)
+        if trial % 7 == 0:
+            crop = (rng.random((h, w)) < 0.3).astype(np.uint8)
+        if crop.sum() in (0, crop.size):
+            continue
+        half = np.float32(0.5)
+        inside = np.sqrt(_squared_edt(crop, 0)).astype(np.float32)
+        outside = np.sqrt(_squared_edt(crop, 1)).astype(np.float32)
+        ref = np.where(crop > 0, half - inside, outside - half).astype(np.float64)
+        d, _, _ = _signed_distance(crop)
+        assert np.array_equal(d, ref), trial

@@ -541,27 +541,28 @@ def _squared_edt(crop, target_value):
     """Exact squared Euclidean distance (px²) from every pixel of ``crop`` to the nearest pixel whose value is
     ``target_value`` (0 at such pixels): a column pass, then per row the lower envelope of parabolas (Felzenszwalb
     and Huttenlocher), as OpenCV's ``distanceTransform(…, DIST_L2, DIST_MASK_PRECISE)`` computes it. Pixels with no
-    target in the image get a value larger than any distance in it."""
+    target in the image get a value larger than any distance in it. (The column pass runs along rows for all columns
+    at once: memory in order.)"""
     h, w = crop.shape
     big = float((h + w) * (h + w) + 1)
     f = np.empty((h, w))
-    for x in range(w):
-        last = -1
-        for y in range(h):
+    last = np.full(w, -1, np.int64)  # per column, the row of the last target pixel seen (rows visited in order)
+    for y in range(h):
+        for x in range(w):
             if (crop[y, x] != 0) == (target_value != 0):
-                last = y
+                last[x] = y
                 f[y, x] = 0.0
-            elif last >= 0:
-                f[y, x] = float(y - last)
+            elif last[x] >= 0:
+                f[y, x] = float(y - last[x])
             else:
                 f[y, x] = -1.0
-        last = -1
-        for y in range(h - 1, -1, -1):
+    last[:] = -1
+    for y in range(h - 1, -1, -1):
+        for x in range(w):
             if f[y, x] == 0.0:
-                last = y
-            elif last >= 0 and (f[y, x] < 0.0 or last - y < f[y, x]):
-                f[y, x] = float(last - y)
-        for y in range(h):
+                last[x] = y
+            elif last[x] >= 0 and (f[y, x] < 0.0 or last[x] - y < f[y, x]):
+                f[y, x] = float(last[x] - y)
             f[y, x] = big if f[y, x] < 0.0 else f[y, x] * f[y, x]
     out = np.empty((h, w))
     v = np.empty(w, np.int64)
@@ -605,14 +606,23 @@ def _signed_distance(crop):
     ``d_out − 0.5`` outside, with the exact Euclidean distances taken in float32 as OpenCV returns them (the values of
     ``np.where(crop > 0, 0.5 − inside, outside − 0.5)`` over OpenCV's float32 distance images)."""
     h, w = crop.shape
-    inside = _squared_edt(crop, 0)
+    # inside the blob only the distances to the background count, and the nearest background pixel of a blob pixel
+    # lies within the blob's bounding box and the ring of background around it (a pixel beyond it has one on the
+    # ring at most as far in each axis): that window's distance transform gives the same values there
+    y0, y1, x0, x1 = h, -1, w, -1
+    for y in range(h):
+        for x in range(w):
+            if crop[y, x] > 0:
+                y0, y1, x0, x1 = min(y0, y), max(y1, y), min(x0, x), max(x1, x)
+    ya, yb, xa, xb = max(y0 - 1, 0), min(y1 + 2, h), max(x0 - 1, 0), min(x1 + 2, w)
+    inside = _squared_edt(crop[ya:yb, xa:xb], 0) if y1 >= 0 else np.zeros((0, 0))
     outside = _squared_edt(crop, 1)
     half = np.float32(0.5)
     d = np.empty((h, w))
     for y in range(h):
         for x in range(w):
             if crop[y, x] > 0:
-                d[y, x] = half - np.float32(np.sqrt(inside[y, x]))
+                d[y, x] = half - np.float32(np.sqrt(inside[y - ya, x - xa]))
             else:
                 d[y, x] = np.float32(np.sqrt(outside[y, x])) - half
     gu = np.empty((h, w))
