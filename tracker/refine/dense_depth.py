@@ -92,10 +92,28 @@ def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, 
     """One correspondence pass: the weighted normal equations ``H`` (6×6) and ``g`` (6) of the point-to-plane
     residuals (twist about ``c``), the number of valid pairs, of observable model points, the median |r|, and the
     number of model points whose measurement lies more than ``behind_margin`` behind them (free space)."""
+    absr = np.empty(pts.shape[0])
+    H, g, n_valid, n_obs, n_behind = _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
+                                                      occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k,
+                                                      behind_margin)
+    return H, g, n_valid, n_obs, _median_of(absr, n_valid), n_behind
+
+
+@nb.njit(cache=True)
+def _median_of(absr, n):
+    """Median of ``absr[:n]`` (NaN when n = 0)."""
+    return np.median(absr[:n]) if n > 0 else np.nan
+
+
+@nb.njit(cache=True)
+def _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, fx, fy, cx, cy, sigma0,
+                     sigma_z2, huber_k, behind_margin):
+    """:func:`_accumulate` without the median: the valid pairs' |r| are written to ``absr[:n_valid]`` (the
+    Gauss-Newton loops take their median only when they stop early and report it). Returns ``H``, ``g``,
+    ``n_valid``, ``n_obs``, ``n_behind``."""
     h, w = depth.shape
     H = np.zeros((6, 6))
     g = np.zeros(6)
-    absr = np.empty(pts.shape[0])
     n_valid = 0
     n_obs = 0
     n_behind = 0
@@ -136,8 +154,7 @@ def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, 
     for a in range(6):
         for b in range(a):
             H[a, b] = H[b, a]
-    med = np.median(absr[:n_valid]) if n_valid > 0 else np.nan
-    return H, g, n_valid, n_obs, med, n_behind
+    return H, g, n_valid, n_obs, n_behind
 
 
 @nb.njit(cache=True)
@@ -176,25 +193,27 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
     """The correspondence iterations of :func:`refine_pose` (coarse to fine thresholds, ``updates`` Gauss-Newton
     steps each, the inner loop ends early when the step's norm is below ``stop_step``). Updates ``R``, ``t`` in
     place; returns (status: 0 done, 1 too few valid pairs, 2 singular system; the last pass's ``H``, ``n_valid``,
-    ``n_obs``, median |r|)."""
+    ``n_obs``, and its median |r| when the status is 1 or 2 — NaN when done: the caller measures the final pose)."""
     c = np.empty(3)
     H = np.zeros((6, 6))
     n_valid, n_obs, med = 0, 0, np.nan
+    absr = np.empty(pts.shape[0])
     for thr in thresholds:
         for _ in range(updates):
             for a in range(3):
                 c[a] = R[a, 0] * center[0] + R[a, 1] * center[1] + R[a, 2] * center[2] + t[a]
-            H, g, n_valid, n_obs, med, _nb = _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
+            H, g, n_valid, n_obs, _nb = _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
                                                          occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k, behind)
+            med = np.nan  # taken below only when the loop stops here (the caller measures the final pose again)
             if n_valid < min_points:
-                return 1, H, n_valid, n_obs, med
+                return 1, H, n_valid, n_obs, _median_of(absr, n_valid)
             A = H.copy()
             for a in range(3):
                 A[a, a] += lambda_rot
                 A[a + 3, a + 3] += lambda_trans
             xi, ok = _solve_spd6(A, -g)
             if not ok:
-                return 2, H, n_valid, n_obs, med
+                return 2, H, n_valid, n_obs, _median_of(absr, n_valid)
             # rotation about the part's centre c by exp(ω) (Rodrigues), then the translation v
             w0, w1, w2 = xi[0], xi[1], xi[2]
             theta = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
@@ -228,6 +247,7 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
     c = np.empty(3)
     H = np.zeros((6, 6))
     n_valid, n_obs, med = 0, 0, np.nan
+    absr = np.empty(pts.shape[0])
     pose_R = rR.copy()
     pose_t = rt.copy()
     cur = rpts
@@ -237,10 +257,11 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
         for _ in range(updates):
             for a in range(3):
                 c[a] = R[a, 0] * center[0] + R[a, 1] * center[1] + R[a, 2] * center[2] + t[a]
-            H, g, n_valid, n_obs, med, _nb = _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
+            H, g, n_valid, n_obs, _nb = _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
                                                          occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k, behind)
+            med = np.nan  # taken below only when the loop stops here (the caller measures the final pose again)
             if n_valid < min_points:
-                return 1, H, n_valid, n_obs, med
+                return 1, H, n_valid, n_obs, _median_of(absr, n_valid)
             same = True
             for a in range(3):
                 if t[a] != pose_t[a]:
@@ -263,7 +284,7 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
                 A[a + 3, a + 3] += lambda_trans
             xi, ok = _solve_spd6(A, -(g + gr))
             if not ok:
-                return 2, H, n_valid, n_obs, med
+                return 2, H, n_valid, n_obs, _median_of(absr, n_valid)
             w0, w1, w2 = xi[0], xi[1], xi[2]
             th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
             if th < 1e-9:
