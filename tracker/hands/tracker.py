@@ -27,9 +27,13 @@ initialisation of new tracks:
   ESTABLISHED frames apart (box F-score < APART_F with every other track), they are two hands that overlap, not two
   tracks on one hand: both stay, "merged", for up to MERGED_KEEP frames, their appearance models frozen; if a skin
   region no track explains turns up meanwhile (a candidate as for re-acquisition), the track whose appearance fits
-  it better (the younger on a tie) restarts there with its id. A track that lands within one step on the box of a
-  track it was apart from the frame before (a jump onto the other hand's colour component) is put back and moved
-  by its own velocity instead.
+  it better (else the one whose box lies more inside the other's, then the younger) restarts there with its id; the
+  same when two tracks' boxes share a region (SHARED_FRAC) without being merged. A track that lands within one step
+  on the box of a track it was apart from the frame before (a jump onto the other hand's colour component) is put
+  back and moved by its own velocity instead.
+* Re-seeding (product addition, particle filter, ``reseed``): a track whose box holds part of a hand-sized colour
+  component that no other track touches is offered the component's tight box; the likelihood decides
+  (:meth:`HandTracker._reseed`).
 * Lost tracks (product addition, ``reacquire``): an ended track keeps its id for ``keep_lost`` frames. While one
   waits, a candidate as above also qualifies away from the border if its box centre moved ≥ REACQUIRE_MOVE working
   px over its n_init frames (a moving skin region no track explains: the hand a track lost, or left to the other
