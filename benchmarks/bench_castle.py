@@ -32,6 +32,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,8 +153,8 @@ def markdown(res: dict) -> str:
     lines = [
         "## Castle-simu (external development set)",
         "",
-        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; NUMBA_NUM_THREADS=1, OMP_NUM_THREADS=1 "
-        "(one core each). 1-minute load "
+        f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; NUMBA_NUM_THREADS=1, OMP_NUM_THREADS=1, "
+        "OpenCV 1 thread (one core each). 1-minute load "
         f"{m['load_1min_at_start']} at the start and {res['load_1min_at_end']} at the end"
         + (": the machine was shared with other jobs, so wall-clock times are pessimistic (CPU time is less "
            "affected)." if max(m["load_1min_at_start"] or 0, res["load_1min_at_end"] or 0) > 1.5 else ".")
@@ -200,6 +201,7 @@ def markdown(res: dict) -> str:
 
 
 def main(argv=None) -> int:
+    cv2.setNumThreads(1)  # one core: OpenCV's worker threads would escape the thread CPU time
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=str(DEFAULT_DATA), help="castle-simu recording directory")
     ap.add_argument("--frames", type=int, default=None, help="only the first N frames (default: all 40)")

@@ -43,6 +43,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,6 +127,8 @@ def run_session(job: dict) -> dict:
     from tracker.evaluation.pose_errors import PoseErrorLog, lost_runs
     from tracker.filter.tracker_config import TrackerConfig
     from tracker.sources.simulator import SimOptions, SimulatedTable
+
+    cv2.setNumThreads(1)  # one core per session: OpenCV's worker threads would escape the thread CPU time
 
     opts = SimOptions(speed=job["speed"], occlusion=job["occlusion"], camera_motion=job["motion"])
     src = SimulatedTable(job["scenario"], seed=job["seed"], options=opts, realtime=False, n_frames=job["frames"])
@@ -212,8 +215,8 @@ def markdown(res: dict) -> str:
         title,
         "",
         f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; NUMBA_NUM_THREADS=1, OMP_NUM_THREADS=1, "
-        f"{res['jobs']} session(s) in parallel. 1-minute load {m['load_1min_at_start']} at the start and "
-        f"{res['load_1min_at_end']} at the end"
+        f"OpenCV 1 thread, {res['jobs']} session(s) in parallel. 1-minute load {m['load_1min_at_start']} at the "
+        f"start and {res['load_1min_at_end']} at the end"
         + (": the machine was shared with other jobs, so wall-clock times are pessimistic (thread CPU time, the "
            "column shown, is less affected)." if loaded else ".")
         + f" Commit {res['commit']}." + (f" {res['note']}" if res["note"] else ""),
