@@ -90,7 +90,7 @@ class Settings(BaseSettings):
         description="the tracker's particle count N (default 100 for real time on 2 cores; None: the preset's)",
     )
     table_recheck_s: float = Field(3.0, gt=0)
-    odometry: Literal["default", "fastslam", "off"] = Field(
+    odometry: Literal["default", "fastslam", "fused", "off"] = Field(
         "off", description="camera ego-motion: parts kept in the world frame while the camera moves (issue 15)"
     )
     max_fps: float = Field(30.0, gt=0, description="upper bound on processed frames per second")

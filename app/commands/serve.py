@@ -57,9 +57,10 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, help="random seed of tracker and modes")
     p.add_argument(
         "--odometry",
-        choices=["default", "fastslam", "off"],
+        choices=["default", "fastslam", "fused", "off"],
         help="camera ego-motion (default off): 'default' dense RGB-D odometry, 'fastslam' the seed's AKAZE + "
-        "FastSLAM; the parts are kept in the world frame while the camera moves",
+        "FastSLAM, 'fused' dense odometry checked against the table plane and the resting parts; the parts are kept "
+        "in the world frame while the camera moves",
     )
     p.add_argument(
         "--no-realtime",
