@@ -66,28 +66,7 @@ class RegionSettings:
 def _outline_pixels(label: np.ndarray, z: np.ndarray, obj: int) -> tuple[np.ndarray, np.ndarray]:
     """Grid indices (rows, columns) of part ``obj``'s pixels with a 4-neighbour that is empty or farther away."""
     nv, nu = label.shape
-    rows = np.empty(nv * nu, np.int64)
-    cols = np.empty(nv * nu, np.int64)
-    n = 0
-    for j in range(nv):
-        for i in range(nu):
-            if label[j, i] != obj:
-                continue
-            edge = False
-            for k in range(4):
-                jj = j + (1 if k == 0 else -1 if k == 1 else 0)
-                ii = i + (1 if k == 2 else -1 if k == 3 else 0)
-                if jj < 0 or jj >= nv or ii < 0 or ii >= nu:
-                    continue  # the image border is not an outline
-                lab = label[jj, ii]
-                if lab != obj and (lab < 0 or z[jj, ii] > z[j, i]):
-                    edge = True
-                    break
-            if edge:
-                rows[n] = j
-                cols[n] = i
-                n += 1
-    return rows[:n], cols[:n]
+    return _outline_window_pixels(label, z, obj, 0, 0, nu, nv)  # the window is the whole grid
 
 
 def contour_points(render: SurfaceRender, obj: int, intrinsics: Intrinsics) -> np.ndarray:
@@ -142,17 +121,9 @@ def _own_window(kind, R, t, center, half, verts, u0, v0, nu, nv, fx, fy, cx, cy)
     Empty (``i0 > i1``) when nothing of the part can be drawn."""
     umin, umax, vmin, vmax = np.inf, -np.inf, np.inf, -np.inf
     if kind == 0:
-        for sx in (-1.0, 1.0):
-            for sy in (-1.0, 1.0):
-                for sz in (-1.0, 1.0):
-                    bx, by, bz = center[0] + sx * half[0], center[1] + sy * half[1], center[2] + sz * half[2]
-                    x = R[0, 0] * bx + R[0, 1] * by + R[0, 2] * bz + t[0]
-                    y = R[1, 0] * bx + R[1, 1] * by + R[1, 2] * bz + t[1]
-                    z = R[2, 0] * bx + R[2, 1] * by + R[2, 2] * bz + t[2]
-                    if z < 1e-3:
-                        return 0, nu - 1, 0, nv - 1
-                    umin, umax = min(umin, fx * x / z + cx), max(umax, fx * x / z + cx)
-                    vmin, vmax = min(vmin, fy * y / z + cy), max(vmax, fy * y / z + cy)
+        umin, umax, vmin, vmax, near = _box_bounds(R, t, center, half, fx, fy, cx, cy)
+        if near:
+            return 0, nu - 1, 0, nv - 1
     else:  # a mesh draws only triangles whose three vertices lie beyond 1 mm
         for a in range(verts.shape[0]):
             x = R[0, 0] * verts[a, 0] + R[0, 1] * verts[a, 1] + R[0, 2] * verts[a, 2] + t[0]
