@@ -70,6 +70,13 @@ from tracker.hands.motion_clusters import MotionClusters
 from tracker.hands.palm_cut import match_anchor, palm_anchors, palm_cut
 from tracker.hands.particle_filter import HandParticleFilter, PFParams
 from tracker.hands.skin_model import SkinModel
+from tracker.hands.track_boxes import (
+    box_f_score,
+    boxes_overlap,
+    clipped_box,
+    inside_fraction,
+    state_box,
+)
 
 METHODS = ("pf", "kalman")
 REACQUIRE_MOVE = 2.0
@@ -197,34 +204,6 @@ class _Candidate:
     seen: int
     border: bool = True
     first: tuple[float, float] = (0.0, 0.0)
-
-
-def state_box(state: np.ndarray) -> tuple[int, int, int, int]:
-    """Inclusive integer box of a state (spec §2)."""
-    return box_of(float(state[0]), float(state[1]), float(state[2]), float(state[3]))
-
-
-def box_state(box_excl: list[int] | tuple[int, ...]) -> np.ndarray:
-    """State (velocity 0) of an end-exclusive pixel box [u0, v0, u1, v1]: x = (u0 + u1 − 1)/2, w = u1 − 1 − u0."""
-    u0, v0, u1, v1 = (float(b) for b in box_excl)
-    return np.array([(u0 + u1 - 1) / 2.0, (v0 + v1 - 1) / 2.0, u1 - 1 - u0, v1 - 1 - v0, 0.0, 0.0])
-
-
-def clipped_box(state: np.ndarray, size: tuple[int, int]) -> list[int]:
-    """End-exclusive box of a state clipped to the image (empty boxes have u1 ≤ u0 or v1 ≤ v0)."""
-    u0, v0, u1, v1 = state_box(state)
-    W, H = size
-    return [max(u0, 0), max(v0, 0), min(u1 + 1, W), min(v1 + 1, H)]
-
-
-def box_f_score(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> float:
-    """Dice coefficient of two inclusive boxes (areas in pixels)."""
-    iw = min(a[2], b[2]) - max(a[0], b[0]) + 1
-    ih = min(a[3], b[3]) - max(a[1], b[1]) + 1
-    inter = max(iw, 0) * max(ih, 0)
-    sa = (a[2] - a[0] + 1) * (a[3] - a[1] + 1)
-    sb = (b[2] - b[0] + 1) * (b[3] - b[1] + 1)
-    return 2.0 * inter / (sa + sb) if sa + sb > 0 else 0.0
 
 
 class HandTracker:
@@ -512,7 +491,7 @@ class HandTracker:
             b = boxes[i]
             mx, my = 0.5 * (b[2] - b[0] + 1), 0.5 * (b[3] - b[1] + 1)
             big = (b[0] - mx, b[1] - my, b[2] + mx, b[3] + my)
-            if any(_overlap_f(big, boxes[j]) for j in range(len(boxes)) if j != i):
+            if any(boxes_overlap(big, boxes[j]) for j in range(len(boxes)) if j != i):
                 continue
             u0, v0, u1, v1 = b
             a0, b0 = max(u0 - x0, 0), max(v0 - y0, 0)
@@ -550,7 +529,7 @@ class HandTracker:
             cb = tuple(int(v) for v in feats.cc_box[lab])
             if box_f_score(cb, boxes[i]) >= RESEED_F:
                 continue
-            if any(_overlap(cb, boxes[j]) for j in range(len(boxes)) if j != i):
+            if any(boxes_overlap(cb, boxes[j]) for j in range(len(boxes)) if j != i):
                 continue
             z = self._component_depth(feats, lab)
             if max(cb[2] - cb[0], cb[3] - cb[1]) > self._focal_px() / self.s * RESEED_HAND_M / z:
@@ -686,7 +665,7 @@ class HandTracker:
         boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
         for i in range(len(boxes)):
             for j in range(i + 1, len(boxes)):
-                if max(_inside_frac(boxes[i], boxes[j]), _inside_frac(boxes[j], boxes[i])) >= SHARED_FRAC:
+                if max(inside_fraction(boxes[i], boxes[j]), inside_fraction(boxes[j], boxes[i])) >= SHARED_FRAC:
                     return i, j
         return None
 
@@ -698,7 +677,7 @@ class HandTracker:
         obs = self._appearance(rgb, state)
         sa, sb = identity.similarity(a.app, obs), identity.similarity(b.app, obs)
         ba, bb = state_box(a.filt.estimate), state_box(b.filt.estimate)
-        ia, ib = _inside_frac(ba, bb), _inside_frac(bb, ba)
+        ia, ib = inside_fraction(ba, bb), inside_fraction(bb, ba)
         if a.app is not None and b.app is not None and obs is not None and abs(sa - sb) > 0.05:
             mover = a if sa > sb else b
         elif abs(ia - ib) > 0.1:
@@ -738,7 +717,7 @@ class HandTracker:
             mx, my = identity.MARGIN * (b[2] - b[0] + 1), identity.MARGIN * (b[3] - b[1] + 1)
             big = (b[0] - mx, b[1] - my, b[2] + mx, b[3] + my)
             isolated.append(obs[i] is not None and not any(
-                _overlap_f(big, boxes[j]) for j in range(n) if j != i))  # fmt: skip
+                boxes_overlap(big, boxes[j]) for j in range(n) if j != i))  # fmt: skip
         sim = identity.similarity
         for i in range(n):
             for j in range(i + 1, n):
@@ -814,7 +793,7 @@ class HandTracker:
         best: tuple[int, int, _Candidate] | None = None
         for area, box, i, border in found:
             centre = (0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3]))
-            prev = [c for c in self._candidates if _overlap(c.box, box)]
+            prev = [c for c in self._candidates if boxes_overlap(c.box, box)]
             if prev:
                 p = max(prev, key=lambda c: c.seen)
                 c = _Candidate(box, p.seen + 1, p.border, p.first)
@@ -851,19 +830,3 @@ class HandTracker:
 def _snapshot(filt: HandParticleFilter | HandKalmanFilter) -> dict:
     """A filter's attributes, arrays copied (to put a filter back after a step)."""
     return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in filt.__dict__.items()}
-
-
-def _inside_frac(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> float:
-    """Fraction of inclusive box a's area that lies inside inclusive box b."""
-    iw = min(a[2], b[2]) - max(a[0], b[0]) + 1
-    ih = min(a[3], b[3]) - max(a[1], b[1]) + 1
-    area = (a[2] - a[0] + 1) * (a[3] - a[1] + 1)
-    return max(iw, 0) * max(ih, 0) / area if area > 0 else 0.0
-
-
-def _overlap_f(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
-    return min(a[2], b[2]) >= max(a[0], b[0]) and min(a[3], b[3]) >= max(a[1], b[1])
-
-
-def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
-    return min(a[2], b[2]) >= max(a[0], b[0]) and min(a[3], b[3]) >= max(a[1], b[1])
