@@ -299,19 +299,26 @@ def _box_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, 
 
 
 @nb.njit(cache=True)
+def _thin_indices(n: int, max_points: int) -> np.ndarray:
+    """Indices of ``n`` outline cells evenly thinned to at most ``max_points``, as
+    ``np.linspace(0, n − 1, max_points).round()`` picks them (all of them when there are no more)."""
+    if n <= max_points:
+        return np.arange(n)
+    pick = np.empty(max_points, np.int64)
+    step = (n - 1) / (max_points - 1) if max_points > 1 else 0.0
+    for a in range(max_points):
+        pick[a] = n - 1 if a == max_points - 1 and max_points > 1 else int(np.rint(a * step))
+    return pick
+
+
+@nb.njit(cache=True)
 def _thinned_points(rows, cols, o, R, t, half, u0, v0, fx, fy, cx, cy, max_points):
     """Body-frame points of a box's outline cells (grid rows, columns; the box's ray cast there, ``o`` from
     :func:`~tracker.refine.surface_render._box_origin`), evenly thinned as :func:`_scene_outline` does."""
-    n = rows.shape[0]
-    m = n
-    if n > max_points:
-        m = max_points
-    out = np.empty((m, 3))
-    step = (n - 1) / (max_points - 1) if max_points > 1 else 0.0
-    for a in range(m):
-        j = a
-        if n > max_points:
-            j = n - 1 if a == m - 1 and m > 1 else int(np.rint(a * step))
+    pick = _thin_indices(rows.shape[0], max_points)
+    out = np.empty((pick.shape[0], 3))
+    for a in range(pick.shape[0]):
+        j = pick[a]
         d = _box_ray(o, R, half, (u0 + cols[j] - cx) / fx, (v0 + rows[j] - cy) / fy)[0]
         p0 = (u0 + cols[j] - cx) / fx * d - t[0]
         p1 = (v0 + rows[j] - cy) / fy * d - t[1]
@@ -361,16 +368,10 @@ def _scene_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj
                 _render_mesh(zbuf, label, normal, u0, v0, 1, fx, fy, cx, cy, Rk, tk, verts[voff[k]:voff[k + 1]],
                              faces[foff[k]:foff[k + 1]], k, wi0, wj0)
     rows, cols = _outline_window_pixels(label, zbuf, obj, wi0, wj0, nu, nv)
-    n = rows.shape[0]
-    m = n
-    if n > max_points:
-        m = max_points
-    out = np.empty((m, 3))
-    step = (n - 1) / (max_points - 1) if max_points > 1 else 0.0
-    for a in range(m):
-        j = a
-        if n > max_points:
-            j = n - 1 if a == m - 1 and m > 1 else int(np.rint(a * step))
+    pick = _thin_indices(rows.shape[0], max_points)
+    out = np.empty((pick.shape[0], 3))
+    for a in range(pick.shape[0]):
+        j = pick[a]
         d = zbuf[rows[j] - wj0, cols[j] - wi0]
         p0 = (u0 + cols[j] - cx) / fx * d - t[0]
         p1 = (v0 + rows[j] - cy) / fy * d - t[1]
