@@ -45,6 +45,7 @@ from tracker.filter.scene_motion import agrees, consensus_motion
 from tracker.geometry.camera import Intrinsics
 from tracker.geometry.pose import Pose
 from tracker.odometry.akaze_features import kabsch
+from tracker.odometry.part_landmarks import Pending, maintain_landmarks
 from tracker.odometry.se3 import exp_se3, invert, log_se3, motion_size
 from tracker.odometry.table_constraint import BAND_M, apply_plane, plane_in_camera, refit_plane
 from tracker.refine.part_refiner import rotation_angle
@@ -113,18 +114,12 @@ class FusedStep:
 
 
 @dataclass
-class _Pending:
-    pose: Pose
-    count: int
-
-
-@dataclass
 class FusedOdometry:
     """See the module docstring. ``update(timestamp, dense, observed, corners)`` once per frame."""
 
     config: FusedConfig = field(default_factory=FusedConfig)
     world: dict[str, Pose] = field(default_factory=dict)
-    pending: dict[str, _Pending] = field(default_factory=dict)
+    pending: dict[str, Pending] = field(default_factory=dict)
     pose_world_camera: Pose | None = None
     table: tuple[np.ndarray, float] | None = None
     """The table plane in the world frame ``(n_w, d_w)`` (set with :meth:`set_table`), or None."""
@@ -257,7 +252,9 @@ class FusedOdometry:
                 self._moving = True
         self._last = (timestamp, T)
         if len(used) >= cfg.pin_parts or len(self.world) < cfg.pin_parts:  # (only while the camera is pinned)
-            self._maintain(observed, corners, used)
+            centres = {n: np.asarray(corners[n], np.float64).mean(axis=0) for n in observed}
+            maintain_landmarks(self.world, self.pending, self.pose_world_camera, observed, centres, cfg.tolerance,
+                               cfg.adopt_frames, keep=frozenset(used))
         return FusedStep(self.pose_world_camera, len(used), source)
 
     # ------------------------------------------------------------------------------------------------------
@@ -365,26 +362,3 @@ class FusedOdometry:
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, t
         return T
-
-    def _maintain(self, observed: dict[str, Pose], corners: dict[str, np.ndarray], used: list[str]) -> None:
-        """Drop landmarks that moved (not among the ``used`` ones that pinned the pose); adopt parts whose world pose
-        stayed the same for ``adopt_frames`` frames."""
-        cfg = self.config
-        for name, P in observed.items():
-            c = np.asarray(corners[name], np.float64).mean(axis=0)
-            implied = self.pose_world_camera @ P
-            W = self.world.get(name)
-            if W is not None:
-                if name not in used and not agrees(W.R, W.t, implied.R, implied.t, c, cfg.tolerance):
-                    del self.world[name]
-                    self.pending[name] = _Pending(implied, 1)
-                continue
-            p = self.pending.get(name)
-            if p is not None and agrees(p.pose.R, p.pose.t, implied.R, implied.t, c, cfg.tolerance):
-                p.count += 1
-                p.pose = implied
-                if p.count >= cfg.adopt_frames:
-                    self.world[name] = implied
-                    del self.pending[name]
-            else:
-                self.pending[name] = _Pending(implied, 1)

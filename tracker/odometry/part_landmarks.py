@@ -28,9 +28,39 @@ from tracker.odometry.akaze_features import kabsch
 
 
 @dataclass
-class _Pending:
-    pose: Pose  # the part's world pose (part → world)
+class Pending:
+    """A part on its way to becoming a landmark: its world pose (part → world) and for how many calls in a row it
+    stayed the same."""
+
+    pose: Pose
     count: int
+
+
+def maintain_landmarks(world: dict[str, Pose], pending: dict[str, Pending], pose_world_camera: Pose,
+                       observed: dict[str, Pose], centres: dict[str, np.ndarray], tolerance: float,
+                       adopt_frames: int, keep: frozenset[str] = frozenset()) -> None:
+    """Drop the landmarks in ``world`` whose world pose implied by this frame's ``observed`` part → camera pose
+    (through ``pose_world_camera``) no longer agrees with theirs (:func:`~tracker.filter.scene_motion.agrees` at the
+    part's body-frame ``centres``; parts in ``keep`` stay), and adopt the parts whose implied world pose stayed the
+    same for ``adopt_frames`` calls. ``world`` and ``pending`` are updated in place."""
+    for name, P in observed.items():
+        implied = pose_world_camera @ P
+        c = centres[name]
+        W = world.get(name)
+        if W is not None:
+            if name not in keep and not agrees(W.R, W.t, implied.R, implied.t, c, tolerance):
+                del world[name]
+                pending[name] = Pending(implied, 1)
+            continue
+        p = pending.get(name)
+        if p is not None and agrees(p.pose.R, p.pose.t, implied.R, implied.t, c, tolerance):
+            p.count += 1
+            p.pose = implied
+            if p.count >= adopt_frames:
+                world[name] = implied
+                del pending[name]
+        else:
+            pending[name] = Pending(implied, 1)
 
 
 @dataclass
@@ -41,7 +71,7 @@ class PartLandmarkOdometry:
     tolerance: float = 0.003
     adopt_frames: int = 5
     world: dict[str, Pose] = field(default_factory=dict)
-    pending: dict[str, _Pending] = field(default_factory=dict)
+    pending: dict[str, Pending] = field(default_factory=dict)
     pose_world_camera: Pose | None = None
     used: int = 0
     """Landmarks that agreed on the last pose (0: the previous pose was kept)."""
@@ -80,29 +110,6 @@ class PartLandmarkOdometry:
                 R_cw, t_cw = kabsch(world_pts, camera_pts)
             self.pose_world_camera = Pose.from_rt(R_cw, t_cw).inverse()
             self.used = max(len(agree), 1)
-        self._maintain(observed, centres)
+        maintain_landmarks(self.world, self.pending, self.pose_world_camera, observed, centres, self.tolerance,
+                           self.adopt_frames)
         return self.pose_world_camera
-
-    def _agree(self, a: Pose, b: Pose, centre: np.ndarray) -> bool:
-        return agrees(a.R, a.t, b.R, b.t, centre, self.tolerance)
-
-    def _maintain(self, observed: dict[str, Pose], centres: dict[str, np.ndarray]) -> None:
-        """Drop landmarks that moved; adopt parts whose world pose has stayed the same for adopt_frames calls."""
-        for name, P in observed.items():
-            implied = self.pose_world_camera @ P
-            W = self.world.get(name)
-            if W is not None:
-                if not self._agree(W, implied, centres[name]):
-                    del self.world[name]
-                    self.pending[name] = _Pending(implied, 1)
-                continue
-            p = self.pending.get(name)
-            if p is not None and self._agree(p.pose, implied, centres[name]):
-                p.count += 1
-                p.pose = implied
-                if p.count >= self.adopt_frames:
-                    self.world[name] = implied
-                    del self.pending[name]
-            else:
-                self.pending[name] = _Pending(implied, 1)
-
