@@ -37,8 +37,10 @@ from tracker.refine.normal_equations import add_huber, twist_row
 from tracker.refine.surface_render import (
     SurfaceRender,
     _box_bounds,
+    _box_corners_px,
     _box_origin,
     _box_ray,
+    _clip_window,
     _render_box,
     _render_mesh,
 )
@@ -136,11 +138,7 @@ def _own_window(kind, R, t, center, half, verts, u0, v0, nu, nv, fx, fy, cx, cy)
     if not (umin <= umax and vmin <= vmax and np.isfinite(umin) and np.isfinite(umax) and np.isfinite(vmin)
             and np.isfinite(vmax)):
         return 0, -1, 0, -1
-    lo_u, hi_u = np.floor(umin - u0) - 2.0, np.ceil(umax - u0) + 2.0
-    lo_v, hi_v = np.floor(vmin - v0) - 2.0, np.ceil(vmax - v0) + 2.0
-    if hi_u < 0.0 or hi_v < 0.0 or lo_u > nu - 1 or lo_v > nv - 1:
-        return 0, -1, 0, -1
-    return (int(max(lo_u, 0.0)), int(min(hi_u, nu - 1.0)), int(max(lo_v, 0.0)), int(min(hi_v, nv - 1.0)))
+    return _clip_window(umin, umax, vmin, vmax, u0, v0, nu, nv)
 
 
 _BOX_EDGES = np.array([[0, 1], [2, 3], [4, 5], [6, 7], [0, 2], [1, 3], [4, 6], [5, 7], [0, 4], [1, 5], [2, 6], [3, 7]],
@@ -189,17 +187,15 @@ def _box_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, 
     nu = max(u1 - u0, 0)
     nv = max(v1 - v0, 0)
     center, half = centers[obj], halves[obj]
-    umin, umax, vmin, vmax, near = _box_bounds(R, t, center, half, fx, fy, cx, cy)
+    cu, cv, near = _box_corners_px(R, t, center, half, fx, fy, cx, cy)
     if near:
         return None
+    umin, umax, vmin, vmax = cu.min(), cu.max(), cv.min(), cv.max()
     o = _box_origin(R, t, center)
     empty = np.empty(0, np.int64)
-    lo_u, hi_u = np.floor(umin - u0) - 2.0, np.ceil(umax - u0) + 2.0
-    lo_v, hi_v = np.floor(vmin - v0) - 2.0, np.ceil(vmax - v0) + 2.0
-    if nu == 0 or nv == 0 or hi_u < 0.0 or hi_v < 0.0 or lo_u > nu - 1 or lo_v > nv - 1:
+    wi0, wi1, wj0, wj1 = _clip_window(umin, umax, vmin, vmax, u0, v0, nu, nv)
+    if wi0 > wi1:
         return empty, empty, o
-    wi0, wi1 = int(max(lo_u, 0.0)), int(min(hi_u, nu - 1.0))
-    wj0, wj1 = int(max(lo_v, 0.0)), int(min(hi_v, nv - 1.0))
     mu, mv = wi1 - wi0 + 1, wj1 - wj0 + 1
     # the other parts, as the render draws them (index order, nearest kept, the first on a tie)
     zo = np.full((mv, mu), np.inf)
@@ -218,19 +214,6 @@ def _box_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, 
         for ir in range(mu):
             if lo[jr, ir] >= 0:
                 others = True
-    cu = np.empty(8)
-    cv = np.empty(8)
-    c = 0
-    for sx in (-1.0, 1.0):
-        for sy in (-1.0, 1.0):
-            for sz in (-1.0, 1.0):
-                bx, by, bz = center[0] + sx * half[0], center[1] + sy * half[1], center[2] + sz * half[2]
-                x = R[0, 0] * bx + R[0, 1] * by + R[0, 2] * bz + t[0]
-                y = R[1, 0] * bx + R[1, 1] * by + R[1, 2] * bz + t[1]
-                z = R[2, 0] * bx + R[2, 1] * by + R[2, 2] * bz + t[2]
-                cu[c] = fx * x / z + cx
-                cv[c] = fy * y / z + cy
-                c += 1
     sure = _SURE_PX
     own = np.zeros((mv, mu), np.uint8)
     for j in range(wj0, wj1 + 1):

@@ -67,11 +67,13 @@ def _box_ray(o, R, half, xu, yv):
 
 
 @nb.njit(cache=True)
-def _box_bounds(R, t, center, half, fx, fy, cx, cy):
-    """Projected rectangle ``(umin, umax, vmin, vmax)`` (pixels) of a box's 8 corners and whether a corner lies
-    within 1 mm of the camera plane or behind it (then the rectangle holds the other corners only)."""
-    umin, umax, vmin, vmax = np.inf, -np.inf, np.inf, -np.inf
+def _box_corners_px(R, t, center, half, fx, fy, cx, cy):
+    """Pixels ``(u[8], v[8])`` of a box's corners (numbered as the loops over ±x, ±y, ±z visit them, z fastest) and
+    whether a corner lies within 1 mm of the camera plane or behind it (its pixel is then NaN)."""
+    cu = np.empty(8)
+    cv = np.empty(8)
     near = False
+    c = 0
     for sx in (-1.0, 1.0):
         for sy in (-1.0, 1.0):
             for sz in (-1.0, 1.0):
@@ -81,10 +83,36 @@ def _box_bounds(R, t, center, half, fx, fy, cx, cy):
                 z = R[2, 0] * bx + R[2, 1] * by + R[2, 2] * bz + t[2]
                 if z < 1e-3:
                     near = True
+                    cu[c], cv[c] = np.nan, np.nan
                 else:
-                    umin, umax = min(umin, fx * x / z + cx), max(umax, fx * x / z + cx)
-                    vmin, vmax = min(vmin, fy * y / z + cy), max(vmax, fy * y / z + cy)
+                    cu[c], cv[c] = fx * x / z + cx, fy * y / z + cy
+                c += 1
+    return cu, cv, near
+
+
+@nb.njit(cache=True)
+def _box_bounds(R, t, center, half, fx, fy, cx, cy):
+    """Projected rectangle ``(umin, umax, vmin, vmax)`` (pixels) of a box's 8 corners and whether a corner lies
+    within 1 mm of the camera plane or behind it (then the rectangle holds the other corners only)."""
+    cu, cv, near = _box_corners_px(R, t, center, half, fx, fy, cx, cy)
+    umin, umax, vmin, vmax = np.inf, -np.inf, np.inf, -np.inf
+    for c in range(8):
+        if cu[c] == cu[c]:
+            umin, umax = min(umin, cu[c]), max(umax, cu[c])
+            vmin, vmax = min(vmin, cv[c]), max(vmax, cv[c])
     return umin, umax, vmin, vmax, near
+
+
+@nb.njit(cache=True)
+def _clip_window(umin, umax, vmin, vmax, u0, v0, nu, nv):
+    """Cells ``(i0, i1, j0, j1)`` (inclusive) of an ``nu`` × ``nv`` grid at pixel ``(u0, v0)``, stride 1, that hold the
+    pixel rectangle ``umin..umax`` × ``vmin..vmax`` widened by 2 cells (a part's pixels and their 4-neighbours);
+    empty (``i0 > i1``) when it misses the grid."""
+    lo_u, hi_u = np.floor(umin - u0) - 2.0, np.ceil(umax - u0) + 2.0
+    lo_v, hi_v = np.floor(vmin - v0) - 2.0, np.ceil(vmax - v0) + 2.0
+    if nu <= 0 or nv <= 0 or hi_u < 0.0 or hi_v < 0.0 or lo_u > nu - 1 or lo_v > nv - 1:
+        return 0, -1, 0, -1
+    return int(max(lo_u, 0.0)), int(min(hi_u, nu - 1.0)), int(max(lo_v, 0.0)), int(min(hi_v, nv - 1.0))
 
 
 @nb.njit(cache=True)
