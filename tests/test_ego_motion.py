@@ -226,3 +226,46 @@ def test_camera_motion_moves_scene_motions_landmark_memory():
     moved = Pose.from_matrix(T) @ est
     assert np.allclose(R, moved.R) and np.allclose(t, moved.t)
     assert np.allclose(t, trk.estimates[trk.names[0]].t)  # the landmark and its estimate moved alike
+
+
+def test_camera_motion_moves_the_hand_carrys_blob_memory_and_turn():
+    """The hand carry lets a carried part go when its blob stays put while the hand moves on (the blob's shift from
+    the last frame against the hand's): the remembered centroids must move with the camera like blob follow's, or
+    the camera's shift of a part left behind reads as the part following the hand (it is then carried off). The
+    hand's last turn (a camera-frame rotation vector, the next frame's initial guess) turns with the camera."""
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
+        n_particles=20), seed=0)
+    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    c = [trk.estimates[n].R @ trk.center[i] + trk.estimates[n].t for i, n in enumerate(trk.names)]
+    uv = src.intrinsics.project(np.array(c))
+    trk._last_centers = {0: uv[0] + [3.0, -2.0], 1: uv[1].copy()}
+    trk._carry.last_turn[0] = [0.0, 0.0, 0.02]
+    T = _transform([0.0, 0.3, 0.0], [0.01, 0.0, 0.0])  # the parts move 1 cm right
+    apply_camera_motion(trk, T)
+    for i in range(2):
+        expected = src.intrinsics.project((T[:3, :3] @ c[i] + T[:3, 3])[None])[0] + ([3.0, -2.0] if i == 0 else 0.0)
+        assert np.allclose(trk._last_centers[i], expected, atol=1e-9)
+        assert np.linalg.norm(expected - uv[i]) > 5.0  # a shift the release check would have taken for the part's
+    assert np.allclose(trk._carry.last_turn[0], T[:3, :3] @ [0.0, 0.0, 0.02])
+
+
+def test_camera_motion_moves_the_constant_velocity_memory():
+    """The constant-velocity model measures a part's velocity from its last estimate to this frame's; with the
+    camera's motion applied to the state, the last estimate must move with it, or the camera's motion would be
+    measured as the part's velocity and applied again at the next prediction."""
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=20, velocity_model="constant")
+    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, cfg, seed=0)
+    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    trk._prev_poses = dict(trk.estimates)
+    trk._est_vel[0, :3] = [0.001, 0.0, 0.0]
+    T = _transform([0.0, 0.0, 0.2], [0.01, 0.0, 0.0])
+    apply_camera_motion(trk, T)
+    for name, pose in trk._prev_poses.items():
+        assert pose.translation_error(trk.estimates[name]) < 1e-12  # moved like the estimates
+    from tracker.filter.predict import update_velocities
+
+    update_velocities(trk, dict(trk.estimates), np.ones(2, bool))  # the parts did not move in the world
+    assert np.allclose(trk._est_vel[1], 0.0, atol=1e-12)
+    assert np.allclose(trk._est_vel[0, :3], 0.5 * (T[:3, :3] @ [0.001, 0.0, 0.0]))  # smoothed, turned with the camera

@@ -9,11 +9,14 @@ part now appears and the filter only has to explain the parts' own motion:
 * particle positions ``p`` and rotations ``R`` (``R_new = R_d R``);
 * particle velocities (translation and rotation-vector parts are camera-frame vectors: rotated by ``R_d``);
 * the estimates, the rest-prior anchors, the last dense-refinement result that may be reused, the hand-carry
-  memory (past positions, hand points, last hand step) and scene motion's landmark poses of the last frame.
+  memory (past positions, hand points, last hand step and turn) and scene motion's landmark poses of the last frame;
+* the constant-velocity model's memory (the last frame's estimates and the smoothed velocities), so that a velocity
+  measured next frame is the part's own motion, not the camera's applied a second time.
 
-The last frame's blob centroids (blob follow) are moved by the image motion the camera's motion gives each part's
-centre (otherwise the camera's share of a blob's shift would be applied twice). Other pixel-indexed state
-(occlusion posteriors) is left as it is: it is renewed from the image every frame.
+The last frame's blob centroids (blob follow, and the hand carry's check that a carried part's blob follows the
+hand) are moved by the image motion the camera's motion gives each part's centre (otherwise the camera's share of a
+blob's shift would be counted twice). Other pixel-indexed state (occlusion posteriors) is left as it is: it is
+renewed from the image every frame.
 """
 
 from __future__ import annotations
@@ -32,7 +35,10 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
     Rd, td = T[:3, :3], T[:3, 3]
     if not getattr(trk, "_initialized", False):
         return
-    _move_blob_memory(trk, Rd, td)
+    shifts = _image_shifts(trk, Rd, td)
+    trk._follow_blobs = _shifted(getattr(trk, "_follow_blobs", None), shifts)
+    trk._last_centers = {i: np.asarray(c, np.float64) + shifts.get(i, 0.0)
+                         for i, c in getattr(trk, "_last_centers", {}).items()}
     trk.p = trk.p @ Rd.T + td
     trk.R = np.einsum("ij,nkjl->nkil", Rd, trk.R)
     v = trk.v.copy()
@@ -41,6 +47,13 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
     trk.v = v
     D = Pose.from_matrix(T)
     trk.estimates = {name: D @ pose for name, pose in trk.estimates.items()}
+    if getattr(trk, "_prev_poses", None) is not None:
+        trk._prev_poses = {name: D @ pose for name, pose in trk._prev_poses.items()}
+    if hasattr(trk, "_est_vel"):
+        vel = trk._est_vel.copy()
+        vel[:, :3] = trk._est_vel[:, :3] @ Rd.T
+        vel[:, 3:] = trk._est_vel[:, 3:] @ Rd.T
+        trk._est_vel = vel
     trk._rest_t = trk._rest_t @ Rd.T + td
     trk._rest_R = np.einsum("ij,kjl->kil", Rd, trk._rest_R)
     trk._icp_last = [None if last is None else (D @ last[0], *last[1:]) for last in trk._icp_last]
@@ -52,18 +65,15 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
         carry.history = type(carry.history)((t, pos @ Rd.T + td) for t, pos in carry.history)
         carry.patches = [None if pts is None else pts @ Rd.T + td for pts in carry.patches]
         carry.last_step = carry.last_step @ Rd.T
+        carry.last_turn = carry.last_turn @ Rd.T  # a rotation vector in the camera frame turns with the camera
 
 
-def _move_blob_memory(trk, Rd: np.ndarray, td: np.ndarray) -> None:
-    """The last frame's blob centroids (blob follow, :mod:`tracker.filter.blob_follow`) moved by the image motion
-    the camera's motion gives each part's centre, so that a blob's shift to this frame is the part's own motion (the
-    camera's share is applied to the part already here; unmoved, it would be counted twice)."""
-    blobs = getattr(trk, "_follow_blobs", None)
-    if not blobs:
-        return
-    moved = list(blobs)
-    for i, blob in enumerate(blobs):
-        est = trk.estimates.get(trk.names[i]) if blob is not None else None
+def _image_shifts(trk, Rd: np.ndarray, td: np.ndarray) -> dict[int, np.ndarray]:
+    """Per part (index), the image shift (pixels, ``[du, dv]``) the camera's motion gives its estimated centre;
+    parts behind or too near the camera get none."""
+    out: dict[int, np.ndarray] = {}
+    for i, name in enumerate(trk.names):
+        est = trk.estimates.get(name)
         if est is None:
             continue
         c = est.R @ trk.center[i] + est.t
@@ -71,8 +81,18 @@ def _move_blob_memory(trk, Rd: np.ndarray, td: np.ndarray) -> None:
         if c[2] <= 0.05 or c_new[2] <= 0.05:
             continue
         uv = trk.intrinsics.project(np.stack([c, c_new]))
-        moved[i] = (np.asarray(blob[0], np.float64) + (uv[1] - uv[0]), blob[1])
-    trk._follow_blobs = moved
+        out[i] = uv[1] - uv[0]
+    return out
+
+
+def _shifted(blobs, shifts: dict[int, np.ndarray]):
+    """The last frame's blobs (blob follow, :mod:`tracker.filter.blob_follow`: ``(centroid px, area)`` or None per
+    part) with each centroid moved by its part's image shift, so that a blob's shift to this frame is the part's own
+    motion (the camera's share is applied to the part already here; unmoved, it would be counted twice)."""
+    if not blobs:
+        return blobs
+    return [blob if blob is None or i not in shifts else (np.asarray(blob[0], np.float64) + shifts[i], blob[1])
+            for i, blob in enumerate(blobs)]
 
 
 def move_part(trk, obj: int, R: np.ndarray, t: np.ndarray) -> None:

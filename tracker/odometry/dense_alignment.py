@@ -11,8 +11,9 @@ a left perturbation ``T_kc ← exp(ξ) T_kc`` (twist ``ξ = [v, ω]``, metres / 
 * Point-to-plane with projective association (Chen & Medioni 1992; Newcombe et al., KinectFusion 2011):
   ``r = n_k · (T_kc q − p)``, ``q`` the current frame's point at the pixel where ``p`` projects.
 
-Each term is divided by its robust scale (1.4826 × median absolute residual, floored) and Huber-weighted;
-correspondences that fall on masked pixels of the current frame (hands, moving parts) are dropped.
+Each term is divided by its robust scale (1.4826 × median absolute residual of at most ``SIGMA_SAMPLES`` of them,
+floored) and Huber-weighted; correspondences that fall on masked pixels of the current frame (hands, moving parts) are
+dropped.
 """
 
 from __future__ import annotations
@@ -56,9 +57,19 @@ def _weights(x: np.ndarray, cfg: OdometryConfig) -> np.ndarray:
     return _tukey(x, cfg.tukey) if cfg.robust == "tukey" else _huber(x, cfg.huber)
 
 
+SIGMA_SAMPLES = 1024
+"""The robust scale is taken from at most this many residuals (an even stride through them): the median of a
+thousand is as good a scale estimate as the median of all, at a fraction of the cost (two medians per term and
+Gauss-Newton iteration were 40 % of the alignment's time)."""
+
+
 def _robust_sigma(r: np.ndarray, floor: float) -> float:
+    """1.4826 × the median absolute deviation of the residuals ``r`` (at most :data:`SIGMA_SAMPLES` of them, evenly
+    strided), not below ``floor``."""
     if r.size == 0:
         return floor
+    if r.size > SIGMA_SAMPLES:
+        r = r[:: -(-r.size // SIGMA_SAMPLES)]
     return max(floor, 1.4826 * float(np.median(np.abs(r - np.median(r)))))
 
 
