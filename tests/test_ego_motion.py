@@ -269,3 +269,32 @@ def test_camera_motion_moves_the_constant_velocity_memory():
     update_velocities(trk, dict(trk.estimates), np.ones(2, bool))  # the parts did not move in the world
     assert np.allclose(trk._est_vel[1], 0.0, atol=1e-12)
     assert np.allclose(trk._est_vel[0, :3], 0.5 * (T[:3, :3] @ [0.001, 0.0, 0.0]))  # smoothed, turned with the camera
+
+
+def test_odometry_idles_while_the_camera_is_at_rest_and_wakes_when_it_moves():
+    """A camera at rest: after STILL_FRAMES measured frames inside the dead band the odometry is no longer run (only
+    a coarse depth comparison); a hand over the table does not wake it; a camera that moves does, and the motion since
+    the rest is measured and applied at once."""
+    from tracker.odometry.ego_motion import STILL_FRAMES
+
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    frame = src.render(0)
+    rest = [Pose()] * (STILL_FRAMES + 1)
+    moved = Pose(np.array([0.0, 0.0, -0.004]))  # the camera 4 mm nearer the table: every depth 4 mm less (about)
+    ego = EgoMotion("default", src.intrinsics, src.parts)
+    ego.odometry = _ScriptedOdometry(rest + [moved])
+    steps = [ego.step(frame) for _ in range(STILL_FRAMES + 6)]
+    assert len(ego.odometry.poses) == 1  # the odometry ran STILL_FRAMES + 1 times, then idled
+    assert ego.idle_frames == 5 and all(s.ok and s.camera_motion is None for s in steps)
+    hand = dataclasses.replace(frame, depth=frame.depth.copy())
+    hand.depth[100:300, 150:400] = 0.45  # a hand over a sixth of the image
+    assert ego.step(hand).camera_motion is None and ego.idle_frames == 6
+    near = dataclasses.replace(frame, depth=frame.depth - 0.004)
+    step = ego.step(near)
+    assert not ego.odometry.poses and ego.idle_frames == 6  # woken: the odometry measured this frame
+    assert step.camera_motion is not None and np.allclose(step.camera_motion[:3, 3], [0.0, 0.0, 0.004])
+    lazy = EgoMotion("default", src.intrinsics, src.parts, idle=False)
+    lazy.odometry = _ScriptedOdometry(rest * 2)
+    for _ in range(STILL_FRAMES + 6):
+        lazy.step(frame)
+    assert lazy.idle_frames == 0 and len(lazy.odometry.poses) == len(rest * 2) - STILL_FRAMES - 6

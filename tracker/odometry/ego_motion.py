@@ -22,6 +22,12 @@ Per frame, before the particle filter's step:
 4. **Table plane**: once anchored (:meth:`anchor_table`, the plane detected in the current camera frame is stored
    in the world frame) it is propagated into each new camera frame (:meth:`table_in_camera`) instead of being
    re-detected.
+5. **Idle while the camera is still**: after ``STILL_FRAMES`` measured frames in a row inside the dead band, the
+   mask and the odometry are skipped and each frame only compares a coarse depth grid (every ``IDLE_GRID_PX``-th
+   pixel) with the grid of the frame the camera came to rest in (:data:`IDLE_CHANGE_M`); the pose stays, nothing
+   is applied, the step counts as measured. When the depth has changed, the odometry runs again on that frame:
+   it aligns to its keyframe, so the motion since the rest is measured whole and applied at once. A fixed camera
+   then costs about a tenth of a millisecond per frame instead of the full stage.
 """
 
 from __future__ import annotations
@@ -65,6 +71,16 @@ for the camera's motion: it is not applied, and the tracker and the table plane 
 The tracker needs only the frame-to-frame motion, so an offset the odometry keeps after a jump does no harm."""
 MAX_STEP_DEG = 1.5
 """Rotation bound of :data:`MAX_STEP_M`, degrees."""
+STILL_FRAMES = 10
+"""After this many measured frames in a row whose camera motion stays inside the dead band, the odometry idles
+(step 5 of the module docstring)."""
+IDLE_GRID_PX = 8
+"""Pixel step of the depth grid the idle test compares (80×60 samples at 640×480)."""
+IDLE_CHANGE_M = 0.0015
+"""The idle test wakes the odometry when the median absolute depth change of the grid since the camera came to rest
+exceeds this (metres) or twice the median change between two frames at rest (the sensor's noise), whichever is
+larger. A part or a hand moving over the table changes less than half of the grid and leaves the median alone; a
+camera that moves by a millimetre or two changes nearly every table pixel."""
 MODES = ("default", "fastslam", "fused", "off")
 """Values of the ``--odometry`` option: an odometry method of :data:`tracker.odometry.METHODS`, ``fused`` (the dense
 odometry checked by the tracker's resting parts, :mod:`tracker.odometry.fused_odometry`) or ``off``."""
@@ -160,13 +176,16 @@ def moving_scene_mask(depth: np.ndarray | None, intrinsics: Intrinsics, table, s
 class EgoMotion:
     """Camera ego-motion for a tracker (see the module docstring).
 
-    ``method``: ``default`` (dense RGB-D odometry) or ``fastslam``; ``intrinsics`` of the frames; ``parts``: the
-    tracked parts (for their silhouettes)."""
+    ``method``: ``default`` (dense RGB-D odometry), ``fastslam`` or ``fused``; ``intrinsics`` of the frames;
+    ``parts``: the tracked parts (for their silhouettes); ``idle``: skip the odometry while the camera is at rest
+    (step 5 of the module docstring)."""
 
-    def __init__(self, method: str, intrinsics: Intrinsics, parts: Sequence[PartSpec], seed: int = 0) -> None:
+    def __init__(self, method: str, intrinsics: Intrinsics, parts: Sequence[PartSpec], seed: int = 0,
+                 idle: bool = True) -> None:
         from tracker.odometry import make_odometry
 
         self.method = method
+        self.idle = bool(idle)
         self.intrinsics = intrinsics
         self.parts = list(parts)
         self.odometry = make_odometry("default" if method == "fused" else method, intrinsics, seed=seed)
@@ -190,6 +209,10 @@ class EgoMotion:
         self._observe_pending = False
         self._plane = None  # fused: the table plane measured in the frame of step() (camera frame)
         self.last_mask: np.ndarray | None = None
+        self._still = 0  # measured frames in a row inside the dead band
+        self._grid: np.ndarray | None = None  # the last measured frame's depth grid (idle test)
+        self._rest: tuple[np.ndarray, float] | None = None  # idle: (depth grid at rest, change threshold m)
+        self.idle_frames = 0
 
     # ------------------------------------------------------------------------------------------- per frame
     def moving_parts(self, poses: Mapping[str, Pose], carried: Iterable[str] = (),
@@ -216,6 +239,10 @@ class EgoMotion:
         t0 = time.perf_counter()
         poses = dict(poses or {})
         hand_boxes = [b for b in hand_boxes if b is not None]
+        if self.idle and self._still_at_rest(frame):
+            self.idle_frames += 1
+            self._remember(float(frame.timestamp), poses, None)
+            return EgoMotionStep(self.pose, True, None, 1e3 * (time.perf_counter() - t0), "camera at rest: idle")
         moving = self.moving_parts(poses, carried, hand_boxes)
         mask = self._mask(frame, table, poses, moving, hand_boxes)
         self.last_mask = mask
@@ -243,8 +270,40 @@ class EgoMotion:
             elif dt > DEADBAND_M or np.degrees(dr) > DEADBAND_DEG:
                 motion = D
                 self._applied = T_wc
+            else:
+                self._count_still(frame)
+        if motion is not None or not res.ok:
+            self._still = 0
         self._remember(float(frame.timestamp), poses, motion)
         return EgoMotionStep(self.pose, bool(res.ok), motion, 1e3 * (time.perf_counter() - t0), res.message)
+
+    def _depth_grid(self, frame: Frame) -> np.ndarray | None:
+        return None if frame.depth is None else np.array(frame.depth[::IDLE_GRID_PX, ::IDLE_GRID_PX], np.float32)
+
+    def _count_still(self, frame: Frame) -> None:
+        """A measured frame inside the dead band: after ``STILL_FRAMES`` of them the odometry idles (the grid at rest
+        and the change threshold from the change since the last such frame are kept)."""
+        self._still += 1
+        grid, last = self._depth_grid(frame), self._grid
+        self._grid = grid
+        if self._still < STILL_FRAMES or grid is None or last is None or not self.idle:
+            return
+        noise = _median_change(grid, last)
+        if noise is not None:
+            self._rest = (grid, max(IDLE_CHANGE_M, 2.0 * noise))
+
+    def _still_at_rest(self, frame: Frame) -> bool:
+        """Idle test (step 5 of the module docstring): is the camera still where it came to rest? False wakes the
+        odometry (and ends the rest)."""
+        if self._rest is None:
+            return False
+        grid = self._depth_grid(frame)
+        change = None if grid is None else _median_change(grid, self._rest[0])
+        if change is not None and change <= self._rest[1]:
+            return True
+        self._rest = None
+        self._still = 0
+        return False
 
     def _mask(self, frame: Frame, table, poses: Mapping[str, Pose], moving: set[str],
               hand_boxes: Sequence[Sequence[int]]) -> np.ndarray:
@@ -333,3 +392,13 @@ class EgoMotion:
         R, t = self.pose.R, self.pose.t
         n_c = R.T @ n_w
         return dataclasses.replace(plane, normal=n_c, offset=d_w + float(n_w @ t))
+
+
+def _median_change(a: np.ndarray, b: np.ndarray, min_samples: int = 200) -> float | None:
+    """Median absolute difference (metres) of two depth grids over the samples valid in both (None when fewer than
+    ``min_samples`` are)."""
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(a) & np.isfinite(b) & (a > 0) & (b > 0)
+    if int(ok.sum()) < min_samples:
+        return None
+    return float(np.median(np.abs(a[ok] - b[ok])))
