@@ -41,9 +41,17 @@ class HandKalmanFilter:
     def boxes_for_roi(self) -> np.ndarray:
         return self.m[None]
 
-    def coast(self) -> None:
-        """Constant-velocity prediction without a measurement: position += velocity."""
+    def set_state(self, state: np.ndarray) -> None:
+        """Set the state mean to ``state`` (px, px/frame); the covariance stays."""
+        self.m = np.asarray(state, float).copy()
+        self.estimate = self.m.copy()
+
+    def coast(self, velocity: np.ndarray | None = None) -> None:
+        """Constant-velocity prediction without a measurement: position += velocity (with ``velocity`` (px/frame),
+        the state takes that velocity first)."""
         self.m = self.m.copy()
+        if velocity is not None:
+            self.m[4:6] = velocity
         self.m[:2] += self.m[4:6]
         self.estimate = self.m.copy()
 

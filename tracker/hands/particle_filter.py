@@ -217,8 +217,17 @@ class HandParticleFilter:
         self.estimate = mode_estimate(self.particles, self.weights)
         return True
 
-    def coast(self) -> None:
-        """Constant-velocity move of every particle (no measurement): x ← x + x'."""
+    def set_state(self, state: np.ndarray) -> None:
+        """Put every particle at ``state`` (px, px/frame) with equal weights."""
+        self.particles = np.tile(np.asarray(state, float), (len(self.particles), 1))
+        self.weights = np.full(len(self.particles), 1.0 / len(self.particles))
+        self.estimate = np.asarray(state, float).copy()
+
+    def coast(self, velocity: np.ndarray | None = None) -> None:
+        """Constant-velocity move of every particle (no measurement): x ← x + x'; with ``velocity`` (px/frame) every
+        particle takes that velocity first."""
+        if velocity is not None:
+            self.particles[:, 4:6] = velocity
         self.particles[:, :2] += self.particles[:, 4:6]
         self.estimate = mode_estimate(self.particles, self.weights)
 
