@@ -18,6 +18,8 @@ the component boxes are in region-of-interest (ROI) coordinates, origin ``feats.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from tracker.hands.box_stats import box_of, dominant_component
@@ -27,10 +29,12 @@ SPLIT_GROWTH = 1.3
 """A shared component is split only if its box is this many times larger than both predicted boxes."""
 
 
-def split_shared_components(feats: HandFeatures, states: list[np.ndarray], pairs: list[tuple[int, int]]) -> int:
+def split_shared_components(feats: HandFeatures, states: list[np.ndarray], pairs: list[tuple[int, int]],
+                            two_hands: Callable[[int], bool] | None = None) -> int:  # fmt: skip
     """Split, in place, every colour component of ``feats`` that is the dominant component of both predicted boxes
     of a pair of tracks (indices into ``states``, each a state [6] at k−1 in image coordinates) between the two;
-    returns the number of components split. Both parts must keep at least one pixel, else nothing changes."""
+    returns the number of components split. Both parts must keep at least one pixel, else nothing changes.
+    ``two_hands(label)``: whether a component is too large to be one hand (None: any may be two)."""
     if feats.n_comp == 0 or not pairs:
         return 0
     ox, oy = feats.roi[0], feats.roi[1]
@@ -46,6 +50,8 @@ def split_shared_components(feats: HandFeatures, states: list[np.ndarray], pairs
         area = (c[2] - c[0] + 1) * (c[3] - c[1] + 1)
         if area < SPLIT_GROWTH * max(_area(boxes[i]), _area(boxes[j])):
             continue  # no bigger than one hand's box: one hand mostly hidden behind the other, nothing to split
+        if two_hands is not None and not two_hands(li):
+            continue  # could be one hand: two tracks on one hand must stay duplicates (and one of them end)
         if _split(feats, li, pred[i], pred[j]):
             n_split += 1
     return n_split
@@ -81,3 +87,24 @@ def _split(feats: HandFeatures, lab: int, a: np.ndarray, b: np.ndarray) -> bool:
 
 def _area(b: tuple[int, int, int, int]) -> int:
     return (b[2] - b[0] + 1) * (b[3] - b[1] + 1)
+
+
+def two_means(points: np.ndarray, iterations: int = 10, max_points: int = 2000) -> list[np.ndarray] | None:
+    """2-means of pixel positions [N, 2] (Euclidean), started from the two extreme points along their principal
+    axis; fitted on at most ``max_points`` evenly spaced points, then every point assigned; the two parts, or None
+    for fewer than 2 points."""
+    if len(points) < 2:
+        return None
+    fit = points[:: max(1, len(points) // max_points)]
+    centred = fit - fit.mean(axis=0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    t = centred @ vt[0]
+    c = np.stack([fit[int(np.argmin(t))], fit[int(np.argmax(t))]]).astype(np.float64)
+    for _ in range(iterations):
+        near = ((fit[:, None, :] - c[None]) ** 2).sum(axis=2).argmin(axis=1)
+        if near.min() == near.max():
+            return None
+        c = np.stack([fit[near == 0].mean(axis=0), fit[near == 1].mean(axis=0)])
+    near = ((points[:, None, :] - c[None]) ** 2).sum(axis=2).argmin(axis=1)
+    parts = [points[near == 0], points[near == 1]]
+    return parts if len(parts[0]) and len(parts[1]) else None
