@@ -113,3 +113,50 @@ def test_predicted_occlusion_matches_the_numpy_reference(p10, p11):
     prior = np.where(rng.random(120) < 0.3, np.float32(0.9) * rng.random(120).astype(np.float32), np.float32(0.0))
     got = predicted_occlusion(occ, pix, a, b, prior.astype(np.float32))
     assert np.array_equal(got, np.maximum(want, prior.astype(np.float32)[None, :]))
+
+
+def test_likelihood_kernel_far_from_the_observation_matches_numpy():
+    """Rendered depths far behind and far in front of the observation (where the kernel skips exp and erf because
+    their values are exact without them) and near it give the numpy reference's log-likelihoods and posteriors."""
+    from tracker.filter.depth_likelihood import (
+        LikelihoodParams,
+        finish_occlusion,
+        occluded_likelihood,
+        pixel_constants,
+        update_log_likelihood,
+        visible_likelihood,
+    )
+
+    prm = LikelihoodParams()
+    rng = np.random.default_rng(5)
+    n, k, p = 4, 3, 60
+    z = rng.uniform(0.4, 1.5, p)
+    offsets = np.concatenate([rng.normal(0.0, 0.004, 20), rng.uniform(0.05, 0.5, 20), -rng.uniform(0.05, 0.3, 20)])
+    D = np.full((n, k, p), np.inf, np.float32)
+    D[:, 0] = (z + offsets + rng.normal(0.0, 0.001, (n, p))).astype(np.float32)  # near, behind, in front
+    D[:, 1, ::3] = (z[::3] + 0.3).astype(np.float32)  # a second part behind the first on some pixels
+    D[:, 2, 5:15] = np.inf  # a third part that covers nothing
+    D[:, 0, 40:43] = np.inf  # pixels no part covers
+    o_hat = rng.uniform(0.0, 1.0, (n, p)).astype(np.float32)
+    s, e, lpi = pixel_constants(z, prm)
+    Df = D.reshape(n, k * p).copy()
+    loc = np.arange(k * p, dtype=np.int64).reshape(k, p)
+    loc[2, 30:] = -1  # part 2 cannot cover these pixels
+    anc = np.arange(n)
+    C, Q, F = np.zeros((n, p), np.float32), np.full((n, p), -1, np.float32), np.full((n, p), -1, np.int8)
+    ell = np.zeros(n)
+    dirty = np.ones((n, p), np.uint8)
+    update_log_likelihood(Df, loc, np.arange(p), z, s, e, lpi, o_hat, anc, C, Q, F, ell, prm.tail_weight,
+                          prm.occluder_rate, prm.tail_weight / prm.max_depth, True, dirty,
+                          1.0, np.ones((k, p), np.uint8), np.zeros(k, np.uint8))
+    d = D.min(axis=1).astype(np.float64)
+    pv = visible_likelihood(z[None], d, prm)
+    po = occluded_likelihood(z[None], d, prm)
+    oh = o_hat.astype(np.float64)
+    lik = pv * (1 - oh) + po * oh
+    ref = np.where(np.isfinite(d), np.log(lik) - np.log(occluded_likelihood(z, np.inf, prm))[None], 0.0)
+    np.testing.assert_allclose(C, ref.astype(np.float32), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(ell, ref.sum(axis=1), rtol=1e-9)
+    assert np.array_equal(F, np.where(np.isfinite(d), np.argmin(D, axis=1), -1))
+    post, _ = finish_occlusion(Q, F, o_hat, anc, k)
+    np.testing.assert_allclose(post, np.where(np.isfinite(d), po * oh / lik, oh), atol=1e-6)

@@ -145,15 +145,26 @@ def pixel_constants(z: np.ndarray, prm: LikelihoodParams) -> tuple[np.ndarray, n
 
 @nb.njit(cache=True, inline="always")
 def _pixel_terms(d, z, s, e, o_hat, beta, lam, tail, use_occ):
-    """Returns (ℓ, p_o·ô) of one covered pixel."""
+    """Returns (ℓ, p_o·ô) of one covered pixel. The transcendental calls are skipped where their value is exact
+    without them (same results bit for bit): ``exp(−r²/2)`` is 0 in float64 for r² ≥ 1500 (below e^−745),
+    ``erf(x)`` is ±1 for |x| ≥ 6 (erfc(6) ≈ 2e−17 is below half an ulp of 1), and at ``erf = −1`` the occluded
+    term is exactly the tail."""
     r = (z - d) / s
-    pv = (1.0 - beta) * math.exp(-0.5 * r * r) / (2.5066282746310002 * s) + tail
+    r2 = r * r
+    if r2 < 1500.0:
+        pv = (1.0 - beta) * math.exp(-0.5 * r2) / (2.5066282746310002 * s) + tail
+    else:
+        pv = tail
     if not use_occ:
         return pv, 0.0
-    den = 1.0 - math.exp(-lam * d)
-    if den < 1e-12:
-        den = 1e-12
-    po = e * 0.5 * (1.0 + math.erf((d - z + lam * s * s) / (1.4142135623730951 * s))) / den + tail
+    x = (d - z + lam * s * s) / (1.4142135623730951 * s)
+    if x <= -6.0:
+        po = tail
+    else:
+        den = 1.0 - math.exp(-lam * d)
+        if den < 1e-12:
+            den = 1e-12
+        po = e * 0.5 * (1.0 + (1.0 if x >= 6.0 else math.erf(x))) / den + tail
     return pv * (1.0 - o_hat) + po * o_hat, po * o_hat
 
 
@@ -181,20 +192,33 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
     """
     n = D.shape[0]
     k = loc.shape[0]
+    m = subset.shape[0]
+    # per subset pixel, the parts that can cover it and their depth columns (in part order)
+    n_cover = np.zeros(m, np.int64)
+    cover_part = np.empty((m, k), np.int64)
+    cover_col = np.empty((m, k), np.int64)
+    for ii in range(m):
+        i = subset[ii]
+        for o in range(k):
+            col = loc[o, i]
+            if col >= 0:
+                cover_part[ii, n_cover[ii]] = o
+                cover_col[ii, n_cover[ii]] = col
+                n_cover[ii] += 1
     for j in range(n):
         acc = 0.0
-        for ii in range(subset.shape[0]):
+        for ii in range(m):
             i = subset[ii]
             if dirty[j, i] == 0:
                 continue
             dirty[j, i] = 0
             d = np.inf
             front = -1
-            for o in range(k):
-                col = loc[o, i]
-                if col >= 0 and D[j, col] < d:
-                    d = D[j, col]
-                    front = o
+            for q in range(n_cover[ii]):
+                dq = D[j, cover_col[ii, q]]
+                if dq < d:
+                    d = dq
+                    front = cover_part[ii, q]
             F[j, i] = front
             if d == np.inf:
                 c = 0.0
