@@ -115,6 +115,30 @@ def test_predicted_occlusion_matches_the_numpy_reference(p10, p11):
     assert np.array_equal(got, np.maximum(want, prior.astype(np.float32)[None, :]))
 
 
+def test_propagate_kernel_matches_numpy():
+    """The propagation with its element-wise part in numba gives the numpy computation's particles bit for bit, on
+    strided per-part slices as the coordinate passes hand it, for small and large turns and for rotations below
+    the series threshold."""
+    from tracker.filter.motion_model import propagate, propagate_numpy
+
+    rng = np.random.default_rng(3)
+    n, k = 80, 3
+    p = rng.normal(0.0, 0.3, (n, k, 3))
+    R = np.stack([rotvec_to_matrix(rng.normal(0.0, 1.0, (n, 3))) for _ in range(k)], axis=1)
+    u = np.array([0.01, -0.02, 0.003])
+    for scale in (1e-4, 1e-2, 0.3, 2.0):
+        v = rng.normal(0.0, scale, (n, k, 6))
+        noise = rng.normal(0.0, scale, (n, 6))
+        v[:6, 1, 3:] = 0.0
+        noise[:3, 3:] = 0.0  # no rotation at all
+        noise[3:6, 3:] = 1e-11  # below the series threshold
+        got = propagate(p[:, 1], R[:, 1], v[:, 1], u, noise, 0.8, 0.3)
+        want = propagate_numpy(p[:, 1], R[:, 1], v[:, 1], u, noise.copy(), 0.8, 0.3)
+        for a, b in zip(got, want, strict=True):
+            assert a.shape == b.shape
+            assert np.array_equal(a, b)
+        assert np.array_equal(got[1][:3], R[:3, 1])  # a zero turn leaves the rotation as it was
+
 def test_likelihood_kernel_far_from_the_observation_matches_numpy():
     """Rendered depths far behind and far in front of the observation (where the kernel skips exp and erf because
     their values are exact without them) and near it give the numpy reference's log-likelihoods and posteriors."""
@@ -160,3 +184,48 @@ def test_likelihood_kernel_far_from_the_observation_matches_numpy():
     assert np.array_equal(F, np.where(np.isfinite(d), np.argmin(D, axis=1), -1))
     post, _ = finish_occlusion(Q, F, o_hat, anc, k)
     np.testing.assert_allclose(post, np.where(np.isfinite(d), po * oh / lik, oh), atol=1e-6)
+
+
+def test_banded_signed_distance_pairs_the_same_silhouette_points():
+    """The signed distance with values only in a band around the blob (what the refinement uses) gives the whole
+    crop's values inside the band, and the silhouette term's normal equations over contour points near and far from
+    the blob are the same bit for bit."""
+    import cv2
+
+    from tracker.refine.region_term import BAND_FAR, RegionSettings, _accumulate, _signed_distance
+
+    rs = RegionSettings()
+    band = int(np.ceil(rs.max_px)) + 4
+    rng = np.random.default_rng(11)
+    fx = fy = 600.0
+    cx, cy = 320.0, 240.0
+    cut = 0
+    for trial in range(30):
+        h, w = (int(x) for x in rng.integers(60, 140, 2))
+        crop = np.zeros((h, w), np.uint8)
+        centre = (int(rng.integers(w // 3, 2 * w // 3)), int(rng.integers(h // 3, 2 * h // 3)))
+        axes = (int(rng.integers(4, w // 3)), int(rng.integers(4, h // 3)))
+        cv2.ellipse(crop, centre, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
+        if trial % 3 == 0:  # a blob cut by the crop's border
+            crop[:, : int(rng.integers(1, w // 2))] = 1
+        full = _signed_distance(crop, 0)
+        banded = _signed_distance(crop, band)
+        d, db = full[0], banded[0]
+        kept = db != BAND_FAR
+        assert np.array_equal(d[kept], db[kept])
+        assert np.all(d[~kept] > rs.max_px + 2.0)
+        cut += int((~kept).sum())
+        # contour points (camera frame, 1 m away) projected all over the crop, near the edge and far from it
+        u0, v0 = 300.0 - w / 2, 220.0 - h / 2
+        uv = np.column_stack([u0 + rng.uniform(-2, w + 1, 400), v0 + rng.uniform(-2, h + 1, 400)])
+        z = rng.uniform(0.8, 1.2, 400)
+        pts = np.column_stack([(uv[:, 0] - cx) / fx * z, (uv[:, 1] - cy) / fy * z, z])
+        R, t, c = np.eye(3), np.zeros(3), np.array([0.0, 0.0, 1.0])
+        depth = np.zeros((480, 640), np.float32)
+        out = []
+        for sd, gu, gv in (full, banded):
+            out.append(_accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, 0.5, rs.occlusion_m,
+                                   rs.max_px, rs.sigma_px, rs.huber_k, rs.weight))
+        assert out[0][2] == out[1][2] and out[0][2] > 0
+        assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+    assert cut > 0  # the band left pixels out

@@ -14,6 +14,7 @@ rotation mean (principal eigenvector of Σ w q qᵀ over sign-aligned quaternion
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from tracker.geometry.camera import Intrinsics
@@ -41,13 +42,61 @@ def propagate(
     """One step of (4.26) for M particles of one part.
 
     ``p_ref`` (M, 3), ``R_ref`` (M, 3, 3): reference (previous) poses; ``v_prev`` (M, 6) = (v, ω);
-    ``u`` (3,) control input (metres); ``noise`` (M, 6) samples of w. Returns (p, R, v).
+    ``u`` (3,) control input (metres); ``noise`` (M, 6) samples of w. Returns (p, R, v), new arrays.
+
+    The element-wise work (velocity, position, the rotation vector's skew matrix and Rodrigues' coefficients) is one
+    numba pass (:func:`_velocity_pass`) and the two 3×3 products stay numpy's, so that the result is
+    :func:`propagate_numpy`'s bit for bit (numpy's small matrix products round differently from a plain loop).
     """
+    m = p_ref.shape[0]
+    p = np.empty((m, 3))
+    v = np.empty((m, 6))
+    K = np.empty((m, 3, 3))
+    fa = np.empty(m)
+    fb = np.empty(m)
+    _velocity_pass(np.asarray(p_ref, np.float64), np.asarray(v_prev, np.float64), np.asarray(noise, np.float64),
+                   np.asarray(u, np.float64).reshape(3), float(k_v), float(b), p, v, K, fa, fb)
+    E = _EYE + fa[:, None, None] * K + fb[:, None, None] * (K @ K)
+    return p, E @ np.asarray(R_ref, np.float64), v
+
+
+_EYE = np.eye(3)[None]
+
+
+def propagate_numpy(
+    p_ref: np.ndarray, R_ref: np.ndarray, v_prev: np.ndarray, u: np.ndarray, noise: np.ndarray, k_v: float, b: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`propagate` in numpy alone (the reference its kernel is tested against)."""
     v = k_v * v_prev + noise
     v[:, :3] += b * np.asarray(u, np.float64)[None, :]
     p = p_ref + v[:, :3]
     R = rotvec_to_matrix(v[:, 3:]) @ R_ref
     return p, R, v
+
+
+@nb.njit(cache=True)
+def _velocity_pass(p_ref, v_prev, noise, u, k_v, b, p, v, K, fa, fb):
+    """Per particle: ``v = k_v v_prev + noise`` (+ ``b u`` on the linear part), ``p = p_ref + v[:3]``, the skew
+    matrix ``K`` of ω = ``v[3:]`` and Rodrigues' coefficients ``fa`` = sin θ / θ, ``fb`` = (1 − cos θ) / θ² (series
+    below 1e-9 rad), with the operations of :func:`propagate_numpy` and :func:`rotvec_to_matrix` (same values).
+    Works on strided inputs (one part's slice of the (N, K, ...) arrays)."""
+    for j in range(p_ref.shape[0]):
+        for a in range(6):
+            v[j, a] = k_v * v_prev[j, a] + noise[j, a]
+        for a in range(3):
+            v[j, a] += b * u[a]
+            p[j, a] = p_ref[j, a] + v[j, a]
+        w0, w1, w2 = v[j, 3], v[j, 4], v[j, 5]
+        th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        if th < 1e-9:
+            fa[j] = 1.0 - th**2 / 6.0
+            fb[j] = 0.5 - th**2 / 24.0
+        else:
+            fa[j] = np.sin(th) / th
+            fb[j] = (1.0 - np.cos(th)) / th**2
+        K[j, 0, 0], K[j, 0, 1], K[j, 0, 2] = 0.0, -w2, w1
+        K[j, 1, 0], K[j, 1, 1], K[j, 1, 2] = w2, 0.0, -w0
+        K[j, 2, 0], K[j, 2, 1], K[j, 2, 2] = -w1, w0, 0.0
 
 
 def sample_noise(

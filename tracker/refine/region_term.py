@@ -554,12 +554,22 @@ def _squared_edt(crop, target_value):
     return out
 
 
+BAND_FAR = 1e6
+"""Value of the signed distance beyond the band of :func:`_signed_distance` (px): farther than any pairing reaches."""
+
+
 @nb.njit(cache=True)
-def _signed_distance(crop):
+def _signed_distance(crop, band=0):
     """Signed distance (px, float64) of a binary crop's blob and its gradient (``gu`` along columns, ``gv`` along
     rows; central differences inside, one-sided at the border, as ``np.gradient``): ``0.5 − d_in`` inside the blob,
     ``d_out − 0.5`` outside, with the exact Euclidean distances taken in float32 as OpenCV returns them (the values of
-    ``np.where(crop > 0, 0.5 − inside, outside − 0.5)`` over OpenCV's float32 distance images)."""
+    ``np.where(crop > 0, 0.5 − inside, outside − 0.5)`` over OpenCV's float32 distance images).
+
+    ``band`` > 0: only the window of the blob's bounding box widened by ``band`` px gets these values (every blob
+    pixel lies in it, so its outside distances are those of the whole crop); beyond it ``d`` is :data:`BAND_FAR`
+    and the gradient 0. With ``band`` ≥ ``max_px`` + 4 the silhouette term pairs exactly the same points with the
+    same values (a point whose bilinear neighbours or their gradient stencils reach beyond the window lies more than
+    ``max_px`` + 1 from the blob, and the far values only make its residual larger: it is rejected either way)."""
     h, w = crop.shape
     # inside the blob only the distances to the background count, and the nearest background pixel of a blob pixel
     # lies within the blob's bounding box and the ring of background around it (a pixel beyond it has one on the
@@ -571,19 +581,27 @@ def _signed_distance(crop):
                 y0, y1, x0, x1 = min(y0, y), max(y1, y), min(x0, x), max(x1, x)
     ya, yb, xa, xb = max(y0 - 1, 0), min(y1 + 2, h), max(x0 - 1, 0), min(x1 + 2, w)
     inside = _squared_edt(crop[ya:yb, xa:xb], 0) if y1 >= 0 else np.zeros((0, 0))
-    outside = _squared_edt(crop, 1)
+    # the window that gets values: the whole crop, or the blob's box widened by the band
+    wy0, wy1, wx0, wx1 = 0, h, 0, w
+    if band > 0 and y1 >= 0:
+        wy0, wy1, wx0, wx1 = max(y0 - band, 0), min(y1 + band + 1, h), max(x0 - band, 0), min(x1 + band + 1, w)
+    outside = _squared_edt(crop[wy0:wy1, wx0:wx1], 1)
     half = np.float32(0.5)
     d = np.empty((h, w))
-    for y in range(h):
-        for x in range(w):
+    gu = np.empty((h, w))
+    gv = np.empty((h, w))
+    if wy0 > 0 or wy1 < h or wx0 > 0 or wx1 < w:
+        d[:, :] = BAND_FAR
+        gu[:, :] = 0.0
+        gv[:, :] = 0.0
+    for y in range(wy0, wy1):
+        for x in range(wx0, wx1):
             if crop[y, x] > 0:
                 d[y, x] = half - np.float32(np.sqrt(inside[y - ya, x - xa]))
             else:
-                d[y, x] = np.float32(np.sqrt(outside[y, x])) - half
-    gu = np.empty((h, w))
-    gv = np.empty((h, w))
-    for y in range(h):
-        for x in range(w):
+                d[y, x] = np.float32(np.sqrt(outside[y - wy0, x - wx0])) - half
+    for y in range(wy0, wy1):
+        for x in range(wx0, wx1):
             if x == 0:
                 gu[y, x] = (d[y, 1] - d[y, 0]) / 1.0
             elif x == w - 1:
@@ -612,9 +630,10 @@ class SignedDistance:
 
     @classmethod
     def of_outline(cls, outline: np.ndarray, rect: tuple[int, int, int, int], shape: tuple[int, int],
-                   margin: int = 16) -> SignedDistance | None:
+                   margin: int = 16, band: int = 0) -> SignedDistance | None:
         """Of the blob bounded by the polygon ``outline`` ((N, 2) image pixels, as the colour detector gives it, not
-        eroded) over ``rect = (u0, v0, u1, v1)`` widened by ``margin`` px within an image of ``shape`` (h, w)."""
+        eroded) over ``rect = (u0, v0, u1, v1)`` widened by ``margin`` px within an image of ``shape`` (h, w);
+        ``band`` > 0: values only within that many px of the blob's box (:func:`_signed_distance`)."""
         pts = np.asarray(outline, np.float64).reshape(-1, 2)
         h, w = shape
         u0, v0 = max(rect[0] - margin, 0), max(rect[1] - margin, 0)
@@ -623,16 +642,16 @@ class SignedDistance:
             return None
         crop = np.zeros((v1 - v0, u1 - u0), np.uint8)
         cv2.fillPoly(crop, [np.round(pts - [u0, v0]).astype(np.int32)], 1)
-        return cls._of_crop(crop, u0, v0)
+        return cls._of_crop(crop, u0, v0, band)
 
     @classmethod
-    def _of_crop(cls, crop: np.ndarray, u0: int, v0: int) -> SignedDistance | None:
+    def _of_crop(cls, crop: np.ndarray, u0: int, v0: int, band: int = 0) -> SignedDistance | None:
         n_in = int(crop.sum())
         if n_in == 0 or n_in == crop.size:
             return None
         if min(crop.shape) < 2:
             return None  # no gradient across a one-pixel strip
-        d, gu, gv = _signed_distance(np.ascontiguousarray(crop, np.uint8))
+        d, gu, gv = _signed_distance(np.ascontiguousarray(crop, np.uint8), int(band))
         return cls(u0, v0, d, gu, gv)
 
 
@@ -699,7 +718,9 @@ def region_term(outline_at: Callable[[np.ndarray, np.ndarray], np.ndarray], R: n
     pts = outline_at(R, t)
     if pts.shape[0] < 8:
         return None
-    sdf = SignedDistance.of_outline(outline, rect, (intrinsics.height, intrinsics.width))
+    # values only where a pairing can reach them (same pairs and residuals as over the whole crop)
+    sdf = SignedDistance.of_outline(outline, rect, (intrinsics.height, intrinsics.width),
+                                    band=int(np.ceil(settings.max_px)) + 4)
     if sdf is None:
         return None
     return RegionTerm(pts, sdf, settings, 0.5 * stride, outline_at,
