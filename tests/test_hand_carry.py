@@ -155,3 +155,24 @@ def test_support_prior_sets_an_unseen_floating_part_down_on_the_table(sigma):
         assert gap < 0.004, gap
     else:
         assert gap > 0.012, gap
+
+
+@pytest.mark.parametrize("fallback", [True, False])
+def test_a_turn_past_the_per_frame_cap_falls_back_to_the_translation(fallback):
+    """A patch turned 15° in one frame against a 0.1 rad (5.7°) cap: without the fallback the registration
+    returns the capped turn; with it the turn is taken as a failed registration and the translation-only
+    registration is returned, with no turn."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    top = np.c_[rng.uniform(-0.03, 0.03, 400), rng.uniform(-0.02, 0.02, 400), np.zeros(400)]
+    side = np.c_[rng.uniform(-0.03, 0.03, 300), np.full(300, 0.02), rng.uniform(0.0, 0.03, 300)]
+    src = np.r_[top, side] + [0.0, 0.0, 0.6]
+    c = src.mean(axis=0)
+    dst = (src - c) @ Rotation.from_euler("z", 15, degrees=True).as_matrix().T + c + [0.004, 0.0, 0.0]
+    w, t = register_rigid(src, dst, 8, 0.03, 0.1, None, None, fallback)
+    if fallback:
+        assert np.all(w == 0.0)
+        assert np.allclose(t, register_translation(src, dst, 8, 0.03, None))
+    else:
+        assert np.linalg.norm(w) == pytest.approx(0.1)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tracker.filter import render
 from tracker.filter.motion_model import color_input
 from tracker.geometry.box_renderer import pixel_rays, render_boxes_at_pixels
 from tracker.geometry.pose import Pose
@@ -61,9 +62,49 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
             est = trk.estimates[name]
             offset = float(est.t[2] - hit) if np.isfinite(hit) else surface_fallback(trk, i)
             blob = blob_mask(trk, det, depth.shape) if depth is not None and cfg.color_mask_likelihood else None
+            bias = None
+            if cfg.color_visible_centroid and depth is not None and not off_silhouette:
+                bias = visible_centroid_bias(trk, i, depth)
             u[i] = color_input(center, min(score, 1.0), est, depth, intr, cfg.lambda_z, cfg.depth_radius_px,
-                               offset, mask=blob)
+                               offset, mask=blob, bias_px=bias)
     return u, detected
+
+
+def visible_centroid_bias(trk, obj: int, depth: np.ndarray, stride: int = 2) -> np.ndarray | None:
+    """Where the blob of part ``obj`` should have its centroid relative to the part's projected centre, if the part
+    were at its estimate: the centroid of the estimate's silhouette pixels that the depth does not show to be
+    occluded (measured depth more than ``color_occluded_margin`` in front of the rendered surface) minus the
+    centroid of the whole silhouette, pixels (du, dv). Sampled every ``stride`` pixels of the silhouette's
+    bounding rectangle. None for meshes, an empty silhouette or one with less than a tenth of it visible."""
+    if trk.meshes[obj] is not None:
+        return None
+    intr = trk.intrinsics
+    est = trk.estimates[trk.names[obj]]
+    umin, umax, vmin, vmax = render.bbox(trk, obj, est.t[None], est.R[None])
+    h, w = depth.shape
+    u0, u1 = max(int(np.floor(umin)), 0), min(int(np.ceil(umax)) + 1, w)
+    v0, v1 = max(int(np.floor(vmin)), 0), min(int(np.ceil(vmax)) + 1, h)
+    if u0 >= u1 or v0 >= v1:
+        return None
+    vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
+    pu = uu.ravel().astype(np.float64)
+    pv = vv.ravel().astype(np.float64)
+    n = pu.size
+    out = np.full((1, n), np.inf, np.float32)
+    render_boxes_at_pixels(est.R[None, None], est.t[None, None], trk.center[obj:obj + 1], trk.half[obj:obj + 1], 0,
+                           np.zeros(1, np.int64), pixel_rays(intr, pu, pv), pu, pv, np.arange(n, dtype=np.int64),
+                           intr.fx, intr.fy, intr.cx, intr.cy, out, np.arange(n, dtype=np.int64)[None],
+                           np.zeros((1, n), np.uint8))
+    z = out[0]
+    sil = np.isfinite(z)
+    if sil.sum() < 4:
+        return None
+    d = depth[vv.ravel(), uu.ravel()]
+    occluded = sil & np.isfinite(d) & (d > 0) & (d < z - trk.config.color_occluded_margin)
+    seen = sil & ~occluded
+    if seen.sum() < 0.1 * sil.sum():
+        return None
+    return np.array([pu[seen].mean() - pu[sil].mean(), pv[seen].mean() - pv[sil].mean()])
 
 
 def confident(trk, score: float, area) -> bool:

@@ -154,7 +154,8 @@ class HandCarry:
             if cfg.carry_rotation:
                 axis = plane[0] if (plane is not None and cfg.carry_rotation_axis == "table") else None
                 w, t = register_rigid(self.patches[i], pts, cfg.carry_iterations, cfg.carry_max_step,
-                                      cfg.carry_max_turn, (self.last_turn[i], self.last_step[i]), axis)
+                                      cfg.carry_max_turn, (self.last_turn[i], self.last_step[i]), axis,
+                                      cfg.carry_turn_fallback)
             else:
                 w, t = np.zeros(3), register_translation(self.patches[i], pts, cfg.carry_iterations,
                                                          cfg.carry_max_step, self.last_step[i])
@@ -241,7 +242,7 @@ def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_
 
 def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float, max_turn: float,
                    guess: tuple[np.ndarray, np.ndarray] | None = None,
-                   axis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   axis: np.ndarray | None = None, turn_fallback: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Rigid motion that brings point set ``src`` (M, 3) onto ``dst`` (P, 3): rotation vector ``w`` (rad) about
     ``src``'s centroid c and translation ``t`` (m), i.e. x' = R(w) (x − c) + c + t. Point-to-plane ICP (normals of
     ``dst``) over nearest-neighbour pairs closer than 2 cm, ``iterations`` Gauss-Newton rounds, started from no
@@ -249,8 +250,9 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
 
     The rotation is damped (Tikhonov, 1e-2 of the mean translational information, in units of the patch's radius)
     so that rotations the surface does not constrain (a cylinder-like forearm about its axis) stay near zero, and
-    capped at ``max_turn`` rad; |t| <= ``max_step``. With ``axis`` (unit, camera frame; e.g. the table normal) the
-    rotation is about that axis only."""
+    capped at ``max_turn`` rad (with ``turn_fallback`` a larger turn is taken as a failed registration and the
+    translation-only registration is returned instead); |t| <= ``max_step``. With ``axis`` (unit, camera frame;
+    e.g. the table normal) the rotation is about that axis only."""
     from scipy.spatial import cKDTree
 
     zero = (np.zeros(3), np.zeros(3))
@@ -298,6 +300,10 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
     w, t = best
     th, norm = float(np.linalg.norm(w)), float(np.linalg.norm(t))
     if th > max_turn:
+        if turn_fallback:
+            # a turn beyond what a hand does in one frame is the registration failing (pairs mismatched by a fast
+            # move, the rotation absorbing the rest): the translation alone is taken
+            return np.zeros(3), register_translation(src, dst, iterations, max_step, guess[1] if guess else None)
         w = w * (max_turn / th)
     if norm > max_step:
         t = t * (max_step / norm)

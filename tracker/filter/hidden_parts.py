@@ -14,6 +14,7 @@ from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import reseed
 from tracker.filter.hand_carry import supported_by_other
 from tracker.filter.predict import adaptive_noise
+from tracker.filter.scene_motion import placed_by_depth
 
 if TYPE_CHECKING:
     from tracker.filter.frame_context import FrameContext
@@ -221,5 +222,18 @@ def update_rest_anchors(trk: MultiObjectTracker, detected: np.ndarray) -> None:
     if cfg.rest_prior_sigma > 0:
         well = detected & (trk.visibility >= cfg.visible_fraction_full)
         for i in np.nonzero(well)[0]:
+            trk._rest_t[i] = trk.estimates[trk.names[i]].t
+            trk._rest_R[i] = trk.estimates[trk.names[i]].R
+
+
+def update_moving_anchors(trk: MultiObjectTracker) -> None:
+    """Parts that move (carried, or moving with their blob) and that this frame's refinement placed take their
+    refined estimate as rest anchor (``rest_anchor_moving``): the anchor of a part picked up half in the hand is
+    its last seen pose, not its last fully seen one, which the hand has since moved and turned."""
+    if trk.config.rest_prior_sigma <= 0 or not trk.config.rest_anchor_moving:
+        return
+    moving = np.asarray(trk._carry.carried, bool) | np.asarray(trk._blob_moved, bool)
+    for i in np.nonzero(moving)[0]:
+        if placed_by_depth(trk, i):
             trk._rest_t[i] = trk.estimates[trk.names[i]].t
             trk._rest_R[i] = trk.estimates[trk.names[i]].R

@@ -132,6 +132,7 @@ def color_input(
     surface_offset: float,
     max_z_jump: float = 0.1,
     mask: np.ndarray | None = None,
+    bias_px: np.ndarray | None = None,
 ) -> np.ndarray:
     """Colour control input (u_x, u_y, u_z) of eqs 4.38–4.40, metres.
 
@@ -151,9 +152,13 @@ def color_input(
     if not (np.isfinite(px) and np.isfinite(py)):
         return np.zeros(3)
     r = estimate.t
+    if bias_px is not None:
+        px, py = px - float(bias_px[0]), py - float(bias_px[1])
     ux = ((px - intrinsics.cx) * r[2] / intrinsics.fx - r[0]) * score
     uy = ((py - intrinsics.cy) * r[2] / intrinsics.fy - r[1]) * score
     uz = 0.0
+    if bias_px is not None:
+        px, py = float(center[0]), float(center[1])
     if depth is not None and lambda_z > 0.0:
         h, w = depth.shape
         rad = max(0, int(np.ceil(radius_px)))

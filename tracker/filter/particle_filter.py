@@ -255,6 +255,7 @@ class MultiObjectTracker:
         hidden_parts.update_rest_anchors(self, detected)
         tg = time.perf_counter()
         refine_stage.refine(self, state, ctx.refine_depth, detections, ctx.table, ctx.depth)
+        hidden_parts.update_moving_anchors(self)
         scene_motion.follow_scene(self, state)
         ctx.timings["refine"] = (time.perf_counter() - tg) * 1e3
         predict.update_velocities(self, state.poses, detected & ~self._rest_on & ~self._carry.carried)

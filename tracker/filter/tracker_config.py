@@ -75,6 +75,12 @@ class TrackerConfig(BaseModel):
         "camera and the hand like the anchor's position): a refinement pulled by a hand covering the part does not "
         "leave it turned for as long as it stays hidden.",
     )
+    rest_anchor_moving: bool = Field(
+        False, description="A part that moves (carried by a hand or moving with its colour blob) and that this "
+        "frame's dense-depth refinement placed takes its refined pose as its rest anchor even when it is only partly "
+        "seen: a part picked up and turned while half in the hand is held, once hidden, where it was last seen and "
+        "not where it was last seen whole.",
+    )
     rest_release_px: float = Field(
         4.0, ge=0.0, description="The rest prior is off for a part whose colour blob (however small) reaches more "
         "than this many pixels beyond the part's projected bounding rectangle at its rest position: it is moving "
@@ -115,6 +121,11 @@ class TrackerConfig(BaseModel):
     )
     carry_max_turn: float = Field(
         0.2, gt=0.0, description="Largest hand rotation (rad) per frame a carried part follows.",
+    )
+    carry_turn_fallback: bool = Field(
+        False, description="A hand-patch registration that turns more than carry_max_turn in one frame has failed "
+        "(a fast move mismatched its point pairs): the carried part follows the translation-only registration, "
+        "not a turn capped at carry_max_turn.",
     )
     carry_blob_radii: float = Field(
         1.0, ge=0.0, description="A carried part whose confident colour blob (however small) shows farther than this "
@@ -164,6 +175,16 @@ class TrackerConfig(BaseModel):
     color_area_weighting: bool = Field(
         True, description="Scale the reliability s by min(1, blob area / projected part area) (not in the spec: a "
         "partly hidden part's blob centroid is biased).",
+    )
+    color_visible_centroid: bool = Field(
+        False, description="Compare a blob's centroid with the centroid of the part's expected visible region (its "
+        "estimate's silhouette less the pixels whose measured depth lies more than color_occluded_margin in front "
+        "of it: a hand, another part), not with its projected centre (not in the spec): a part half under a hand "
+        "shows a blob whose centroid is off its centre, and the colour input no longer pulls it that way.",
+    )
+    color_occluded_margin: float = Field(
+        0.01, gt=0.0, description="Depth (m) in front of the estimate's surface from which a silhouette pixel counts "
+        "as occluded for color_visible_centroid.",
     )
 
     reseed_fraction: float = Field(
@@ -460,6 +481,9 @@ PRESETS["default"] = {
     "occluded_evidence_cap": 3.0,
     "rest_prior_sigma": 0.003,
     "rest_prior_rotation": True,
+    "rest_anchor_moving": True,
+    "color_visible_centroid": True,
+    "carry_turn_fallback": True,
     "carry_follow": True,
     "support_prior_sigma": 0.003,
     "blob_follow": True,
