@@ -176,3 +176,37 @@ def test_a_turn_past_the_per_frame_cap_falls_back_to_the_translation(fallback):
         assert np.allclose(t, register_translation(src, dst, 8, 0.03, None))
     else:
         assert np.linalg.norm(w) == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize("register_start", [True, False])
+def test_a_carry_moves_the_part_with_the_hand_from_its_first_frame(register_start):
+    """The part is seen in the hand in the first frame and hidden from the second, when the hand has moved 1 cm.
+    With ``carry_start_register`` the carry registers the previous frame's hand points to this frame's and moves
+    the part 1 cm at once; without it the part stands still for that frame and follows from the next."""
+    intr = Intrinsics.default(320, 240)
+    carry = HandCarry(1, CFG.with_overrides(carry_start_register=register_start), intr, np.array([0.031]))
+    pos = np.array([[0.0, 0.0, 0.65]])
+    heights = np.array([0.03])
+    steps = []
+    for k in range(3):
+        hidden = np.array([k > 0])
+        rot, d = carry.update(_scene(intr, 0.01 * k), pos, hidden, ~hidden, heights, PLANE)
+        new = np.einsum("kij,kj->ki", rot, pos) + d
+        steps.append(float(new[0, 0] - pos[0, 0]))
+        pos = new
+    assert steps[0] == 0.0 and carry.carried.tolist() == [True]
+    assert steps[2] == pytest.approx(0.01, abs=0.002)
+    assert steps[1] == (pytest.approx(0.01, abs=0.002) if register_start else 0.0)
+
+
+def test_a_reseeded_part_jump_is_no_motion_for_the_carry_test():
+    """A part put on its blob 5 cm away (re-seeding) has not moved: forgetting its positions keeps the jump out of
+    the hand-carry motion test; the other part's motion still counts."""
+    carry = HandCarry(2, CFG, Intrinsics.default(320, 240), np.array([0.031, 0.031]))
+    carry.record(0.0, np.array([[0.0, 0.0, 0.6], [0.1, 0.0, 0.6]]))
+    carry.record(0.1, np.array([[0.05, 0.0, 0.6], [0.13, 0.0, 0.6]]))
+    assert carry.moved() == pytest.approx([0.05, 0.03])
+    carry.forget(0)
+    assert carry.moved() == pytest.approx([0.0, 0.03])
+    carry.record(0.2, np.array([[0.05, 0.0, 0.6], [0.16, 0.0, 0.6]]))
+    assert carry.moved() == pytest.approx([0.0, 0.06])

@@ -82,6 +82,7 @@ class HandCarry:
         self.last_step = np.zeros((n_parts, 3))  # last frame's hand translation per part (initial guess, m)
         self.last_turn = np.zeros((n_parts, 3))  # last frame's hand rotation vector per part (initial guess, rad)
         self.history: deque[tuple[float, np.ndarray]] = deque()  # (time s, positions (K, 3))
+        self._prev_depth: np.ndarray | None = None  # last frame's depth image (carry start registration)
 
     @property
     def carried(self) -> np.ndarray:
@@ -98,6 +99,11 @@ class HandCarry:
         self.last_step[obj] = 0.0
         self.last_turn[obj] = 0.0
 
+    def forget(self, obj: int) -> None:
+        """Drop part ``obj``'s remembered positions (it was re-seeded: the jump is no motion of the part)."""
+        for _, pos in self.history:
+            pos[obj] = np.nan
+
     def record(self, now: float, positions: np.ndarray) -> None:
         """Remember the parts' estimated positions (K, 3) at time ``now`` (s) for the motion test."""
         self.history.append((now, np.array(positions, np.float64)))
@@ -105,10 +111,18 @@ class HandCarry:
             self.history.popleft()
 
     def moved(self) -> np.ndarray:
-        """Per part, distance (m) travelled between the oldest and the newest remembered positions."""
+        """Per part, distance (m) travelled between the oldest and the newest remembered positions (0 for a part
+        forgotten within the window)."""
         if len(self.history) < 2:
             return np.zeros(len(self.patches))
-        return np.linalg.norm(self.history[-1][1] - self.history[0][1], axis=1)
+        return np.nan_to_num(np.linalg.norm(self.history[-1][1] - self.history[0][1], axis=1), nan=0.0)
+
+    def last_step_of(self, obj: int) -> np.ndarray:
+        """Part ``obj``'s estimated motion (m) between the two newest remembered positions (zero if unknown)."""
+        if len(self.history) < 2:
+            return np.zeros(3)
+        step = self.history[-1][1][obj] - self.history[-2][1][obj]
+        return step if np.all(np.isfinite(step)) else np.zeros(3)
 
     def in_air(self, obj: int, positions: np.ndarray, heights: np.ndarray) -> bool:
         """Is part ``obj`` above the table by more than carry_min_height with no other part under it?"""
@@ -139,11 +153,21 @@ class HandCarry:
             exclude = [(positions[o], self.radii[o] + 0.005) for o in range(k) if o != i and not carried[o]]
             if self.patches[i] is None:
                 grasped = touched is not None and bool(touched[i])
-                if grasped or moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights):
+                if not (grasped or moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights)):
+                    continue
+                prev = None
+                if cfg.carry_start_register and self._prev_depth is not None and self._prev_depth is not depth:
+                    prev = self._points(self._prev_depth, positions[i], cfg.carry_radius, plane, exclude)
+                if prev is not None and prev.shape[0] >= cfg.carry_min_points:
+                    # the hand points around the part in the previous frame, registered to this frame below: the
+                    # part moves with the hand from the first frame of the carry, not one frame late
+                    self.start(i, prev)
+                    self.last_step[i] = self.last_step_of(i)
+                else:
                     pts = self._points(depth, positions[i], cfg.carry_radius, plane, exclude)
                     if pts.shape[0] >= cfg.carry_min_points:
                         self.start(i, pts)
-                continue
+                    continue
             # search the current points around where last frame's hand motion would take the part, in a window
             # widened by the largest hand motion per frame
             pts = self._points(depth, positions[i] + self.last_step[i], cfg.carry_radius + cfg.carry_max_step, plane,
@@ -168,6 +192,7 @@ class HandCarry:
             new_pos = Rw @ positions[i] + delta[i]
             near = ((pts - new_pos) ** 2).sum(1) <= cfg.carry_radius**2
             self.patches[i] = pts[near] if near.sum() >= cfg.carry_min_points else None
+        self._prev_depth = depth  # kept by reference: a source that reuses its buffer gives the same object (unused)
         return rot, delta
 
     def _points(self, depth, center, radius, plane, exclude, max_points: int = 800) -> np.ndarray:

@@ -122,6 +122,11 @@ class TrackerConfig(BaseModel):
     carry_max_turn: float = Field(
         0.2, gt=0.0, description="Largest hand rotation (rad) per frame a carried part follows.",
     )
+    carry_start_register: bool = Field(
+        False, description="A carry starts with the hand points around the part in the previous frame's depth, "
+        "registered to this frame's (first guess: the part's own last step): the part moves with the hand from the "
+        "first frame of the carry instead of standing still for one frame.",
+    )
     carry_turn_fallback: bool = Field(
         False, description="A hand-patch registration that turns more than carry_max_turn in one frame has failed "
         "(a fast move mismatched its point pairs): the carried part follows the translation-only registration, "
@@ -484,6 +489,7 @@ PRESETS["default"] = {
     "rest_anchor_moving": True,
     "color_visible_centroid": True,
     "carry_turn_fallback": True,
+    "carry_start_register": True,
     "carry_follow": True,
     "support_prior_sigma": 0.003,
     "blob_follow": True,
