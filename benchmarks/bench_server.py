@@ -19,7 +19,9 @@ set each Chromium thread back to the benchmark's priority, the server's (:func:`
 
 Writes benchmarks/results/server.json and server.md.
 
-    .venv/bin/python benchmarks/bench_server.py [--seconds 20] [--particles N]
+    .venv/bin/python benchmarks/bench_server.py [--seconds 20] [--particles N] [--hands]
+
+``--hands`` adds the two websocket runs again with the hand tracker on (``serve --hands``).
 """
 
 from __future__ import annotations
@@ -118,7 +120,8 @@ def wait_until_processing(proc: subprocess.Popen, base: str, frames: int = 10, t
         time.sleep(0.2)
 
 
-def run_case(name: str, realtime: bool, seconds: float, particles: int | None, db: Path, jpeg: bool = True) -> dict:
+def run_case(name: str, realtime: bool, seconds: float, particles: int | None, db: Path, jpeg: bool = True,
+             hands: bool = False) -> dict:
     port = free_port()
     cmd = [
         sys.executable,
@@ -140,6 +143,8 @@ def run_case(name: str, realtime: bool, seconds: float, particles: int | None, d
         cmd.append("--no-realtime")
     if particles:
         cmd += ["--particles", str(particles)]
+    if hands:
+        cmd.append("--hands")
     env = dict(os.environ, ASSEMBLY_AGENT_MAX_FPS="1000")
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     base = f"http://127.0.0.1:{port}"
@@ -350,6 +355,8 @@ def main() -> int:
     ap.add_argument("--particles", type=int, default=None, help="tracker particle count (default: the server's)")
     ap.add_argument("--no-jpeg", dest="jpeg", action="store_false", help="websocket only, no colour image fetches")
     ap.add_argument("--note", default="", help="a sentence appended to the markdown (e.g. earlier figures)")
+    ap.add_argument("--hands", action="store_true",
+                    help="also the two websocket runs with the hand tracker on (serve --hands; issue 14's >= 28/s)")
     ap.add_argument("--browser-only", action="store_true",
                     help="only the server + headless browser runs (the other runs' figures are kept from server.json)")
     args = ap.parse_args()
@@ -362,6 +369,11 @@ def main() -> int:
         run_case("unpaced", False, args.seconds, args.particles, db, args.jpeg),
         run_case("realtime-30fps", True, args.seconds, args.particles, db, args.jpeg),
     ]
+    if args.hands and not args.browser_only:
+        cases += [
+            run_case("unpaced, hands on", False, args.seconds, args.particles, db, args.jpeg, hands=True),
+            run_case("realtime-30fps, hands on", True, args.seconds, args.particles, db, args.jpeg, hands=True),
+        ]
     browser_cases = [
         run_browser_case("panel without 3-D scene (baseline)", False, args.seconds, args.particles, db),
         run_browser_case("panel with 3-D scene", True, args.seconds, args.particles, db),
