@@ -298,3 +298,37 @@ def test_odometry_idles_while_the_camera_is_at_rest_and_wakes_when_it_moves():
     for _ in range(STILL_FRAMES + 6):
         lazy.step(frame)
     assert lazy.idle_frames == 0 and len(lazy.odometry.poses) == len(rest * 2) - STILL_FRAMES - 6
+
+
+def test_fused_correction_reaches_the_hidden_parts_only():
+    """``fused``: the resting parts correct the camera's pose after the tracker's step; the hidden parts (placed by no
+    depth this frame) must get that correction too, or they keep the dense odometry's drift while a hand is in view.
+    ``observe`` returns the camera-frame correction from the pose the state refers to; a landmark part, measured in
+    the true camera frame, is left alone; a correction inside the dead band is kept for later."""
+    from tracker.filter.camera_motion import follow_correction
+    from tracker.odometry.fused_odometry import FusedStep
+
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    ego = EgoMotion("fused", src.intrinsics, src.parts)
+    applied = _transform([0.0, 0.01, 0.0], [0.02, 0.0, 0.0])
+    corrected = Pose.from_matrix(applied) @ Pose.from_rotvec(np.array([0.0, 0.0, 0.002]), np.array([0.003, 0.0, 0.0]))
+    ego._applied, ego._observe_pending = applied.copy(), True
+    ego.fused.correct = lambda *a, **k: FusedStep(corrected, 3, "parts")
+    M = ego.observe({}, {})
+    assert M is not None and np.allclose(M, np.linalg.inv(corrected.as_matrix()) @ applied)
+    assert np.allclose(ego._applied, corrected.as_matrix())
+    tiny = corrected @ Pose(np.array([0.0001, 0.0, 0.0]))
+    ego._observe_pending = True
+    ego.fused.correct = lambda *a, **k: FusedStep(tiny, 3, "parts")
+    assert ego.observe({}, {}) is None and np.allclose(ego._applied, corrected.as_matrix())  # kept for later
+
+    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
+        n_particles=20), seed=0)
+    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    landmark, hidden = trk.names
+    before = dict(trk.estimates)
+    trk._landmarks = {0: (before[landmark].R, before[landmark].t)}  # part 0 seen well this frame
+    poses = dict(before)
+    assert follow_correction(trk, M, poses) == [hidden]
+    assert poses[hidden].translation_error(Pose.from_matrix(M) @ before[hidden]) < 1e-12
+    assert np.allclose(trk.p[:, 1], poses[hidden].t) and trk.estimates[landmark] is before[landmark]

@@ -578,12 +578,21 @@ class AssemblyPipeline:
                     hints = [h for h in self.mode.connection_hints() if {h.first, h.second} <= tracked]
                     self.tracker.set_connection_hints(hints)
                 touched = None if self.hands is None else self.hands.touched_parts()
+                fused = self.ego is not None and self.ego.fused is not None
+                if fused:
+                    from tracker.filter.camera_motion import hand_hidden_parts_to_the_odometry
+
+                    hand_hidden_parts_to_the_odometry(self.tracker)
                 state = self.tracker.step(frame, detections or None, self.table, occluders=self._occluders(),
                                           touched=touched)
+                if fused:  # odometry fused: the parts check the camera; the hidden parts follow its correction
+                    from tracker.filter.camera_motion import follow_correction
+
+                    corners = {n: self.tracker.corners[i] for i, n in enumerate(self.tracker.names)}
+                    correction = self.ego.observe(self.tracker.landmark_poses, corners)
+                    if correction is not None:
+                        follow_correction(self.tracker, correction, state.poses)
                 self.poses.update(state.poses)
-                if self.ego is not None and self.ego.fused is not None:  # odometry fused: parts check the camera
-                    self.ego.observe(self.tracker.landmark_poses,
-                                     {n: self.tracker.corners[i] for i, n in enumerate(self.tracker.names)})
                 self.carried = [str(n) for n in (getattr(state, "carried", None) or [])]
                 particles = {k: np.asarray(v, np.float32) for k, v in state.particles.items()}
                 for k, v in (getattr(state, "timings", None) or {}).items():

@@ -258,13 +258,22 @@ class TrackSession:
         elif self.follower is not None:
             self.table = self.follower.update(frame, self.poses)
         dets = self.detector.detect(frame.color) if self.detector is not None else None
+        fused = self.ego is not None and self.ego.fused is not None
+        if fused:
+            from tracker.filter.camera_motion import hand_hidden_parts_to_the_odometry
+
+            hand_hidden_parts_to_the_odometry(self.tracker)
         t0, c0 = time.perf_counter(), time.thread_time()
         state = self.tracker.step(frame, dets, self.table)
         dt = time.perf_counter() - t0
         self.last_cpu = time.thread_time() - c0
-        if self.ego is not None and self.ego.fused is not None:  # odometry fused: the resting parts check the camera
+        if fused:  # odometry fused: the resting parts check the camera; the hidden parts follow its correction
+            from tracker.filter.camera_motion import follow_correction
+
             c0 = time.thread_time()
-            self.ego.observe(self.tracker.landmark_poses, self._corners)
+            correction = self.ego.observe(self.tracker.landmark_poses, self._corners)
+            if correction is not None:
+                follow_correction(self.tracker, correction, state.poses)
             self.last_ego_cpu += time.thread_time() - c0
         self.track_seconds += dt
         self.poses = dict(state.poses)

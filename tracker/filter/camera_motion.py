@@ -17,6 +17,11 @@ The last frame's blob centroids (blob follow, and the hand carry's check that a 
 hand) are moved by the image motion the camera's motion gives each part's centre (otherwise the camera's share of a
 blob's shift would be counted twice). Other pixel-indexed state (occlusion posteriors) is left as it is: it is
 renewed from the image every frame.
+
+With the fused odometry, the resting parts correct the camera's pose after the tracker's step; the parts this frame's
+depth did not place (hidden, resting) are moved by that correction (:func:`follow_correction`) instead of by scene
+motion's frame-to-frame consensus (:func:`hand_hidden_parts_to_the_odometry`), so that they do not keep the dense
+odometry's drift.
 """
 
 from __future__ import annotations
@@ -106,3 +111,34 @@ def move_part(trk, obj: int, R: np.ndarray, t: np.ndarray) -> None:
     trk._rest_R[obj] = R @ trk._rest_R[obj]
     est = trk.estimates[trk.names[obj]]
     trk.estimates[trk.names[obj]] = Pose.from_rt(R @ est.R, R @ est.t + t)
+
+
+def follow_correction(trk, T_new_old: np.ndarray, poses: dict | None = None) -> list[str]:
+    """Move the parts of ``trk`` that this frame's depth did not place — not a landmark, not carried, not moving with
+    their blob, no healthy dense refinement: hidden resting parts — by ``T_new_old`` (4×4, the camera-frame
+    correction of :meth:`tracker.odometry.ego_motion.EgoMotion.observe`). ``poses`` (name → pose), if given, gets
+    their new estimates. Returns the names of the parts moved. The parts placed by the depth are measured in the
+    true camera frame already."""
+    from tracker.filter.scene_motion import placed_by_depth
+
+    T = np.asarray(T_new_old, np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"camera correction must be a finite 4x4 transform, got shape {T.shape}")
+    moved = []
+    carried = trk._carry.carried
+    for i, name in enumerate(trk.names):
+        if i in trk._landmarks or carried[i] or trk._blob_moved[i] or placed_by_depth(trk, i):
+            continue
+        move_part(trk, i, T[:3, :3], T[:3, 3])
+        moved.append(name)
+        if poses is not None:
+            poses[name] = trk.estimates[name]
+    return moved
+
+
+def hand_hidden_parts_to_the_odometry(trk) -> None:
+    """With the fused odometry, the hidden parts follow its correction (:func:`follow_correction`), not scene
+    motion's frame-to-frame consensus of the landmarks (both measure the same error of the applied camera motion:
+    applying both would count it twice). Called before the tracker's step: scene motion then has no last-frame
+    landmarks to compare with (it still records this frame's, which the odometry reads)."""
+    trk._landmarks = {}
