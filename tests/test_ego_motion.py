@@ -250,6 +250,19 @@ def test_camera_motion_moves_the_hand_carrys_blob_memory_and_turn():
     assert np.allclose(trk._carry.last_turn[0], T[:3, :3] @ [0.0, 0.0, 0.02])
 
 
+def test_camera_motion_drops_the_hand_carrys_last_depth_image():
+    """A carry's first registration takes the hand points from the last frame's depth image, which is in the old
+    camera frame: registered to this frame they would carry the camera's motion (applied to the part already) a
+    second time. The image cannot be moved, so it is dropped when the camera moves."""
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
+        n_particles=20), seed=0)
+    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    trk._carry._prev_depth = src.render(0).depth
+    apply_camera_motion(trk, _transform([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]))
+    assert trk._carry._prev_depth is None
+
+
 def test_camera_motion_moves_the_constant_velocity_memory():
     """The constant-velocity model measures a part's velocity from its last estimate to this frame's; with the
     camera's motion applied to the state, the last estimate must move with it, or the camera's motion would be

@@ -11,7 +11,9 @@ part now appears and the filter only has to explain the parts' own motion:
 * the estimates, the rest-prior anchors, the last dense-refinement result that may be reused, the hand-carry
   memory (past positions, hand points, last hand step and turn) and scene motion's landmark poses of the last frame;
 * the constant-velocity model's memory (the last frame's estimates and the smoothed velocities), so that a velocity
-  measured next frame is the part's own motion, not the camera's applied a second time.
+  measured next frame is the part's own motion, not the camera's applied a second time;
+* the hand carry's last depth image is dropped (a camera-frame image cannot be moved; a carry starting on this frame
+  takes this frame's hand points, as it did before the carry registered from the last frame).
 
 The last frame's blob centroids (blob follow, and the hand carry's check that a carried part's blob follows the
 hand) are moved by the image motion the camera's motion gives each part's centre (otherwise the camera's share of a
@@ -71,6 +73,10 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
         carry.patches = [None if pts is None else pts @ Rd.T + td for pts in carry.patches]
         carry.last_step = carry.last_step @ Rd.T
         carry.last_turn = carry.last_turn @ Rd.T  # a rotation vector in the camera frame turns with the camera
+        # the last frame's depth image (a carry's first registration takes the hand points from it) is in the old
+        # camera frame and cannot be moved: without it a carry that starts now takes this frame's points instead
+        if hasattr(carry, "_prev_depth"):
+            carry._prev_depth = None
 
 
 def _image_shifts(trk, Rd: np.ndarray, td: np.ndarray) -> dict[int, np.ndarray]:
