@@ -8,11 +8,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numba as nb
 import numpy as np
 
 from tracker.filter import render
 from tracker.filter.motion_model import color_input
-from tracker.geometry.box_renderer import pixel_rays, render_boxes_at_pixels
+from tracker.geometry.box_renderer import _slab_depth, pixel_rays, render_boxes_at_pixels
 from tracker.geometry.pose import Pose
 
 if TYPE_CHECKING:
@@ -86,25 +87,48 @@ def visible_centroid_bias(trk, obj: int, depth: np.ndarray, stride: int = 2) -> 
     v0, v1 = max(int(np.floor(vmin)), 0), min(int(np.ceil(vmax)) + 1, h)
     if u0 >= u1 or v0 >= v1:
         return None
-    vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
-    pu = uu.ravel().astype(np.float64)
-    pv = vv.ravel().astype(np.float64)
-    n = pu.size
-    out = np.full((1, n), np.inf, np.float32)
-    render_boxes_at_pixels(est.R[None, None], est.t[None, None], trk.center[obj:obj + 1], trk.half[obj:obj + 1], 0,
-                           np.zeros(1, np.int64), pixel_rays(intr, pu, pv), pu, pv, np.arange(n, dtype=np.int64),
-                           intr.fx, intr.fy, intr.cx, intr.cy, out, np.arange(n, dtype=np.int64)[None],
-                           np.zeros((1, n), np.uint8))
-    z = out[0]
-    sil = np.isfinite(z)
-    if sil.sum() < 4:
+    R = np.ascontiguousarray(est.R, np.float64)
+    b = R @ trk.center[obj] + est.t  # box centre, camera frame
+    n_sil, su, sv, n_seen, su_seen, sv_seen = _silhouette_sums(
+        R, b, trk.half[obj], intr.fx, intr.fy, intr.cx, intr.cy, u0, u1, v0, v1, stride, depth,
+        trk.config.color_occluded_margin)
+    if n_sil < 4 or n_seen < 0.1 * n_sil:
         return None
-    d = depth[vv.ravel(), uu.ravel()]
-    occluded = sil & np.isfinite(d) & (d > 0) & (d < z - trk.config.color_occluded_margin)
-    seen = sil & ~occluded
-    if seen.sum() < 0.1 * sil.sum():
-        return None
-    return np.array([pu[seen].mean() - pu[sil].mean(), pv[seen].mean() - pv[sil].mean()])
+    return np.array([su_seen / n_seen - su / n_sil, sv_seen / n_seen - sv / n_sil])
+
+
+@nb.njit(cache=True)
+def _silhouette_sums(R, b, half, fx, fy, cx, cy, u0, u1, v0, v1, stride, depth, margin):
+    """Count and pixel-coordinate sums of the box's silhouette pixels (every ``stride``-th of the window) and of
+    those not occluded (measured depth, NaN or ≤ 0 = none, more than ``margin`` in front of the box's surface).
+    ``R`` body→camera rotation, ``b`` box centre (camera frame, m), ``half`` half extents (m)."""
+    ox = -(R[0, 0] * b[0] + R[1, 0] * b[1] + R[2, 0] * b[2])
+    oy = -(R[0, 1] * b[0] + R[1, 1] * b[1] + R[2, 1] * b[2])
+    oz = -(R[0, 2] * b[0] + R[1, 2] * b[1] + R[2, 2] * b[2])
+    n_sil = 0
+    su = 0.0
+    sv = 0.0
+    n_seen = 0
+    su_seen = 0.0
+    sv_seen = 0.0
+    for v in range(v0, v1, stride):
+        ry = (v - cy) / fy
+        for u in range(u0, u1, stride):
+            rx = (u - cx) / fx
+            z = _slab_depth(R[0, 0], R[1, 0], R[2, 0], R[0, 1], R[1, 1], R[2, 1], R[0, 2], R[1, 2], R[2, 2],
+                            ox, oy, oz, half[0], half[1], half[2], rx, ry, 1.0)
+            if not np.isfinite(z):
+                continue
+            n_sil += 1
+            su += u
+            sv += v
+            d = depth[v, u]
+            if d > 0.0 and np.isfinite(d) and d < z - margin:
+                continue
+            n_seen += 1
+            su_seen += u
+            sv_seen += v
+    return n_sil, su, sv, n_seen, su_seen, sv_seen
 
 
 def confident(trk, score: float, area) -> bool:
