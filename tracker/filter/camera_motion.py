@@ -125,16 +125,14 @@ def follow_correction(trk, T_new_old: np.ndarray, poses: dict | None = None) -> 
     correction of :meth:`tracker.odometry.ego_motion.EgoMotion.observe`). ``poses`` (name → pose), if given, gets
     their new estimates. Returns the names of the parts moved. The parts placed by the depth are measured in the
     true camera frame already."""
-    from tracker.filter.scene_motion import placed_by_depth
+    from tracker.filter.scene_motion import unplaced_parts
 
     T = np.asarray(T_new_old, np.float64)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError(f"camera correction must be a finite 4x4 transform, got shape {T.shape}")
     moved = []
-    carried = trk._carry.carried
-    for i, name in enumerate(trk.names):
-        if i in trk._landmarks or carried[i] or trk._blob_moved[i] or placed_by_depth(trk, i):
-            continue
+    for i in unplaced_parts(trk, trk._landmarks):
+        name = trk.names[i]
         move_part(trk, i, T[:3, :3], T[:3, 3])
         moved.append(name)
         if poses is not None:

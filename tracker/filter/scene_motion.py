@@ -88,6 +88,16 @@ def placed_by_depth(trk: MultiObjectTracker, obj: int) -> bool:
     return res is not None and res.healthy
 
 
+def unplaced_parts(trk: MultiObjectTracker, landmarks) -> list[int]:
+    """Indices of the parts this frame's depth did not place: not a landmark (``landmarks``: indices), not carried,
+    not moving with their blob, no healthy dense refinement. They follow the camera's motion as the scene shows it
+    (:func:`follow_scene`) or as the fused odometry corrects it
+    (:func:`tracker.filter.camera_motion.follow_correction`)."""
+    carried = trk._carry.carried
+    return [i for i in range(len(trk.names))
+            if not (i in landmarks or carried[i] or trk._blob_moved[i] or placed_by_depth(trk, i))]
+
+
 def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
     """Apply the landmarks' consensus motion since the previous frame to the parts the depth did not place
     (module docstring)."""
@@ -107,10 +117,8 @@ def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
     if motion is None:
         return
     Rd, td = motion
-    carried = trk._carry.carried
-    for i, name in enumerate(trk.names):
-        if i in now or carried[i] or trk._blob_moved[i] or placed_by_depth(trk, i):
-            continue
+    for i in unplaced_parts(trk, now):
+        name = trk.names[i]
         est = trk.estimates[name]
         c = est.R @ trk.center[i] + est.t
         if np.linalg.norm(Rd @ c + td - c) < cfg.scene_motion_deadband:
