@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from tracker.hands.box_stats import box_of, dominant_component
+from tracker.hands.box_stats import box_area, box_of, dominant_component
 from tracker.hands.features import HandFeatures
 
 SPLIT_GROWTH = 1.3
@@ -46,9 +46,7 @@ def split_shared_components(feats: HandFeatures, states: list[np.ndarray], pairs
         lj, _ = dominant_component(*boxes[j], feats.cc, feats.n_comp)
         if li == 0 or li != lj:
             continue
-        c = feats.cc_box[li]
-        area = (c[2] - c[0] + 1) * (c[3] - c[1] + 1)
-        if area < SPLIT_GROWTH * max(_area(boxes[i]), _area(boxes[j])):
+        if box_area(feats.cc_box[li]) < SPLIT_GROWTH * max(box_area(boxes[i]), box_area(boxes[j])):
             continue  # no bigger than one hand's box: one hand mostly hidden behind the other, nothing to split
         if two_hands is not None and not two_hands(li):
             continue  # could be one hand: two tracks on one hand must stay duplicates (and one of them end)
@@ -83,10 +81,6 @@ def _split(feats: HandFeatures, lab: int, a: np.ndarray, b: np.ndarray) -> bool:
     feats.cc_box = boxes
     feats.cc_cut = np.append(feats.cc_cut, feats.cc_cut[lab])
     return True
-
-
-def _area(b: tuple[int, int, int, int]) -> int:
-    return (b[2] - b[0] + 1) * (b[3] - b[1] + 1)
 
 
 def two_means(points: np.ndarray, iterations: int = 10, max_points: int = 2000) -> list[np.ndarray] | None:

@@ -31,6 +31,11 @@ def box_of(x: float, y: float, w: float, h: float) -> tuple[int, int, int, int]:
     return (int(np.rint(x - w / 2.0)), int(np.rint(y - h / 2.0)), int(np.rint(x + w / 2.0)), int(np.rint(y + h / 2.0)))
 
 
+def box_area(b) -> int:
+    """Pixels of an inclusive box (u0, v0, u1, v1); 0 or less for an empty one."""
+    return (b[2] - b[0] + 1) * (b[3] - b[1] + 1)
+
+
 @nb.njit(cache=True)
 def _clip(u0, v0, u1, v1, W, H):
     return max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)

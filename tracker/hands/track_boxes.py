@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker.hands.box_stats import box_of
+from tracker.hands.box_stats import box_area, box_of
 
 
 def state_box(state: np.ndarray) -> tuple[int, int, int, int]:
@@ -30,8 +30,7 @@ def box_f_score(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> f
     iw = min(a[2], b[2]) - max(a[0], b[0]) + 1
     ih = min(a[3], b[3]) - max(a[1], b[1]) + 1
     inter = max(iw, 0) * max(ih, 0)
-    sa = (a[2] - a[0] + 1) * (a[3] - a[1] + 1)
-    sb = (b[2] - b[0] + 1) * (b[3] - b[1] + 1)
+    sa, sb = box_area(a), box_area(b)
     return 2.0 * inter / (sa + sb) if sa + sb > 0 else 0.0
 
 
@@ -39,7 +38,7 @@ def inside_fraction(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) 
     """Fraction of inclusive box a's area that lies inside inclusive box b."""
     iw = min(a[2], b[2]) - max(a[0], b[0]) + 1
     ih = min(a[3], b[3]) - max(a[1], b[1]) + 1
-    area = (a[2] - a[0] + 1) * (a[3] - a[1] + 1)
+    area = box_area(a)
     return max(iw, 0) * max(ih, 0) / area if area > 0 else 0.0
 
 

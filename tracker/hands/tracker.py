@@ -82,7 +82,7 @@ import numpy as np
 
 from tracker.hands import identity
 from tracker.hands.blob_split import split_shared_components, two_means
-from tracker.hands.box_stats import box_observation, box_of, dominant_component, mask_count
+from tracker.hands.box_stats import box_area, box_observation, box_of, dominant_component, mask_count
 from tracker.hands.features import HandFeatures, compute_features
 from tracker.hands.kalman import HandKalmanFilter
 from tracker.hands.motion_clusters import MotionClusters
@@ -547,7 +547,7 @@ class HandTracker(TrackIdentity):
         boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
         for i, tr in enumerate(self.tracks):
             b = boxes[i]
-            area = float((b[2] - b[0] + 1) * (b[3] - b[1] + 1))
+            area = float(box_area(b))
             alone = len(self.tracks) == 2 and not any(boxes_overlap(b, o) for j, o in enumerate(boxes) if j != i)
             if alone:
                 tr.area_ref = area if tr.area_ref <= 0 else 0.9 * tr.area_ref + 0.1 * area
@@ -566,7 +566,7 @@ class HandTracker(TrackIdentity):
         if tr.area_ref <= 0 or tr.centre_ref is None:
             return None
         b = state_box(tr.filt.estimate)
-        if (b[2] - b[0] + 1) * (b[3] - b[1] + 1) < REACQ_GROWTH * tr.area_ref:
+        if box_area(b) < REACQ_GROWTH * tr.area_ref:
             return None
         h, w = rgb.shape[:2]
         u0, v0, u1, v1 = max(b[0], 0), max(b[1], 0), min(b[2], w - 1), min(b[3], h - 1)
@@ -727,7 +727,7 @@ class HandTracker(TrackIdentity):
         keep = [True] * len(self.tracks)
         boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
         for i, (tr, b) in enumerate(zip(self.tracks, boxes, strict=True)):
-            full = (b[2] - b[0] + 1) * (b[3] - b[1] + 1)
+            full = box_area(b)
             iw = min(b[2], size[0] - 1) - max(b[0], 0) + 1
             ih = min(b[3], size[1] - 1) - max(b[1], 0) + 1
             inside = max(iw, 0) * max(ih, 0)
