@@ -69,14 +69,7 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
     trk._landmarks = {i: (Rd @ R, Rd @ t + td) for i, (R, t) in getattr(trk, "_landmarks", {}).items()}
     carry = getattr(trk, "_carry", None)
     if carry is not None:
-        carry.history = type(carry.history)((t, pos @ Rd.T + td) for t, pos in carry.history)
-        carry.patches = [None if pts is None else pts @ Rd.T + td for pts in carry.patches]
-        carry.last_step = carry.last_step @ Rd.T
-        carry.last_turn = carry.last_turn @ Rd.T  # a rotation vector in the camera frame turns with the camera
-        # the last frame's depth image (a carry's first registration takes the hand points from it) is in the old
-        # camera frame and cannot be moved: without it a carry that starts now takes this frame's points instead
-        if hasattr(carry, "_prev_depth"):
-            carry._prev_depth = None
+        carry.move_with_camera(Rd, td)
 
 
 def _image_shifts(trk, Rd: np.ndarray, td: np.ndarray) -> dict[int, np.ndarray]:

@@ -287,8 +287,7 @@ def reseed(trk, obj: int, det, depth: np.ndarray) -> bool:
     trk.v[sel, obj] = 0.0
     trk.estimates[trk.names[obj]] = Pose.from_rt(est.R, target)
     trk.n_reseeded += 1
-    if getattr(trk, "_carry", None) is not None:
-        trk._carry.forget(obj)  # the jump to the blob is no motion of the part (hand-carry motion test)
+    trk._carry.forget(obj)  # the jump to the blob is no motion of the part (hand-carry motion test)
     return True
 
 

@@ -99,6 +99,17 @@ class HandCarry:
         self.last_step[obj] = 0.0
         self.last_turn[obj] = 0.0
 
+    def move_with_camera(self, Rd: np.ndarray, td: np.ndarray) -> None:
+        """The camera moved: a point x of the old camera frame is ``Rd @ x + td`` in the new one. The remembered
+        positions, hand patches, last steps and turns move with it; the last frame's depth image (a carry's first
+        registration takes the hand points from it) cannot be moved and is dropped, so a carry that starts now takes
+        this frame's points instead."""
+        self.history = deque((t, pos @ Rd.T + td) for t, pos in self.history)
+        self.patches = [None if pts is None else pts @ Rd.T + td for pts in self.patches]
+        self.last_step = self.last_step @ Rd.T
+        self.last_turn = self.last_turn @ Rd.T  # a rotation vector in the camera frame turns with the camera
+        self._prev_depth = None
+
     def forget(self, obj: int) -> None:
         """Drop part ``obj``'s remembered positions (it was re-seeded: the jump is no motion of the part)."""
         for _, pos in self.history:
