@@ -25,10 +25,7 @@ def _transform(rotvec, t) -> np.ndarray:
 
 
 def test_camera_motion_moves_particles_estimates_and_velocities_rigidly():
-    src = SimulatedTable("static", seed=0, n_frames=1)
-    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
-        n_particles=20), seed=0)
-    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    src, trk = _two_cube_tracker()
     trk.v[:, :, :3] = [0.001, 0.0, 0.0]
     T = _transform([0.0, 0.05, 0.02], [0.01, -0.02, 0.005])
     before = {n: p for n, p in trk.estimates.items()}
@@ -76,6 +73,15 @@ def test_mask_keeps_static_parts_and_excludes_foreground_moving_parts_and_hands(
     assert inner.sum() > 0.8 * static.sum()  # the static parts are kept (but for the dilated border of others)
     assert mask.mean() < 0.2  # the table itself is kept
     assert ego.table_in_camera() is None
+
+
+def _two_cube_tracker(src: SimulatedTable | None = None) -> tuple[SimulatedTable, MultiObjectTracker]:
+    """The static scene's first two cubes in a 20-particle default tracker, initialised at their true poses."""
+    src = src or SimulatedTable("static", seed=0, n_frames=1)
+    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
+        n_particles=20), seed=0)
+    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    return src, trk
 
 
 def _run(odometry: str, frames: int = FRAMES, drop_depth: int | None = None):
@@ -196,10 +202,7 @@ def test_fused_odometry_applies_the_smooth_motion_instead_of_a_wrong_registratio
 def test_camera_motion_moves_the_blob_memory_with_the_image_motion_of_each_part():
     """Blob follow differences a blob's centroid between frames; the camera's share of that shift is applied by the
     camera motion already, so the remembered centroid moves by the image motion the camera gives the part's centre."""
-    src = SimulatedTable("static", seed=0, n_frames=1)
-    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
-        n_particles=20), seed=0)
-    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    src, trk = _two_cube_tracker()
     c = [trk.estimates[n].R @ trk.center[i] + trk.estimates[n].t for i, n in enumerate(trk.names)]
     uv = src.intrinsics.project(np.array(c))
     trk._follow_blobs = [(uv[0] + [3.0, -2.0], 400.0), None]
@@ -214,10 +217,7 @@ def test_camera_motion_moves_scene_motions_landmark_memory():
     """Scene motion compares this frame's landmark poses with the last frame's; with the camera's motion applied to
     the state, the remembered poses must move with it, or the camera's motion would be applied to hidden parts
     twice (once here, once as the landmarks' consensus motion)."""
-    src = SimulatedTable("static", seed=0, n_frames=1)
-    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
-        n_particles=20), seed=0)
-    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    src, trk = _two_cube_tracker()
     est = trk.estimates[trk.names[0]]
     trk._landmarks = {0: (est.R.copy(), est.t.copy())}
     T = _transform([0.0, 0.02, 0.0], [0.01, 0.0, 0.0])
@@ -233,10 +233,7 @@ def test_camera_motion_moves_the_hand_carrys_blob_memory_and_turn():
     the last frame against the hand's): the remembered centroids must move with the camera like blob follow's, or
     the camera's shift of a part left behind reads as the part following the hand (it is then carried off). The
     hand's last turn (a camera-frame rotation vector, the next frame's initial guess) turns with the camera."""
-    src = SimulatedTable("static", seed=0, n_frames=1)
-    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
-        n_particles=20), seed=0)
-    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    src, trk = _two_cube_tracker()
     c = [trk.estimates[n].R @ trk.center[i] + trk.estimates[n].t for i, n in enumerate(trk.names)]
     uv = src.intrinsics.project(np.array(c))
     trk._last_centers = {0: uv[0] + [3.0, -2.0], 1: uv[1].copy()}
@@ -254,10 +251,7 @@ def test_camera_motion_drops_the_hand_carrys_last_depth_image():
     """A carry's first registration takes the hand points from the last frame's depth image, which is in the old
     camera frame: registered to this frame they would carry the camera's motion (applied to the part already) a
     second time. The image cannot be moved, so it is dropped when the camera moves."""
-    src = SimulatedTable("static", seed=0, n_frames=1)
-    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
-        n_particles=20), seed=0)
-    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    src, trk = _two_cube_tracker()
     trk._carry._prev_depth = src.render(0).depth
     apply_camera_motion(trk, _transform([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]))
     assert trk._carry._prev_depth is None
@@ -335,9 +329,7 @@ def test_fused_correction_reaches_the_hidden_parts_only():
     ego.fused.correct = lambda *a, **k: FusedStep(tiny, 3, "parts")
     assert ego.observe({}, {}) is None and np.allclose(ego._applied, corrected.as_matrix())  # kept for later
 
-    trk = MultiObjectTracker(src.parts[:2], src.intrinsics, TrackerConfig.preset("default").with_overrides(
-        n_particles=20), seed=0)
-    trk.initialize({p.name: src.initial_poses[p.name] for p in src.parts[:2]})
+    trk = _two_cube_tracker(src)[1]
     landmark, hidden = trk.names
     before = dict(trk.estimates)
     trk._landmarks = {0: (before[landmark].R, before[landmark].t)}  # part 0 seen well this frame
