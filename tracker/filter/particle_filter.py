@@ -206,6 +206,9 @@ class MultiObjectTracker:
         self._landmarks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # scene motion: last frame's landmark poses
         self._blob_uv_target: dict[int, np.ndarray] = {}  # carried parts: image position their blob says
         self._last_time: float | None = None
+        self._quiet_memory = None  # quiet parts: last frame's blobs, estimate centres, small corrections
+        self._quiet_skips = np.zeros(k, np.int64)  # passes skipped in a row per part
+        self.n_quiet_skipped = 0  # coordinate passes skipped since initialize (diagnostics, tests)
         self._initialized = True
 
     @property

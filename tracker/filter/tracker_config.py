@@ -319,6 +319,29 @@ class TrackerConfig(BaseModel):
         0.35, ge=0.0, le=1.0, description="Share of visible model points that must find a valid depth pair for the "
         "refinement to count as healthy (else the filter's estimate is kept).",
     )
+    # --- speed settings that change results (filter/quiet_parts.py; off in the seed presets)
+    quiet_skip: bool = Field(
+        False, description="Skip the coordinate pass of a quiet part: well visible, not carried or touched, its colour "
+        "blob of about the same area and moved as its prediction says, and last frame's refinement correction small "
+        "(filter/quiet_parts.py). It keeps its noise-free prediction; the refinement holds it to the depth.",
+    )
+    quiet_max_px: float = Field(
+        1.5, ge=0.0, description="Largest difference (pixels) between the blob centroid's image motion and the "
+        "prediction's for a quiet part.",
+    )
+    quiet_max_area_change: float = Field(
+        0.1, ge=0.0, description="Largest relative change of the blob's area between two frames for a quiet part.",
+    )
+    quiet_max_correction_m: float = Field(
+        0.002, ge=0.0, description="Largest last-frame refinement correction (m, at the part's centre) of a quiet "
+        "part.",
+    )
+    quiet_max_correction_deg: float = Field(
+        2.0, ge=0.0, description="Largest last-frame refinement rotation correction (degrees) of a quiet part.",
+    )
+    quiet_max_skips: int = Field(
+        3, ge=0, description="Passes a quiet part may skip in a row; the next one runs (its particles re-spread).",
+    )
     reacquire: bool = Field(
         True, description="Re-acquire a part (several refinements from rotations around its estimate, the best "
         "supported by the depth wins) when it is lost, right after a hand releases it and when it reappears; needs "
@@ -495,5 +518,6 @@ PRESETS["default"] = {
     "blob_follow": True,
     "scene_motion": True,
     "carry_revealed_fraction": 0.5,
+    "quiet_skip": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numba as nb
 import numpy as np
 
-from tracker.filter import hidden_parts, predict, render
+from tracker.filter import hidden_parts, predict, quiet_parts, render
 from tracker.filter.colour_input import color_masks
 from tracker.filter.connection_particles import apply_connections
 from tracker.filter.depth_likelihood import (
@@ -105,40 +105,29 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     if cfg.hint_min_visibility > 0 and cfg.use_color_input and detections:
         forceable &= detected  # and a reliable colour blob now: the hand may have covered the part this frame
     penalties = PenaltyTerms(trk, plane)
-    for i in range(k):
-        old_p, old_R = p_cur[:, i].copy(), R_cur[:, i].copy()
-        p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i],
-                                                              noise_scale[i])
-        changed_objs = {i}
-        forced = None
-        if trk._hints and cfg.use_connection_particles:
-            before_p = p_cur.copy()
-            before_R = R_cur.copy()
-            forced = apply_connections(p_cur, R_cur, trk._hints, forceable)
-            forced[:, i] = False
-            for o in range(k):
-                if forced[:, o].any():
-                    changed_objs.add(o)
-        # pixels whose depth may change: old and new projections of every changed part
-        rect = render.bbox(trk, i, old_p, old_R)
-        rect = render.union(rect, render.bbox(trk, i, p_cur[:, i], R_cur[:, i]))
-        for o in changed_objs - {i}:
-            sel = forced[:, o]
-            rect = render.union(rect, render.bbox(trk, o, before_p[sel, o], before_R[sel, o]))
-            rect = render.union(rect, render.bbox(trk, o, p_cur[sel, o], R_cur[sel, o]))
-        subset = np.nonzero((pu >= rect[0]) & (pu <= rect[1]) & (pv >= rect[2]) & (pv <= rect[3]))[0]
-        ta = time.perf_counter()
-        render.render(trk, i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, subset, D, loc, dirty)
-        for o in changed_objs - {i}:
-            render.render(trk, o, p_cur, R_cur, np.nonzero(forced[:, o])[0].astype(np.int64), rays, pu, pv, gi, gj,
-                         subset, D, loc, dirty)
-        tb = time.perf_counter()
-        update_log_likelihood(D, loc, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
-                              lam, tail, use_occ, dirty, alpha, cmask, cvalid, occ_cap)
-        tc = time.perf_counter()
-        ell_tot = (ell + penalties.total(p_cur, R_cur, None if i == 0 else changed_objs)
+    skip = quiet_parts.quiet_parts(trk, ctx, detections, detected, pred)
+    first = True
+    for i in range(k + 1):
+        if i == k:  # every pass skipped: the weights still take the likelihood of the prediction (and penalties)
+            if not first:
+                break
+            i, changed_objs = 0, None
+        elif skip[i]:
+            continue
+        else:
+            changed_objs = {i}
+        if changed_objs is None:
+            tb = tc = time.perf_counter()
+            ta = tb
+        else:
+            ta, tb, tc, changed_objs = _pass_render_likelihood(
+                trk, i, p_prev, R_prev, v_prev, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu, pv, gi, gj,
+                D, loc, dirty, all_particles, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
+                alpha, cmask, cvalid, occ_cap)
+        ell_tot = (ell + penalties.total(p_cur, R_cur, None if first else changed_objs)
                    + hidden_parts.log_rest_prior(trk, p_cur)
                    + hidden_parts.log_support_prior(trk, p_cur, R_cur, support_plane))
+        first = False
         td = time.perf_counter()
         log_w += ell_tot - ell_prev
         ell_prev = ell_tot
@@ -162,6 +151,47 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
 
     ctx.timings.update(render=t_render * 1e3, likelihood=t_lik * 1e3, penalties=t_pen * 1e3, resample=t_res * 1e3)
     return PassResult(p_cur, R_cur, v_cur, log_w, ell_prev, pix, Q, F, o_hat, anc, n_resampled)
+
+
+def _pass_render_likelihood(trk, i, p_prev, R_prev, v_prev, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu,
+                            pv, gi, gj, D, loc, dirty, all_particles, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell,
+                            beta, lam, tail, use_occ, alpha, cmask, cvalid, occ_cap):
+    """Part ``i``'s pass up to its likelihood: noisy propagation, connection particles, re-render of what changed and
+    the likelihood update on those pixels (arrays updated in place). Returns the pass's clock readings before the
+    render, before and after the likelihood, and the set of parts it moved."""
+    cfg = trk.config
+    k = len(trk.parts)
+    old_p, old_R = p_cur[:, i].copy(), R_cur[:, i].copy()
+    p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i],
+                                                          noise_scale[i])
+    changed_objs = {i}
+    forced = None
+    if trk._hints and cfg.use_connection_particles:
+        before_p = p_cur.copy()
+        before_R = R_cur.copy()
+        forced = apply_connections(p_cur, R_cur, trk._hints, forceable)
+        forced[:, i] = False
+        for o in range(k):
+            if forced[:, o].any():
+                changed_objs.add(o)
+    # pixels whose depth may change: old and new projections of every changed part
+    rect = render.bbox(trk, i, old_p, old_R)
+    rect = render.union(rect, render.bbox(trk, i, p_cur[:, i], R_cur[:, i]))
+    for o in changed_objs - {i}:
+        sel = forced[:, o]
+        rect = render.union(rect, render.bbox(trk, o, before_p[sel, o], before_R[sel, o]))
+        rect = render.union(rect, render.bbox(trk, o, p_cur[sel, o], R_cur[sel, o]))
+    subset = np.nonzero((pu >= rect[0]) & (pu <= rect[1]) & (pv >= rect[2]) & (pv <= rect[3]))[0]
+    ta = time.perf_counter()
+    render.render(trk, i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, subset, D, loc, dirty)
+    for o in changed_objs - {i}:
+        render.render(trk, o, p_cur, R_cur, np.nonzero(forced[:, o])[0].astype(np.int64), rays, pu, pv, gi, gj,
+                     subset, D, loc, dirty)
+    tb = time.perf_counter()
+    update_log_likelihood(D, loc, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
+                          lam, tail, use_occ, dirty, alpha, cmask, cvalid, occ_cap)
+    tc = time.perf_counter()
+    return ta, tb, tc, changed_objs
 
 
 def log_penalties(trk, p, R, plane) -> np.ndarray:

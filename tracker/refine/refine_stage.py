@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tracker.filter import quiet_parts
 from tracker.filter.colour_input import blob_mask, blob_target
 from tracker.filter.frame_context import table_normal_offset
 from tracker.filter.penalties import intersection_flags
@@ -160,6 +161,7 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
                 corrections[i] = trk._refiner.correction(poses[i][0], poses[i][1], res)
                 trk.v[:, i] = 0.0
                 trk._loss.reset(i)
+    applied = [None] * k
     for i, corr in enumerate(corrections):
         if corr is None:
             continue
@@ -171,6 +173,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         state.poses[name] = ref
         state.particles[name] = trk.p[:, i].astype(np.float32)
         trk.estimates[name] = ref
+        applied[i] = corr
+    quiet_parts.remember(trk, detections, state.poses, applied)
 
 
 def reuse_icp(trk: MultiObjectTracker, obj: int, est: Pose, det) -> Pose | None:

@@ -1,0 +1,103 @@
+"""Quiet parts: which parts may skip their coordinate pass this frame (a speed setting, not in the seed).
+
+A part that rests in full view costs as much in the coordinate passes (noise, render of all N particles,
+likelihood, resampling) as one that moves, yet the dense-depth refinement after the filter already holds it to the
+depth. A part is *quiet* in a frame when all of these hold:
+
+* last frame's refinement of it was accepted and its correction was small (``quiet_max_correction_m`` at the
+  part's centre, ``quiet_max_correction_deg``): the filter's prediction was already where the depth put it;
+* it has a reliable colour blob now and had a confident one last frame, of about the same area
+  (``quiet_max_area_change``), whose centroid moved in the image by what the prediction says the part moved, within
+  ``quiet_max_px`` pixels (a hand that takes or covers it changes the blob; a swaying camera moves blob and
+  prediction together under the constant-velocity model);
+* it is well visible (``visible_fraction_full``), not carried, not touched by a tracked hand, not just released, not
+  followed by its blob (:mod:`tracker.filter.blob_follow`) and its blob lies on its estimate;
+* it has skipped fewer than ``quiet_max_skips`` passes in a row (a full pass then re-spreads its particles).
+
+A quiet part keeps its noise-free prediction (its particles as they are, moved by the motion model) and the
+likelihood of that prediction, which the first full render of the frame has already evaluated; its pass is skipped.
+Pixels: full-resolution image coordinates; positions camera frame, metres.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tracker.filter.blob_follow import confident_blob
+from tracker.filter.resampling import normalize_log_weights
+
+if TYPE_CHECKING:
+    from tracker.filter.frame_context import FrameContext
+    from tracker.filter.particle_filter import MultiObjectTracker
+
+
+def _centre_px(trk: MultiObjectTracker, i: int, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Image position (2,) of part ``i``'s body centre at pose ``(R, t)``."""
+    c = R @ trk.center[i] + t
+    intr = trk.intrinsics
+    z = max(float(c[2]), 1e-3)
+    return np.array([intr.fx * c[0] / z + intr.cx, intr.fy * c[1] / z + intr.cy])
+
+
+def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected: np.ndarray,
+                pred: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """(K,) bool: the parts whose coordinate pass is skipped this frame (module docstring). ``pred``: the noise-free
+    prediction (p (N, K, 3), R (N, K, 3, 3), v) of this frame. All False when ``quiet_skip`` is off."""
+    cfg = trk.config
+    k = len(trk.parts)
+    quiet = np.zeros(k, bool)
+    memory = trk._quiet_memory
+    trk._quiet_memory = None  # one frame old at most: set again after this frame's refinement
+    if not cfg.quiet_skip or memory is None or not detections:
+        trk._quiet_skips[:] = 0
+        return quiet
+    last_blob, last_px, small = memory
+    w = normalize_log_weights(trk.log_w)
+    carried = trk._carry.carried
+    for i, name in enumerate(trk.names):
+        if not (small[i] and detected[i] and last_blob[i] is not None) or trk._quiet_skips[i] >= cfg.quiet_max_skips:
+            continue
+        if (carried[i] or trk._was_carried[i] or name in ctx.touched or trk._blob_moved[i] or trk._blob_off[i]
+                or trk.visibility[i] < cfg.visible_fraction_full):
+            continue
+        blob = confident_blob(trk, detections.get(name))
+        if blob is None or abs(blob[1] / last_blob[i][1] - 1.0) > cfg.quiet_max_area_change:
+            continue
+        # the prediction's image motion of the part's centre (weighted mean of the particles' centres)
+        c_pred = np.einsum("n,nij,j->i", w, pred[1][:, i], trk.center[i]) + w @ pred[0][:, i]
+        intr = trk.intrinsics
+        z = max(float(c_pred[2]), 1e-3)
+        px_pred = np.array([intr.fx * c_pred[0] / z + intr.cx, intr.fy * c_pred[1] / z + intr.cy])
+        if np.linalg.norm((blob[0] - last_blob[i][0]) - (px_pred - last_px[i])) > cfg.quiet_max_px:
+            continue
+        quiet[i] = True
+    trk._quiet_skips = np.where(quiet, trk._quiet_skips + 1, 0)
+    trk.n_quiet_skipped += int(quiet.sum())
+    return quiet
+
+
+def remember(trk: MultiObjectTracker, detections, poses: dict, corrections: list) -> None:
+    """After the refinement: keep what :func:`quiet_parts` compares against next frame — each part's confident blob,
+    the image position of its final estimate's centre and whether its accepted correction was small
+    (``corrections[k]``: the refinement's :class:`~tracker.refine.part_refiner.Correction` or None)."""
+    cfg = trk.config
+    if not cfg.quiet_skip:
+        return
+    k = len(trk.parts)
+    blobs = [confident_blob(trk, detections.get(n)) if detections else None for n in trk.names]
+    px = np.zeros((k, 2))
+    small = np.zeros(k, bool)
+    max_rad = np.radians(cfg.quiet_max_correction_deg)
+    for i, name in enumerate(trk.names):
+        pose = poses[name]
+        px[i] = _centre_px(trk, i, pose.R, pose.t)
+        corr = corrections[i]
+        if corr is None:
+            continue
+        c_new = corr.R @ trk.center[i] + corr.t
+        c_old = corr.Rd.T @ (c_new - corr.td)
+        angle = float(np.arccos(np.clip((np.trace(corr.Rd) - 1.0) / 2.0, -1.0, 1.0)))
+        small[i] = np.linalg.norm(c_new - c_old) <= cfg.quiet_max_correction_m and angle <= max_rad
+    trk._quiet_memory = (blobs, px, small)
