@@ -241,8 +241,12 @@ class Pose:
 
     @property
     def R(self) -> np.ndarray:
-        """3×3 rotation matrix."""
-        return quat_to_matrix(self.q)
+        """3×3 rotation matrix (a fresh array each time; computed once per pose, the pose being immutable)."""
+        cached = self.__dict__.get("_R")
+        if cached is None:
+            cached = quat_to_matrix(self.q)
+            object.__setattr__(self, "_R", cached)
+        return cached.copy()
 
     def as_matrix(self) -> np.ndarray:
         """4×4 homogeneous matrix."""

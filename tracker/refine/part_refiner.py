@@ -63,23 +63,38 @@ class PartRefiner:
         self.last: list[RefineResult | None] = [None] * len(shapes)
         self._packed = pack_shapes(shapes)  # the shapes as the numba outline renderer takes them
 
-    def _rect(self, poses: list) -> tuple[int, int, int, int] | None:
+    def _bounds(self, obj: int, pose: tuple) -> tuple[float, float, float, float] | None:
+        """Image bounds ``(u_min, v_min, u_max, v_max)`` of part ``obj``'s box corners at ``pose``; None when a corner
+        lies closer than 2 cm to the camera plane."""
         intr = self.intrinsics
-        lo = np.array([np.inf, np.inf])
-        hi = -lo
-        for corners, pose in zip(self.corners, poses, strict=True):
+        pts = self.corners[obj] @ pose[0].T + pose[1]
+        z = pts[:, 2]
+        if (z < 0.02).any():
+            return None
+        u = intr.fx * pts[:, 0] / z + intr.cx
+        v = intr.fy * pts[:, 1] / z + intr.cy
+        return float(u.min()), float(v.min()), float(u.max()), float(v.max())
+
+    def _rect(self, poses: list, bounds: list | None = None) -> tuple[int, int, int, int] | None:
+        """Pixel rectangle ``(u0, v0, u1, v1)`` (end exclusive, one pixel of margin, two at the far end) covering
+        the parts with a pose; the whole image when one is too near the camera; None when none projects or it lies
+        off the image. ``bounds``: :meth:`_bounds` of every part at ``poses`` when already computed."""
+        intr = self.intrinsics
+        lo0 = lo1 = np.inf
+        hi0 = hi1 = -np.inf
+        for obj, pose in enumerate(poses):
             if pose is None:
                 continue
-            pts = corners @ pose[0].T + pose[1]
-            if np.any(pts[:, 2] < 0.02):
+            b = self._bounds(obj, pose) if bounds is None else bounds[obj]
+            if b is None:
                 return (0, 0, intr.width, intr.height)
-            uv = intr.project(pts)
-            lo = np.minimum(lo, uv.min(axis=0))
-            hi = np.maximum(hi, uv.max(axis=0))
-        if not np.all(np.isfinite(lo)):
+            if b[0] != b[0] or b[1] != b[1] or b[2] != b[2] or b[3] != b[3]:
+                return None  # not a number: no rectangle
+            lo0, lo1, hi0, hi1 = min(lo0, b[0]), min(lo1, b[1]), max(hi0, b[2]), max(hi1, b[3])
+        if not (np.isfinite(lo0) and np.isfinite(lo1)):
             return None
-        u0, v0 = max(int(np.floor(lo[0])) - 1, 0), max(int(np.floor(lo[1])) - 1, 0)
-        u1, v1 = min(int(np.ceil(hi[0])) + 2, intr.width), min(int(np.ceil(hi[1])) + 2, intr.height)
+        u0, v0 = max(int(np.floor(lo0)) - 1, 0), max(int(np.floor(lo1)) - 1, 0)
+        u1, v1 = min(int(np.ceil(hi0)) + 2, intr.width), min(int(np.ceil(hi1)) + 2, intr.height)
         if u0 >= u1 or v0 >= v1:
             return None
         return (u0, v0, u1, v1)
@@ -101,16 +116,18 @@ class PartRefiner:
         return refine_pose(depth, self.intrinsics, (pts - t0) @ R0, nrm @ R0, R0, t0, self.centers[obj],
                            self.settings, allowed, region)
 
-    def _region(self, poses: list, obj: int, outline: np.ndarray | None, frame_depth: np.ndarray):
+    def _region(self, poses: list, obj: int, outline: np.ndarray | None, frame_depth: np.ndarray,
+                bounds: list | None = None):
         """Silhouette term of part ``obj`` (None without an outline or with the term off). Its outline is taken
         from a render at full resolution over the part's own rectangle (every part drawn, so that an outline
         against a part in front is not used): at the true pose the rendered and the detected blob then cover the
-        same pixels and the residuals vanish exactly."""
+        same pixels and the residuals vanish exactly. ``bounds``: :meth:`_bounds` of the parts at ``poses`` when
+        already computed."""
         if self.region is None or self.region.weight <= 0.0 or outline is None or poses[obj] is None:
             return None
         own = [None] * len(poses)
         own[obj] = poses[obj]
-        rect = self._rect(own)
+        rect = self._rect(own, bounds)
         if rect is None:
             return None
         R0, t0 = (np.asarray(a, np.float64) for a in poses[obj])
@@ -149,7 +166,8 @@ class PartRefiner:
         k = len(self.shapes)
         out: list[Correction | None] = [None] * k
         self.last = [None] * k
-        rect = self._rect(poses)
+        bounds = [None if pose is None else self._bounds(i, pose) for i, pose in enumerate(poses)]
+        rect = self._rect(poses, bounds)
         if rect is None:
             return out
         render = render_surfaces(self.intrinsics, self.shapes, poses, rect, self.stride)
@@ -162,7 +180,7 @@ class PartRefiner:
             mask = None if allowed is None else allowed[i]
             res = refine_pose(depth, self.intrinsics, body, nbody, R0, t0, self.centers[i], self.settings,
                               mask, self._region(poses, i, None if outlines is None else outlines[i],
-                                                 depth if frame_depth is None else frame_depth))
+                                                 depth if frame_depth is None else frame_depth, bounds))
             self.last[i] = res
             if not res.healthy:
                 continue
