@@ -1,0 +1,89 @@
+"""Quiet parts (filter/quiet_parts.py): a resting, well-seen part skips its coordinate pass; one whose blob moves
+otherwise than its prediction, or changes its area, does not."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tracker.filter.tracker_config import TrackerConfig
+
+
+def _session(quiet: bool, frames: int = 25):
+    """The simulator's ``static`` scene (five cubes at rest, fixed camera, no hand), tracked ``frames`` frames as
+    ``assembly-agent track`` tracks it. Returns the session, the last frame's detections and the per-frame worst
+    translation error (m)."""
+    from app.commands.track import TrackSession
+    from tracker.sources.simulator import SimulatedTable
+
+    src = SimulatedTable("static", seed=3, realtime=False, n_frames=frames)
+    cfg = TrackerConfig.preset("default").with_overrides(quiet_skip=quiet)
+    ts = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=0)
+    errors = []
+    dets = None
+    for i in range(frames):
+        frame = src.render(i)
+        dets = ts.detector.detect(frame.color)
+        state, _ = ts.step(frame)
+        truth = frame.meta["groundtruth"]["poses"]
+        errors.append(max(float(np.linalg.norm(state.poses[n].t - truth[n].t)) for n in state.poses))
+    return ts, dets, np.array(errors)
+
+
+@pytest.fixture(scope="module")
+def quiet_run():
+    return _session(True)
+
+
+def test_resting_parts_skip_passes_and_stay_as_precise(quiet_run):
+    ts, _, err_quiet = quiet_run
+    trk = ts.tracker
+    k = len(trk.parts)
+    assert trk.n_quiet_skipped > 0.3 * k * 25  # most passes of five resting cubes are skipped
+    assert trk.n_quiet_skipped <= 0.75 * k * 25  # at most 3 in a row: every 4th pass runs
+    _, _, err_full = _session(False)
+    assert err_quiet[5:].max() < 0.004
+    assert np.median(err_quiet[5:]) <= np.median(err_full[5:]) + 0.0005
+
+
+def test_off_skips_nothing():
+    ts, _, _ = _session(False, frames=6)
+    assert ts.tracker.n_quiet_skipped == 0
+
+
+def test_a_blob_that_moves_or_changes_its_area_is_not_quiet(quiet_run):
+    from tracker.filter import predict, quiet_parts
+    from tracker.filter.frame_context import FrameContext
+
+    ts, dets, _ = quiet_run
+    trk = ts.tracker
+    memory = trk._quiet_memory
+    assert memory is not None
+
+    def decide(detections):
+        trk._quiet_memory = memory
+        trk._quiet_skips[:] = 0
+        ctx = FrameContext(frame=None, table=None, table_plane=None, t0=0.0)
+        pred = predict.deterministic(trk, np.zeros((len(trk.parts), 3)))
+        return quiet_parts.quiet_parts(trk, ctx, detections, np.ones(len(trk.parts), bool), pred)
+
+    same = decide(dets)
+    assert same.sum() >= 3  # the last frame's own blobs: resting parts are quiet
+    name = next(n for i, n in enumerate(trk.names) if same[i])
+    i = trk.names.index(name)
+    d = dets[name]
+    shifted = dict(dets)
+    shifted[name] = dataclasses.replace(d, center=(d.center[0] + 4.0, d.center[1]))
+    moved = decide(shifted)
+    assert not moved[i]
+    assert moved.sum() == same.sum() - 1  # the others stay quiet
+    grown = dict(dets)
+    grown[name] = dataclasses.replace(d, area=d.area * 1.3)
+    assert not decide(grown)[i]
+    trk._quiet_skips[:] = trk.config.quiet_max_skips
+    trk._quiet_memory = memory
+    ctx = FrameContext(frame=None, table=None, table_plane=None, t0=0.0)
+    pred = predict.deterministic(trk, np.zeros((len(trk.parts), 3)))
+    assert not quiet_parts.quiet_parts(trk, ctx, dets, np.ones(len(trk.parts), bool), pred).any()  # a pass is due
