@@ -23,6 +23,7 @@ numba's compilation or cache loading). Issue 11's targets: 5 cubes >= 30 fps inc
 Writes benchmarks/results/tracker_speed.json and .md. Usage::
 
     .venv/bin/python benchmarks/bench_tracker_speed.py [--frames 150] [--sessions 1,15] [--no-write]
+        [--pair quiet_skip=false]
 """
 
 from __future__ import annotations
@@ -61,8 +62,27 @@ def _stats(values: list[float]) -> dict:
             "p95": round(float(np.percentile(v, 95)), 2)}
 
 
-def run_session(session: int, seed: int, frames: int) -> dict:
-    """Render, record, read back and track one session of the held-out design; its per-stage CPU times."""
+def parse_overrides(text: str) -> dict:
+    """``KEY=VALUE[,KEY=VALUE…]`` → TrackerConfig overrides (values read as JSON, else kept as strings)."""
+    import json
+
+    out = {}
+    for item in (s for s in text.split(",") if s.strip()):
+        if "=" not in item:
+            raise ValueError(f"--pair expects KEY=VALUE pairs, got {item!r}")
+        key, value = (x.strip() for x in item.split("=", 1))
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def run_session(session: int, seed: int, frames: int, pair: dict | None = None) -> dict:
+    """Render, record, read back and track one session of the held-out design; its per-stage CPU times. ``pair``:
+    TrackerConfig overrides of a second tracker run on the same frames in the same process (the two trackers take
+    turns first on each frame), whose tracker CPU time is reported beside the default's (``tracker_pair``) with the
+    per-frame difference (``pair_diff``: default minus paired, mean and its standard error)."""
     import cv2
 
     from app.commands.track import TrackSession
@@ -85,27 +105,44 @@ def run_session(session: int, seed: int, frames: int) -> dict:
                 writer.write(frame, frame.meta.get("groundtruth"))
         rec = RecordingSource(rec_dir)
         ours = TrackSession(rec.parts, rec.intrinsics, rec.initial_poses, cfg, seed=0)
+        other = None
+        if pair:
+            other = TrackSession(rec.parts, rec.intrinsics, rec.initial_poses, cfg.with_overrides(**pair), seed=0)
+            cpu["tracker_pair"] = []
         icp = ICPTracker(rec.parts, rec.intrinsics)
         icp.initialize(rec.initial_poses)
         for i in range(len(rec)):
             c0 = time.thread_time()
             frame = rec.read(i)
             c1 = time.thread_time()
+            if other is not None and i % 2:
+                other.step(frame)
+            c1b = time.thread_time()
             ours.step(frame)
             c2 = time.thread_time()
+            if other is not None:
+                if i % 2 == 0:
+                    other.step(frame)
+                cpu["tracker_pair"].append(1e3 * other.last_cpu)
+            c2b = time.thread_time()
             plane = (ours.table.normal, ours.table.offset) if ours.table is not None else None
             icp.step(frame.depth, plane)
             c3 = time.thread_time()
             cpu["decode"].append(1e3 * (c1 - c0))
             cpu["tracker"].append(1e3 * ours.last_cpu)
-            cpu["perception"].append(1e3 * (c2 - c1 - ours.last_cpu))
-            cpu["pipeline"].append(1e3 * (c2 - c0))
-            cpu["icp"].append(1e3 * (c3 - c2))
+            cpu["perception"].append(1e3 * (c2 - c1b - ours.last_cpu))
+            cpu["pipeline"].append(1e3 * (c1 - c0 + c2 - c1b))
+            cpu["icp"].append(1e3 * (c3 - c2b))
     res = {"session": session, "scenario": scenario, "motion": motion, "occlusion": occlusion, "speed": speed,
            "seed": seed, "frames": len(cpu["tracker"]), "parts": len(rec.parts), "n_particles": cfg.n_particles,
            "icp_backend": icp.backend}
     for k, v in cpu.items():
         res[k] = _stats(v)
+    if other is not None:
+        d = (np.asarray(cpu["tracker"][3:]) - np.asarray(cpu["tracker_pair"][3:]))
+        res["pair"] = pair
+        res["pair_diff"] = {"mean": round(float(d.mean()), 2),
+                            "stderr": round(float(d.std(ddof=1) / np.sqrt(max(d.size, 1))), 2)}
     res["fps_pipeline"] = round(1000.0 / res["pipeline"]["median"], 1)
     res["ratio_tracker_icp"] = round(res["tracker"]["median"] / res["icp"]["median"], 2)
     return res
@@ -142,6 +179,17 @@ def markdown(res: dict) -> str:
                                                                               "pipeline"))
         lines.append(f"| {s['session']} | {s['scenario']} | {s['motion']} | {s['seed']} | {s['parts']} | {cells} | "
                      f"{s['fps_pipeline']:.1f} | {s['icp']['median']:.1f} | {s['ratio_tracker_icp']:.2f} |")
+    paired = [s for s in res["sessions"] if "pair" in s]
+    if paired:
+        lines += ["", "Paired in the same run (a second tracker on the same frames, the two taking turns first): "
+                  "tracker CPU ms, median (mean), and the mean per-frame difference default − paired ± its standard "
+                  "error.", ""]
+        names = ", ".join(f"`{k}={v}`" for k, v in paired[0]["pair"].items())
+        lines += [f"| # | default | paired ({names}) | difference |", "|---|---|---|---|"]
+        for s in paired:
+            lines.append(f"| {s['session']} | {s['tracker']['median']:.1f} ({s['tracker']['mean']:.1f}) | "
+                         f"{s['tracker_pair']['median']:.1f} ({s['tracker_pair']['mean']:.1f}) | "
+                         f"{s['pair_diff']['mean']:+.1f} ± {s['pair_diff']['stderr']:.1f} |")
     lines += ["", "Targets (issue 11): 5 cubes >= 30 fps including decoding and perception; 7 cubes <= 15 ms tracker "
               "time per frame."]
     for s in res["sessions"]:
@@ -162,6 +210,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=150, help="frames per session (default 150)")
     ap.add_argument("--seed-base", type=int, default=100, help="session k gets seed base + k (default 100)")
     ap.add_argument("--note", default="", help="a sentence added to the report")
+    ap.add_argument("--pair", default="", help="KEY=VALUE[,KEY=VALUE] TrackerConfig overrides of a second tracker "
+                    "run on the same frames in the same process (paired comparison, e.g. quiet_skip=false)")
     ap.add_argument("--no-write", action="store_true", help="print only; do not write benchmarks/results")
     ap.add_argument("--rewrite", action="store_true", help="rebuild the .md from the .json and exit")
     args = ap.parse_args(argv)
@@ -174,7 +224,7 @@ def main(argv=None) -> int:
     res = {"machine": machine_info(), "commit": git_commit(), "frames": args.frames, "note": args.note,
            "sessions": []}
     for k, seed in zip(sessions, seeds, strict=True):
-        s = run_session(k, seed, args.frames)
+        s = run_session(k, seed, args.frames, parse_overrides(args.pair) if args.pair else None)
         res["sessions"].append(s)
         print(f"session {k} ({s['scenario']}, {s['parts']} parts, seed {seed}): "
               + ", ".join(f"{st} {s[st]['median']:.1f} ms" for st in STAGES)
