@@ -346,3 +346,27 @@ def test_a_lost_hand_comes_back_out_of_the_other_hands_skin_region():
         ests = {e.id: e.box for e in tr.process(img)}
     assert set(ests) == {a, b}  # B's track came back with its id, out of the joint region
     assert dice(ests[a], box_a) > 0.7 and dice(ests[b], box_b) > 0.7
+
+
+def test_a_collapsed_track_restarts_on_its_hand_when_it_comes_out_from_under_the_arm():
+    """Hand A goes under B's sleeve (frames 10–27): its track shrinks onto the last sliver of skin beside the sleeve.
+    With ``collapse_reacquire`` it restarts, with its id, on A's skin as soon as that comes out on the far side and
+    has moved for n_init frames; without it the track sits on nothing until it ends, then comes back later."""
+    def run(collapse: bool) -> dict[int, float]:
+        tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0, collapse_reacquire=collapse))
+        tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE))
+        img, box_a = _under_the_arm(0)
+        tr.process(img)
+        a = tr.start_track(box_a)
+        tr.start_track([155, 95, 185, 125])
+        f = {}
+        for t in range(1, 36):
+            img, box_a = _under_the_arm(t)
+            ests = {e.id: e.box for e in tr.process(img)}
+            f[t] = dice(ests[a], box_a) if a in ests else 0.0
+        return f
+
+    on, off = run(True), run(False)
+    assert min(on[t] for t in range(25, 36)) > 0.75  # back on its hand from frame 25 on, id kept (no swap to B)
+    assert max(off[t] for t in range(20, 27)) < 0.2  # without it: on a sliver or lost until frame 28
+    assert min(off[t] for t in range(30, 36)) > 0.75  # ... then re-acquired as a lost track

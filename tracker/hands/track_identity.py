@@ -139,7 +139,8 @@ class TrackIdentity:
         for i in range(n):
             for j in range(i + 1, n):
                 a, b = self.tracks[i], self.tracks[j]
-                if not (isolated[i] and isolated[j] and a.app is not None and b.app is not None):
+                held = a.hold_id or b.hold_id  # a track restarted beside what hid its hand (HandTracker)
+                if not (isolated[i] and isolated[j] and a.app is not None and b.app is not None) or held:
                     a.swap.pop(b.id, None)
                     continue
                 gain = sim(a.app, obs[j]) + sim(b.app, obs[i]) - sim(a.app, obs[i]) - sim(b.app, obs[j])
@@ -163,6 +164,8 @@ class TrackIdentity:
                     tr.app, lo.app = lo.app, tr.app
                     tr.swap = {}
                     break
+        for tr in self.tracks:
+            tr.hold_id = max(tr.hold_id - 1, 0)
         for i, tr in enumerate(self.tracks):
             settled = tr.since_merge >= SETTLE and not tr.merged and not self.lost
             if isolated[i] and settled and tr.score >= 0.5 and not any(v > 0 for v in tr.swap.values()):

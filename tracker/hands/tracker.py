@@ -98,6 +98,7 @@ from tracker.hands.track_boxes import (
 from tracker.hands.track_identity import (
     APART_F,
     ESTABLISHED,
+    SETTLE,
     TrackIdentity,
 )
 
@@ -128,6 +129,11 @@ REACQ_MIN_SHARE = 0.3
 """Share of the component's pixels each part of its 2-means split must hold to give a lost track its hand back."""
 RESEED_HAND_M = 0.25
 """Longest side (m) of a colour component that can be one hand (fingers spread) for _reseed."""
+COLLAPSE_FRAC = 0.25
+"""Share of the most colour pixels its box held over the last COLLAPSE_WINDOW frames below which a track's hand has
+gone out of sight (collapsed onto a speck, e.g. the hand went under the other arm)."""
+COLLAPSE_WINDOW = 15
+"""Frames of colour-pixel counts a track remembers for the collapse test."""
 
 
 @dataclass(frozen=True)
@@ -171,6 +177,7 @@ class HandTrackerConfig:
     split_blobs: bool = False
     coast: bool = False
     merge_reacquire: bool = True
+    collapse_reacquire: bool = False
     ac_hat: float = 0.55
     am_hat: float = 0.45
 
@@ -218,6 +225,9 @@ class _Track:
     hist: deque = field(default_factory=lambda: deque(maxlen=COAST_HISTORY))
     area_ref: float = 0.0
     centre_ref: np.ndarray | None = None
+    skin_hist: deque = field(default_factory=lambda: deque(maxlen=COLLAPSE_WINDOW))
+    collapsed: bool = False
+    hold_id: int = 0
 
 
 @dataclass
@@ -417,10 +427,15 @@ class HandTracker(TrackIdentity):
         self.lost = [lo for lo in self.lost if lo.frames <= self.config.keep_lost]
         new_ok = self.config.auto_init and len(self.tracks) + len(self.lost) < self.config.max_tracks
         pair = self._shared_pair() if self.config.reacquire and len(self.tracks) > 1 else None
-        if new_ok or self.lost or pair is not None:
-            new = self._auto_init(small, depth, reacquire=bool(self.lost) or pair is not None)
+        collapsed = [tr for tr in self.tracks if tr.collapsed] if self.config.collapse_reacquire else []
+        if new_ok or self.lost or pair is not None or collapsed:
+            new = self._auto_init(small, depth, reacquire=bool(self.lost) or pair is not None or bool(collapsed),
+                                  ignore=collapsed)  # fmt: skip
             if new is not None:
-                if self.lost:  # a lost track comes back with its id (see _pick_lost)
+                if collapsed and not self.lost:  # a collapsed track's hand came back out of sight: it restarts there
+                    moved = self._restart_collapsed(collapsed, new, small)
+                    out = [e for e in out if e.id != moved]
+                elif self.lost:  # a lost track comes back with its id (see _pick_lost)
                     lo = self.lost.pop(self._pick_lost(new, small))
                     self._start(new, lo.id)
                     self.tracks[-1].app = lo.app
@@ -508,6 +523,7 @@ class HandTracker(TrackIdentity):
         if cfg.method == "pf" and cfg.reseed:
             self._reseed(feats, size)
         ests = [self._estimate(tr, size, feats) for tr in self.tracks]
+        self._update_collapse(feats, size)
         self._update_size_refs()
         keep = self._terminate(size)
         self._end([not k for k in keep])
@@ -539,6 +555,36 @@ class HandTracker(TrackIdentity):
                 return max(b[2] - b[0], b[3] - b[1]) > scale * SPLIT_HAND_M / self._component_depth(feats, lab)
 
             split_shared_components(feats, [tr.filt.estimate for tr in self.tracks], pairs, two_hands)
+
+    def _update_collapse(self, feats: HandFeatures, size: tuple[int, int]) -> None:
+        """Product addition (``collapse_reacquire``): flag the tracks whose hand has gone out of sight. A track is
+        collapsed when the colour pixels in its estimate's box fall below COLLAPSE_FRAC of the most its box held over
+        its last COLLAPSE_WINDOW frames (at least A_min of them; the counts of collapsed frames are not remembered, so
+        the reference stays the hand's). Such a track has shrunk onto a speck (a fingertip, the rim of the arm that
+        hides the hand) and no longer follows its hand; when a moving skin region that no other track explains turns
+        up, the track restarts there (:meth:`_restart_collapsed`) instead of waiting to end and be re-acquired."""
+        ox, oy = feats.roi[0], feats.roi[1]
+        min_area = self.config.min_area_frac * size[0] * size[1]
+        for tr in self.tracks:
+            e = tr.filt.estimate
+            u0, v0, u1, v1 = box_of(e[0] - ox, e[1] - oy, e[2], e[3])
+            n, _ = mask_count(u0, v0, u1, v1, feats.mcur)
+            ref = max(tr.skin_hist) if tr.skin_hist else 0
+            tr.collapsed = len(tr.skin_hist) >= 3 and ref >= min_area and n < COLLAPSE_FRAC * ref
+            if not tr.collapsed:
+                tr.skin_hist.append(n)
+
+    def _restart_collapsed(self, collapsed: list[_Track], state: np.ndarray, rgb: np.ndarray) -> int:
+        """The collapsed track (the one whose box lies nearest, if several) restarts on ``state`` with its id and
+        appearance; returns that id."""
+        tr = min(collapsed, key=lambda t: float(np.hypot(*(t.filt.estimate[:2] - state[:2]))))
+        self.tracks.remove(tr)
+        self._start(state, tr.id)
+        new = self.tracks[-1]
+        new.app, new.since_merge, new.apart = tr.app, 0, tr.apart
+        new.area_ref, new.centre_ref = tr.area_ref, state[:2].copy()
+        new.hold_id = SETTLE  # the hand comes out beside what hid it (the other hand's sleeve): no id swap yet
+        return tr.id
 
     def _update_size_refs(self) -> None:
         """One-hand size and place of each track (for :meth:`_reacquire_from_merge`): with two tracks whose boxes do
@@ -765,7 +811,8 @@ class HandTracker(TrackIdentity):
         return keep
 
     # ------------------------------------------------------------------ automatic initialisation
-    def _auto_init(self, rgb: np.ndarray, depth: np.ndarray | None, reacquire: bool = False) -> np.ndarray | None:
+    def _auto_init(self, rgb: np.ndarray, depth: np.ndarray | None, reacquire: bool = False,
+                   ignore: list[_Track] | tuple = ()) -> np.ndarray | None:  # fmt: skip
         """A new track's initial working-resolution state, or None (see the module docstring). With ``reacquire``
         (a lost track waits for its hand) a candidate need not touch the image border when first seen if its box
         centre has moved by ≥ :data:`REACQUIRE_MOVE` working px over its n_init frames (a moving skin region that no
@@ -779,7 +826,7 @@ class HandTracker(TrackIdentity):
         n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4, ltype=cv2.CV_32S)
         min_area = cfg.min_area_frac * w * h
         b = max(1, int(round(2.0 / self.s)))
-        track_boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
+        track_boxes = [state_box(tr.filt.estimate) for tr in self.tracks if not any(tr is t for t in ignore)]
         found: list[tuple[int, tuple[int, int, int, int], int, bool]] = []
         for i in range(1, n):
             area = int(stats[i, cv2.CC_STAT_AREA])
