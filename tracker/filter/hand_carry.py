@@ -83,6 +83,7 @@ class HandCarry:
         self.last_turn = np.zeros((n_parts, 3))  # last frame's hand rotation vector per part (initial guess, rad)
         self.history: deque[tuple[float, np.ndarray]] = deque()  # (time s, positions (K, 3))
         self._prev_depth: np.ndarray | None = None  # last frame's depth image (carry start registration)
+        self._prev_motion: np.ndarray | None = None  # 4×4 camera motion since that image (None: the camera stayed)
 
     @property
     def carried(self) -> np.ndarray:
@@ -102,13 +103,29 @@ class HandCarry:
     def move_with_camera(self, Rd: np.ndarray, td: np.ndarray) -> None:
         """The camera moved: a point x of the old camera frame is ``Rd @ x + td`` in the new one. The remembered
         positions, hand patches, last steps and turns move with it; the last frame's depth image (a carry's first
-        registration takes the hand points from it) cannot be moved and is dropped, so a carry that starts now takes
-        this frame's points instead."""
+        registration takes the hand points from it) cannot be moved, so the motion is kept beside it and the points
+        taken from it are moved into the new frame (:meth:`_previous_points`)."""
         self.history = deque((t, pos @ Rd.T + td) for t, pos in self.history)
         self.patches = [None if pts is None else pts @ Rd.T + td for pts in self.patches]
         self.last_step = self.last_step @ Rd.T
         self.last_turn = self.last_turn @ Rd.T  # a rotation vector in the camera frame turns with the camera
-        self._prev_depth = None
+        if self._prev_depth is not None:
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = Rd, td
+            self._prev_motion = T if self._prev_motion is None else T @ self._prev_motion
+
+    def _previous_points(self, center: np.ndarray, radius: float, plane, exclude) -> np.ndarray:
+        """Hand points around ``center`` in the last frame's depth image, in the current camera frame (the camera's
+        motion since that image, :meth:`move_with_camera`, applied: unmoved, a carry's first registration would
+        count the camera's motion, already applied to the part, a second time). Arguments in the current frame."""
+        M = self._prev_motion
+        if M is None:
+            return self._points(self._prev_depth, center, radius, plane, exclude)
+        R, t = M[:3, :3], M[:3, 3]
+        old_plane = None if plane is None else (R.T @ plane[0], float(plane[1] + plane[0] @ t))
+        old_exclude = [(R.T @ (c - t), r) for c, r in exclude]
+        pts = self._points(self._prev_depth, R.T @ (center - t), radius, old_plane, old_exclude)
+        return pts @ R.T + t
 
     def forget(self, obj: int) -> None:
         """Drop part ``obj``'s remembered positions (it was re-seeded: the jump is no motion of the part)."""
@@ -168,7 +185,7 @@ class HandCarry:
                     continue
                 prev = None
                 if cfg.carry_start_register and self._prev_depth is not None and self._prev_depth is not depth:
-                    prev = self._points(self._prev_depth, positions[i], cfg.carry_radius, plane, exclude)
+                    prev = self._previous_points(positions[i], cfg.carry_radius, plane, exclude)
                 if prev is not None and prev.shape[0] >= cfg.carry_min_points:
                     # the hand points around the part in the previous frame, registered to this frame below: the
                     # part moves with the hand from the first frame of the carry, not one frame late
@@ -204,6 +221,7 @@ class HandCarry:
             near = ((pts - new_pos) ** 2).sum(1) <= cfg.carry_radius**2
             self.patches[i] = pts[near] if near.sum() >= cfg.carry_min_points else None
         self._prev_depth = depth  # kept by reference: a source that reuses its buffer gives the same object (unused)
+        self._prev_motion = None
         return rot, delta
 
     def _points(self, depth, center, radius, plane, exclude, max_points: int = 800) -> np.ndarray:

@@ -49,17 +49,21 @@ class CameraOdometry(OdometryBase):
         self._active = 0
         self._pose = Pose()
 
-    def step(self, frame: Frame, mask: np.ndarray | None = None) -> OdometryResult:
+    def step(self, frame: Frame, mask: np.ndarray | None = None, prior: np.ndarray | None = None) -> OdometryResult:
         """Estimate the camera pose of ``frame`` (colour RGB uint8 + registered depth in metres); ``mask`` (H×W
-        bool, True = exclude) marks hands and moving parts."""
+        bool, True = exclude) marks hands and moving parts. ``prior`` (4×4 camera → world, this odometry's world
+        frame), when given, replaces the constant-velocity prediction as the alignment's start and as the reference
+        of the plausibility test: a caller that knows the camera's path better (the fused odometry, after a wrong
+        registration it rejected) keeps the odometry from extrapolating its own wrong step, and from rejecting every
+        later frame against that extrapolation."""
         problem = self._check(frame, mask)
         if problem:
             return self.skip(float(frame.timestamp), problem)
-        res = self._step(frame, mask)
+        res = self._step(frame, mask, prior)
         self._pose = res.pose_world_camera
         return res
 
-    def _step(self, frame: Frame, mask: np.ndarray | None) -> OdometryResult:
+    def _step(self, frame: Frame, mask: np.ndarray | None, prior: np.ndarray | None = None) -> OdometryResult:
         t0 = time.perf_counter()
         ts = float(frame.timestamp)
         pyr = build_pyramid(frame.color, frame.depth, self.intrinsics, self.config.n_levels, mask)
@@ -70,7 +74,7 @@ class CameraOdometry(OdometryBase):
             self._motion.update(ts, T, measured=True)
             return OdometryResult(Pose.from_matrix(T), True, 0, 1e3 * (time.perf_counter() - t0), ts, keyframe=True)
 
-        pred = self._motion.predict(ts)
+        pred = self._motion.predict(ts) if prior is None else np.asarray(prior, np.float64)
         k = self._nearest_keyframe(pred)
         kf = self.keyframes[k]
         res = align(kf, pyr, invert(kf.pose) @ pred, self.config)

@@ -246,13 +246,21 @@ class EgoMotion:
         moving = self.moving_parts(poses, carried, hand_boxes)
         mask = self._mask(frame, table, poses, moving, hand_boxes)
         self.last_mask = mask
-        res = self.odometry.step(frame, mask)
+        if self.fused is not None:  # the dense odometry starts from the fused path (fused_odometry.dense_prior)
+            res = self.odometry.step(frame, mask, prior=self.fused.dense_prior(float(frame.timestamp)))
+        else:
+            res = self.odometry.step(frame, mask)
         self.pose, self.ok = res.pose_world_camera, bool(res.ok)
         self._plane = None
         if self.fused is not None and res.ok:  # the dense pose checked against the smooth path (parts: observe())
             self.pose = self.fused.predict(float(frame.timestamp), res.pose_world_camera)
             guess = None if table is None else (table.normal, table.offset)
             self._plane = self.fused.measure_table(frame.depth, self.intrinsics, mask, guess=guess)
+            self._observe_pending = True
+        elif self.fused is not None and self.fused.pose_world_camera is not None:
+            # no dense pose: the fused path's prediction, corrected by the resting parts in observe(); the tracker
+            # keeps its camera-frame prediction this frame (nothing applied) as with the other methods
+            self.pose = self.fused.predict(float(frame.timestamp), None)
             self._observe_pending = True
         T_wc = self.pose.as_matrix()
         motion = None

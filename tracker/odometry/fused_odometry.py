@@ -162,6 +162,19 @@ class FusedOdometry:
             return None
         return refit_plane(depth, intrinsics, *plane_in_camera(self.pose_world_camera.as_matrix(), *self.table), mask)
 
+    def dense_prior(self, timestamp: float) -> np.ndarray | None:
+        """The constant-velocity prediction of the fused path at ``timestamp`` (s) in the dense odometry's world frame
+        (4×4 camera → world; ``O⁻¹`` applied), for :meth:`CameraOdometry.step(prior=)
+        <tracker.odometry.camera_odometry.CameraOdometry.step>`; None before the first frame. The dense odometry's own
+        prediction extrapolates its last step, also a wrong one rejected here: it then starts the next alignment from
+        the wrong place and rejects the right answer as a jump from it (tuning seed 1 of guess-3 hand-held: one wrong
+        registration, then 118 frames without a measured pose)."""
+        if self.pose_world_camera is None or self._O is None:
+            return None
+        t_last, T_last = self._last
+        cv = T_last @ exp_se3(self._twist * max(0.0, float(timestamp) - t_last))
+        return invert(self._O) @ cv
+
     def update(self, timestamp: float, dense: Pose | None, observed: dict[str, Pose],
                corners: dict[str, np.ndarray]) -> FusedStep:
         """One frame at ``timestamp`` (s): ``dense`` the dense odometry's measured camera → world pose (None when it
