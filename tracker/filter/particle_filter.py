@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.filter import blob_follow, colour_input, hidden_parts, predict, render, scene_motion, weigh
+from tracker.filter import blob_follow, colour_input, hidden_parts, predict, quiet_parts, render, scene_motion, weigh
 from tracker.filter.connection_particles import ResolvedConnection, resolve_hints
 from tracker.filter.depth_likelihood import (
     LikelihoodParams,
@@ -208,6 +208,7 @@ class MultiObjectTracker:
         self._last_time: float | None = None
         self._quiet_memory = None  # quiet parts: last frame's blobs, estimate centres, small corrections
         self._quiet_skips = np.zeros(k, np.int64)  # passes skipped in a row per part
+        self._quiet_now = np.zeros(k, bool)  # parts whose pass this frame skips
         self.n_quiet_skipped = 0  # coordinate passes skipped since initialize (diagnostics, tests)
         self._initialized = True
 
@@ -244,6 +245,7 @@ class MultiObjectTracker:
         u, detected = colour_input.control_inputs(self, ctx, detections)
         noise_scale = hidden_parts.hold_hidden_parts(self, ctx, detections, detected)
         pred = predict.deterministic(self, u)
+        quiet_parts.quiet_parts(self, ctx, detections, detected, pred)  # parts whose pass is skipped: _quiet_now
         evaluated = render.evaluated_pixels(self, ctx.depth, self.p, self.R, pred[0], pred[1])
         ctx.timings["predict"] = (time.perf_counter() - ctx.t0) * 1e3
         if evaluated is None:

@@ -43,8 +43,9 @@ def _centre_px(trk: MultiObjectTracker, i: int, R: np.ndarray, t: np.ndarray) ->
 
 def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected: np.ndarray,
                 pred: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
-    """(K,) bool: the parts whose coordinate pass is skipped this frame (module docstring). ``pred``: the noise-free
-    prediction (p (N, K, 3), R (N, K, 3, 3), v) of this frame. All False when ``quiet_skip`` is off."""
+    """(K,) bool: the parts whose coordinate pass is skipped this frame (module docstring), also kept as
+    ``trk._quiet_now``. ``pred``: the noise-free prediction (p (N, K, 3), R (N, K, 3, 3), v) of this frame. All False
+    when ``quiet_skip`` is off."""
     cfg = trk.config
     k = len(trk.parts)
     quiet = np.zeros(k, bool)
@@ -52,6 +53,7 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
     trk._quiet_memory = None  # one frame old at most: set again after this frame's refinement
     if not cfg.quiet_skip or memory is None or not detections:
         trk._quiet_skips[:] = 0
+        trk._quiet_now = quiet
         return quiet
     last_blob, last_px, small = memory
     w = normalize_log_weights(trk.log_w)
@@ -74,6 +76,7 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
             continue
         quiet[i] = True
     trk._quiet_skips = np.where(quiet, trk._quiet_skips + 1, 0)
+    trk._quiet_now = quiet
     trk.n_quiet_skipped += int(quiet.sum())
     return quiet
 

@@ -87,22 +87,28 @@ def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
     # of at most ``likelihood_pixels_per_part`` of them (0: all): the likelihood's cost stays bounded, the refinement
     # after the filter restores the precision; the subset is a coarser lattice of the grid (every c-th pixel in each
     # axis), so that a mesh part can be rasterised on that lattice only
+    # a quiet part (its pass skipped this frame, filter/quiet_parts.py) gets the smaller budget
+    # ``quiet_pixels_per_part``: it is evaluated only at its prediction, for the weights and its visible fraction
     depth = np.asarray(depth)
     max_depth = depth.dtype.type(cfg.max_depth) if depth.dtype.kind == "f" else float(cfg.max_depth)
+    budgets = np.full(k, int(cfg.likelihood_pixels_per_part), np.int64)
+    quiet = getattr(trk, "_quiet_now", None)
+    if quiet is not None and cfg.quiet_pixels_per_part > 0 and budgets[0] > 0:
+        budgets[np.asarray(quiet, bool)] = min(int(cfg.quiet_pixels_per_part), int(budgets[0]))
     pix, regions, any_valid = _evaluated(depth, trk._vs, trk._us, max_depth, trk._pu, trk._pv, trk._gi, trk._gj,
-                                         bounds, int(cfg.likelihood_pixels_per_part), trk._lattice)
+                                         bounds, budgets, trk._lattice)
     if not any_valid or not pix.size:
         return None
     return pix, regions
 
 
 @nb.njit(cache=True)
-def _evaluated(depth, vs, us, max_depth, pu, pv, gi, gj, bounds, budget, lattice):
+def _evaluated(depth, vs, us, max_depth, pu, pv, gi, gj, bounds, budgets, lattice):
     """The evaluated grid pixels (P,), the parts' region masks at them (K, P) and whether any grid pixel has valid
     depth (finite, > 0, < ``max_depth``; when none, nothing else is done). A pixel is evaluated when its depth is
     valid and it lies in a part's rectangle ``bounds[k] = (umin, umax, vmin, vmax)`` (inclusive), on the part's
-    lattice ``lattice[k]``: every c-th grid pixel in each axis, c the smallest with at most ``budget`` of its valid
-    region pixels left (``budget`` 0: all pixels, ``lattice`` not written)."""
+    lattice ``lattice[k]``: every c-th grid pixel in each axis, c the smallest with at most ``budgets[k]`` of its
+    valid region pixels left (``budgets[k]`` 0: all pixels, ``lattice[k]`` not written)."""
     nu = us.shape[0]
     ng = pu.shape[0]
     k = bounds.shape[0]
@@ -117,6 +123,7 @@ def _evaluated(depth, vs, us, max_depth, pu, pv, gi, gj, bounds, budget, lattice
     inside = np.zeros((k, ng), np.bool_)
     keep = np.zeros(ng, np.bool_)
     for i in range(k):
+        budget = budgets[i]
         umin, umax, vmin, vmax = bounds[i, 0], bounds[i, 1], bounds[i, 2], bounds[i, 3]
         count = 0
         for g in range(ng):

@@ -339,6 +339,10 @@ class TrackerConfig(BaseModel):
     quiet_max_correction_deg: float = Field(
         2.0, ge=0.0, description="Largest last-frame refinement rotation correction (degrees) of a quiet part.",
     )
+    quiet_pixels_per_part: int = Field(
+        0, ge=0, description="Likelihood pixel budget of a quiet part (quiet_skip), in place of "
+        "likelihood_pixels_per_part: it is evaluated only at its prediction (0 = the same budget).",
+    )
     quiet_max_skips: int = Field(
         3, ge=0, description="Passes a quiet part may skip in a row; the next one runs (its particles re-spread).",
     )

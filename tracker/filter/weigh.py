@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numba as nb
 import numpy as np
 
-from tracker.filter import hidden_parts, predict, quiet_parts, render
+from tracker.filter import hidden_parts, predict, render
 from tracker.filter.colour_input import color_masks
 from tracker.filter.connection_particles import apply_connections
 from tracker.filter.depth_likelihood import (
@@ -105,7 +105,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     if cfg.hint_min_visibility > 0 and cfg.use_color_input and detections:
         forceable &= detected  # and a reliable colour blob now: the hand may have covered the part this frame
     penalties = PenaltyTerms(trk, plane)
-    skip = quiet_parts.quiet_parts(trk, ctx, detections, detected, pred)
+    skip = trk._quiet_now  # decided before the evaluated pixels (filter/quiet_parts.py)
     first = True
     for i in range(k + 1):
         if i == k:  # every pass skipped: the weights still take the likelihood of the prediction (and penalties)
