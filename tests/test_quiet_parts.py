@@ -87,3 +87,31 @@ def test_a_blob_that_moves_or_changes_its_area_is_not_quiet(quiet_run):
     ctx = FrameContext(frame=None, table=None, table_plane=None, t0=0.0)
     pred = predict.deterministic(trk, np.zeros((len(trk.parts), 3)))
     assert not quiet_parts.quiet_parts(trk, ctx, dets, np.ones(len(trk.parts), bool), pred).any()  # a pass is due
+
+
+def test_a_quiet_part_is_evaluated_on_fewer_pixels():
+    """quiet_pixels_per_part: the part whose pass is skipped keeps a coarser lattice of likelihood pixels; the
+    others keep theirs."""
+    from tracker.filter import render
+    from tracker.filter.particle_filter import MultiObjectTracker
+    from tracker.geometry.camera import Intrinsics
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+
+    intr = Intrinsics(640, 480, 600.0, 600.0, 320.0, 240.0)
+    parts = [PartSpec.cube(c, c) for c in ("red", "green")]
+    depth = np.full((480, 640), 0.3, np.float32)  # valid everywhere
+    counts = {}
+    for quiet_px in (0, 40):
+        cfg = TrackerConfig.preset("default").with_overrides(n_particles=20, likelihood_pixels_per_part=250,
+                                                             quiet_pixels_per_part=quiet_px)
+        trk = MultiObjectTracker(parts, intr, cfg, seed=0)
+        trk.initialize({"red": Pose([-0.06, 0.0, 0.25], [0, 0, 0, 1]), "green": Pose([0.06, 0.0, 0.25], [0, 0, 0, 1])})
+        trk._quiet_now = np.array([True, False])
+        pix, regions = render.evaluated_pixels(trk, depth, trk.p, trk.R, trk.p, trk.R)
+        counts[quiet_px] = (int(np.count_nonzero(regions[0])), int(np.count_nonzero(regions[1])), trk._lattice.copy())
+    full, quiet = counts[0], counts[40]
+    assert full[0] > 150 and full[1] > 150
+    assert quiet[0] < full[0] / 3  # the quiet part: about its own budget (plus the other part's pixels it overlaps)
+    assert quiet[1] == full[1]  # the other part: unchanged
+    assert quiet[2][0] > full[2][0] and quiet[2][1] == full[2][1]
