@@ -522,6 +522,5 @@ PRESETS["default"] = {
     "blob_follow": True,
     "scene_motion": True,
     "carry_revealed_fraction": 0.5,
-    "quiet_skip": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
