@@ -263,3 +263,16 @@ def test_gmm_fit_uses_no_more_components_than_distinct_colours():
     assert len(one.weights) == 1 and np.allclose(one.means, [[140.0, 110.0]])
     varied = Gmm2D.fit(np.random.default_rng(0).normal([140.0, 110.0], 8.0, (500, 2)), 4)
     assert len(varied.weights) == 4
+
+
+def test_palm_box_without_specks_drops_small_pieces_of_the_palm_mask():
+    from tracker.evaluation.hands import palm_box_without_specks
+
+    m = np.zeros((60, 80), np.uint8)
+    m[10:30, 20:40] = 1  # hand 0's palm
+    m[45, 70] = 1  # a single palm pixel peeking past the sleeve
+    m[5:9, 50:60] = 2  # hand 1
+    assert palm_box_without_specks(m, 0) == [20, 10, 40, 30]  # end-exclusive, the speck left out
+    assert palm_box_without_specks(m, 0, min_px=1) == [20, 10, 71, 46]  # the ground-truth box reaches it
+    assert palm_box_without_specks(m, 1) == [50, 5, 60, 9]
+    assert palm_box_without_specks(m, 2) is None
