@@ -17,8 +17,9 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from tracker.evaluation.hands import experiment_1, experiment_1_table, experiment_2, experiment_2_table
+from tracker.evaluation.hands import SCENARIOS, experiment_1, experiment_1_table, experiment_2, experiment_2_table
 from tracker.evaluation.machine_info import machine_info
+from tracker.hands.tracker import HandTrackerConfig
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -30,12 +31,36 @@ def machine_note() -> str:
             "are pessimistic; the thread CPU time in brackets is less affected.")
 
 
+def _config(settings: list[str]) -> HandTrackerConfig:
+    """The default HandTrackerConfig with FIELD=VALUE changes (true/false, numbers, else strings)."""
+    fields = HandTrackerConfig.__dataclass_fields__
+    changes: dict = {}
+    for item in settings:
+        key, sep, raw = item.partition("=")
+        if not sep or key not in fields:
+            raise SystemExit(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(fields)}")
+        low = raw.strip().lower()
+        if low in ("true", "false"):
+            changes[key] = low == "true"
+        else:
+            try:
+                changes[key] = int(raw) if low.lstrip("-").isdigit() else float(raw)
+            except ValueError:
+                changes[key] = raw
+    return HandTrackerConfig(**changes)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--experiment", type=int, choices=(1, 2), required=True)
     ap.add_argument("--seeds", default=None, help="comma-separated held-out seeds (>= 100)")
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--frames", type=int, default=None)
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="Experiment 1: comma-separated scenarios")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="Experiment 1: a HandTrackerConfig field other than its default (repeatable), e.g. "
+                         "collapse_reacquire=true")  # fmt: skip
+    ap.add_argument("--stem", default=None, help="results file stem (default hands / hands_particles)")
     args = ap.parse_args()
     seeds = tuple(int(s) for s in (args.seeds or ("100,101,102" if args.experiment == 1 else "100")).split(","))
     if min(seeds) < 100:
@@ -43,7 +68,11 @@ def main() -> int:
     RESULTS.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         if args.experiment == 1:
-            summary = experiment_1(tmp, seeds=seeds, runs=args.runs, n_frames=args.frames)
+            scenarios = tuple(x for x in args.scenarios.split(",") if x)
+            if not set(scenarios) <= set(SCENARIOS):
+                raise SystemExit(f"scenarios must be among {', '.join(SCENARIOS)}")
+            summary = experiment_1(tmp, seeds=seeds, runs=args.runs, n_frames=args.frames,
+                                   config=_config(args.set), scenarios=scenarios)  # fmt: skip
             shutil.copy(Path(tmp) / "hands_curves.png", RESULTS / "hands_curves.png")
             body = experiment_1_table(summary)
             name, title = "hands", "Hand tracking (issue 14): Experiment 1, particle filter vs Kalman vs CamShift"
@@ -58,11 +87,15 @@ def main() -> int:
             name, title = "hands_particles", "Hand tracking (issue 14): Experiment 2, particle count"
             extra = "Plot: `benchmarks/results/hands_particles.png`."
             baseline = "A sweep of the method's own particle count: the default N_s = 30 is the reference row."
+    name = args.stem or name
     (RESULTS / f"{name}.json").write_text(json.dumps({"machine": machine_info(), **summary}, indent=1,
                                                      default=str) + "\n")  # fmt: skip
     cmd = f"--experiment {args.experiment} --seeds {','.join(map(str, seeds))} --runs {args.runs}"
     if args.frames:
         cmd += f" --frames {args.frames}"
+    if args.experiment == 1 and args.scenarios != ",".join(SCENARIOS):
+        cmd += f" --scenarios {args.scenarios}"
+    cmd += "".join(f" --set {x}" for x in args.set) + (f" --stem {args.stem}" if args.stem else "")
     md = "\n".join([
         f"## {title}", "",
         "Simulated scenarios `hands-s1` (one hand, long sleeve), `hands-s2` (two hands overlapping each other and the "

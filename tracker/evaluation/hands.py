@@ -306,14 +306,15 @@ def _mean_summaries(runs: list[RunResult]) -> dict:
 
 def experiment_1(out: str | Path, seeds: tuple[int, ...] = (100, 101, 102), runs: int = 5,
                  config: HandTrackerConfig | None = None, n_frames: int | None = None,
-                 progress: Callable[[str], None] = print) -> dict:  # fmt: skip
-    """PF (``runs`` runs) vs KF vs CamShift with ground-truth start, and PF with automatic start, on S1–S3."""
+                 progress: Callable[[str], None] = print, scenarios: tuple[str, ...] = SCENARIOS) -> dict:  # fmt: skip
+    """PF (``runs`` runs) vs KF vs CamShift with ground-truth start, and PF with automatic start, on S1–S3 (or the
+    given ``scenarios``)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     config = config or HandTrackerConfig()
     results: dict[str, dict[str, list[RunResult]]] = {}
     curves: dict[str, dict[str, list]] = {}
-    for sc in SCENARIOS:
+    for sc in scenarios:
         results[sc] = {"pf": [], "kalman": [], "camshift": [], "auto": []}
         for seed in seeds:
             seq = render_sequence(sc, seed, n_frames)
