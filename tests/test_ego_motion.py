@@ -204,6 +204,31 @@ def test_fused_odometry_applies_the_smooth_motion_instead_of_a_wrong_registratio
     assert abs(ego.odometry.priors[5][0, 3] - 0.005) < 3e-4
 
 
+def test_fused_odometry_keeps_the_smooth_path_through_a_failed_dense_step():
+    """``fused``: when the dense step fails, the camera's pose is the fused path's prediction (then corrected by the
+    resting parts), not the dense odometry's extrapolation, and the next dense step starts from that path."""
+    from tracker.frame import Frame
+
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    f0 = src.render(0)
+    frames = [Frame(i, i / 30.0, f0.color, f0.depth, f0.intrinsics, {}) for i in range(6)]
+    truth = [Pose(np.array([0.001 * k, 0.0, 0.0])) for k in range(6)]
+    dense = list(truth)
+    dense[3] = None  # a failed dense step
+    ego = EgoMotion("fused", src.intrinsics, src.parts)
+    ego.odometry = _ScriptedOdometry(dense)
+    poses, steps = [], []
+    for f, cam in zip(frames, truth, strict=True):
+        steps.append(ego.step(f))
+        poses.append(ego.pose)
+        ego.observe({n: cam.inverse() @ p for n, p in src.initial_poses.items()}, {p.name: p.vertices() for p in
+                                                                                    src.parts})
+    assert not steps[3].ok and steps[3].camera_motion is None  # nothing applied to the tracker on that frame
+    assert abs(poses[3].t[0] - 0.003) < 3e-4  # the path's prediction at the failed frame (the stand-in gives 0)
+    assert abs(ego.odometry.priors[4][0, 3] - 0.004) < 3e-4  # the next dense step starts from the path
+    assert abs(poses[5].t[0] - 0.005) < 3e-4
+
+
 def test_camera_motion_moves_the_blob_memory_with_the_image_motion_of_each_part():
     """Blob follow differences a blob's centroid between frames; the camera's share of that shift is applied by the
     camera motion already, so the remembered centroid moves by the image motion the camera gives the part's centre."""
