@@ -343,6 +343,10 @@ class TrackerConfig(BaseModel):
         0, ge=0, description="Likelihood pixel budget of a quiet part (quiet_skip), in place of "
         "likelihood_pixels_per_part: it is evaluated only at its prediction (0 = the same budget).",
     )
+    quiet_keep_spread: bool = Field(
+        False, description="A quiet part's particles still get the frame's motion noise (after the weighing), so that "
+        "its cloud keeps its spread while its passes are skipped.",
+    )
     quiet_max_skips: int = Field(
         3, ge=0, description="Passes a quiet part may skip in a row; the next one runs (its particles re-spread).",
     )

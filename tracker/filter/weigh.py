@@ -149,6 +149,12 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
         t_pen += td - tc
         t_res += te - td
 
+    if cfg.quiet_keep_spread:
+        # the skipped parts' particles get this frame's motion noise after the weighing (their likelihood was taken at
+        # the prediction), so that their cloud keeps its spread for when they move again
+        for i in np.flatnonzero(skip):
+            p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i],
+                                                                  noise_scale[i])
     ctx.timings.update(render=t_render * 1e3, likelihood=t_lik * 1e3, penalties=t_pen * 1e3, resample=t_res * 1e3)
     return PassResult(p_cur, R_cur, v_cur, log_w, ell_prev, pix, Q, F, o_hat, anc, n_resampled)
 
