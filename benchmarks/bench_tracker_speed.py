@@ -23,7 +23,7 @@ numba's compilation or cache loading). Issue 11's targets: 5 cubes >= 30 fps inc
 Writes benchmarks/results/tracker_speed.json and .md. Usage::
 
     .venv/bin/python benchmarks/bench_tracker_speed.py [--frames 150] [--sessions 1,15] [--no-write]
-        [--pair quiet_skip=false]
+        [--pair quiet_skip=true]
 """
 
 from __future__ import annotations
@@ -211,7 +211,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed-base", type=int, default=100, help="session k gets seed base + k (default 100)")
     ap.add_argument("--note", default="", help="a sentence added to the report")
     ap.add_argument("--pair", default="", help="KEY=VALUE[,KEY=VALUE] TrackerConfig overrides of a second tracker "
-                    "run on the same frames in the same process (paired comparison, e.g. quiet_skip=false)")
+                    "run on the same frames in the same process (paired comparison, e.g. quiet_skip=true)")
     ap.add_argument("--no-write", action="store_true", help="print only; do not write benchmarks/results")
     ap.add_argument("--rewrite", action="store_true", help="rebuild the .md from the .json and exit")
     args = ap.parse_args(argv)
