@@ -45,15 +45,16 @@ def test_register_rigid_recovers_a_turn_and_a_shift_and_the_table_axis_variant_k
     assert np.degrees(np.linalg.norm(capped)) == pytest.approx(2.0)
 
 
-def _scene(intr: Intrinsics, hand_x: float) -> np.ndarray:
+def _scene(intr: Intrinsics, hand_x: float, lower: float = 0.0) -> np.ndarray:
     """Depth of a table at 0.7 m under a rounded 12 x 6 cm 'hand' (a paraboloid cap, 0.60 m at its top, about
-    0.63 m at its rim) spanning x = hand_x - 8 cm .. hand_x + 4 cm."""
+    0.63 m at its rim) spanning x = hand_x - 8 cm .. hand_x + 4 cm, ``lower`` m farther from the camera (nearer
+    the table)."""
     depth = np.full((intr.height, intr.width), 0.7, np.float32)
     v, u = np.mgrid[0 : intr.height, 0 : intr.width]
     x = (u - intr.cx) / intr.fx * 0.62
     y = (v - intr.cy) / intr.fy * 0.62
     inside = (x > hand_x - 0.08) & (x < hand_x + 0.04) & (np.abs(y) < 0.03)
-    depth[inside] = (0.60 + 8.0 * ((x - hand_x + 0.02) ** 2 + y**2))[inside]
+    depth[inside] = (0.60 + lower + 8.0 * ((x - hand_x + 0.02) ** 2 + y**2))[inside]
     return depth
 
 
@@ -78,6 +79,32 @@ def test_a_hidden_part_in_the_air_follows_the_hand_and_a_resting_one_stays():
     # seen again: the carry ends
     carry.update(_scene(intr, 0.06), pos, np.array([False, True]), np.array([True, False]), heights, PLANE)
     assert carry.carried.tolist() == [False, False]
+
+
+@pytest.mark.parametrize("shadow", [True, False])
+def test_a_shadow_follows_the_hand_over_a_resting_part_but_not_its_reach_down(shadow):
+    """A resting part hidden under a hand does not move with it, but with ``carry_shadow`` the hand's motion is
+    followed as if it held the part: 5 cm after the hand went 5 cm. A hand coming down onto the part (towards the
+    table) is reaching for it, not holding it: the shadow stays where the part is."""
+    intr = Intrinsics.default(320, 240)
+    cfg = CFG.with_overrides(carry_shadow=shadow)
+    carry = HandCarry(1, cfg, intr, np.array([0.031]))
+    pos = np.array([[-0.02, 0.0, 0.682]])
+    heights, hidden = np.array([0.0]), np.array([True])
+    for k in range(4):  # reaching down by 4 mm per frame
+        rot, d = carry.update(_scene(intr, 0.0, lower=0.004 * k), pos, hidden, ~hidden, heights, PLANE)
+        assert np.allclose(d, 0.0) and not carry.carried[0]
+    if shadow:
+        assert np.allclose(carry.shadows[0].t, 0.0) and np.allclose(carry.shadows[0].R, np.eye(3))
+    for k in range(1, 6):  # then sideways by 1 cm per frame
+        rot, d = carry.update(_scene(intr, 0.01 * k, lower=0.012), pos, hidden, ~hidden, heights, PLANE)
+        assert np.allclose(d, 0.0) and not carry.carried[0]  # the resting part itself stays
+    if not shadow:
+        assert carry.shadows[0] is None
+        return
+    sh = carry.shadows[0]
+    assert np.allclose(sh.R @ pos[0] + sh.t - pos[0], [0.05, 0.0, 0.0], atol=0.004), sh.t
+    assert carry.take_shadow(0) is sh and carry.carried[0] and carry.shadows[0] is None  # carried on from there
 
 
 def test_the_carry_ends_when_the_hand_leaves():

@@ -71,6 +71,19 @@ def above_table_points(depth: np.ndarray, intrinsics: Intrinsics, center: np.nda
     return pts[keep]
 
 
+@dataclass
+class Shadow:
+    """Where a hidden resting part would be had the hand over it taken it along (``carry_shadow``): the hand's
+    motion since the part was hidden, x ↦ ``R`` x + ``t`` (camera frame, m), its hand patch (camera frame, m; None
+    once the hand has gone) and its last step and turn (m, rad; the next registration's first guess)."""
+
+    patch: np.ndarray | None
+    R: np.ndarray
+    t: np.ndarray
+    step: np.ndarray
+    turn: np.ndarray
+
+
 class HandCarry:
     """Decides which hidden parts are carried and moves them with the hand's depth points; see the module doc."""
 
@@ -84,6 +97,7 @@ class HandCarry:
         self.history: deque[tuple[float, np.ndarray]] = deque()  # (time s, positions (K, 3))
         self._prev_depth: np.ndarray | None = None  # last frame's depth image (carry start registration)
         self._prev_motion: np.ndarray | None = None  # 4×4 camera motion since that image (None: the camera stayed)
+        self.shadows: list[Shadow | None] = [None] * n_parts  # hidden resting parts' would-be carries
 
     @property
     def carried(self) -> np.ndarray:
@@ -106,6 +120,12 @@ class HandCarry:
         registration takes the hand points from it) cannot be moved, so the motion is kept beside it and the points
         taken from it are moved into the new frame (:meth:`_previous_points`)."""
         self.history = deque((t, pos @ Rd.T + td) for t, pos in self.history)
+        for sh in self.shadows:
+            if sh is not None:  # the same motion seen from the new camera frame
+                sh.R = Rd @ sh.R @ Rd.T
+                sh.t = Rd @ sh.t + td - sh.R @ td
+                sh.patch = None if sh.patch is None else sh.patch @ Rd.T + td
+                sh.step, sh.turn = Rd @ sh.step, Rd @ sh.turn
         self.patches = [None if pts is None else pts @ Rd.T + td for pts in self.patches]
         self.last_step = self.last_step @ Rd.T
         self.last_turn = self.last_turn @ Rd.T  # a rotation vector in the camera frame turns with the camera
@@ -177,12 +197,16 @@ class HandCarry:
         for i in range(k):
             if released[i] or not hidden[i]:
                 self.patches[i] = None
+                self.shadows[i] = None
                 continue
             exclude = [(positions[o], self.radii[o] + 0.005) for o in range(k) if o != i and not carried[o]]
             if self.patches[i] is None:
                 grasped = touched is not None and bool(touched[i])
                 if not (grasped or moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights)):
+                    if cfg.carry_shadow:
+                        self._follow_shadow(i, depth, positions[i], plane, exclude)
                     continue
+                self.shadows[i] = None
                 prev = None
                 if cfg.carry_start_register and self._prev_depth is not None and self._prev_depth is not depth:
                     prev = self._previous_points(positions[i], cfg.carry_radius, plane, exclude)
@@ -223,6 +247,45 @@ class HandCarry:
         self._prev_depth = depth  # kept by reference: a source that reuses its buffer gives the same object (unused)
         self._prev_motion = None
         return rot, delta
+
+    def _follow_shadow(self, obj: int, depth: np.ndarray, position: np.ndarray, plane, exclude) -> None:
+        """Follow the hand over hidden resting part ``obj`` (at ``position``, camera frame, m) as if it carried the
+        part (:class:`Shadow`); started with the hand points around the part, ended (its last motion kept) when the
+        hand has gone."""
+        cfg = self.config
+        sh = self.shadows[obj]
+        if sh is None:
+            pts = self._points(depth, position, cfg.carry_radius, plane, exclude)
+            if pts.shape[0] >= cfg.carry_min_points:
+                self.shadows[obj] = Shadow(pts, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
+            return
+        if sh.patch is None:
+            return
+        where = sh.R @ position + sh.t
+        pts = self._points(depth, where + sh.step, cfg.carry_radius + cfg.carry_max_step, plane, exclude)
+        if pts.shape[0] < cfg.carry_min_points:
+            sh.patch = None
+            return
+        w, t = register_rigid(sh.patch, pts, cfg.carry_iterations, cfg.carry_max_step, cfg.carry_max_turn,
+                              (sh.turn, sh.step), None, cfg.carry_turn_fallback)
+        c = sh.patch.mean(axis=0)
+        Rw = _rot(w)
+        sh.R, sh.t = Rw @ sh.R, Rw @ (sh.t - c) + c + t
+        sh.step, sh.turn = t, w
+        if plane is not None and (sh.R @ position + sh.t - position) @ plane[0] < -0.002:
+            # the hand went lower than where it would hold the resting part: it is reaching for it, not holding it
+            sh.R, sh.t = np.eye(3), np.zeros(3)
+        near = ((pts - (sh.R @ position + sh.t)) ** 2).sum(1) <= cfg.carry_radius**2
+        sh.patch = pts[near] if near.sum() >= cfg.carry_min_points else None
+
+    def take_shadow(self, obj: int) -> Shadow | None:
+        """Part ``obj``'s shadow (None if none), dropped; its carry starts from the shadow's patch if the hand is
+        still there."""
+        sh, self.shadows[obj] = self.shadows[obj], None
+        if sh is not None and sh.patch is not None:
+            self.start(obj, sh.patch)
+            self.last_step[obj], self.last_turn[obj] = sh.step, sh.turn
+        return sh
 
     def _points(self, depth, center, radius, plane, exclude, max_points: int = 800) -> np.ndarray:
         """Hand points near ``center``, thinned evenly to at most ``max_points`` (keeps the registration cheap)."""

@@ -13,8 +13,10 @@ from tracker.filter.blob_follow import recentre
 from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import reseed
 from tracker.filter.hand_carry import supported_by_other
+from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.filter.predict import adaptive_noise
 from tracker.filter.scene_motion import placed_by_depth
+from tracker.geometry.box_renderer import pixel_rays, render_boxes_at_pixels
 
 if TYPE_CHECKING:
     from tracker.filter.frame_context import FrameContext
@@ -61,7 +63,7 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     hidden = trk.visibility < cfg.rest_prior_max_visibility  # little depth evidence (previous frame)
     if cfg.carry_revealed_fraction > 0 and depth is not None:
         for i in np.nonzero(hidden & ~trk._carry.carried & ~detected)[0]:
-            if revealed(trk, i, depth):
+            if revealed(trk, i, depth) and not take_shadow(trk, i, pos):
                 grab(trk, i, depth, pos, plane)
     rot, delta = trk._carry.update(depth, pos, hidden, ~hidden, heights, plane,
                                    np.array([nm in touched for nm in trk.names], bool))
@@ -90,6 +92,8 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
                 trk._carry.release(i)
                 continue
         move_part(trk, i, rot[i], delta[i])
+        if cfg.table_upright and plane is not None and trk.meshes[i] is None:
+            set_down_upright(trk, i, plane)
         recentre(trk, i)
     trk._last_centers = centers
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
@@ -97,9 +101,10 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
 
 def revealed(trk, obj: int, depth: np.ndarray) -> bool:
     """Does the depth camera see through hidden part ``obj``'s estimate: valid depth on at least
-    ``carry_revealed_fraction`` of its projected silhouette (bounding rectangle of its projected corners), nearly
-    all of it more than 1.5 cm behind the part's far side? Then the part is not where it was (a hand snatched it
-    while hiding it, or it was pushed away)."""
+    ``carry_revealed_fraction`` of the middle half of its projected bounding rectangle, nearly all of it more than
+    1.5 cm behind the part (behind its far side; with ``revealed_surface``, behind the estimate's rendered surface at
+    each pixel, so that the table right under a resting box counts)? Then the part is not where it was (a hand
+    snatched it while hiding it, or it was pushed away)."""
     est = trk.estimates[trk.names[obj]]
     pts = trk.corners[obj] @ est.R.T + est.t
     if np.any(pts[:, 2] < 0.05):
@@ -116,8 +121,43 @@ def revealed(trk, obj: int, depth: np.ndarray) -> bool:
     valid = np.isfinite(patch) & (patch > 0)
     if valid.mean() < trk.config.carry_revealed_fraction:
         return False
-    behind = patch[valid] > pts[:, 2].max() + 0.015
+    if trk.config.revealed_surface and trk.meshes[obj] is None:
+        vv, uu = np.nonzero(valid)
+        surface = box_surface_depth(trk, obj, uu + u0 + du, vv + v0 + dv)
+        on = np.isfinite(surface)
+        if on.mean() < 0.5:
+            return False
+        behind = patch[valid][on] > surface[on] + 0.015
+    else:
+        behind = patch[valid] > pts[:, 2].max() + 0.015
     return bool(behind.mean() > 0.9)
+
+
+def box_surface_depth(trk, obj: int, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
+    """Depth (m) of box part ``obj``'s estimate at full-resolution pixels ``(pu, pv)`` (P,), inf off its silhouette."""
+    est = trk.estimates[trk.names[obj]]
+    p = len(pu)
+    out = np.full((1, p), np.inf, np.float32)
+    render_boxes_at_pixels(est.R[None, None], est.t[None, None], trk.center[obj:obj + 1], trk.half[obj:obj + 1], 0,
+                           np.zeros(1, np.int64), pixel_rays(trk.intrinsics, pu, pv), np.asarray(pu, np.float64),
+                           np.asarray(pv, np.float64), np.arange(p, dtype=np.int64), trk.intrinsics.fx,
+                           trk.intrinsics.fy, trk.intrinsics.cx, trk.intrinsics.cy, out,
+                           np.arange(p, dtype=np.int64)[None], np.zeros((1, p), np.uint8))
+    return out[0].astype(np.float64)
+
+
+def take_shadow(trk, obj: int, pos: np.ndarray) -> bool:
+    """Part ``obj`` is not where it was (:func:`revealed`): if the hand that hid it went away
+    (:class:`~tracker.filter.hand_carry.Shadow`, moved by more than the part's bounding radius), the part went with
+    it: it is moved by the hand's motion since and carried on if the hand is still in view. Returns whether it
+    was."""
+    sh = trk._carry.shadows[obj]
+    if sh is None or np.linalg.norm(sh.R @ pos[obj] + sh.t - pos[obj]) < trk._carry.radii[obj]:
+        return False
+    trk._carry.take_shadow(obj)
+    move_part(trk, obj, sh.R, sh.t)
+    pos[obj] = sh.R @ pos[obj] + sh.t
+    return True
 
 
 def grab(trk, obj: int, depth: np.ndarray, pos: np.ndarray, plane) -> None:
@@ -163,9 +203,38 @@ def update_support(trk, unseen: np.ndarray, pos: np.ndarray, heights: np.ndarray
         if supported_by_other(i, pos, heights, trk._carry.radii, margin=0.01):
             continue
         trk._support_on[i] = True
+        if trk.config.table_upright and trk.meshes[i] is None:
+            trk._rest_R[i] = upright(trk._rest_R[i], plane[0])
         h = lowest_height(trk, i, trk.estimates[trk.names[i]].R, trk._rest_t[i], plane)
         if h > trk.config.carry_min_height:
             trk._rest_t[i] = trk._rest_t[i] - h * plane[0]
+
+
+def set_down_upright(trk, obj: int, plane) -> bool:
+    """If box part ``obj`` would touch the table (``plane`` = (normal, offset), camera frame) when turned upright
+    about its centre (lowest point within ``carry_min_height``), turn it so (:func:`upright`); returns whether it
+    did."""
+    est = trk.estimates[trk.names[obj]]
+    R_up = upright(est.R, plane[0])
+    c = est.R @ trk.center[obj] + est.t
+    if lowest_height(trk, obj, R_up, c - R_up @ trk.center[obj], plane) > trk.config.carry_min_height:
+        return False
+    Q = R_up @ est.R.T
+    move_part(trk, obj, Q, c - Q @ c)
+    return True
+
+
+def upright(R: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """The rotation nearest to ``R`` (body → camera) at which a box lies on a face of a table with unit ``normal``
+    (camera frame): the body axis most nearly along ±normal is turned onto it by the least rotation."""
+    dots = R.T @ normal
+    j = int(np.argmax(np.abs(dots)))
+    a = R[:, j] * np.sign(dots[j])
+    axis = np.cross(a, normal)
+    s, c = float(np.linalg.norm(axis)), float(np.clip(a @ normal, -1.0, 1.0))
+    if s < 1e-12:
+        return R
+    return rotvec_to_matrix(axis / s * np.arctan2(s, c))[0] @ R
 
 
 def lowest_height(trk, obj: int, R: np.ndarray, t: np.ndarray, plane) -> float:

@@ -81,6 +81,13 @@ class TrackerConfig(BaseModel):
         "seen: a part picked up and turned while half in the hand is held, once hidden, where it was last seen and "
         "not where it was last seen whole.",
     )
+    table_upright: bool = Field(
+        False, description="A box-shaped part on the table that the depth does not place lies on one of its faces: "
+        "when it rests unseen (support prior on), or is carried hidden with its lowest point within carry_min_height "
+        "of the table, its rotation is turned by the least angle that puts its box axis nearest to the table normal "
+        "along the normal (tilt picked up from a hand's registration noise is dropped; its turn about the normal is "
+        "kept).",
+    )
     rest_release_px: float = Field(
         4.0, ge=0.0, description="The rest prior is off for a part whose colour blob (however small) reaches more "
         "than this many pixels beyond the part's projected bounding rectangle at its rest position: it is moving "
@@ -140,6 +147,18 @@ class TrackerConfig(BaseModel):
         0.0, ge=0.0, le=1.0, description="A hidden part whose projected silhouette shows valid depth on at least this "
         "fraction, nearly all well behind the part, is not there: it is put in the hand nearest to it and carried "
         "(0 = off).",
+    )
+    carry_shadow: bool = Field(
+        False, description="While a resting part is hidden under a hand, the hand's motion is followed as if it "
+        "carried the part (a shadow carry); when the part turns out not to be where it was (carry_revealed_fraction), "
+        "it is moved by that motion and carried on, instead of being put at the centroid of the hand points near "
+        "where it was.",
+    )
+    revealed_surface: bool = Field(
+        False, description="The see-through test of carry_revealed_fraction compares the depth with the estimate's "
+        "rendered surface at each pixel (1.5 cm behind it) instead of with its far side: a box resting on the table "
+        "has the table right under it, never 1.5 cm behind its far side, so a box snatched from the table was only "
+        "noticed once its blob showed up elsewhere.",
     )
     carry_stride: int = Field(2, ge=1, description="Pixel stride (full resolution) of the hand points.")
     visible_fraction_full: float = Field(
