@@ -547,5 +547,9 @@ PRESETS["default"] = {
     "blob_follow": True,
     "scene_motion": True,
     "carry_revealed_fraction": 0.5,
+    "revealed_surface": True,
+    "carry_shadow": True,
+    "carry_max_step": 0.05,
+    "table_upright": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
