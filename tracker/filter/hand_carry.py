@@ -71,11 +71,20 @@ def above_table_points(depth: np.ndarray, intrinsics: Intrinsics, center: np.nda
     return pts[keep]
 
 
+SHADOW_POINTS = 200
+SHADOW_ITERATIONS = 8
+"""Patch points and rounds of a shadow carry's registration (a point-to-point shift, :func:`register_shift`, of
+at most 200 patch points onto the current window's points): it runs for every resting part under a hand, so it must
+be cheap, and it only has to say where a snatched part went to within a few centimetres; the carry and the filter
+take over from there."""
+
+
 @dataclass
 class Shadow:
     """Where a hidden resting part would be had the hand over it taken it along (``carry_shadow``): the hand's
-    motion since the part was hidden, x ↦ ``R`` x + ``t`` (camera frame, m), its hand patch (camera frame, m; None
-    once the hand has gone) and its last step and turn (m, rad; the next registration's first guess)."""
+    motion since the part was hidden, x ↦ ``R`` x + ``t`` (camera frame, m; followed as a shift, ``R`` stays the
+    identity unless the camera turns), its hand patch (camera frame, m; None once the hand has gone) and its last step
+    and turn (m, rad; the next registration's first guess; the turn is zero)."""
 
     patch: np.ndarray | None
     R: np.ndarray
@@ -254,24 +263,23 @@ class HandCarry:
         hand has gone."""
         cfg = self.config
         sh = self.shadows[obj]
+        window = cfg.carry_radius + cfg.carry_max_step  # the same window (and so point density) every frame
         if sh is None:
-            pts = self._points(depth, position, cfg.carry_radius, plane, exclude)
+            pts = self._points(depth, position, window, plane, exclude)
+            pts = pts[((pts - position) ** 2).sum(1) <= cfg.carry_radius**2]
             if pts.shape[0] >= cfg.carry_min_points:
                 self.shadows[obj] = Shadow(pts, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
             return
         if sh.patch is None:
             return
         where = sh.R @ position + sh.t
-        pts = self._points(depth, where + sh.step, cfg.carry_radius + cfg.carry_max_step, plane, exclude)
+        pts = self._points(depth, where + sh.step, window, plane, exclude)
         if pts.shape[0] < cfg.carry_min_points:
             sh.patch = None
             return
-        w, t = register_rigid(sh.patch, pts, cfg.carry_iterations, cfg.carry_max_step, cfg.carry_max_turn,
-                              (sh.turn, sh.step), None, cfg.carry_turn_fallback)
-        c = sh.patch.mean(axis=0)
-        Rw = _rot(w)
-        sh.R, sh.t = Rw @ sh.R, Rw @ (sh.t - c) + c + t
-        sh.step, sh.turn = t, w
+        src = sh.patch[:: -(-sh.patch.shape[0] // SHADOW_POINTS)]
+        t = register_shift(src, pts, SHADOW_ITERATIONS, cfg.carry_max_step, sh.step)
+        sh.t, sh.step = sh.t + t, t
         if plane is not None and (sh.R @ position + sh.t - position) @ plane[0] < -0.002:
             # the hand went lower than where it would hold the resting part: it is reaching for it, not holding it
             sh.R, sh.t = np.eye(3), np.zeros(3)
@@ -355,6 +363,30 @@ def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_
             best, best_cost = t, cost
     norm = float(np.linalg.norm(best))
     return best if norm <= max_step else best * (max_step / norm)
+
+
+def register_shift(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float,
+                   guess: np.ndarray | None = None) -> np.ndarray:
+    """Translation t (m) that brings point set ``src`` (M, 3) onto ``dst`` (P, 3): point-to-point ICP over the
+    nearest-neighbour pairs closer than 2 cm, started from ``guess`` (e.g. last frame's motion; else 0), at most
+    ``iterations`` rounds; |t| <= ``max_step``. Cheaper than :func:`register_translation` (no normals, one start)."""
+    from scipy.spatial import cKDTree
+
+    t = np.zeros(3) if guess is None else np.asarray(guess, np.float64).copy()
+    if src.shape[0] < 3 or dst.shape[0] < 3:
+        return np.zeros(3)
+    tree = cKDTree(dst)
+    for _ in range(max(iterations, 1)):
+        d, j = tree.query(src + t, distance_upper_bound=0.02)
+        ok = np.isfinite(d)
+        if ok.sum() < 3:
+            break
+        step = (dst[j[ok]] - src[ok] - t).mean(axis=0)
+        t = t + step
+        if np.linalg.norm(step) < 5e-5:
+            break
+    norm = float(np.linalg.norm(t))
+    return t if norm <= max_step else t * (max_step / norm)
 
 
 def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float, max_turn: float,
