@@ -73,11 +73,11 @@ def main() -> int:
                 raise SystemExit(f"scenarios must be among {', '.join(SCENARIOS)}")
             summary = experiment_1(tmp, seeds=seeds, runs=args.runs, n_frames=args.frames,
                                    config=_config(args.set), scenarios=scenarios)  # fmt: skip
-            shutil.copy(Path(tmp) / "hands_curves.png", RESULTS / "hands_curves.png")
+            curves = f"{args.stem or 'hands'}_curves.png"
+            shutil.copy(Path(tmp) / "hands_curves.png", RESULTS / curves)
             body = experiment_1_table(summary)
             name, title = "hands", "Hand tracking (issue 14): Experiment 1, particle filter vs Kalman vs CamShift"
-            extra = ("Per-frame e^p, F^b, F^c of the first sequence of each scenario: "
-                     "`benchmarks/results/hands_curves.png`.")
+            extra = f"Per-frame e^p, F^b, F^c of the first sequence of each scenario: `benchmarks/results/{curves}`."
             baseline = ("Baseline: OpenCV CamShift on the same session skin model's likelihood-ratio image, started "
                         "from the same boxes (ratio PF / CamShift in the table).")
         else:
