@@ -95,7 +95,7 @@ def test_a_shadow_follows_the_hand_over_a_resting_part_but_not_its_reach_down(sh
         rot, d = carry.update(_scene(intr, 0.0, lower=0.004 * k), pos, hidden, ~hidden, heights, PLANE)
         assert np.allclose(d, 0.0) and not carry.carried[0]
     if shadow:
-        assert np.allclose(carry.shadows[0].t, 0.0) and np.allclose(carry.shadows[0].R, np.eye(3))
+        assert np.allclose(carry.shadows[0].t, 0.0)
     for k in range(1, 6):  # then sideways by 1 cm per frame
         rot, d = carry.update(_scene(intr, 0.01 * k, lower=0.012), pos, hidden, ~hidden, heights, PLANE)
         assert np.allclose(d, 0.0) and not carry.carried[0]  # the resting part itself stays
@@ -103,7 +103,7 @@ def test_a_shadow_follows_the_hand_over_a_resting_part_but_not_its_reach_down(sh
         assert carry.shadows[0] is None
         return
     sh = carry.shadows[0]
-    assert np.allclose(sh.R @ pos[0] + sh.t - pos[0], [0.05, 0.0, 0.0], atol=0.004), sh.t
+    assert np.allclose(sh.t, [0.05, 0.0, 0.0], atol=0.004), sh.t
     assert carry.take_shadow(0) is sh and carry.carried[0] and carry.shadows[0] is None  # carried on from there
 
 

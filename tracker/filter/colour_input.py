@@ -258,14 +258,20 @@ def surface_depth(trk, obj: int, center) -> float:
         rpx = trk._radius[obj] * trk.intrinsics.fx / max(float(est.t[2]), 0.05)
         inside = np.hypot(uv[0] - center[0], uv[1] - center[1]) <= rpx
         return float(est.t[2]) - surface_fallback(trk, obj) if inside else np.inf
-    ray = pixel_rays(trk.intrinsics, np.array([center[0]]), np.array([center[1]]))
-    out = np.full((1, 1), np.inf, np.float32)
-    render_boxes_at_pixels(est.R[None, None], est.t[None, None], trk.center[obj:obj + 1],
-                           trk.half[obj:obj + 1], 0, np.zeros(1, np.int64), ray,
-                           np.array([float(center[0])]), np.array([float(center[1])]), np.zeros(1, np.int64),
-                           trk.intrinsics.fx, trk.intrinsics.fy, trk.intrinsics.cx, trk.intrinsics.cy, out,
-                           np.zeros((1, 1), np.int64), np.zeros((1, 1), np.uint8))
-    return float(out[0, 0])
+    return float(box_surface_depth(trk, obj, np.array([float(center[0])]), np.array([float(center[1])]))[0])
+
+
+def box_surface_depth(trk, obj: int, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
+    """Depth (m) of box part ``obj``'s estimate at full-resolution pixels ``(pu, pv)`` (P,), inf off its silhouette."""
+    est = trk.estimates[trk.names[obj]]
+    p = len(pu)
+    out = np.full((1, p), np.inf, np.float32)
+    render_boxes_at_pixels(est.R[None, None], est.t[None, None], trk.center[obj:obj + 1], trk.half[obj:obj + 1], 0,
+                           np.zeros(1, np.int64), pixel_rays(trk.intrinsics, pu, pv), np.asarray(pu, np.float64),
+                           np.asarray(pv, np.float64), np.arange(p, dtype=np.int64), trk.intrinsics.fx,
+                           trk.intrinsics.fy, trk.intrinsics.cx, trk.intrinsics.cy, out,
+                           np.arange(p, dtype=np.int64)[None], np.zeros((1, p), np.uint8))
+    return out[0].astype(np.float64)
 
 
 def reseed(trk, obj: int, det, depth: np.ndarray) -> bool:

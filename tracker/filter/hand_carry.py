@@ -81,16 +81,13 @@ take over from there."""
 
 @dataclass
 class Shadow:
-    """Where a hidden resting part would be had the hand over it taken it along (``carry_shadow``): the hand's
-    motion since the part was hidden, x ↦ ``R`` x + ``t`` (camera frame, m; followed as a shift, ``R`` stays the
-    identity unless the camera turns), its hand patch (camera frame, m; None once the hand has gone) and its last step
-    and turn (m, rad; the next registration's first guess; the turn is zero)."""
+    """Where a hidden resting part would be had the hand over it taken it along (``carry_shadow``): the hand's shift
+    ``t`` since the part was hidden (camera frame, m; followed as a shift, the part keeps its rotation), its hand patch
+    (camera frame, m; None once the hand has gone) and its last step (m; the next registration's first guess)."""
 
     patch: np.ndarray | None
-    R: np.ndarray
     t: np.ndarray
     step: np.ndarray
-    turn: np.ndarray
 
 
 class HandCarry:
@@ -131,10 +128,8 @@ class HandCarry:
         self.history = deque((t, pos @ Rd.T + td) for t, pos in self.history)
         for sh in self.shadows:
             if sh is not None:  # the same motion seen from the new camera frame
-                sh.R = Rd @ sh.R @ Rd.T
-                sh.t = Rd @ sh.t + td - sh.R @ td
+                sh.t, sh.step = Rd @ sh.t, Rd @ sh.step
                 sh.patch = None if sh.patch is None else sh.patch @ Rd.T + td
-                sh.step, sh.turn = Rd @ sh.step, Rd @ sh.turn
         self.patches = [None if pts is None else pts @ Rd.T + td for pts in self.patches]
         self.last_step = self.last_step @ Rd.T
         self.last_turn = self.last_turn @ Rd.T  # a rotation vector in the camera frame turns with the camera
@@ -268,11 +263,11 @@ class HandCarry:
             pts = self._points(depth, position, window, plane, exclude)
             pts = pts[((pts - position) ** 2).sum(1) <= cfg.carry_radius**2]
             if pts.shape[0] >= cfg.carry_min_points:
-                self.shadows[obj] = Shadow(pts, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
+                self.shadows[obj] = Shadow(pts, np.zeros(3), np.zeros(3))
             return
         if sh.patch is None:
             return
-        where = sh.R @ position + sh.t
+        where = position + sh.t
         pts = self._points(depth, where + sh.step, window, plane, exclude)
         if pts.shape[0] < cfg.carry_min_points:
             sh.patch = None
@@ -280,10 +275,10 @@ class HandCarry:
         src = sh.patch[:: -(-sh.patch.shape[0] // SHADOW_POINTS)]
         t = register_shift(src, pts, SHADOW_ITERATIONS, cfg.carry_max_step, sh.step)
         sh.t, sh.step = sh.t + t, t
-        if plane is not None and (sh.R @ position + sh.t - position) @ plane[0] < -0.002:
+        if plane is not None and sh.t @ plane[0] < -0.002:
             # the hand went lower than where it would hold the resting part: it is reaching for it, not holding it
-            sh.R, sh.t = np.eye(3), np.zeros(3)
-        near = ((pts - (sh.R @ position + sh.t)) ** 2).sum(1) <= cfg.carry_radius**2
+            sh.t = np.zeros(3)
+        near = ((pts - (position + sh.t)) ** 2).sum(1) <= cfg.carry_radius**2
         sh.patch = pts[near] if near.sum() >= cfg.carry_min_points else None
 
     def take_shadow(self, obj: int) -> Shadow | None:
@@ -292,7 +287,7 @@ class HandCarry:
         sh, self.shadows[obj] = self.shadows[obj], None
         if sh is not None and sh.patch is not None:
             self.start(obj, sh.patch)
-            self.last_step[obj], self.last_turn[obj] = sh.step, sh.turn
+            self.last_step[obj] = sh.step
         return sh
 
     def _points(self, depth, center, radius, plane, exclude, max_points: int = 800) -> np.ndarray:

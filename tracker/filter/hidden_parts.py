@@ -11,12 +11,11 @@ import numpy as np
 
 from tracker.filter.blob_follow import recentre
 from tracker.filter.camera_motion import move_part
-from tracker.filter.colour_input import reseed
+from tracker.filter.colour_input import box_surface_depth, reseed
 from tracker.filter.hand_carry import supported_by_other
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.filter.predict import adaptive_noise
 from tracker.filter.scene_motion import placed_by_depth
-from tracker.geometry.box_renderer import pixel_rays, render_boxes_at_pixels
 
 if TYPE_CHECKING:
     from tracker.filter.frame_context import FrameContext
@@ -133,30 +132,17 @@ def revealed(trk, obj: int, depth: np.ndarray) -> bool:
     return bool(behind.mean() > 0.9)
 
 
-def box_surface_depth(trk, obj: int, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
-    """Depth (m) of box part ``obj``'s estimate at full-resolution pixels ``(pu, pv)`` (P,), inf off its silhouette."""
-    est = trk.estimates[trk.names[obj]]
-    p = len(pu)
-    out = np.full((1, p), np.inf, np.float32)
-    render_boxes_at_pixels(est.R[None, None], est.t[None, None], trk.center[obj:obj + 1], trk.half[obj:obj + 1], 0,
-                           np.zeros(1, np.int64), pixel_rays(trk.intrinsics, pu, pv), np.asarray(pu, np.float64),
-                           np.asarray(pv, np.float64), np.arange(p, dtype=np.int64), trk.intrinsics.fx,
-                           trk.intrinsics.fy, trk.intrinsics.cx, trk.intrinsics.cy, out,
-                           np.arange(p, dtype=np.int64)[None], np.zeros((1, p), np.uint8))
-    return out[0].astype(np.float64)
-
-
 def take_shadow(trk, obj: int, pos: np.ndarray) -> bool:
     """Part ``obj`` is not where it was (:func:`revealed`): if the hand that hid it went away
     (:class:`~tracker.filter.hand_carry.Shadow`, moved by more than the part's bounding radius), the part went with
-    it: it is moved by the hand's motion since and carried on if the hand is still in view. Returns whether it
+    it: it is shifted by the hand's motion since and carried on if the hand is still in view. Returns whether it
     was."""
     sh = trk._carry.shadows[obj]
-    if sh is None or np.linalg.norm(sh.R @ pos[obj] + sh.t - pos[obj]) < trk._carry.radii[obj]:
+    if sh is None or np.linalg.norm(sh.t) < trk._carry.radii[obj]:
         return False
     trk._carry.take_shadow(obj)
-    move_part(trk, obj, sh.R, sh.t)
-    pos[obj] = sh.R @ pos[obj] + sh.t
+    move_part(trk, obj, np.eye(3), sh.t)
+    pos[obj] = pos[obj] + sh.t
     return True
 
 
