@@ -229,3 +229,49 @@ def test_banded_signed_distance_pairs_the_same_silhouette_points():
         assert out[0][2] == out[1][2] and out[0][2] > 0
         assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
     assert cut > 0  # the band left pixels out
+
+
+def above_table_points_reference(depth, intrinsics, center, radius, plane, min_height, stride, exclude):
+    """The numpy form of :func:`tracker.filter.hand_carry.above_table_points` (before it moved to numba)."""
+    z = float(center[2])
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    h, w = depth.shape
+    zmin = max(z - radius, 0.05)
+    u_c, v_c = fx * center[0] / z + cx, fy * center[1] / z + cy
+    ru, rv = fx * radius / zmin, fy * radius / zmin
+    u0, u1 = max(int(u_c - ru), 0), min(int(u_c + ru) + 1, w)
+    v0, v1 = max(int(v_c - rv), 0), min(int(v_c + rv) + 1, h)
+    d = depth[v0:v1:stride, u0:u1:stride].astype(np.float64)
+    vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
+    ok = np.isfinite(d) & (d > 0)
+    d, uu, vv = d[ok], uu[ok], vv[ok]
+    pts = np.stack([(uu - cx) / fx * d, (vv - cy) / fy * d, d], axis=1)
+    keep = ((pts - center) ** 2).sum(1) <= radius * radius
+    if plane is not None:
+        keep &= pts @ plane[0] + plane[1] > min_height
+    for c, r in exclude:
+        keep &= ((pts - c) ** 2).sum(1) > r * r
+    return pts[keep]
+
+
+@pytest.mark.parametrize("with_plane", [True, False])
+def test_above_table_points_kernel_matches_numpy(with_plane):
+    from tracker.filter.hand_carry import above_table_points
+
+    rng = np.random.default_rng(11)
+    depth = (0.55 + 0.1 * rng.random((480, 640))).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.05] = np.nan
+    depth[rng.random(depth.shape) < 0.05] = 0.0
+    normal = np.array([0.0, -0.8, -0.6])
+    plane = (normal, 0.52) if with_plane else None
+    kept = 0
+    for _ in range(20):
+        center = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), rng.uniform(0.5, 0.65)])
+        exclude = [(center + rng.normal(0.0, 0.03, 3), 0.03) for _ in range(rng.integers(0, 3))]
+        for stride in (1, 2):
+            got = above_table_points(depth, INTR, center, 0.1, plane, 0.01, stride, exclude)
+            ref = above_table_points_reference(depth, INTR, center, 0.1, plane, 0.01, stride, exclude)
+            assert got.shape == ref.shape
+            assert np.array_equal(got, ref)
+            kept += got.shape[0]
+    assert kept > 1000  # the windows were not empty

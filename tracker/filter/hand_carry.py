@@ -30,6 +30,7 @@ import numpy as np
 
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
+from tracker.geometry.depth_points import window_points
 
 
 @dataclass
@@ -58,17 +59,14 @@ def above_table_points(depth: np.ndarray, intrinsics: Intrinsics, center: np.nda
     v0, v1 = max(int(v_c - rv), 0), min(int(v_c + rv) + 1, h)
     if u0 >= u1 or v0 >= v1:
         return np.zeros((0, 3))
-    d = depth[v0:v1:stride, u0:u1:stride].astype(np.float64)
-    vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
-    ok = np.isfinite(d) & (d > 0)
-    d, uu, vv = d[ok], uu[ok], vv[ok]
-    pts = np.stack([(uu - cx) / fx * d, (vv - cy) / fy * d, d], axis=1)
-    keep = ((pts - center) ** 2).sum(1) <= radius * radius
-    if plane is not None:
-        keep &= pts @ plane[0] + plane[1] > min_height
-    for c, r in exclude:
-        keep &= ((pts - c) ** 2).sum(1) > r * r
-    return pts[keep]
+    use_plane = plane is not None
+    normal = np.asarray(plane[0], np.float64) if use_plane else np.zeros(3)
+    offset = float(plane[1]) if use_plane else 0.0
+    ex_c = np.array([c for c, _ in exclude], np.float64).reshape(-1, 3)
+    ex_r2 = np.array([r * r for _, r in exclude], np.float64)
+    return window_points(depth, u0, u1, v0, v1, int(stride), float(fx), float(fy), float(cx), float(cy),
+                         np.asarray(center, np.float64), radius * radius, normal, offset, float(min_height), use_plane,
+                         ex_c, ex_r2)
 
 
 SHADOW_POINTS = 200
