@@ -140,7 +140,7 @@ def _run_fused(src, frames, masks) -> dict:
     est, cpu, wall, ok = [], [], [], []
     for f, m in zip(frames(), masks(), strict=True):
         c0, w0 = time.thread_time(), time.perf_counter()
-        r = dense.step(f, m)
+        r = dense.step(f, m, prior=fused.dense_prior(float(f.timestamp)))  # start from the fused path
         c1, w1 = time.thread_time(), time.perf_counter()
         session.step(f)
         c2, w2 = time.thread_time(), time.perf_counter()

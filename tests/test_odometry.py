@@ -270,3 +270,37 @@ def test_fastslam_odometry_follows_a_swaying_camera_within_centimetres():
     assert odo.filter.n_landmarks > 20
     assert errs.ate_rmse < 0.01, errs
     assert errs.rot_rmse_deg < 1.0, errs
+
+
+def test_compiled_rigid_transforms_match_the_numpy_ones():
+    from tracker.odometry.gauss_newton import exp_twist, invert_rigid, log_twist
+    from tracker.odometry.se3 import invert
+
+    rng = np.random.default_rng(3)
+    for xi in [np.zeros(6), np.r_[0.01, -0.02, 0.005, 1e-12, 0.0, 0.0], *rng.normal(scale=0.3, size=(5, 6))]:
+        T = exp_se3(xi)
+        assert np.allclose(exp_twist(xi), T, atol=1e-12)
+        assert np.allclose(log_twist(T), log_se3(T), atol=1e-9)
+        assert np.allclose(invert_rigid(T), invert(T), atol=1e-12)
+
+
+def test_pyramid_halves_depth_and_mask_and_drops_blocks_with_a_hole_or_an_edge():
+    from tracker.geometry.camera import Intrinsics
+    from tracker.odometry.rgbd_pyramid import build_pyramid
+
+    depth = np.full((8, 8), 0.5, np.float32)
+    depth[0, 0] = np.nan  # a hole: block (0, 0) invalid
+    depth[0, 3] = 0.0  # no measurement: block (0, 1) invalid
+    depth[2:4, 4:6] = [[0.5, 0.6], [0.5, 0.6]]  # an occlusion edge inside block (1, 2): invalid
+    depth[4:6, 0:2] = [[0.50, 0.504], [0.502, 0.506]]  # a slope within the spread: averaged
+    mask = np.zeros((8, 8), bool)
+    mask[7, 7] = True
+    rgb = np.zeros((8, 8, 3), np.uint8)
+    pyr = build_pyramid(rgb, depth, Intrinsics.default(8, 8), 3, mask, first_level=1)
+    assert pyr[0] is None  # not asked for
+    d1 = pyr[1].depth
+    assert d1.shape == (4, 4) and np.isnan(d1[0, 0]) and np.isnan(d1[0, 1]) and np.isnan(d1[1, 2])
+    assert d1[2, 0] == pytest.approx(0.503, abs=1e-6) and d1[3, 3] == pytest.approx(0.5)
+    assert pyr[1].mask[3, 3] and pyr[1].mask.sum() == 1
+    assert pyr[2].mask[1, 1] and pyr[2].mask.sum() == 1 and np.isnan(pyr[2].depth[0, 0])
+    assert pyr[2].intrinsics.width == 2

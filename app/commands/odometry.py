@@ -114,7 +114,9 @@ class _FusedOdometry(_PartsOdometry):
         t0 = time.perf_counter()
         if frame.depth is None:
             return self.skip(frame.timestamp, f"frame {frame.index}: no depth image — pose extrapolated")
-        r = self.dense.step(frame, mask)
+        # the dense alignment starts from the fused path's prediction (not its own, which extrapolates a step the
+        # fused odometry rejected)
+        r = self.dense.step(frame, mask, prior=self.fused.dense_prior(float(frame.timestamp)))
         self.session.step(frame)
         lm = self.session.tracker.landmark_poses
         self.fused.predict(float(frame.timestamp), r.pose_world_camera if r.ok else None, lm, self.corners)

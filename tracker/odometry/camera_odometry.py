@@ -66,7 +66,8 @@ class CameraOdometry(OdometryBase):
     def _step(self, frame: Frame, mask: np.ndarray | None, prior: np.ndarray | None = None) -> OdometryResult:
         t0 = time.perf_counter()
         ts = float(frame.timestamp)
-        pyr = build_pyramid(frame.color, frame.depth, self.intrinsics, self.config.n_levels, mask)
+        pyr = build_pyramid(frame.color, frame.depth, self.intrinsics, self.config.n_levels, mask,
+                            first_level=min(self.config.levels))
 
         if not self.keyframes:  # the first measured frame fixes the world frame (or continues the prediction)
             T = self._motion.predict(ts)

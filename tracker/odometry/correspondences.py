@@ -90,3 +90,132 @@ def geometric_terms(points, normals, T_ck, T_kc, depth, mask, fx, fy, cx, cy, ma
 def empty_buffers(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Scratch arrays for ``n`` points: two value vectors and a Jacobian block."""
     return np.empty(n), np.empty(n), np.empty((n, 6))
+
+
+@nb.njit(cache=True)
+def _robust_scale(r, n, max_samples, floor):
+    """1.4826 × the median absolute deviation of ``r[:n]`` (at most ``max_samples`` of them, an even stride),
+    not below ``floor``."""
+    if n == 0:
+        return floor
+    stride = 1 if n <= max_samples else -(-n // max_samples)
+    s = r[0:n:stride].copy()
+    med = np.median(s)
+    for i in range(s.shape[0]):
+        s[i] = abs(s[i] - med)
+    return max(floor, 1.4826 * np.median(s))
+
+
+@nb.njit(cache=True)
+def _accumulate(r, jac, n, sigma, scale, tukey, threshold, huber, H, g):
+    """Add the robustly weighted rows ``0..n-1`` (residuals ``r``, Jacobian rows ``jac``) to the normal equations
+    ``H`` (6×6) and ``g`` (6): weight ``scale / sigma²`` times Huber's (``threshold`` = its k) or Tukey's
+    (``tukey``; ``threshold`` = its c) weight of ``r / sigma``. Returns the rows within ``huber`` robust standard
+    deviations (inliers)."""
+    inl = 0
+    base = scale / (sigma * sigma)
+    acc = np.zeros(27)  # the 21 entries of H's upper triangle, then g
+    for i in range(n):
+        x = abs(r[i]) / sigma
+        if tukey:
+            y = min(x / threshold, 1.0)
+            w = (1.0 - y * y) ** 2
+        else:
+            w = 1.0 if x <= threshold else threshold / max(x, 1e-12)
+        if x <= huber:
+            inl += 1
+        w *= base
+        if w == 0.0:
+            continue
+        j0, j1, j2, j3, j4, j5 = jac[i, 0], jac[i, 1], jac[i, 2], jac[i, 3], jac[i, 4], jac[i, 5]
+        w0, w1, w2, w3, w4, w5 = w * j0, w * j1, w * j2, w * j3, w * j4, w * j5
+        acc[0] += w0 * j0
+        acc[1] += w0 * j1
+        acc[2] += w0 * j2
+        acc[3] += w0 * j3
+        acc[4] += w0 * j4
+        acc[5] += w0 * j5
+        acc[6] += w1 * j1
+        acc[7] += w1 * j2
+        acc[8] += w1 * j3
+        acc[9] += w1 * j4
+        acc[10] += w1 * j5
+        acc[11] += w2 * j2
+        acc[12] += w2 * j3
+        acc[13] += w2 * j4
+        acc[14] += w2 * j5
+        acc[15] += w3 * j3
+        acc[16] += w3 * j4
+        acc[17] += w3 * j5
+        acc[18] += w4 * j4
+        acc[19] += w4 * j5
+        acc[20] += w5 * j5
+        ri = r[i]
+        acc[21] += w0 * ri
+        acc[22] += w1 * ri
+        acc[23] += w2 * ri
+        acc[24] += w3 * ri
+        acc[25] += w4 * ri
+        acc[26] += w5 * ri
+    k = 0
+    for a in range(6):
+        for b in range(a, 6):
+            H[a, b] += acc[k]
+            k += 1
+        g[a] += acc[21 + a]
+    return inl
+
+
+@nb.njit(cache=True)
+def symmetrise(H):
+    """Copy the upper triangle of a square matrix into its lower triangle (in place)."""
+    for a in range(6):
+        for b in range(a):
+            H[a, b] = H[b, a]
+
+
+@nb.njit(cache=True)
+def photometric_system(points, values, jac, T_ck, gray, mask, fx, fy, cx, cy, min_sigma, max_samples, weight,
+                       tukey, threshold, huber, ref, cur, jac_buf, H, g):
+    """The photometric term of one Gauss-Newton iteration added to ``H``, ``g`` (see :mod:`.dense_alignment`):
+    correspondences (:func:`photometric_terms`), a global gain and offset ``ref ≈ a·cur + b`` (``a`` clipped to
+    0.7–1.3), the robust scale of the residuals and their weighted rows. ``ref``, ``cur``, ``jac_buf``: scratch
+    of the keyframe points' length. Returns the inliers (0 when fewer than 10 points are seen: nothing added)."""
+    n = photometric_terms(points, values, jac, T_ck, gray, mask, fx, fy, cx, cy, ref, cur, jac_buf)
+    if n < 10:
+        return 0
+    vm = 0.0
+    rm = 0.0
+    for i in range(n):
+        vm += cur[i]
+        rm += ref[i]
+    vm /= n
+    rm /= n
+    var = 0.0
+    cov = 0.0
+    for i in range(n):
+        var += (cur[i] - vm) ** 2
+        cov += (cur[i] - vm) * (ref[i] - rm)
+    var /= n
+    cov /= n
+    a = min(max(cov / var, 0.7), 1.3) if var > 1e-6 else 1.0
+    b = rm - a * vm
+    for i in range(n):
+        ref[i] = ref[i] - (a * cur[i] + b)  # residuals, in place
+    s = _robust_scale(ref, n, max_samples, min_sigma)
+    inl = _accumulate(ref, jac_buf, n, s, weight, tukey, threshold, huber, H, g)
+    return inl
+
+
+@nb.njit(cache=True)
+def geometric_system(points, normals, T_ck, T_kc, depth, mask, fx, fy, cx, cy, max_dist, min_sigma, max_samples,
+                     tukey, threshold, huber, r_buf, jac_buf, H, g):
+    """The point-to-plane term of one Gauss-Newton iteration added to ``H``, ``g`` (:func:`geometric_terms`, robust
+    scale, weighted rows). Returns ``(inliers, seen)``; nothing is added when fewer than 10 correspondences are
+    kept (inliers 0)."""
+    n, seen = geometric_terms(points, normals, T_ck, T_kc, depth, mask, fx, fy, cx, cy, max_dist, r_buf, jac_buf)
+    if n < 10:
+        return 0, seen
+    s = _robust_scale(r_buf, n, max_samples, min_sigma)
+    inl = _accumulate(r_buf, jac_buf, n, s, 1.0, tukey, threshold, huber, H, g)
+    return inl, seen

@@ -42,9 +42,9 @@ class OdometryConfig:
     """
 
     levels: tuple[int, ...] = (3, 2, 1)
-    iterations: tuple[int, ...] = (10, 8, 6)
-    n_photo: int = 3000
-    n_geo: int = 3000
+    iterations: tuple[int, ...] = (8, 6, 4)
+    n_photo: int = 1500
+    n_geo: int = 1500
     min_gradient: float = 3.0
     photo_weight: float = 1.0
     max_geo_distance: float = 0.03
@@ -55,8 +55,8 @@ class OdometryConfig:
     min_geo_sigma: float = 0.0005
     prior_sigma_m: float = 0.0
     prior_sigma_deg: float = 0.5
-    converged_m: float = 2e-5
-    converged_rad: float = 2e-5
+    converged_m: float = 1e-4
+    converged_rad: float = 1e-4
     min_inliers: int = 300
     max_step_m: float = 0.05
     max_step_deg: float = 5.0

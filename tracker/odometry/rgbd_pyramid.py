@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba as nb
 import numpy as np
 
 from tracker.geometry.camera import Intrinsics
@@ -37,15 +38,33 @@ def to_gray(rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
 
 
+@nb.njit(cache=True)
+def _half_depth_mask(depth, mask, max_spread):
+    """One pass of :func:`half_depth` and :func:`half_mask` (a depth pixel is invalid when not finite and > 0)."""
+    h, w = depth.shape[0] // 2, depth.shape[1] // 2
+    out = np.empty((h, w), np.float32)
+    m = np.empty((h, w), np.bool_)
+    for i in range(h):
+        for j in range(w):
+            a, b = depth[2 * i, 2 * j], depth[2 * i, 2 * j + 1]
+            c, d = depth[2 * i + 1, 2 * j], depth[2 * i + 1, 2 * j + 1]
+            m[i, j] = mask[2 * i, 2 * j] or mask[2 * i, 2 * j + 1] or mask[2 * i + 1, 2 * j] or \
+                mask[2 * i + 1, 2 * j + 1]
+            if not (a > 0.0 and b > 0.0 and c > 0.0 and d > 0.0 and a < np.inf and b < np.inf and c < np.inf
+                    and d < np.inf):
+                out[i, j] = np.nan
+                continue
+            mean = (a + b + c + d) * 0.25
+            spread = max(max(a, b), max(c, d)) - min(min(a, b), min(c, d))
+            out[i, j] = np.nan if spread > max_spread * mean else mean
+    return out, m
+
+
 def half_depth(depth: np.ndarray) -> np.ndarray:
-    """2×2 block mean of a depth image (NaN where a block is incomplete or spans an edge)."""
-    h, w = depth.shape[0] // 2 * 2, depth.shape[1] // 2 * 2
-    a, b, c, d = depth[0:h:2, 0:w:2], depth[0:h:2, 1:w:2], depth[1:h:2, 0:w:2], depth[1:h:2, 1:w:2]
-    mean = (a + b + c + d) * 0.25  # NaN if any of the four is NaN
-    spread = np.maximum(np.maximum(a, b), np.maximum(c, d)) - np.minimum(np.minimum(a, b), np.minimum(c, d))
-    with np.errstate(invalid="ignore"):
-        mean[spread > MAX_BLOCK_SPREAD * mean] = np.nan
-    return mean.astype(np.float32)
+    """2×2 block mean of a depth image (metres; NaN where a block is incomplete — a pixel not finite or not > 0 — or
+    spans an edge: spread above ``MAX_BLOCK_SPREAD`` of the mean)."""
+    return _half_depth_mask(np.ascontiguousarray(depth, np.float32), np.zeros(depth.shape, np.bool_),
+                            MAX_BLOCK_SPREAD)[0]
 
 
 def half_mask(mask: np.ndarray) -> np.ndarray:
@@ -55,18 +74,26 @@ def half_mask(mask: np.ndarray) -> np.ndarray:
 
 
 def build_pyramid(rgb: np.ndarray, depth: np.ndarray, intrinsics: Intrinsics, n_levels: int,
-                  mask: np.ndarray | None = None) -> list[PyramidLevel]:
-    """Levels 0..n_levels-1 of an RGB uint8 image and its registered depth (metres, NaN invalid)."""
+                  mask: np.ndarray | None = None, first_level: int = 0) -> list[PyramidLevel | None]:
+    """Levels 0..n_levels-1 of an RGB uint8 image and its registered depth (metres, NaN or 0 invalid); levels below
+    ``first_level`` are None (not needed by the caller: level 0 of a VGA frame cost 3 ms of the odometry's 4 with
+    its depth cleaned, and only the halved levels are aligned)."""
     h, w = depth.shape
     gray = to_gray(rgb)
-    m = np.zeros((h, w), bool) if mask is None else np.asarray(mask, bool)
-    d = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
-    levels = [PyramidLevel(gray, d, m, intrinsics)]
+    m = np.zeros((h, w), bool) if mask is None else np.ascontiguousarray(mask, bool)
+    d = np.ascontiguousarray(depth, np.float32)
+    levels: list[PyramidLevel | None] = []
+    if first_level <= 0:
+        with np.errstate(invalid="ignore"):
+            clean = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan)).astype(np.float32)
+        levels.append(PyramidLevel(gray, clean, m, intrinsics))
+    else:
+        levels.append(None)
     for lv in range(1, n_levels):
-        prev = levels[-1]
-        ph, pw = prev.depth.shape
-        g = cv2.resize(prev.gray[: ph // 2 * 2, : pw // 2 * 2], (pw // 2, ph // 2), interpolation=cv2.INTER_AREA)
-        levels.append(PyramidLevel(g, half_depth(prev.depth), half_mask(prev.mask), intrinsics.scaled(0.5**lv)))
+        ph, pw = d.shape
+        gray = cv2.resize(gray[: ph // 2 * 2, : pw // 2 * 2], (pw // 2, ph // 2), interpolation=cv2.INTER_AREA)
+        d, m = _half_depth_mask(d, m, MAX_BLOCK_SPREAD)
+        levels.append(PyramidLevel(gray, d, m, intrinsics.scaled(0.5**lv)) if lv >= first_level else None)
     return levels
 
 
