@@ -275,3 +275,15 @@ def test_above_table_points_kernel_matches_numpy(with_plane):
             assert np.array_equal(got, ref)
             kept += got.shape[0]
     assert kept > 1000  # the windows were not empty
+
+
+def test_hand_carry_rotation_vector_is_scipys_to_the_bit():
+    from scipy.spatial.transform import Rotation
+
+    from tracker.filter.hand_carry import _rot, _rotvec
+
+    rng = np.random.default_rng(5)
+    for _ in range(2000):
+        w = rng.normal(0.0, 10 ** rng.uniform(-6, 0.4), 3)  # tiny to large turns, both sides of the series
+        R = _rot(w)
+        assert np.array_equal(_rotvec(R), Rotation.from_matrix(R).as_rotvec())

@@ -23,6 +23,7 @@ put while the hand moves on, and starts it for a part whose place the camera see
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -31,6 +32,7 @@ import numpy as np
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
 from tracker.geometry.depth_points import window_points
+from tracker.geometry.pose import _matrix_to_quat_one
 
 
 @dataclass
@@ -68,6 +70,9 @@ def above_table_points(depth: np.ndarray, intrinsics: Intrinsics, center: np.nda
                          np.asarray(center, np.float64), radius * radius, normal, offset, float(min_height), use_plane,
                          ex_c, ex_r2)
 
+
+PAIR_BOUND = 0.02
+"""Largest distance (m) of a nearest-neighbour pair in the hand-patch registrations."""
 
 SHADOW_POINTS = 200
 SHADOW_ITERATIONS = 8
@@ -297,12 +302,13 @@ class HandCarry:
         return pts[::step] if step > 1 else pts
 
 
-def point_normals(pts: np.ndarray, k: int = 8) -> np.ndarray:
-    """Unit normals (M, 3) of a point set from the covariance of each point's ``k`` nearest neighbours."""
+def point_normals(pts: np.ndarray, k: int = 8, tree=None) -> np.ndarray:
+    """Unit normals (M, 3) of a point set from the covariance of each point's ``k`` nearest neighbours; ``tree``: a
+    ``scipy.spatial.cKDTree`` of ``pts`` already built (else one is built)."""
     from scipy.spatial import cKDTree
 
     k = min(k, pts.shape[0])
-    _, idx = cKDTree(pts).query(pts, k=k)
+    _, idx = (cKDTree(pts) if tree is None else tree).query(pts, k=k)
     nb = pts[idx] - pts[idx].mean(axis=1, keepdims=True)
     cov = np.einsum("mki,mkj->mij", nb, nb)
     _, vecs = np.linalg.eigh(cov)
@@ -328,17 +334,17 @@ def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_
     ``dst``) over the nearest-neighbour pairs closer than 2 cm, ``iterations`` rounds, started from 0 and from
     ``guess`` (e.g. last frame's motion); the start leaving the smaller mean residual wins. |t| <= ``max_step``.
     Directions the surface does not constrain (a flat patch sliding in its plane) are damped, not guessed."""
-    from scipy.spatial import cKDTree
-
     if src.shape[0] < 3 or dst.shape[0] < 3:
         return np.zeros(3)
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(dst)
-    normals = point_normals(dst)
+    normals = point_normals(dst, tree=tree)
     best, best_cost = np.zeros(3), np.inf
     starts = [np.zeros(3)] if guess is None or not np.any(guess) else [np.zeros(3), np.asarray(guess, np.float64)]
     for t in starts:
         for _ in range(max(iterations, 1)):
-            d, j = tree.query(src + t, distance_upper_bound=0.02)
+            d, j = tree.query(src + t, distance_upper_bound=PAIR_BOUND)
             ok = np.isfinite(d)
             if ok.sum() < 3:
                 break
@@ -351,7 +357,7 @@ def register_translation(src: np.ndarray, dst: np.ndarray, iterations: int, max_
             if np.linalg.norm(step) < 5e-5:
                 break
         d, _ = tree.query(src + t)
-        cost = float(np.mean(np.minimum(d, 0.02)))
+        cost = float(np.mean(np.minimum(d, PAIR_BOUND)))
         if cost < best_cost:
             best, best_cost = t, cost
     norm = float(np.linalg.norm(best))
@@ -363,14 +369,14 @@ def register_shift(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
     """Translation t (m) that brings point set ``src`` (M, 3) onto ``dst`` (P, 3): point-to-point ICP over the
     nearest-neighbour pairs closer than 2 cm, started from ``guess`` (e.g. last frame's motion; else 0), at most
     ``iterations`` rounds; |t| <= ``max_step``. Cheaper than :func:`register_translation` (no normals, one start)."""
-    from scipy.spatial import cKDTree
-
     t = np.zeros(3) if guess is None else np.asarray(guess, np.float64).copy()
     if src.shape[0] < 3 or dst.shape[0] < 3:
         return np.zeros(3)
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(dst)
     for _ in range(max(iterations, 1)):
-        d, j = tree.query(src + t, distance_upper_bound=0.02)
+        d, j = tree.query(src + t, distance_upper_bound=PAIR_BOUND)
         ok = np.isfinite(d)
         if ok.sum() < 3:
             break
@@ -395,13 +401,13 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
     capped at ``max_turn`` rad (with ``turn_fallback`` a larger turn is taken as a failed registration and the
     translation-only registration is returned instead); |t| <= ``max_step``. With ``axis`` (unit, camera frame;
     e.g. the table normal) the rotation is about that axis only."""
-    from scipy.spatial import cKDTree
-
     zero = (np.zeros(3), np.zeros(3))
     if src.shape[0] < 6 or dst.shape[0] < 6:
         return zero
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(dst)
-    normals = point_normals(dst)
+    normals = point_normals(dst, tree=tree)
     c = src.mean(axis=0)
     rel = src - c
     radius2 = max(float((rel**2).sum(1).mean()), 1e-6)
@@ -412,8 +418,9 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
     for w, t in starts:
         w, t = w.copy(), t.copy()
         for _ in range(max(iterations, 1)):
-            moved = rel @ _rot(w).T + c + t
-            d, j = tree.query(moved, distance_upper_bound=0.02)
+            Rw = _rot(w)
+            moved = rel @ Rw.T + c + t
+            d, j = tree.query(moved, distance_upper_bound=PAIR_BOUND)
             ok = np.isfinite(d)
             if ok.sum() < 6:
                 break
@@ -431,12 +438,12 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
             A[nr:, nr:] += 1e-3 * np.trace(A[nr:, nr:]) * np.eye(3)
             x = np.linalg.solve(A, J.T @ r)
             dw = x[0] * axis if axis is not None else x[:3]
-            w = _rotvec(_rot(dw) @ _rot(w))
+            w = _rotvec(_rot(dw) @ Rw)
             t = t + x[nr:]
             if np.linalg.norm(x[nr:]) < 5e-5 and np.linalg.norm(dw) < 1e-4:
                 break
         d, _ = tree.query(rel @ _rot(w).T + c + t)
-        cost = float(np.mean(np.minimum(d, 0.02)))
+        cost = float(np.mean(np.minimum(d, PAIR_BOUND)))
         if cost < best_cost:
             best, best_cost = (w, t), cost
     w, t = best
@@ -458,7 +465,16 @@ def _rot(w: np.ndarray) -> np.ndarray:
 
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (rad) of one rotation matrix."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(R).as_rotvec()
+    """Rotation vector (rad) of one rotation matrix: scipy's ``Rotation.from_matrix(R).as_rotvec()`` with the same
+    floating-point operations (Shepperd's quaternion normalised once, w >= 0; angle 2 atan2(|v|, w), its series
+    below 1e-3 rad), without the object's per-call cost."""
+    x, y, z, w = _matrix_to_quat_one(np.asarray(R, np.float64)).tolist()
+    if w < 0:
+        x, y, z, w = -x, -y, -z, -w
+    angle = 2 * math.atan2(math.sqrt(x * x + y * y + z * z), w)
+    if angle <= 1e-3:
+        angle2 = angle * angle
+        scale = 2 + angle2 / 12 + 7 * angle2 * angle2 / 2880
+    else:
+        scale = angle / math.sin(angle / 2)
+    return np.array([scale * x, scale * y, scale * z])
