@@ -263,3 +263,29 @@ def test_signed_distance_inside_window_gives_the_whole_crops_values():
         ref = np.where(crop > 0, half - inside, outside - half).astype(np.float64)
         d, _, _ = _signed_distance(crop)
         assert np.array_equal(d, ref), trial
+
+
+def test_a_blob_missing_a_shaded_face_does_not_turn_the_part_when_the_depth_shows_the_face():
+    """The colour detector leaves out a dark strip of the part (here: the silhouette's right 7 pixels). Outline points
+    outside the blob where the depth shows the part's own surface are not paired with ``depth_agree_m``: refined
+    from the true pose, the part stays; without it the blob's cut edge pulls the outline in and the pose moves."""
+    truth = face_on(12.0)  # seen through one face: the depth alone holds neither its turn nor its slide
+    depth = render_box_depth(INTR, [truth], [(EDGE, EDGE, EDGE)]).astype(np.float32)
+    seen = np.isfinite(depth)
+    depth[~seen] = 0.62
+    depth += np.random.default_rng(1).normal(0.0, 0.0005, depth.shape).astype(np.float32)
+    cols = np.nonzero(seen.any(axis=0))[0]
+    blob = seen.copy()
+    blob[:, cols.max() - 6:] = False
+    contours, _ = cv2.findContours(blob.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    outline = max(contours, key=cv2.contourArea).reshape(-1, 2)
+    errors = {}
+    for agree in (0.0, 0.008):
+        ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=2,
+                          region=RegionSettings(depth_agree_m=agree))
+        ref.refine(depth, [(truth.R, truth.t)], [True], outlines=[outline])
+        res = ref.last[0]
+        assert res is not None and res.healthy
+        errors[agree] = (yaw_error(res.R, truth), float(np.linalg.norm(res.t - truth.t)))
+    assert errors[0.008][0] < 0.5 and errors[0.008][1] < 0.0005, errors
+    assert errors[0.0][0] > 1.5 or errors[0.0][1] > 0.0015, errors

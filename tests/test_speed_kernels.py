@@ -225,7 +225,7 @@ def test_banded_signed_distance_pairs_the_same_silhouette_points():
         out = []
         for sd, gu, gv in (full, banded):
             out.append(_accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, 0.5, rs.occlusion_m,
-                                   rs.max_px, rs.sigma_px, rs.huber_k, rs.weight))
+                                   rs.depth_agree_m, rs.max_px, rs.sigma_px, rs.huber_k, rs.weight))
         assert out[0][2] == out[1][2] and out[0][2] > 0
         assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
     assert cut > 0  # the band left pixels out

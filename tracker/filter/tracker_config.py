@@ -88,6 +88,11 @@ class TrackerConfig(BaseModel):
         "along the normal (tilt picked up from a hand's registration noise is dropped; its turn about the normal is "
         "kept).",
     )
+    carry_left_behind: bool = Field(
+        False, description="A carried part keeps the pose where the hand last had it at the table (lowest point within "
+        "carry_min_height); when its blob reappears on that pose after the hand rose, it was left there and is put "
+        "back (the hand went away without it); the pose is dropped once the depth sees the table through it.",
+    )
     rest_release_px: float = Field(
         4.0, ge=0.0, description="The rest prior is off for a part whose colour blob (however small) reaches more "
         "than this many pixels beyond the part's projected bounding rectangle at its rest position: it is moving "
@@ -384,6 +389,11 @@ class TrackerConfig(BaseModel):
     refine_region_weight: float = Field(
         0.0, ge=0.0, description="Weight of the silhouette term of the refinement (the rendered outline on the colour "
         "blob's edge, refine/region_term.py); 0 = depth only.",
+    )
+    refine_region_depth_agree: float = Field(
+        0.0, ge=0.0, description="Silhouette term: a rendered outline point outside the colour blob whose measured "
+        "depth lies within this many metres of the point's own is not paired (the depth shows the part there; the "
+        "blob left out a shaded face, which would turn the part). 0 = off.",
     )
     refine_max_translation: float = Field(0.03, gt=0.0, description="Largest accepted refinement correction, metres.")
     refine_max_rotation: float = Field(0.35, gt=0.0, description="Largest accepted refinement rotation, radians.")

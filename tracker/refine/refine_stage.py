@@ -100,7 +100,8 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
         occlusion_m=cfg.refine_occlusion, lambda_rot=cfg.refine_lambda_rot, lambda_trans=cfg.refine_lambda_trans,
         min_valid_fraction=cfg.refine_min_valid_fraction, max_points=cfg.refine_max_points,
     )
-    region = RegionSettings(weight=cfg.refine_region_weight) if cfg.refine_region_weight > 0 else None
+    region = (RegionSettings(weight=cfg.refine_region_weight, depth_agree_m=cfg.refine_region_depth_agree)
+              if cfg.refine_region_weight > 0 else None)
     return PartRefiner(trk.intrinsics, shapes, list(trk.center), trk.corners, settings, cfg.refine_stride,
                        cfg.refine_max_translation, cfg.refine_max_rotation, region)
 

@@ -58,6 +58,9 @@ class RegionSettings:
     """Contour points farther than this from the blob edge (px) are not paired."""
     occlusion_m: float = 0.015
     """A measurement this much in front of a contour point hides the outline there."""
+    depth_agree_m: float = 0.0
+    """A contour point outside the blob (by more than a pixel) whose measured depth is within this of its own (the
+    depth shows the part there: the colour blob left out a shaded face) is not paired; 0 = off."""
     weight: float = 1.0
     """Multiplier of the term's information against the depth term's."""
     max_points: int = 200
@@ -437,8 +440,8 @@ def pack_shapes(shapes: list) -> tuple:
 
 
 @nb.njit(cache=True)
-def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, occlusion, max_px, sigma, huber_k,
-                weight):
+def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, occlusion, agree, max_px, sigma,
+                huber_k, weight):
     """Normal equations ``H`` (6, 6), ``g`` (6) of the silhouette residuals and the number of paired points (see
     :meth:`RegionTerm.normal_equations`)."""
     H = np.zeros((6, 6))
@@ -461,6 +464,7 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
             continue
         iu = int(np.floor(u + 0.5))
         iv = int(np.floor(v + 0.5))
+        meas = np.nan
         if 0 <= iu < ww and 0 <= iv < hh:
             meas = depth[iv, iu]
             if meas > 0.0 and np.isfinite(meas) and meas < x2 - occlusion:
@@ -478,6 +482,8 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
         dv = w00 * gv[j0, i0] + w01 * gv[j0, i0 + 1] + w10 * gv[j0 + 1, i0] + w11 * gv[j0 + 1, i0 + 1]
         if abs(r) > max_px or (du == 0.0 and dv == 0.0):
             continue
+        if agree > 0.0 and r > inset + 1.0 and meas > 0.0 and abs(meas - x2) < agree:
+            continue  # outside the blob, but the depth shows the part's surface here: the blob missed a shaded face
         # dr/dx = grad D . dpi/dx
         e0 = du * fx / x2
         e1 = dv * fy / x2
@@ -693,7 +699,8 @@ class RegionTerm:
                            np.ascontiguousarray(t, np.float64), np.ascontiguousarray(c, np.float64), f.d, f.gu, f.gv,
                            float(f.u0), float(f.v0), depth if self.frame_depth is None else self.frame_depth,
                            intrinsics.fx, intrinsics.fy, intrinsics.cx,
-                           intrinsics.cy, float(self.inset), cfg.occlusion_m, cfg.max_px, cfg.sigma_px, cfg.huber_k,
+                           intrinsics.cy, float(self.inset), cfg.occlusion_m, cfg.depth_agree_m, cfg.max_px,
+                           cfg.sigma_px, cfg.huber_k,
                            cfg.weight)
 
 
