@@ -309,7 +309,8 @@ def point_normals(pts: np.ndarray, k: int = 8, tree=None) -> np.ndarray:
 
     k = min(k, pts.shape[0])
     _, idx = (cKDTree(pts) if tree is None else tree).query(pts, k=k)
-    nb = pts[idx] - pts[idx].mean(axis=1, keepdims=True)
+    near = pts[idx]
+    nb = near - near.mean(axis=1, keepdims=True)
     cov = np.einsum("mki,mkj->mij", nb, nb)
     _, vecs = np.linalg.eigh(cov)
     return vecs[:, :, 0]
