@@ -289,3 +289,12 @@ def test_a_blob_missing_a_shaded_face_does_not_turn_the_part_when_the_depth_show
         errors[agree] = (yaw_error(res.R, truth), float(np.linalg.norm(res.t - truth.t)))
     assert errors[0.008][0] < 0.5 and errors[0.008][1] < 0.0005, errors
     assert errors[0.0][0] > 1.5 or errors[0.0][1] > 0.0015, errors
+
+
+def test_the_default_tracker_refines_with_the_depth_agreement_rule():
+    from tracker.filter.particle_filter import MultiObjectTracker
+    from tracker.filter.tracker_config import TrackerConfig
+    from tracker.geometry.parts import PartSpec
+
+    trk = MultiObjectTracker([PartSpec.cube("red", "red")], INTR, TrackerConfig.preset("default"), seed=0)
+    assert trk._refiner.region is not None and trk._refiner.region.depth_agree_m > 0.0

@@ -261,10 +261,9 @@ def surface_depth(trk, obj: int, center) -> float:
     return float(box_surface_depth(trk, obj, np.array([float(center[0])]), np.array([float(center[1])]))[0])
 
 
-def box_surface_depth(trk, obj: int, pu: np.ndarray, pv: np.ndarray, pose: Pose | None = None) -> np.ndarray:
-    """Depth (m) of box part ``obj`` at full-resolution pixels ``(pu, pv)`` (P,), inf off its silhouette; at its
-    estimate, or at ``pose`` if given."""
-    est = trk.estimates[trk.names[obj]] if pose is None else pose
+def box_surface_depth(trk, obj: int, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
+    """Depth (m) of box part ``obj``'s estimate at full-resolution pixels ``(pu, pv)`` (P,), inf off its silhouette."""
+    est = trk.estimates[trk.names[obj]]
     p = len(pu)
     out = np.full((1, p), np.inf, np.float32)
     render_boxes_at_pixels(est.R[None, None], est.t[None, None], trk.center[obj:obj + 1], trk.half[obj:obj + 1], 0,

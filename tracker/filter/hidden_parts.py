@@ -16,7 +16,6 @@ from tracker.filter.hand_carry import supported_by_other
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.filter.predict import adaptive_noise
 from tracker.filter.scene_motion import placed_by_depth
-from tracker.geometry.pose import Pose
 
 if TYPE_CHECKING:
     from tracker.filter.frame_context import FrameContext
@@ -71,19 +70,14 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     # the part left behind
     centers = {i: b[0] for i, b in enumerate(trk._follow_blobs or []) if b is not None}
     moving = (np.abs(delta).sum(1) > 0) | (np.abs(rot - np.eye(3)).sum((1, 2)) > 0)
-    if cfg.carry_left_behind:
-        check_left_behind(trk, depth, heights, plane)
     for i in np.nonzero(moving)[0]:
         nm = trk.names[i]
         new_pos = rot[i] @ pos[i] + delta[i]
         reappeared = centers.get(i) if trk._blob_reappeared[i] else None
         if reappeared is not None and (trk._blob_off[i] or blob_disagrees(trk, i, new_pos, reappeared)):
             # its blob shows up again away from where the hand would take it: the part is not in the hand (any
-            # more); it is put back where the hand set it down if the blob shows it there, else where the blob is
-            # (the colour stage has done so already for a blob off its silhouette)
+            # more); it is put where the blob is (the colour stage has done so already for a blob off its silhouette)
             trk._carry.release(i)
-            if put_back(trk, i, reappeared):
-                continue
             if not trk._blob_off[i]:
                 reseed(trk, i, detections.get(nm), depth)
             continue
@@ -104,45 +98,13 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
 
 
-def check_left_behind(trk, depth: np.ndarray | None, heights: np.ndarray, plane) -> None:
-    """Where a carried part was last set down (``carry_left_behind``): a carried part whose lowest point is within
-    ``carry_min_height`` of the table (``heights``, m, before this frame's hand motion) keeps that pose as where it
-    may be left when the hand rises. A rising hand lifts a part or leaves it; the depth and the colour decide
-    later: the pose is dropped once the depth sees the table through it (:func:`revealed`), and taken back when the
-    part's blob reappears on it (:func:`put_back`). Dropped as well when the carry ends."""
-    carried = np.asarray(trk._carry.carried, bool)
-    for i in range(len(trk.parts)):
-        if not carried[i]:
-            trk._left_behind[i] = None
-        elif plane is not None and heights[i] <= trk.config.carry_min_height:
-            trk._left_behind[i] = trk.estimates[trk.names[i]]
-        elif trk._left_behind[i] is not None and depth is not None and revealed(trk, i, depth, trk._left_behind[i]):
-            trk._left_behind[i] = None
-
-
-def put_back(trk, obj: int, centroid: np.ndarray) -> bool:
-    """If part ``obj`` has a pose where it was set down (:func:`check_left_behind`) whose silhouette holds its blob's
-    ``centroid`` (pixels), the part was left there: it is moved back (particles with it) and True returned."""
-    left = trk._left_behind[obj] if trk.config.carry_left_behind else None
-    if left is None or trk.meshes[obj] is not None:
-        return False
-    trk._left_behind[obj] = None
-    hit = box_surface_depth(trk, obj, np.array([float(centroid[0])]), np.array([float(centroid[1])]), left)[0]
-    if not np.isfinite(hit):
-        return False
-    est = trk.estimates[trk.names[obj]]
-    Q = left.R @ est.R.T
-    move_part(trk, obj, Q, left.t - Q @ est.t)
-    return True
-
-
-def revealed(trk, obj: int, depth: np.ndarray, pose: Pose | None = None) -> bool:
+def revealed(trk, obj: int, depth: np.ndarray) -> bool:
     """Does the depth camera see through hidden part ``obj``'s estimate: valid depth on at least
     ``carry_revealed_fraction`` of the middle half of its projected bounding rectangle, nearly all of it more than
     1.5 cm behind the part (behind its far side; with ``revealed_surface``, behind the estimate's rendered surface at
     each pixel, so that the table right under a resting box counts)? Then the part is not where it was (a hand
-    snatched it while hiding it, or it was pushed away). ``pose``: test there instead of at the estimate."""
-    est = trk.estimates[trk.names[obj]] if pose is None else pose
+    snatched it while hiding it, or it was pushed away)."""
+    est = trk.estimates[trk.names[obj]]
     pts = trk.corners[obj] @ est.R.T + est.t
     if np.any(pts[:, 2] < 0.05):
         return False
@@ -160,7 +122,7 @@ def revealed(trk, obj: int, depth: np.ndarray, pose: Pose | None = None) -> bool
         return False
     if trk.config.revealed_surface and trk.meshes[obj] is None:
         vv, uu = np.nonzero(valid)
-        surface = box_surface_depth(trk, obj, uu + u0 + du, vv + v0 + dv, est)
+        surface = box_surface_depth(trk, obj, uu + u0 + du, vv + v0 + dv)
         on = np.isfinite(surface)
         if on.mean() < 0.5:
             return False

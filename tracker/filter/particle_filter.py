@@ -202,7 +202,6 @@ class MultiObjectTracker:
         self._cooldown = np.zeros(k, np.int64)
         self._follow_blobs = None  # last frame's confident blobs (centroid, area) per part, for blob follow
         self._blob_moved = np.zeros(k, bool)
-        self._left_behind: list = [None] * k  # pose where a carried part was last at the table (hidden_parts)
         self._blob_reappeared = np.zeros(k, bool)  # confident blob this frame but not in the last
         self._landmarks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # scene motion: last frame's landmark poses
         self._blob_uv_target: dict[int, np.ndarray] = {}  # carried parts: image position their blob says

@@ -88,11 +88,6 @@ class TrackerConfig(BaseModel):
         "along the normal (tilt picked up from a hand's registration noise is dropped; its turn about the normal is "
         "kept).",
     )
-    carry_left_behind: bool = Field(
-        False, description="A carried part keeps the pose where the hand last had it at the table (lowest point within "
-        "carry_min_height); when its blob reappears on that pose after the hand rose, it was left there and is put "
-        "back (the hand went away without it); the pose is dropped once the depth sees the table through it.",
-    )
     rest_release_px: float = Field(
         4.0, ge=0.0, description="The rest prior is off for a part whose colour blob (however small) reaches more "
         "than this many pixels beyond the part's projected bounding rectangle at its rest position: it is moving "
@@ -541,6 +536,7 @@ PRESETS["default"] = {
     "color_likelihood_px": 10.0,
     "dense_refinement": True,
     "refine_region_weight": 1.0,
+    "refine_region_depth_agree": 0.008,
     "likelihood_pixels_per_part": 250,
     "reseed_fraction": 0.3,
     "detected_full_noise": True,
