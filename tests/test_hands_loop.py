@@ -88,3 +88,76 @@ def test_occluder_mask_covers_a_bare_forearm():
     assert masks[True][400, 560] and not masks[False][400, 560]  # a forearm pixel far from the palm
     assert masks[True][160, 330] and masks[False][160, 330]  # the palm in both
     assert not masks[True][50, 50]  # the table stays free
+
+
+def _moving_palm(k: int) -> np.ndarray:
+    """Frame k of a skin-coloured 60×60 palm moving 6 px per frame to the right over a grey table (0: no palm)."""
+    img = np.zeros((480, 640, 3), np.uint8) + np.uint8([120, 130, 140])
+    if k:
+        x = 200 + 6 * k
+        img[200:260, x : x + 60] = [215, 160, 130]
+    return img
+
+
+def _palm_loop(overlap: str) -> HandLoop:
+    from tracker.hands.loop import HandLoopConfig
+    from tracker.hands.tracker import HandTrackerConfig
+
+    cfg = HandLoopConfig(tracker=HandTrackerConfig(auto_init=False, seed=0), occluder_arm=False, overlap=overlap)
+    loop = HandLoop([], Intrinsics.default(), cfg)
+    loop.step(_moving_palm(0), None, None, {})
+    loop.step(_moving_palm(1), None, None, {})
+    loop.tracker.start_track([206, 200, 266, 260])
+    return loop
+
+
+def test_predicted_occluder_mask_moves_with_the_hand():
+    """With overlap "lagged" the step also predicts H_k to the next frame by the hand's velocity: it covers the palm
+    of frame k + 1 better than H_k does (the palm moves 6 px per frame, more than the 5 px dilation)."""
+    loop = _palm_loop("lagged")
+    for k in range(2, 9):
+        loop.step(_moving_palm(k), None, None, {})
+    assert loop.estimates and loop.estimates[0].state[4] > 3.0  # the track moves right
+    now, predicted = loop.occluder, loop.next_occluder
+    assert now is not None and predicted is not None and loop.tracker_occluders() is predicted
+    palm_next = np.zeros((480, 640), bool)
+    palm_next[200:260, 200 + 6 * 9 : 260 + 6 * 9] = True
+    assert (palm_next & ~predicted).sum() < (palm_next & ~now).sum()
+    assert predicted[230, 200 + 6 * 9 + 62] and not now[230, 200 + 6 * 9 + 62]  # ahead of the palm: predicted only
+
+
+def test_hand_step_in_the_worker_thread_matches_the_callers_thread():
+    """start / wait (the worker thread) give the same estimates and masks as running the step in the caller's
+    thread; with "wait" the tracker's occluder prior is this frame's H_k; a bad frame's error comes out of wait."""
+    import pytest
+
+    threaded, inline = _palm_loop("wait"), _palm_loop("off")
+    for k in range(2, 7):
+        threaded.start(_moving_palm(k), None, None, {})
+        inline.start(_moving_palm(k), None, None, {})
+        threaded.wait()
+        assert [e.box for e in threaded.estimates] == [e.box for e in inline.estimates]
+        assert np.array_equal(threaded.tracker_occluders(), inline.occluder_mask())
+    threaded.start(np.zeros((10, 10), np.uint8), None, None, {})
+    with pytest.raises(ValueError):
+        threaded.wait()
+    threaded.close()
+
+
+def test_pipeline_with_the_hand_step_in_a_thread_matches_the_sequential_one():
+    """overlap "wait" (hand step in the worker thread, joined before the cube tracker) gives the same poses, hands and
+    touched parts as "off" (all in the caller's thread) on guidance-demo seed 100 while the hand comes in."""
+    from tracker.hands.loop import HandLoopConfig
+
+    src = SimulatedTable("guidance-demo", seed=100, realtime=False)
+    snaps = {}
+    for overlap in ("off", "wait"):
+        pipe = AssemblyPipeline(src.parts, src.intrinsics, mode="guidance", initial_poses=src.initial_poses, hands=True,
+                                hand_config=HandLoopConfig(overlap=overlap))  # fmt: skip
+        snaps[overlap] = [pipe.process(src.render(i)) for i in range(75)]
+        pipe.hands.close()
+    assert any(s.hands for s in snaps["off"])
+    for a, b in zip(snaps["off"], snaps["wait"], strict=True):
+        assert a.hands == b.hands and not a.errors and not b.errors
+        for name, pose in a.poses.items():
+            assert np.allclose(pose.t, b.poses[name].t, atol=1e-12)

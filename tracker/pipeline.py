@@ -19,7 +19,9 @@ mode's update (instruction, connections, verdicts). A stage that fails on a fram
 With ``hands=True`` the hand tracker runs in the perceive stage (:class:`tracker.hands.loop.HandLoop`): its hand
 mask is the cube tracker's occluder prior, touching / holding per part is computed after the estimate and shown in
 ``Snapshot.hands`` ("holding the red cube"), and the touched parts gate the mode's connection decisions
-(``AssemblyParams.hand_gate``).
+(``AssemblyParams.hand_gate``). The hand step runs in the hand loop's worker thread beside the colour detection and
+the cube tracker (``HandLoopConfig.overlap``; by default the tracker's occluder prior is the previous frame's hand
+mask predicted to this frame) and is joined before touching / holding.
 
 Parts without a pose are not tracked until they are placed: by a rectangle the user draws
 (``tracker.perception.box_tools.pose_from_rect`` + :meth:`~AssemblyPipeline.set_part_pose`), by
@@ -175,6 +177,8 @@ class AssemblyPipeline:
         self._tracked_names: list[str] = []
         self._hand_config = hand_config
         self.hands = self._make_hands() if hands else None
+        self._hands_joined = True  # the hand step of the current frame has been waited for (or none was started)
+        self._touched: set[str] | None = None  # parts the hands touched at the last frame, taken before the hand step
         self.tracker = None
         self._initialize_tracker()
         self.mode_name: str | None = None
@@ -391,6 +395,7 @@ class AssemblyPipeline:
         self._fps, self._last_wall = 0.0, None
         self._auto_place_time, self._auto_place_errors, self.carried = None, {}, []
         if self.hands is not None:
+            self.hands.close()
             self.hands = self._make_hands()
         self.tracker = None
         if self.ego is not None:
@@ -513,6 +518,8 @@ class AssemblyPipeline:
         except Exception as exc:  # noqa: BLE001 - a failing stage is reported, the frame goes on
             errors.append(f"table: {type(exc).__name__}: {exc}")
         timings["table"] = time.perf_counter() - t0
+        if self.hands is not None:
+            self._start_hands(frame, errors, timings)
 
         t0 = time.perf_counter()
         detections: dict = {}
@@ -531,27 +538,43 @@ class AssemblyPipeline:
                 log.exception("automatic placement failed on frame %s", frame.index)
                 errors.append(f"auto-place: {type(exc).__name__}: {exc}")
             timings["auto_place"] = time.perf_counter() - t0
-        if self.hands is not None:
-            self._perceive_hands(frame, errors, timings)
         return detections
 
-    def _perceive_hands(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> None:
-        """One hand-tracker step (the table plane and the parts' last poses exclude pixels that cannot be a hand)."""
+    def _start_hands(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> None:
+        """Start one hand-tracker step (the table plane and the parts' last poses exclude pixels that cannot be a
+        hand) in the hand loop's worker thread (:meth:`HandLoop.start`); the parts the hands touched at the last
+        frame are taken first, for the cube tracker, which may run while the step does."""
         from tracker.filter.frame_context import table_normal_offset
 
-        t0, c0 = time.perf_counter(), time.thread_time()
+        self._hands_joined = False
+        self._touched = self.hands.touched_parts()
         try:
-            self.hands.perceive(frame.color, frame.depth, table_normal_offset(self.table), self.poses)
+            self.hands.start(frame.color, frame.depth, table_normal_offset(self.table), self.poses)
+        except Exception as exc:  # noqa: BLE001 - a failing stage is reported, the frame goes on
+            self._hands_joined = True
+            log.exception("hand tracking failed on frame %s", frame.index)
+            errors.append(f"hands: {type(exc).__name__}: {exc}")
+
+    def _join_hands(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> None:
+        """Wait for the hand step started by :meth:`_start_hands` (once per frame); its wall and thread CPU time go to
+        ``timings["hands"]`` / ``["hands_cpu"]``, the time this thread waited for it to ``["hands_wait"]``."""
+        if self._hands_joined:
+            return
+        self._hands_joined = True
+        t0 = time.perf_counter()
+        try:
+            self.hands.wait()
         except Exception as exc:  # noqa: BLE001 - a failing stage is reported, the frame goes on
             log.exception("hand tracking failed on frame %s", frame.index)
             errors.append(f"hands: {type(exc).__name__}: {exc}")
-        timings["hands"] = time.perf_counter() - t0
-        timings["hands_cpu"] = time.thread_time() - c0
+        timings["hands_wait"] = time.perf_counter() - t0
+        timings["hands"], timings["hands_cpu"] = self.hands.step_seconds
 
     def _hand_contacts(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> None:
         """Touching / holding per hand and part at the new estimated poses (for the panel and the connection gate)."""
         if self.hands is None:
             return
+        self._join_hands(frame, errors, timings)
         t0 = time.perf_counter()
         try:
             self.hands.update_contacts(self.poses, frame.depth)
@@ -560,11 +583,17 @@ class AssemblyPipeline:
             errors.append(f"hand contacts: {type(exc).__name__}: {exc}")
         timings["hand_contacts"] = time.perf_counter() - t0
 
-    def _occluders(self) -> np.ndarray | None:
-        """The hand occluder mask for the cube tracker (None when hands are off or the prior is switched off)."""
-        if self.hands is None or not self.hands.config.occluder_prior:
-            return None
-        return self.hands.occluder_mask()
+    def _hands_for_tracker(self, frame: Frame, errors: list[str],
+                           timings: dict[str, float]) -> tuple[np.ndarray | None, set[str] | None]:  # fmt: skip
+        """The hand occluder mask and the touched parts for the cube tracker's step (None, None with hands off). With
+        ``overlap`` "lagged" the mask is the last frame's predicted to this one and the hand step keeps running;
+        else the step is joined first and the touched parts are read after it (as without the worker)."""
+        if self.hands is None:
+            return None, None
+        if self.hands.config.overlap == "lagged":
+            return self.hands.tracker_occluders(), self._touched
+        self._join_hands(frame, errors, timings)
+        return self.hands.tracker_occluders(), self.hands.touched_parts()
 
     def _estimate(self, frame: Frame, detections: dict, errors: list[str],
                   timings: dict[str, float]) -> dict[str, np.ndarray]:
@@ -577,14 +606,13 @@ class AssemblyPipeline:
                     tracked = set(self._tracked_names)
                     hints = [h for h in self.mode.connection_hints() if {h.first, h.second} <= tracked]
                     self.tracker.set_connection_hints(hints)
-                touched = None if self.hands is None else self.hands.touched_parts()
+                occluders, touched = self._hands_for_tracker(frame, errors, timings)
                 fused = self.ego is not None and self.ego.fused is not None
                 if fused:
                     from tracker.filter.camera_motion import hand_hidden_parts_to_the_odometry
 
                     hand_hidden_parts_to_the_odometry(self.tracker)
-                state = self.tracker.step(frame, detections or None, self.table, occluders=self._occluders(),
-                                          touched=touched)
+                state = self.tracker.step(frame, detections or None, self.table, occluders=occluders, touched=touched)
                 if fused:  # odometry fused: the parts check the camera; the hidden parts follow its correction
                     from tracker.filter.camera_motion import follow_correction
 

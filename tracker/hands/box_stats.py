@@ -25,7 +25,7 @@ EPS_COV = 0.01
 """Ridge ε (px²) added to every sample covariance (§14.8)."""
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def box_of(x: float, y: float, w: float, h: float) -> tuple[int, int, int, int]:
     """Inclusive integer box (u0, v0, u1, v1) of a state's centre and size (round half to even, as numpy)."""
     return (int(np.rint(x - w / 2.0)), int(np.rint(y - h / 2.0)), int(np.rint(x + w / 2.0)), int(np.rint(y + h / 2.0)))
@@ -36,12 +36,12 @@ def box_area(b) -> int:
     return (b[2] - b[0] + 1) * (b[3] - b[1] + 1)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _clip(u0, v0, u1, v1, W, H):
     return max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def transition_stats(u0, v0, u1, v1, mask, flow, labels, n_clusters, n_r):
     """Statistics of the forward flow ``flow`` [h, w, 2] on B ∩ ``mask`` for the inclusive box (u0..u1, v0..v1).
 
@@ -138,7 +138,7 @@ def transition_stats(u0, v0, u1, v1, mask, flow, labels, n_clusters, n_r):
     return n, m, s00, s01, s11, rx, ry, s2x, s2y
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def mask_count(u0, v0, u1, v1, mask):
     """(|B ∩ mask|, |B|) for an inclusive box clipped to the ROI."""
     H, W = mask.shape
@@ -152,7 +152,7 @@ def mask_count(u0, v0, u1, v1, mask):
     return n, area
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def flow_cov(u0, v0, u1, v1, mask, flow):
     """Sample covariance (s00, s01, s11) of ``flow`` on B ∩ ``mask`` (n − 1, plus ε; 1 px²·I with < 3 vectors)."""
     H, W = mask.shape
@@ -178,7 +178,7 @@ def flow_cov(u0, v0, u1, v1, mask, flow):
     return s00, (suv - n * mu * mv) / (n - 1), (svv - n * mv * mv) / (n - 1) + EPS_COV
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def box_observation(u0, v0, u1, v1, mask, lab1, lab2, n_clusters, d2_scale):
     """Pixel statistics of the observation model for one inclusive box, clipped to the ROI first (its outline is
     the clipped box's one-pixel border, d the distance to it, closed form for a rectangle; eqs. 6.22–6.29).
@@ -233,7 +233,7 @@ def box_observation(u0, v0, u1, v1, mask, lab1, lab2, n_clusters, d2_scale):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def observation_likelihood(obs, vx, vy, cent1, cent2, ac_hat, am_hat, v2_scale):
     """p(y_k | x_k) (eq. 6.20, π_c = π_m = 0.5) from :func:`box_observation`'s ``obs`` and the state's velocity:
     p_c = g_{c,1}·g_{c,2} (eqs. 6.24, 6.26), p_m = g_{m,1}·g_{m,2} (eqs. 6.30, 6.31 corrected), ``ac_hat`` = â_{c,1},
@@ -256,7 +256,7 @@ def observation_likelihood(obs, vx, vy, cent1, cent2, ac_hat, am_hat, v2_scale):
     return 0.5 * pc + 0.5 * math.exp(-10.0 * (am - am_hat) ** 2) * gm2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def dominant_component(u0, v0, u1, v1, cc, n_comp):
     """(label, |component ∩ B|) of the colour component (labels ``cc``, 0 = none, 1..n_comp) that covers most pixels
     of the inclusive box; label 0 if none does."""

@@ -21,7 +21,7 @@ MIN_OVERLAP = 0.5
 """Product safeguard (not in the thesis): the certain box must have box F-score ≥ 0.5 with the prediction."""
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def certain_state(x, y, w, h, cent, ratio, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, tau_d):
     """(passed, state [6]) for previous centre/size (x, y, w, h) in image coordinates; ``cent`` [2, 2] = forward
     PMC centroids c^α (NaN if undefined), ``ratio`` [2, 2] = (r^x, r^y) per α; ROI origin (ox, oy)."""

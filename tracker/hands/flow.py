@@ -96,7 +96,7 @@ def invert(f: np.ndarray) -> np.ndarray:
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _splat(f, out):
     """Every grid point x + f(x), rounded half to even, receives −f(x); ``out`` [h, w, 2] gets the mean of what each
     pixel received; returns the bool mask of the pixels that received something."""

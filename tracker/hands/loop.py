@@ -18,12 +18,23 @@
 4. :meth:`HandLoop.touched_parts` feeds the connection gate of §14.7 (``Mode.set_hand_contacts``); None while no hand
    is tracked (gate open, seed behaviour).
 
+Overlap with the cube tracker (product addition, ``HandLoopConfig.overlap``): :meth:`HandLoop.start` runs step 1 and
+the occluder mask of step 2 (:meth:`HandLoop.step`) in a worker thread of its own and :meth:`HandLoop.wait` joins it
+(OpenCV, numpy and the hand kernels release the GIL for most of the step, so on a second core it costs the caller
+little). With ``"lagged"`` (default) the cube tracker of frame k does not wait for the hands of frame k: its occluder
+prior is H_{k−1} predicted to frame k (:meth:`HandLoop.predicted_occluder_mask`: each 8-connected piece of the
+undilated H_{k−1} moved by the mean image velocity of the hands whose boxes it reaches into, then dilated by r_occ),
+made by the worker at the end of step k−1; with ``"wait"`` it waits for H_k (the hand step then overlaps only the
+colour detection); ``"off"`` runs everything in the caller's thread.
+
 Parts without a box shape (``PartSpec.box`` None) have no silhouette here: they are neither excluded nor touched.
 Units: pixels of the colour image (end-exclusive boxes), metres, camera frame.
 """
 
 from __future__ import annotations
 
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -36,13 +47,17 @@ from tracker.geometry.pose import Pose
 from tracker.hands.contact import R_TOUCH, ContactMonitor
 from tracker.hands.tracker import HandEstimate, HandTracker, HandTrackerConfig
 
+OVERLAP_MODES = ("lagged", "wait", "off")
+
 
 @dataclass(frozen=True)
 class HandLoopConfig:
     """``tracker``: the hand tracker's configuration; ``occluder_prior``: give the cube tracker the hand mask as its
     occluder prior (spec §14.5; switchable); ``table_clearance_m``: pixels closer than this to the table plane
     are not hand; ``part_clearance_m``: δ_z of the part-surface exclusion (spec §14.1); ``occluder_radius_px``: r_occ
-    (spec §14.5); ``occluder_arm``: add the forearm (the colour components reaching into a hand's box) to H_k."""
+    (spec §14.5); ``occluder_arm``: add the forearm (the colour components reaching into a hand's box) to H_k;
+    ``overlap``: "lagged" | "wait" | "off", how the pipeline runs the hand step beside the cube tracker (module
+    docstring)."""
 
     tracker: HandTrackerConfig = field(default_factory=HandTrackerConfig)
     occluder_prior: bool = True
@@ -50,9 +65,14 @@ class HandLoopConfig:
     part_clearance_m: float = 0.01
     occluder_radius_px: int = 5
     occluder_arm: bool = True
+    overlap: str = "lagged"
+
+    def __post_init__(self) -> None:
+        if self.overlap not in OVERLAP_MODES:
+            raise ValueError(f"hand loop overlap must be one of {', '.join(OVERLAP_MODES)}, got {self.overlap!r}")
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _slab_grid(R, o, half, x, y, out):
     """Slab test of the rays (x[j], y[i], 1) (camera frame) against the box of half extents ``half`` whose frame has
     rotation ``R`` (box → camera) and sees the camera centre at ``o``; writes the entry depth or inf into ``out``."""
@@ -77,7 +97,7 @@ def _slab_grid(R, o, half, x, y, out):
                 out[i, j] = np.inf
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _near_plane(z, rx, ry, n, off, clearance, out):
     """Mark the pixels of the depth grid ``z`` (rays (rx[j], ry[i], 1)) within ``clearance`` of the plane
     n·X + off = 0."""
@@ -118,6 +138,63 @@ class HandLoop:
         self.positions: dict[int, np.ndarray] = {}  # per hand: camera-frame point of its box centre (m)
         self._rays: tuple[tuple[int, int], np.ndarray, np.ndarray] | None = None
         self._vertices = {n: p.vertices() for n, p in self.parts.items()}
+        self.occluder: np.ndarray | None = None  # H_k of the last step (HandLoop.step)
+        self.next_occluder: np.ndarray | None = None  # H_k predicted to frame k + 1 ("lagged")
+        self.step_seconds = (0.0, 0.0)  # wall, thread CPU of the last step
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: Future | None = None
+
+    # ------------------------------------------------------------------ the step in a worker thread
+    def step(self, color: np.ndarray, depth: np.ndarray | None, table_plane: tuple[np.ndarray, float] | None,
+             poses: dict[str, Pose]) -> None:  # fmt: skip
+        """:meth:`perceive`, then (occluder prior on) H_k into :attr:`occluder` and, with ``overlap`` "lagged", its
+        prediction to the next frame into :attr:`next_occluder`; :attr:`step_seconds` its wall and thread CPU time."""
+        t0, c0 = time.perf_counter(), time.thread_time()
+        self.perceive(color, depth, table_plane, poses)
+        self.occluder = self.next_occluder = None
+        if self.config.occluder_prior:
+            union = self._occluder_union()
+            if union is not None:
+                self.occluder = self.occluder_mask(union)
+                if self.config.overlap == "lagged":
+                    self.next_occluder = self.predicted_occluder_mask(union)
+        self.step_seconds = (time.perf_counter() - t0, time.thread_time() - c0)
+
+    def start(self, color: np.ndarray, depth: np.ndarray | None, table_plane: tuple[np.ndarray, float] | None,
+              poses: dict[str, Pose]) -> None:  # fmt: skip
+        """:meth:`step` in the loop's worker thread (in the caller's with ``overlap`` "off"); the arrays must not
+        change until :meth:`wait` returns (``poses`` is copied). Until then only :attr:`next_occluder` of the
+        previous step and :meth:`touched_parts` may be read."""
+        self.wait()
+        if self.config.overlap == "off":
+            self.step(color, depth, table_plane, poses)
+            return
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hands")
+        self._pending = self._pool.submit(self.step, color, depth, table_plane, dict(poses))
+
+    def wait(self) -> None:
+        """Join the step started by :meth:`start` (re-raises its exception); returns at once if none is pending."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
+    def close(self) -> None:
+        """Join a pending step (its error is dropped) and end the worker thread."""
+        try:
+            self.wait()
+        except Exception:  # noqa: BLE001 - closing: the step's error was or will not be reported
+            pass
+        if self._pool is not None:
+            self._pool.shutdown(wait=False)
+            self._pool = None
+
+    def tracker_occluders(self) -> np.ndarray | None:
+        """The occluder prior for this frame's cube-tracker step: H_{k−1} predicted to frame k with ``overlap``
+        "lagged" (readable while the step runs), else H_k (after :meth:`wait`); None with the prior off."""
+        if not self.config.occluder_prior:
+            return None
+        return self.next_occluder if self.config.overlap == "lagged" else self.occluder
 
     # ------------------------------------------------------------------ per frame
     def perceive(self, color: np.ndarray, depth: np.ndarray | None, table_plane: tuple[np.ndarray, float] | None,
@@ -175,27 +252,87 @@ class HandLoop:
         u1, v1 = min(int(np.ceil(us.max())) + 2, W), min(int(np.ceil(vs.max())) + 2, H)
         return (u0, v0, u1, v1) if u1 > u0 and v1 > v0 else None
 
-    def occluder_mask(self) -> np.ndarray | None:
+    def occluder_mask(self, union: np.ndarray | None = None) -> np.ndarray | None:
         """H_k (spec §14.5): full-resolution bool H×W, the dilation by r_occ of the union of the hand masks and of
         the colour components that reach into a hand's box (a bare forearm; :meth:`HandTracker.arm_mask`); None
-        without hands."""
+        without hands. ``union``: the undilated H_k at the working resolution (:meth:`_occluder_union`) if made."""
+        union = self._occluder_union() if union is None else union
+        if union is None:
+            return None
+        s = self.tracker.s
+        x, y, w, h = cv2.boundingRect(union)
+        crop = union[y : y + h, x : x + w]
+        if s > 1:
+            crop = cv2.resize(crop, (w * s, h * s), interpolation=cv2.INTER_NEAREST)
+        return self._dilated([(x * s, y * s, crop)])
+
+    def predicted_occluder_mask(self, union: np.ndarray | None = None) -> np.ndarray | None:
+        """H_k predicted to frame k + 1 (``overlap`` "lagged"): every 8-connected piece of the undilated union of
+        :meth:`occluder_mask` moved by the mean image velocity (full px per frame, rounded) of the hands whose boxes
+        it reaches into (of all hands if it reaches none), then dilated by r_occ; None without hands. ``union``: the
+        undilated H_k at the working resolution (:meth:`_occluder_union`) if already made."""
+        union = self._occluder_union() if union is None else union
+        if union is None:
+            return None
+        s = self.tracker.s
+        x, y, w, h = cv2.boundingRect(union)
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(union[y : y + h, x : x + w], connectivity=8,
+                                                            ltype=cv2.CV_32S)  # fmt: skip
+        hands = [(e.box, e.state[4:6]) for e in self.estimates if e.box[2] > e.box[0] and e.box[3] > e.box[1]]
+        pieces = []
+        for i in range(1, n):
+            bx, by, bw, bh = (int(v) for v in stats[i, :4])
+            piece = (lab[by : by + bh, bx : bx + bw] == i).astype(np.uint8)
+            if s > 1:
+                piece = cv2.resize(piece, (bw * s, bh * s), interpolation=cv2.INTER_NEAREST)
+            px, py = (bx + x) * s, (by + y) * s  # the piece's top-left full-resolution pixel
+
+            def reaches(b, px=px, py=py, piece=piece) -> bool:
+                return piece[max(b[1] - py, 0) : max(b[3] - py, 0), max(b[0] - px, 0) : max(b[2] - px, 0)].any()
+
+            vel = [v for b, v in hands if reaches(b)] or [v for _, v in hands]
+            du, dv = (int(round(float(c))) for c in np.mean(vel, axis=0)) if vel else (0, 0)
+            pieces.append((px + du, py + dv, piece))
+        return self._dilated(pieces)
+
+    def _occluder_union(self) -> np.ndarray | None:
+        """The undilated H_k at the working resolution: uint8 0/1 union of the hand masks and the arm mask; None
+        without hands or if empty."""
         if not any(e.id in self.masks and e.box[2] > e.box[0] and e.box[3] > e.box[1] for e in self.estimates):
             return None
         union: np.ndarray | None = None
-        for m in self.masks.values():
+        for m in self.tracker.hand_masks_small().values():
             union = m.copy() if union is None else union | m
-        arm = self.tracker.arm_mask() if self.config.occluder_arm else None
+        arm = self.tracker.arm_mask_small() if self.config.occluder_arm else None
         if arm is not None:
             union = arm if union is None else union | arm
         if union is None or not union.any():
             return None
+        return union
+
+    def _dilated(self, pieces: list[tuple[int, int, np.ndarray]]) -> np.ndarray | None:
+        """Full-resolution bool H×W: the uint8 0/1 full-resolution ``pieces`` (x, y, image: the image's top-left pixel
+        and content) pasted, clipped to the image, and dilated by a disk of radius r_occ (computed only around them);
+        None if no piece lands in the image."""
+        assert self.tracker.full_size is not None
+        W, H = self.tracker.full_size
+        rects = []
+        for x, y, img in pieces:
+            x0, y0 = max(x, 0), max(y, 0)
+            x1, y1 = min(x + img.shape[1], W), min(y + img.shape[0], H)
+            if x1 > x0 and y1 > y0:
+                rects.append((x0, y0, x1, y1, img[y0 - y : y1 - y, x0 - x : x1 - x]))
+        if not rects:
+            return None
         r = int(self.config.occluder_radius_px)
-        H, W = union.shape
-        x, y, w, h = cv2.boundingRect(union.astype(np.uint8))
-        x0, y0, x1, y1 = max(x - r, 0), max(y - r, 0), min(x + w + r, W), min(y + h + r, H)
+        X0, Y0 = max(min(q[0] for q in rects) - r, 0), max(min(q[1] for q in rects) - r, 0)
+        X1, Y1 = min(max(q[2] for q in rects) + r, W), min(max(q[3] for q in rects) + r, H)
+        canvas = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+        for x0, y0, x1, y1, img in rects:
+            canvas[y0 - Y0 : y1 - Y0, x0 - X0 : x1 - X0] |= img
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         out = np.zeros((H, W), bool)
-        out[y0:y1, x0:x1] = cv2.dilate(union[y0:y1, x0:x1].astype(np.uint8), k).astype(bool)
+        out[Y0:Y1, X0:X1] = cv2.dilate(canvas, k).astype(bool)
         return out
 
     def update_contacts(self, poses: dict[str, Pose], depth: np.ndarray | None) -> dict[tuple[int, str], str]:

@@ -61,7 +61,7 @@ class MotionClusters:
         self._prev.clear()
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _assign(flow, sel, centers, labels):
     """Label every selected pixel with its nearest centroid (squared Euclidean, first on ties); returns the
     per-cluster counts and flow sums."""

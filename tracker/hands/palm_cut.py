@@ -49,7 +49,8 @@ class PalmCut:
 
 
 def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: float, hand_length_m: float,
-             far_frac: float = 0.25) -> PalmCut:  # fmt: skip
+             far_frac: float = 0.25, origin: tuple[int, int] = (0, 0),
+             image_size: tuple[int, int] | None = None) -> PalmCut:  # fmt: skip
     """Palm of a skin component ``comp`` (bool, working resolution): e = mean of the component's pixels within
     b = 2 full-resolution px of an image edge (its entry point; the centroid if none), d = each pixel's distance from
     e, and the palm is the pixels with d ≥ d_max − L_hand, L_hand = f_x · ``hand_length_m`` / Z̄ in working pixels
@@ -57,9 +58,16 @@ def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: floa
 
     Product choice: Z̄ is the median valid depth (``depth`` in metres, full resolution) of the component's far end
     (the ``far_frac`` of its pixels farthest from e) rather than of the whole component — a bare forearm reaches
-    towards the camera and its depth lengthened L_hand about twofold; without depth Z̄ = 0.75 m."""
+    towards the camera and its depth lengthened L_hand about twofold; without depth Z̄ = 0.75 m.
+
+    ``comp`` may be a crop of the working image: ``origin`` (x, y) is its top-left pixel in the image and
+    ``image_size`` (w, h) the image's size (default: ``comp``'s own); the box is in image pixels."""
     h, w = comp.shape
+    if image_size is not None:
+        w, h = image_size
     ys, xs = np.nonzero(comp)
+    if origin != (0, 0):
+        xs, ys = xs + origin[0], ys + origin[1]
     b = max(1, int(round(2.0 / scale)))
     edge = (xs < b) | (ys < b) | (xs >= w - b) | (ys >= h - b)
     border = bool(edge.any())
@@ -99,16 +107,10 @@ def palm_anchors(mask: np.ndarray, depth: np.ndarray | None, scale: int, focal: 
         if area < min_area or not (x < b or y < b or x + bw > w - b or y + bh > h - b):
             continue
         sub = lab[y : y + bh, x : x + bw] == i
-        cut = palm_cut(_embed(sub, x, y, w, h), depth, scale, focal, hand_length_m)
+        cut = palm_cut(sub, depth, scale, focal, hand_length_m, origin=(x, y), image_size=(w, h))
         if cut.border and cut.has_forearm:
             out.append(cut.box)
     return np.asarray(out, np.float64).reshape(-1, 4)
-
-
-def _embed(sub: np.ndarray, x: int, y: int, w: int, h: int) -> np.ndarray:
-    full = np.zeros((h, w), bool)
-    full[y : y + sub.shape[0], x : x + sub.shape[1]] = sub
-    return full
 
 
 def match_anchor(boxes: np.ndarray, anchors: np.ndarray, min_f: float = ANCHOR_MIN_F) -> np.ndarray:

@@ -50,7 +50,7 @@ class PFParams:
         return self.n_threshold if self.n_threshold is not None else self.n_particles // 2
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _gauss2(mx, my, s00, s01, s11, z0, z1):
     """A draw of N((mx, my), [[s00, s01], [s01, s11]]) from two standard normals (Cholesky of the 2×2)."""
     l00 = np.sqrt(max(s00, 1e-12))
@@ -59,7 +59,7 @@ def _gauss2(mx, my, s00, s01, s11, z0, z1):
     return mx + l00 * z0, my + l10 * z0 + l11 * z1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _propagate(parts, stats, cent, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, W, H, u3, z, n_min, tau_d,
                sp0, ss0, svfb):  # fmt: skip
     """New particles [N, 6] and the section-6 flags [N]; ``stats`` [N, 2, 9] = transition_stats per particle and α,

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import numba as nb
 import numpy as np
 
 MODEL_PATH = Path(__file__).with_name("skin_model.json")
@@ -153,7 +154,9 @@ class SkinModel:
     def mask(self, rgb: np.ndarray) -> np.ndarray:
         """Colour mask B^c (uint8 0/1, H×W) of an 8-bit RGB image."""
         ycc = cv2.cvtColor(np.ascontiguousarray(rgb, np.uint8), cv2.COLOR_RGB2YCrCb)
-        return self.lut[ycc[..., 1], ycc[..., 2]]
+        out = np.empty(ycc.shape[:2], np.uint8)
+        _lookup(ycc, self.lut, out)
+        return out
 
     # ------------------------------------------------------------------ session
     def with_background(self, rgb: np.ndarray, k: int = 4, step: int = 4, seed: int = 0,
@@ -204,3 +207,11 @@ class SkinModel:
                              float(d.get("log_tau", 0.0)), float(d.get("floor", 0.0)), d.get("info"))  # fmt: skip
         except (OSError, KeyError, TypeError, json.JSONDecodeError) as exc:
             raise ValueError(f"{path}: not a skin model file ({exc})") from exc
+
+
+@nb.njit(cache=True, nogil=True)
+def _lookup(ycc, lut, out):
+    """``out[i, j] = lut[Cr, Cb]`` of the YCrCb image ``ycc`` [H, W, 3] (uint8)."""
+    for i in range(ycc.shape[0]):
+        for j in range(ycc.shape[1]):
+            out[i, j] = lut[ycc[i, j, 1], ycc[i, j, 2]]

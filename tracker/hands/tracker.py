@@ -340,24 +340,23 @@ class HandTracker(TrackIdentity):
     def hand_masks(self) -> dict[int, np.ndarray]:
         """Skin mask M_k = B(x_k) ∩ B^c_k (spec §14.4) of every live track at the last processed frame, as a
         full-resolution bool H×W image per track id (working pixels repeated ``scale`` times)."""
+        return {tid: self._upsampled(m) for tid, m in self.hand_masks_small().items()}
+
+    def hand_masks_small(self) -> dict[int, np.ndarray]:
+        """:meth:`hand_masks` at the working resolution (uint8 0/1 images of the working frame's size)."""
         out: dict[int, np.ndarray] = {}
         if self._prev_rgb is None or self.full_size is None:
             return out
-        W, H = self.full_size
         h, w = self._prev_rgb.shape[:2]
-        s = self.s
         for tr in self.tracks:
             u0, v0, u1, v1 = state_box(tr.filt.estimate)
             u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, w - 1), min(v1, h - 1)
-            m = np.zeros((H, W), bool)
+            m = np.zeros((h, w), np.uint8)
             if u1 >= u0 and v1 >= v0:
                 if self._mask_prev is not None:
-                    sub = self._mask_prev[v0 : v1 + 1, u0 : u1 + 1].astype(bool)
+                    m[v0 : v1 + 1, u0 : u1 + 1] = self._mask_prev[v0 : v1 + 1, u0 : u1 + 1]
                 else:
-                    sub = self._skin(self._prev_rgb, self._prev_excl, v0, v1 + 1, u0, u1 + 1).astype(bool)
-                up = np.repeat(np.repeat(sub, s, axis=0), s, axis=1)
-                hh, ww = min(up.shape[0], H - v0 * s), min(up.shape[1], W - u0 * s)
-                m[v0 * s : v0 * s + hh, u0 * s : u0 * s + ww] = up[:hh, :ww]
+                    m[v0 : v1 + 1, u0 : u1 + 1] = self._skin(self._prev_rgb, self._prev_excl, v0, v1 + 1, u0, u1 + 1)
             out[tr.id] = m
         return out
 
@@ -366,6 +365,11 @@ class HandTracker(TrackIdentity):
         bare forearm, spec §14.5): the 4-connected components of B^c_k (opened with a 3×3 cross, so that scattered
         false skin pixels do not join) that hold a pixel of some track's box, as a full-resolution bool H×W image; None
         without tracks."""
+        small = self.arm_mask_small()
+        return None if small is None else self._upsampled(small)
+
+    def arm_mask_small(self) -> np.ndarray | None:
+        """:meth:`arm_mask` at the working resolution (uint8 0/1), None without tracks or components."""
         if self._prev_rgb is None or self.full_size is None or not self.tracks:
             return None
         m = self._mask_prev if self._mask_prev is not None else self._skin(self._prev_rgb, self._prev_excl)
@@ -379,12 +383,21 @@ class HandTracker(TrackIdentity):
             keep.update(int(v) for v in np.unique(sub) if v)
         if not keep:
             return None
-        small = np.isin(lab, np.fromiter(keep, np.int32))
+        chosen = np.zeros(int(lab.max()) + 1, np.uint8)
+        chosen[np.fromiter(keep, np.int64)] = 1
+        return chosen[lab]
+
+    def _upsampled(self, small: np.ndarray) -> np.ndarray:
+        """A working-resolution 0/1 image as a full-resolution bool H×W image (each working pixel repeated ``scale``
+        times along both axes; rows and columns past the working image stay False)."""
+        assert self.full_size is not None
         W, H = self.full_size
         s = self.s
+        h, w = small.shape
         out = np.zeros((H, W), bool)
-        up = np.repeat(np.repeat(small, s, axis=0), s, axis=1)
-        out[: min(H, up.shape[0]), : min(W, up.shape[1])] = up[:H, :W]
+        hh, ww = min(H, h * s), min(W, w * s)
+        up = small if s == 1 else cv2.resize(small.view(np.uint8), (w * s, h * s), interpolation=cv2.INTER_NEAREST)
+        out[:hh, :ww] = up[:hh, :ww].view(bool)
         return out
 
     # ------------------------------------------------------------------ frames
