@@ -103,7 +103,8 @@ def _palm_loop(overlap: str) -> HandLoop:
     from tracker.hands.loop import HandLoopConfig
     from tracker.hands.tracker import HandTrackerConfig
 
-    cfg = HandLoopConfig(tracker=HandTrackerConfig(auto_init=False, seed=0), occluder_arm=False, overlap=overlap)
+    cfg = HandLoopConfig(tracker=HandTrackerConfig(auto_init=False, seed=0), occluder_prior=True, occluder_arm=False,
+                         overlap=overlap)  # fmt: skip
     loop = HandLoop([], Intrinsics.default(), cfg)
     loop.step(_moving_palm(0), None, None, {})
     loop.step(_moving_palm(1), None, None, {})
