@@ -38,7 +38,7 @@ from benchmarks.odometry_baseline import OpenCvOdometry  # noqa: E402
 from tracker.evaluation.machine_info import machine_info  # noqa: E402
 from tracker.evaluation.trajectory_errors import trajectory_errors  # noqa: E402
 from tracker.geometry.pose import Pose  # noqa: E402
-from tracker.odometry import make_odometry  # noqa: E402
+from tracker.odometry import OdometryConfig, make_odometry  # noqa: E402
 from tracker.odometry.exclusion_mask import exclusion_mask  # noqa: E402
 from tracker.sources.simulator import SimOptions, SimulatedTable  # noqa: E402
 
@@ -135,7 +135,7 @@ def _run_fused(src, frames, masks) -> dict:
     session = TrackSession(src.parts, src.intrinsics, src.initial_poses, TrackerConfig.preset("default"), seed=0)
     trk = session.tracker
     corners = {name: trk.corners[i] for i, name in enumerate(trk.names)}
-    dense = make_odometry("default", src.intrinsics, seed=0)
+    dense = make_odometry("default", src.intrinsics, seed=0, config=OdometryConfig.fast())
     fused = FusedOdometry()
     est, cpu, wall, ok = [], [], [], []
     for f, m in zip(frames(), masks(), strict=True):

@@ -381,3 +381,15 @@ def test_fused_correction_reaches_the_hidden_parts_only():
     assert follow_correction(trk, M, poses) == [hidden]
     assert poses[hidden].translation_error(Pose.from_matrix(M) @ before[hidden]) < 1e-12
     assert np.allclose(trk.p[:, 1], poses[hidden].t) and trk.estimates[landmark] is before[landmark]
+
+
+def test_fused_odometry_runs_the_fast_dense_settings_and_the_dense_method_keeps_its_own():
+    from tracker.geometry.camera import Intrinsics
+    from tracker.odometry import OdometryConfig
+    from tracker.odometry.ego_motion import EgoMotion
+
+    intr = Intrinsics.default()
+    fast = OdometryConfig.fast()
+    assert fast.n_photo < OdometryConfig().n_photo and sum(fast.iterations) < sum(OdometryConfig().iterations)
+    assert EgoMotion("fused", intr, []).odometry.config == fast
+    assert EgoMotion("default", intr, []).odometry.config == OdometryConfig()

@@ -102,11 +102,11 @@ class _FusedOdometry(_PartsOdometry):
     (:class:`tracker.odometry.fused_odometry.FusedOdometry`)."""
 
     def __init__(self, recording: str, seed: int, intrinsics) -> None:
-        from tracker.odometry import make_odometry
+        from tracker.odometry import OdometryConfig, make_odometry
         from tracker.odometry.fused_odometry import FusedOdometry
 
         super().__init__(recording, seed)
-        self.dense = make_odometry("default", intrinsics, seed=seed)
+        self.dense = make_odometry("default", intrinsics, seed=seed, config=OdometryConfig.fast())
         self.fused = FusedOdometry()
         self.used = 0
 

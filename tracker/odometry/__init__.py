@@ -26,10 +26,11 @@ METHODS = ("default", "fastslam")
 """Method names of :func:`make_odometry` (``default`` = the dense RGB-D odometry)."""
 
 
-def make_odometry(method: str, intrinsics: Intrinsics, seed: int = 0):
-    """An odometry of ``method`` (one of :data:`METHODS`) for images with these intrinsics."""
+def make_odometry(method: str, intrinsics: Intrinsics, seed: int = 0, config: OdometryConfig | None = None):
+    """An odometry of ``method`` (one of :data:`METHODS`) for images with these intrinsics; ``config``: the dense
+    odometry's settings (default :class:`OdometryConfig`)."""
     if method == "default":
-        return CameraOdometry(intrinsics, OdometryConfig(), seed=seed)
+        return CameraOdometry(intrinsics, config or OdometryConfig(), seed=seed)
     if method == "fastslam":
         from tracker.odometry.fastslam_odometry import FastSlamOdometry
 

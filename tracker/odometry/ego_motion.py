@@ -182,13 +182,14 @@ class EgoMotion:
 
     def __init__(self, method: str, intrinsics: Intrinsics, parts: Sequence[PartSpec], seed: int = 0,
                  idle: bool = True) -> None:
-        from tracker.odometry import make_odometry
+        from tracker.odometry import OdometryConfig, make_odometry
 
         self.method = method
         self.idle = bool(idle)
         self.intrinsics = intrinsics
         self.parts = list(parts)
-        self.odometry = make_odometry("default" if method == "fused" else method, intrinsics, seed=seed)
+        self.odometry = make_odometry("default" if method == "fused" else method, intrinsics, seed=seed,
+                                      config=OdometryConfig.fast() if method == "fused" else None)
         self.fused = None
         self.reset()
 

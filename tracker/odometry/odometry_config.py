@@ -42,9 +42,9 @@ class OdometryConfig:
     """
 
     levels: tuple[int, ...] = (3, 2, 1)
-    iterations: tuple[int, ...] = (8, 6, 4)
-    n_photo: int = 1500
-    n_geo: int = 1500
+    iterations: tuple[int, ...] = (10, 8, 6)
+    n_photo: int = 3000
+    n_geo: int = 3000
     min_gradient: float = 3.0
     photo_weight: float = 1.0
     max_geo_distance: float = 0.03
@@ -55,8 +55,8 @@ class OdometryConfig:
     min_geo_sigma: float = 0.0005
     prior_sigma_m: float = 0.0
     prior_sigma_deg: float = 0.5
-    converged_m: float = 1e-4
-    converged_rad: float = 1e-4
+    converged_m: float = 2e-5
+    converged_rad: float = 2e-5
     min_inliers: int = 300
     max_step_m: float = 0.05
     max_step_deg: float = 5.0
@@ -82,9 +82,22 @@ class OdometryConfig:
         """Pyramid depth needed (deepest used level + 1)."""
         return max(self.levels) + 1
 
+    @classmethod
+    def fast(cls) -> OdometryConfig:
+        """The settings of the dense step inside the fused odometry (:data:`FAST`): half the points, fewer
+        iterations, a looser convergence test; the fused path's prediction is its start and its check."""
+        return cls(**FAST)
+
     def with_overrides(self, **kw) -> OdometryConfig:
         names = {f.name for f in fields(self)}
         unknown = set(kw) - names
         if unknown:
             raise ValueError(f"OdometryConfig: unknown setting(s) {', '.join(sorted(unknown))}")
         return replace(self, **kw)
+
+
+FAST = {"n_photo": 1500, "n_geo": 1500, "iterations": (8, 6, 4), "converged_m": 1e-4, "converged_rad": 1e-4}
+"""Overrides of :meth:`OdometryConfig.fast`. Tuning-seed replay of the in-tracker odometry's inputs (guess-1
+hand-held seed 1, 120 frames): alignment 10.8 → 1.8 ms thread CPU per frame, chain error against the truth 2.35 →
+1.76 mm RMS. Alone (no fused prediction to start from) they failed with a hand moving parts on a held-out session
+(ATE 118 mm against 4 mm with the defaults), so the standalone dense odometry keeps the defaults."""
