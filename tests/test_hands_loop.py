@@ -162,3 +162,28 @@ def test_pipeline_with_the_hand_step_in_a_thread_matches_the_sequential_one():
         assert a.hands == b.hands and not a.errors and not b.errors
         for name, pose in a.poses.items():
             assert np.allclose(pose.t, b.poses[name].t, atol=1e-12)
+
+
+def test_each_thread_has_its_own_optical_flow_instance():
+    """OpenCV's DIS flow keeps working buffers in its instance: two hand steps in two threads (the hand loop's
+    worker beside the caller, two stations) must not share one, or their flows mix. Same results in every thread."""
+    import threading
+
+    from tracker.hands import flow as hand_flow
+
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 255, (64, 80), np.uint8)
+    b = np.roll(a, 2, axis=1)
+    mine = hand_flow._dis(0)
+    assert hand_flow._dis(0) is mine  # kept within a thread
+    seen = {}
+
+    def other():
+        seen["dis"] = hand_flow._dis(0)
+        seen["flow"] = hand_flow.flow(a, b)
+
+    t = threading.Thread(target=other)
+    t.start()
+    t.join()
+    assert seen["dis"] is not mine
+    assert np.array_equal(seen["flow"], hand_flow.flow(a, b))

@@ -13,6 +13,8 @@ greyscale crops. Flows are arrays [h, w, 2] of (u, v) in pixels per frame, x rig
 
 from __future__ import annotations
 
+import threading
+
 import cv2
 import numba as nb
 import numpy as np
@@ -21,13 +23,19 @@ METHODS = ("dis", "farneback")
 MIN_SIDE = 32
 """Crops with a side shorter than this are padded (edge replication) before the flow and the flow cropped back."""
 
-_DIS: dict[int, cv2.DISOpticalFlow] = {}
+_LOCAL = threading.local()
+"""One DIS instance per thread and preset: an instance keeps working buffers between calls, so two threads (a hand
+step in the hand loop's worker beside another in the caller's thread, or two stations' pipelines) must not share
+one (they did, and the flow came out as garbage)."""
 
 
 def _dis(preset: int) -> cv2.DISOpticalFlow:
-    if preset not in _DIS:
-        _DIS[preset] = cv2.DISOpticalFlow_create(preset)
-    return _DIS[preset]
+    cache = getattr(_LOCAL, "dis", None)
+    if cache is None:
+        cache = _LOCAL.dis = {}
+    if preset not in cache:
+        cache[preset] = cv2.DISOpticalFlow_create(preset)
+    return cache[preset]
 
 
 def flow(prev: np.ndarray, cur: np.ndarray, method: str = "dis") -> np.ndarray:
