@@ -13,66 +13,7 @@ import numba as nb
 import numpy as np
 
 from tracker.odometry.correspondences import geometric_system, photometric_system, symmetrise
-
-
-@nb.njit(cache=True)
-def invert_rigid(T):
-    """Inverse of a 4×4 rigid transform."""
-    out = np.eye(4)
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = T[j, i]
-    for i in range(3):
-        out[i, 3] = -(T[0, i] * T[0, 3] + T[1, i] * T[1, 3] + T[2, i] * T[2, 3])
-    return out
-
-
-@nb.njit(cache=True)
-def _hat(w):
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
-@nb.njit(cache=True)
-def exp_twist(xi):
-    """4×4 rigid transform of the twist ``xi`` (as :func:`tracker.odometry.se3.exp_se3`)."""
-    v, w = xi[:3].copy(), xi[3:].copy()
-    th = np.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2)
-    W = _hat(w)
-    W2 = W @ W
-    if th < 1e-9:
-        R = np.eye(3) + W
-        V = np.eye(3) + 0.5 * W
-    else:
-        a = np.sin(th) / th
-        b = (1.0 - np.cos(th)) / th**2
-        c = (th - np.sin(th)) / th**3
-        R = np.eye(3) + a * W + b * W2
-        V = np.eye(3) + b * W + c * W2
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = V @ v
-    return T
-
-
-@nb.njit(cache=True)
-def log_twist(T):
-    """Twist of a 4×4 rigid transform (as :func:`tracker.odometry.se3.log_se3`)."""
-    R = T[:3, :3]
-    t = T[:3, 3].copy()
-    cos = min(max((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0), 1.0)
-    th = np.arccos(cos)
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if th < 1e-9:
-        w = 0.5 * w
-        V_inv = np.eye(3) - 0.5 * _hat(w)
-    else:
-        w = th / (2.0 * np.sin(th)) * w
-        W = _hat(w)
-        V_inv = np.eye(3) - 0.5 * W + (1.0 / th**2) * (1.0 - (th * np.sin(th)) / (2.0 * (1.0 - np.cos(th)))) * (W @ W)
-    out = np.empty(6)
-    out[:3] = V_inv @ t
-    out[3:] = w
-    return out
+from tracker.odometry.se3 import exp_twist, invert_rigid, log_twist
 
 
 @nb.njit(cache=True)

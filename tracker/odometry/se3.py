@@ -4,20 +4,24 @@ radians), used by the odometry's Gauss-Newton updates. Composition convention: `
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 
-def hat(w: np.ndarray) -> np.ndarray:
+@nb.njit(cache=True)
+def hat(w):
     """Skew-symmetric 3×3 matrix of ``w`` (``hat(w) @ p == cross(w, p)``)."""
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
-def exp_se3(xi: np.ndarray) -> np.ndarray:
-    """4×4 rigid transform of the twist ``xi = [vx, vy, vz, wx, wy, wz]``."""
-    xi = np.asarray(xi, dtype=np.float64)
-    v, w = xi[:3], xi[3:]
-    th = float(np.linalg.norm(w))
+@nb.njit(cache=True)
+def exp_twist(xi):
+    """4×4 rigid transform of the twist ``xi = [vx, vy, vz, wx, wy, wz]`` (float64 array; compiled, also called
+    from the compiled Gauss-Newton loop of :mod:`.gauss_newton`)."""
+    v, w = xi[:3].copy(), xi[3:].copy()
+    th = np.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2)
     W = hat(w)
+    W2 = W @ W
     if th < 1e-9:
         R = np.eye(3) + W
         V = np.eye(3) + 0.5 * W
@@ -25,36 +29,61 @@ def exp_se3(xi: np.ndarray) -> np.ndarray:
         a = np.sin(th) / th
         b = (1.0 - np.cos(th)) / th**2
         c = (th - np.sin(th)) / th**3
-        R = np.eye(3) + a * W + b * (W @ W)
-        V = np.eye(3) + b * W + c * (W @ W)
+        R = np.eye(3) + a * W + b * W2
+        V = np.eye(3) + b * W + c * W2
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = V @ v
     return T
 
 
-def log_se3(T: np.ndarray) -> np.ndarray:
-    """Twist ``[v, ω]`` with ``exp_se3(log_se3(T)) == T`` (rotation angle below π)."""
-    R, t = T[:3, :3], T[:3, 3]
-    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
-    th = float(np.arccos(cos))
+@nb.njit(cache=True)
+def log_twist(T):
+    """Twist ``[v, ω]`` of a 4×4 rigid transform with ``exp_twist(log_twist(T)) == T`` (rotation angle below π;
+    compiled)."""
+    R = T[:3, :3]
+    t = T[:3, 3].copy()
+    cos = min(max((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0), 1.0)
+    th = np.arccos(cos)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     if th < 1e-9:
-        w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+        w = 0.5 * w
         V_inv = np.eye(3) - 0.5 * hat(w)
     else:
-        w = th / (2.0 * np.sin(th)) * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+        w = th / (2.0 * np.sin(th)) * w
         W = hat(w)
         V_inv = np.eye(3) - 0.5 * W + (1.0 / th**2) * (1.0 - (th * np.sin(th)) / (2.0 * (1.0 - np.cos(th)))) * (W @ W)
-    return np.concatenate([V_inv @ t, w])
-
-
-def invert(T: np.ndarray) -> np.ndarray:
-    """Inverse of a 4×4 rigid transform."""
-    out = np.eye(4)
-    R = T[:3, :3]
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ T[:3, 3]
+    out = np.empty(6)
+    out[:3] = V_inv @ t
+    out[3:] = w
     return out
+
+
+@nb.njit(cache=True)
+def invert_rigid(T):
+    """Inverse of a 4×4 rigid transform (compiled)."""
+    out = np.eye(4)
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = T[j, i]
+    for i in range(3):
+        out[i, 3] = -(T[0, i] * T[0, 3] + T[1, i] * T[1, 3] + T[2, i] * T[2, 3])
+    return out
+
+
+def exp_se3(xi) -> np.ndarray:
+    """4×4 rigid transform of the twist ``xi = [vx, vy, vz, wx, wy, wz]`` (any sequence of six numbers)."""
+    return exp_twist(np.asarray(xi, dtype=np.float64).reshape(6))
+
+
+def log_se3(T) -> np.ndarray:
+    """Twist ``[v, ω]`` with ``exp_se3(log_se3(T)) == T`` (rotation angle below π)."""
+    return log_twist(np.ascontiguousarray(T, dtype=np.float64))
+
+
+def invert(T) -> np.ndarray:
+    """Inverse of a 4×4 rigid transform."""
+    return invert_rigid(np.ascontiguousarray(T, dtype=np.float64))
 
 
 def motion_size(T: np.ndarray) -> tuple[float, float]:
