@@ -393,3 +393,43 @@ def test_fused_odometry_runs_the_fast_dense_settings_and_the_dense_method_keeps_
     assert fast.n_photo < OdometryConfig().n_photo and sum(fast.iterations) < sum(OdometryConfig().iterations)
     assert EgoMotion("fused", intr, []).odometry.config == fast
     assert EgoMotion("default", intr, []).odometry.config == OdometryConfig()
+
+
+def test_a_fixed_camera_gives_the_same_poses_with_the_fused_odometry_as_without():
+    """A camera that never moves: fused applies no motion (inside the dead band, then idle), so the tracker must see
+    exactly what it sees with odometry off — the same table plane (not one re-measured or moved by the odometry's
+    sub-dead-band jitter) — and give the same poses, bit for bit, in the command's session and in the pipeline."""
+    from app.commands.track import TrackSession
+    from tracker.odometry.ego_motion import STILL_FRAMES
+
+    frames = STILL_FRAMES + 6
+    src = SimulatedTable("guidance-demo", seed=2, n_frames=frames)
+    cfg = TrackerConfig.preset("default")
+    sessions = {m: TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=0, odometry=m)
+                for m in ("fused", "off")}
+    pipes = {m: AssemblyPipeline(src.parts, src.intrinsics, mode=None, initial_poses=src.initial_poses, seed=0,
+                                 odometry=m) for m in ("fused", "off")}
+    for i in range(frames):
+        frame = src.render(i)
+        poses = {m: s.step(frame)[0].poses for m, s in sessions.items()}
+        snaps = {m: p.process(frame, wall_time=i / 30.0) for m, p in pipes.items()}
+        for name in poses["off"]:
+            assert np.array_equal(poses["fused"][name].t, poses["off"][name].t), (i, name)
+            assert np.array_equal(poses["fused"][name].R, poses["off"][name].R), (i, name)
+            assert np.array_equal(snaps["fused"].poses[name].t, snaps["off"].poses[name].t), (i, name)
+    assert sessions["fused"].ego.idle_frames > 0 and pipes["fused"].ego.idle_frames > 0  # it did idle at the end
+
+
+def test_an_idle_odometry_leaves_the_hidden_parts_to_scene_motion():
+    """Fused hands the hidden parts to its own correction only on frames it measures; while it idles (no correction
+    will come) scene motion keeps its last-frame landmarks, as with odometry off."""
+    from tracker.filter.camera_motion import hand_hidden_parts_to_the_odometry
+
+    src, trk = _two_cube_tracker()
+    ego = EgoMotion("fused", src.intrinsics, src.parts)
+    landmarks = {0: (np.eye(3), np.zeros(3))}
+    trk._landmarks = dict(landmarks)
+    ego._observe_pending = False  # idle (or a failed step with no fused path yet): nothing to observe
+    assert not hand_hidden_parts_to_the_odometry(trk, ego) and trk._landmarks == landmarks
+    ego._observe_pending = True  # measured: the correction after the step will move the hidden parts
+    assert hand_hidden_parts_to_the_odometry(trk, ego) and trk._landmarks == {}

@@ -420,9 +420,11 @@ class AssemblyPipeline:
 
     def _update_table(self, frame: Frame, errors: list[str]) -> None:
         if self.ego is not None and self.ego.has_table:
-            if self.ego.ok:  # odometry on and measured: the plane is propagated (_follow_camera), not re-checked
+            if self.ego.moved:  # odometry on and the camera moved: the plane is propagated (_follow_camera)
                 return
-            self._table_time = None  # the odometry failed: re-check the plane now
+            if not self.ego.ok:
+                self._table_time = None  # the odometry failed: re-check the plane now
+            # else no camera motion applied (idle, dead band): the plane is checked as with odometry off
         if frame.depth is None:
             return
         due = self._table_time is None or abs(frame.timestamp - self._table_time) >= self.table_recheck_s
@@ -497,7 +499,7 @@ class AssemblyPipeline:
             if ego.camera_motion is not None and self.tracker is not None:
                 apply_camera_motion(self.tracker, ego.camera_motion)
                 self.poses.update(self.tracker.estimates)
-            if ego.ok and self.ego.has_table:
+            if self.ego.moved and self.ego.has_table:
                 self.table = self.ego.table_in_camera()
                 self._table_rays = None
         except Exception as exc:  # noqa: BLE001 - a failing stage is reported, the frame goes on
@@ -611,7 +613,7 @@ class AssemblyPipeline:
                 if fused:
                     from tracker.filter.camera_motion import hand_hidden_parts_to_the_odometry
 
-                    hand_hidden_parts_to_the_odometry(self.tracker)
+                    hand_hidden_parts_to_the_odometry(self.tracker, self.ego)
                 state = self.tracker.step(frame, detections or None, self.table, occluders=occluders, touched=touched)
                 if fused:  # odometry fused: the parts check the camera; the hidden parts follow its correction
                     from tracker.filter.camera_motion import follow_correction

@@ -262,7 +262,7 @@ class TrackSession:
         if fused:
             from tracker.filter.camera_motion import hand_hidden_parts_to_the_odometry
 
-            hand_hidden_parts_to_the_odometry(self.tracker)
+            hand_hidden_parts_to_the_odometry(self.tracker, self.ego)
         t0, c0 = time.perf_counter(), time.thread_time()
         state = self.tracker.step(frame, dets, self.table)
         dt = time.perf_counter() - t0
@@ -284,7 +284,8 @@ class TrackSession:
 
 
     def _follow_camera(self, frame) -> None:
-        """Odometry on: move the tracker's state by the camera's motion; propagate (or re-check) the table."""
+        """Odometry on: move the tracker's state by the camera's motion; propagate the table when it moved, else
+        follow it as with odometry off."""
         from tracker.filter.camera_motion import apply_camera_motion
 
         ego = self.ego.step(frame, self.table, self.poses, self.carried)
@@ -294,9 +295,11 @@ class TrackSession:
             self.poses = dict(self.tracker.estimates)
         if self.follower is None:
             return
-        if ego.ok and self.ego.has_table:
+        if self.ego.moved and self.ego.has_table:  # the camera moved: the plane is propagated
             self.table = self.follower.table = self.ego.table_in_camera()
             return
+        # no camera motion applied (failed step, idle, inside the dead band): the plane is followed as with
+        # odometry off (a fixed camera sees the same planes with the odometry on as with it off)
         before = self.table
         self.table = self.follower.update(frame, self.poses)
         if self.table is not None and (self.table is not before or not self.ego.has_table):

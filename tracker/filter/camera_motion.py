@@ -133,9 +133,15 @@ def follow_correction(trk, T_new_old: np.ndarray, poses: dict | None = None) -> 
     return moved
 
 
-def hand_hidden_parts_to_the_odometry(trk) -> None:
-    """With the fused odometry, the hidden parts follow its correction (:func:`follow_correction`), not scene
-    motion's frame-to-frame consensus of the landmarks (both measure the same error of the applied camera motion:
-    applying both would count it twice). Called before the tracker's step: scene motion then has no last-frame
-    landmarks to compare with (it still records this frame's, which the odometry reads)."""
+def hand_hidden_parts_to_the_odometry(trk, ego) -> bool:
+    """With the fused odometry (``ego``: :class:`~tracker.odometry.ego_motion.EgoMotion`), on a frame where it will
+    correct the camera after the tracker's step (``ego.correction_pending``), the hidden parts follow that correction
+    (:func:`follow_correction`), not scene motion's frame-to-frame consensus of the landmarks (both measure the same
+    error of the applied camera motion: applying both would count it twice). Called before the tracker's step: scene
+    motion then has no last-frame landmarks to compare with (it still records this frame's, which the odometry
+    reads). While the odometry idles (a camera at rest) nothing is handed over: scene motion works as with odometry
+    off. Returns whether the hidden parts were handed over."""
+    if not ego.correction_pending:
+        return False
     trk._landmarks = {}
+    return True

@@ -20,8 +20,10 @@ Per frame, before the particle filter's step:
    than ``MAX_STEP_M`` / ``MAX_STEP_DEG`` between consecutive frames is taken for a jump of the odometry and
    handled the same way (counted in ``jumps``).
 4. **Table plane**: once anchored (:meth:`anchor_table`, the plane detected in the current camera frame is stored
-   in the world frame) it is propagated into each new camera frame (:meth:`table_in_camera`) instead of being
-   re-detected.
+   in the world frame) it is propagated into the new camera frame (:meth:`table_in_camera`) instead of being
+   re-detected on every frame that applies a camera motion (``moved``). A frame that applies none (idle, inside the
+   dead band, a restart) leaves the tracker's camera frame where it was, so the caller keeps its plane and checks it
+   as with odometry off: with a fixed camera the tracker then sees exactly the planes it sees with odometry off.
 5. **Idle while the camera is still**: after ``STILL_FRAMES`` measured frames in a row inside the dead band, the
    mask and the odometry are skipped and each frame only compares a coarse depth grid (every ``IDLE_GRID_PX``-th
    pixel) with the grid of the frame the camera came to rest in (:data:`IDLE_CHANGE_M`); the pose stays, nothing
@@ -214,6 +216,7 @@ class EgoMotion:
         self._grid: np.ndarray | None = None  # the last measured frame's depth grid (idle test)
         self._rest: tuple[np.ndarray, float] | None = None  # idle: (depth grid at rest, change threshold m)
         self.idle_frames = 0
+        self.moved = False  # the last step applied a camera motion (the table plane is to be propagated)
 
     # ------------------------------------------------------------------------------------------- per frame
     def moving_parts(self, poses: Mapping[str, Pose], carried: Iterable[str] = (),
@@ -240,6 +243,7 @@ class EgoMotion:
         t0 = time.perf_counter()
         poses = dict(poses or {})
         hand_boxes = [b for b in hand_boxes if b is not None]
+        self.moved = False
         if self.idle and self._still_at_rest(frame):
             self.idle_frames += 1
             self._remember(float(frame.timestamp), poses, None)
@@ -281,6 +285,7 @@ class EgoMotion:
                 self._applied = T_wc
             else:
                 self._count_still(frame)
+        self.moved = motion is not None
         if motion is not None or not res.ok:
             self._still = 0
         self._remember(float(frame.timestamp), poses, motion)
@@ -337,6 +342,12 @@ class EgoMotion:
         out = np.zeros((h, w), bool)
         out[: 2 * half[0], : 2 * half[1]] = big.view(bool)
         return out
+
+    @property
+    def correction_pending(self) -> bool:
+        """``fused``: the odometry measured this frame and :meth:`observe` will correct the camera after the
+        tracker's step (False when it idles: the hidden parts are then left to scene motion, as with odometry off)."""
+        return self.fused is not None and self._observe_pending
 
     def observe(self, landmarks: Mapping[str, Pose], corners: Mapping[str, np.ndarray]) -> np.ndarray | None:
         """``fused`` only, after the tracker's step on the frame of :meth:`step`: its resting parts seen well
@@ -405,7 +416,8 @@ class EgoMotion:
 
     def table_in_camera(self):
         """The anchored table plane in the current camera frame (None when none is anchored); with ``fused``, the
-        plane measured in the current frame where there is one."""
+        plane measured in the current frame where there is one. Meant for frames that applied a camera motion
+        (``moved``); on the others the caller's plane is still the right one."""
         if self._table_world is None:
             return None
         n_w, d_w, plane = self._table_world
