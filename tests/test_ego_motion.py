@@ -323,32 +323,57 @@ def test_camera_motion_moves_the_constant_velocity_memory():
 
 
 def test_odometry_idles_while_the_camera_is_at_rest_and_wakes_when_it_moves():
-    """A camera at rest: after STILL_FRAMES measured frames inside the dead band the odometry is no longer run (only
-    a coarse depth comparison); a hand over the table does not wake it; a camera that moves does, and the motion since
-    the rest is measured and applied at once."""
-    from tracker.odometry.ego_motion import STILL_FRAMES
+    """A camera at rest: after STILL_FRAMES measured frames inside the dead band the odometry runs only on every
+    IDLE_CHECK_FRAMES-th frame (the others compare a coarse depth grid); a hand over the table does not wake it; a
+    camera that moves does, and the motion since the rest is measured and applied at once."""
+    from tracker.odometry.ego_motion import IDLE_CHECK_FRAMES, STILL_FRAMES
 
     src = SimulatedTable("static", seed=0, n_frames=1)
     frame = src.render(0)
     rest = [Pose()] * (STILL_FRAMES + 1)
     moved = Pose(np.array([0.0, 0.0, -0.004]))  # the camera 4 mm nearer the table: every depth 4 mm less (about)
     ego = EgoMotion("default", src.intrinsics, src.parts)
-    ego.odometry = _ScriptedOdometry(rest + [moved])
-    steps = [ego.step(frame) for _ in range(STILL_FRAMES + 6)]
-    assert len(ego.odometry.poses) == 1  # the odometry ran STILL_FRAMES + 1 times, then idled
-    assert ego.idle_frames == 5 and all(s.ok and s.camera_motion is None for s in steps)
+    ego.odometry = _ScriptedOdometry(rest + [Pose()] * 2 + [moved])
+    steps = [ego.step(frame) for _ in range(STILL_FRAMES + 1 + 2 * IDLE_CHECK_FRAMES)]
+    assert len(ego.odometry.poses) == 1  # measured STILL_FRAMES + 1 times, then idle with two checks
+    assert ego.idle_frames == 2 * IDLE_CHECK_FRAMES and ego.idle_checks == 2
+    assert all(s.ok and s.camera_motion is None for s in steps)
     hand = dataclasses.replace(frame, depth=frame.depth.copy())
     hand.depth[100:300, 150:400] = 0.45  # a hand over a sixth of the image
-    assert ego.step(hand).camera_motion is None and ego.idle_frames == 6
+    assert ego.step(hand).camera_motion is None and ego.idle_frames == 2 * IDLE_CHECK_FRAMES + 1
     near = dataclasses.replace(frame, depth=frame.depth - 0.004)
     step = ego.step(near)
-    assert not ego.odometry.poses and ego.idle_frames == 6  # woken: the odometry measured this frame
+    assert not ego.odometry.poses and ego.idle_frames == 2 * IDLE_CHECK_FRAMES + 1  # woken: measured this frame
     assert step.camera_motion is not None and np.allclose(step.camera_motion[:3, 3], [0.0, 0.0, 0.004])
     lazy = EgoMotion("default", src.intrinsics, src.parts, idle=False)
     lazy.odometry = _ScriptedOdometry(rest * 2)
     for _ in range(STILL_FRAMES + 6):
         lazy.step(frame)
     assert lazy.idle_frames == 0 and len(lazy.odometry.poses) == len(rest * 2) - STILL_FRAMES - 6
+
+
+@pytest.mark.parametrize("method", ["default", "fused"])
+def test_a_slow_drift_the_depth_test_misses_wakes_the_idle_odometry_at_its_next_check(method):
+    """A camera sliding slowly along the table barely changes the depth (a sway near its turning point): the idle
+    odometry's own check, every IDLE_CHECK_FRAMES-th idle frame, must find the motion and apply it whole. With fused,
+    the smooth path stood still meanwhile, so the 3 mm since the rest (over its 2 mm jump bound for one frame) is
+    taken, not rejected as a wrong registration."""
+    from tracker.odometry.ego_motion import IDLE_CHECK_FRAMES, STILL_FRAMES
+
+    src = SimulatedTable("static", seed=0, n_frames=1)
+    frame = src.render(0)
+    slid = Pose(np.array([0.003, 0.0, 0.0]))
+    ego = EgoMotion(method, src.intrinsics, src.parts)
+    ego.odometry = _ScriptedOdometry([Pose()] * (STILL_FRAMES + 1) + [slid])
+    steps = [ego.step(frame) for _ in range(STILL_FRAMES + 1 + IDLE_CHECK_FRAMES)]
+    if method == "fused":
+        ego.observe({}, {})  # (the tracker's step comes between; no parts here)
+    assert ego.idle_frames == IDLE_CHECK_FRAMES - 1 and ego.idle_checks == 1
+    assert all(s.camera_motion is None for s in steps[:-1])
+    assert steps[-1].camera_motion is not None and np.allclose(steps[-1].camera_motion[:3, 3], [-0.003, 0.0, 0.0])
+    if method == "fused":
+        assert ego.fused.dense_rejected == 0 and np.allclose(ego.pose.t, [0.003, 0.0, 0.0])
+        assert np.allclose(ego.fused._twist, 0.0)  # the motion since the rest is not one frame's velocity
 
 
 def test_fused_correction_reaches_the_hidden_parts_only():

@@ -28,8 +28,13 @@ Per frame, before the particle filter's step:
    mask and the odometry are skipped and each frame only compares a coarse depth grid (every ``IDLE_GRID_PX``-th
    pixel) with the grid of the frame the camera came to rest in (:data:`IDLE_CHANGE_M`); the pose stays, nothing
    is applied, the step counts as measured. When the depth has changed, the odometry runs again on that frame:
-   it aligns to its keyframe, so the motion since the rest is measured whole and applied at once. A fixed camera
-   then costs about a tenth of a millisecond per frame instead of the full stage.
+   it aligns to its keyframe, so the motion since the rest is measured whole and applied at once. A camera drifting
+   slowly along the table changes the depth too little for that test (a sway near its turning point: 3–5 mm before
+   it woke on tuning seeds), so every ``IDLE_CHECK_FRAMES``-th idle frame also runs the mask and the odometry and
+   wakes when the pose has left the dead band (else it stays idle: nothing applied, nothing observed). With
+   ``fused`` the smooth path stands still while idle (no velocity, its clock moving on) and takes the wake frame's
+   dense pose as it comes: it is the motion since the rest, not one frame's. A fixed camera then costs about a
+   millisecond per frame instead of the full stage.
 """
 
 from __future__ import annotations
@@ -76,6 +81,9 @@ MAX_STEP_DEG = 1.5
 STILL_FRAMES = 10
 """After this many measured frames in a row whose camera motion stays inside the dead band, the odometry idles
 (step 5 of the module docstring)."""
+IDLE_CHECK_FRAMES = 5
+"""While idle, every this many frames the odometry runs anyway and wakes when the camera has moved (module docstring,
+step 5)."""
 IDLE_GRID_PX = 8
 """Pixel step of the depth grid the idle test compares (80×60 samples at 640×480)."""
 IDLE_CHANGE_M = 0.0015
@@ -215,7 +223,9 @@ class EgoMotion:
         self._still = 0  # measured frames in a row inside the dead band
         self._grid: np.ndarray | None = None  # the last measured frame's depth grid (idle test)
         self._rest: tuple[np.ndarray, float] | None = None  # idle: (depth grid at rest, change threshold m)
+        self._idle_count = 0  # idle frames since the rest began (every IDLE_CHECK_FRAMES-th runs the odometry)
         self.idle_frames = 0
+        self.idle_checks = 0  # idle frames on which the odometry ran to check the rest
         self.moved = False  # the last step applied a camera motion (the table plane is to be propagated)
 
     # ------------------------------------------------------------------------------------------- per frame
@@ -244,28 +254,39 @@ class EgoMotion:
         poses = dict(poses or {})
         hand_boxes = [b for b in hand_boxes if b is not None]
         self.moved = False
-        if self.idle and self._still_at_rest(frame):
-            self.idle_frames += 1
-            self._remember(float(frame.timestamp), poses, None)
-            return EgoMotionStep(self.pose, True, None, 1e3 * (time.perf_counter() - t0), "camera at rest: idle")
+        now = float(frame.timestamp)
+        checking = woken = False
+        if self.idle and self._rest is not None:
+            if self._still_at_rest(frame):
+                self._idle_count += 1
+                if self._idle_count % IDLE_CHECK_FRAMES:
+                    return self._idle_step(now, poses, t0)
+                checking = True  # the depth looks the same: check with the odometry every few idle frames
+            else:
+                woken = True
         moving = self.moving_parts(poses, carried, hand_boxes)
         mask = self._mask(frame, table, poses, moving, hand_boxes)
         self.last_mask = mask
         if self.fused is not None:  # the dense odometry starts from the fused path (fused_odometry.dense_prior)
-            res = self.odometry.step(frame, mask, prior=self.fused.dense_prior(float(frame.timestamp)))
+            res = self.odometry.step(frame, mask, prior=self.fused.dense_prior(now))
         else:
             res = self.odometry.step(frame, mask)
+        if checking:
+            self.idle_checks += 1
+            if res.ok and self._at_rest(res.pose_world_camera):
+                return self._idle_step(now, poses, t0)
+            self._rest, self._still, woken = None, 0, True  # the camera has moved: wake
         self.pose, self.ok = res.pose_world_camera, bool(res.ok)
         self._plane = None
         if self.fused is not None and res.ok:  # the dense pose checked against the smooth path (parts: observe())
-            self.pose = self.fused.predict(float(frame.timestamp), res.pose_world_camera)
+            self.pose = self.fused.predict(now, res.pose_world_camera, since_rest=woken)
             guess = None if table is None else (table.normal, table.offset)
             self._plane = self.fused.measure_table(frame.depth, self.intrinsics, mask, guess=guess)
             self._observe_pending = True
         elif self.fused is not None and self.fused.pose_world_camera is not None:
             # no dense pose: the fused path's prediction, corrected by the resting parts in observe(); the tracker
             # keeps its camera-frame prediction this frame (nothing applied) as with the other methods
-            self.pose = self.fused.predict(float(frame.timestamp), None)
+            self.pose = self.fused.predict(now, None)
             self._observe_pending = True
         T_wc = self.pose.as_matrix()
         motion = None
@@ -291,6 +312,23 @@ class EgoMotion:
         self._remember(float(frame.timestamp), poses, motion)
         return EgoMotionStep(self.pose, bool(res.ok), motion, 1e3 * (time.perf_counter() - t0), res.message)
 
+    def _idle_step(self, now: float, poses: Mapping[str, Pose], t0: float) -> EgoMotionStep:
+        """An idle frame: the pose stays, nothing is applied; ``fused``'s smooth path stands still."""
+        self.idle_frames += 1
+        if self.fused is not None:
+            self.fused.hold(now)
+        self._remember(now, poses, None)
+        return EgoMotionStep(self.pose, True, None, 1e3 * (time.perf_counter() - t0), "camera at rest: idle")
+
+    def _at_rest(self, dense: Pose) -> bool:
+        """Idle check: does the odometry's pose ``dense`` (its own world frame) stay inside the dead band of the pose
+        the tracker's state refers to?"""
+        if self._applied is None:
+            return False
+        T = dense.as_matrix() if self.fused is None else self.fused.from_dense(dense)
+        dt, dr = motion_size(invert(T) @ self._applied)
+        return dt <= DEADBAND_M and np.degrees(dr) <= DEADBAND_DEG
+
     def _depth_grid(self, frame: Frame) -> np.ndarray | None:
         return None if frame.depth is None else np.array(frame.depth[::IDLE_GRID_PX, ::IDLE_GRID_PX], np.float32)
 
@@ -305,6 +343,7 @@ class EgoMotion:
         noise = _median_change(grid, last)
         if noise is not None:
             self._rest = (grid, max(IDLE_CHANGE_M, 2.0 * noise))
+            self._idle_count = 0
 
     def _still_at_rest(self, frame: Frame) -> bool:
         """Idle test (step 5 of the module docstring): is the camera still where it came to rest? False wakes the

@@ -175,6 +175,22 @@ class FusedOdometry:
         cv = T_last @ exp_se3(self._twist * max(0.0, float(timestamp) - t_last))
         return invert(self._O) @ cv
 
+    def hold(self, timestamp: float) -> None:
+        """The camera is at rest at its last pose at ``timestamp`` (s; an idle frame of the tracker's odometry, which
+        runs neither the dense step nor :meth:`correct`): the smooth path stays there with no velocity, so that the
+        next prediction is not an extrapolation over the whole rest."""
+        if self.pose_world_camera is None:
+            return
+        self._last = (float(timestamp), self._last[1])
+        self._twist = np.zeros(6)
+        self._moving = False
+
+    def from_dense(self, dense: Pose) -> np.ndarray:
+        """The fused path's camera → world pose (4×4) for the dense odometry's pose ``dense`` (its own world frame),
+        with the current correction (the pose :meth:`predict` would take as the prior)."""
+        T = dense.as_matrix()
+        return T if self._O is None else self._O @ T
+
     def update(self, timestamp: float, dense: Pose | None, observed: dict[str, Pose],
                corners: dict[str, np.ndarray]) -> FusedStep:
         """One frame at ``timestamp`` (s): ``dense`` the dense odometry's measured camera → world pose (None when it
@@ -185,10 +201,12 @@ class FusedOdometry:
         return self.correct(observed, corners)
 
     def predict(self, timestamp: float, dense: Pose | None, observed: dict[str, Pose] | None = None,
-                corners: dict[str, np.ndarray] | None = None) -> Pose:
+                corners: dict[str, np.ndarray] | None = None, since_rest: bool = False) -> Pose:
         """First half of a frame (step 1 of the module docstring): the prior camera pose from the dense pose (or the
         prediction). Without ``observed`` landmarks (a tracker that measures the parts only after the camera's
-        motion is applied) a dense pose off the smooth path is rejected. :meth:`correct` must follow."""
+        motion is applied) a dense pose off the smooth path is rejected. ``since_rest``: the dense pose measures the
+        motion since a rest (:meth:`hold`), not one frame's: it is taken as the prior without the jump test and
+        gives no velocity. :meth:`correct` must follow."""
         cfg = self.config
         observed, corners = observed or {}, corners or {}
         Td = None if dense is None else dense.as_matrix()
@@ -208,6 +226,12 @@ class FusedOdometry:
             cand = self._O @ Td
             dt, dr = motion_size(invert(cv) @ cand)
             smooth = dt <= cfg.jump_m and np.degrees(dr) <= cfg.jump_deg
+            if since_rest:
+                prior, source = cand, "dense"
+                self._rejected = 0
+                self._frame = (float(timestamp), T_last, dt_s, prior, source, False, Td, None)
+                self.pose_world_camera = Pose.from_matrix(prior)
+                return self.pose_world_camera
             if smooth or self._residual(cand, observed, corners) < self._residual(cv, observed, corners):
                 prior, source, accepted = cand, "dense", True
                 self._rejected = 0
