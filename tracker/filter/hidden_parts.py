@@ -83,6 +83,10 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
             continue
         if trk._blob_off[i]:
             continue  # the colour stage has just put it on its blob, which already shows this frame's motion
+        if lifted_off(trk, i, pos[i], new_pos, heights[i], plane):
+            trk._carry.release(i)  # the hand rises from a part it has put down: it lets go
+            trk._carry.forget(i)  # its motion with the hand is over: the motion test must not take it up again
+            continue
         if i in centers and i in trk._last_centers:
             uv = trk.intrinsics.project(np.array([pos[i], new_pos]))
             hand_px = float(np.linalg.norm(uv[1] - uv[0]))
@@ -95,7 +99,23 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
             set_down_upright(trk, i, plane)
         recentre(trk, i)
     trk._last_centers = centers
+    down = heights <= cfg.carry_min_height  # before this frame's motion
+    trk._carry_still = np.where(trk._carry.carried & down, trk._carry_still + 1, 0)
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
+
+
+def lifted_off(trk, obj: int, position: np.ndarray, new_position: np.ndarray, height: float, plane) -> bool:
+    """Is carried part ``obj`` one the hand has set down and now rises from (``carry_release_on_lift``): carried with
+    its lowest point within ``carry_min_height`` of the table for ``carry_release_on_lift`` frames in a row, and
+    the hand's motion (``position`` → ``new_position``, camera frame, m) would raise it from the table by more than
+    ``carry_lift_m``? (The hand's step is seen from the camera: a camera moving by more than ``carry_lift_m`` per
+    frame along the table normal would count as well.)"""
+    cfg = trk.config
+    if cfg.carry_release_on_lift <= 0 or plane is None or not np.isfinite(height):
+        return False
+    if trk._carry_still[obj] < cfg.carry_release_on_lift:
+        return False
+    return float((new_position - position) @ plane[0]) > cfg.carry_lift_m
 
 
 def revealed(trk, obj: int, depth: np.ndarray) -> bool:
