@@ -97,16 +97,31 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
         move_part(trk, i, rot[i], delta[i])
         if cfg.table_upright and plane is not None and trk.meshes[i] is None:
             set_down_upright(trk, i, plane)
+        if cfg.carry_above_table and plane is not None:
+            out_of_table(trk, i, plane)
         recentre(trk, i)
     trk._last_centers = centers
+    carried = trk._carry.carried
     down = heights <= cfg.carry_min_height  # before this frame's motion
-    trk._carry_still = np.where(trk._carry.carried & down, trk._carry_still + 1, 0)
+    trk._carry_up = carried & (trk._carry_up | (heights > cfg.carry_min_height))
+    trk._carry_still = np.where(carried & down & trk._carry_up, trk._carry_still + 1, 0)
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
 
 
+def out_of_table(trk, obj: int, plane) -> None:
+    """Carried part ``obj`` moved below the table top (``plane`` = (normal, offset), camera frame) by more than a
+    millimetre is moved up along the normal until it touches it (``carry_above_table``): a hand cannot push a part
+    through the table, a registration lagging the hand's descent can."""
+    est = trk.estimates[trk.names[obj]]
+    h = lowest_height(trk, obj, est.R, est.t, plane)
+    if h < -0.001:
+        move_part(trk, obj, np.eye(3), -h * np.asarray(plane[0], np.float64))
+
+
 def lifted_off(trk, obj: int, position: np.ndarray, new_position: np.ndarray, height: float, plane) -> bool:
-    """Is carried part ``obj`` one the hand has set down and now rises from (``carry_release_on_lift``): carried with
-    its lowest point within ``carry_min_height`` of the table for ``carry_release_on_lift`` frames in a row, and
+    """Is carried part ``obj`` one the hand has set down and now rises from (``carry_release_on_lift``): carried in the
+    air (lowest point above ``carry_min_height``), then with its lowest point within ``carry_min_height`` of
+    the table for ``carry_release_on_lift`` frames in a row (a part picked up from the table is not), and
     the hand's motion (``position`` → ``new_position``, camera frame, m) would raise it from the table by more than
     ``carry_lift_m``? (The hand's step is seen from the camera: a camera moving by more than ``carry_lift_m`` per
     frame along the table normal would count as well.)"""

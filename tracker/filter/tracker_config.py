@@ -382,10 +382,14 @@ class TrackerConfig(BaseModel):
     )
     reacquire_cooldown: int = Field(5, ge=1, description="Fewest frames between two re-acquisitions of a part.")
     carry_release_on_lift: int = Field(
-        0, ge=0, description="A carried part set down (its lowest point within carry_min_height of the table) for at "
-        "least this many frames in a row is let go, not lifted, when the hand then rises from the table by more than "
-        "carry_lift_m in a frame (0 = off): hands leave the parts they put down. "
+        0, ge=0, description="A carried part set down (carried in the air, then with its lowest point within "
+        "carry_min_height of the table for at least this many frames in a row) is let go, not lifted, when the hand "
+        "then rises from the table by more than carry_lift_m in a frame (0 = off): hands leave the parts they put "
+        "down. "
         "(A part picked up again is missed where it was and found by the see-through test.)",
+    )
+    carry_above_table: bool = Field(
+        False, description="A carried part the hand's motion takes below the table top is moved up onto it.",
     )
     carry_lift_m: float = Field(0.003, gt=0.0, description="Rise (m) of the hand in one frame that lets go of a part "
                                 "set down (carry_release_on_lift).")
