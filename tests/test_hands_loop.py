@@ -100,11 +100,12 @@ def _moving_palm(k: int) -> np.ndarray:
 
 
 def _palm_loop(overlap: str) -> HandLoop:
+    """A loop whose track is started by hand on the palm (the step runs in this process: ``worker`` "thread")."""
     from tracker.hands.loop import HandLoopConfig
     from tracker.hands.tracker import HandTrackerConfig
 
     cfg = HandLoopConfig(tracker=HandTrackerConfig(auto_init=False, seed=0), occluder_prior=True, occluder_arm=False,
-                         overlap=overlap)  # fmt: skip
+                         overlap=overlap, worker="thread")  # fmt: skip
     loop = HandLoop([], Intrinsics.default(), cfg)
     loop.step(_moving_palm(0), None, None, {})
     loop.step(_moving_palm(1), None, None, {})

@@ -19,9 +19,12 @@
    is tracked (gate open, seed behaviour).
 
 Overlap with the cube tracker (product addition, ``HandLoopConfig.overlap``): :meth:`HandLoop.start` runs step 1 and
-the occluder mask of step 2 (:meth:`HandLoop.step`) in a worker thread of its own and :meth:`HandLoop.wait` joins it
-(OpenCV, numpy and the hand kernels release the GIL for most of the step, so on a second core it costs the caller
-little). With ``"lagged"`` (default) the cube tracker of frame k does not wait for the hands of frame k: its occluder
+the occluder mask of step 2 (:meth:`HandLoop.step`) in a worker and :meth:`HandLoop.wait` joins it. The worker
+(``HandLoopConfig.worker``) is a child process by default (:mod:`tracker.hands.process`: frames through shared
+memory, the same results; a child that dies is reported and restarted): in the server the step's Python parts in a
+thread competed with the pipeline thread for the interpreter lock, and the step took twice its CPU time; "thread"
+runs it in a thread of this process (OpenCV, numpy and the hand kernels release the lock for most of the step).
+With ``"lagged"`` (default) the cube tracker of frame k does not wait for the hands of frame k: its occluder
 prior is H_{k−1} predicted to frame k (:meth:`HandLoop.predicted_occluder_mask`: each 8-connected piece of the
 undilated H_{k−1} moved by the mean image velocity of the hands whose boxes it reaches into, then dilated by r_occ),
 made by the worker at the end of step k−1; with ``"wait"`` it waits for H_k (the hand step then overlaps only the
@@ -45,21 +48,24 @@ from tracker.geometry.camera import Intrinsics
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
 from tracker.hands.contact import R_TOUCH, ContactMonitor
+from tracker.hands.process import HandProcess, HandProcessError, hand_masks_from, mask_from
 from tracker.hands.tracker import HandEstimate, HandTracker, HandTrackerConfig
 
 OVERLAP_MODES = ("lagged", "wait", "off")
+WORKERS = ("process", "thread")
 
 
 @dataclass(frozen=True)
 class HandLoopConfig:
     """``tracker``: the hand tracker's configuration; ``occluder_prior``: give the cube tracker the hand mask as its
-    occluder prior (spec §14.5; switchable); ``table_clearance_m``: pixels closer than this to the table plane
-    are not hand; ``part_clearance_m``: δ_z of the part-surface exclusion (spec §14.1); ``occluder_radius_px``: r_occ
+    occluder prior (spec §14.5; switchable); ``table_clearance_m``: pixels closer than this to the table plane are
+    not hand; ``part_clearance_m``: δ_z of the part-surface exclusion (spec §14.1); ``occluder_radius_px``: r_occ
     (spec §14.5); ``occluder_arm``: add the forearm (the colour components reaching into a hand's box) to H_k;
     ``overlap``: "lagged" | "wait" | "off", how the pipeline runs the hand step beside the cube tracker (module
-    docstring). The prior is off by default: on guidance-demo tuning seeds 0–2 (300 frames, tracked poses) the cube
-    tracker had 46 part-frames > 10 mm off without it, 68 with H_k and 80 with the lagged H_{k−1}; without it the
-    tracker never waits for the hand step."""
+    docstring); ``worker``: "process" | "thread", where :meth:`HandLoop.start` runs the step unless ``overlap`` is
+    "off" (a child process, :mod:`tracker.hands.process`, or a thread of this process). The prior is off by default:
+    on guidance-demo tuning seeds 0–2 (300 frames, tracked poses) the cube tracker had 46 part-frames > 10 mm off
+    without it, 68 with H_k and 80 with the lagged H_{k−1}; without it the tracker never waits for the hand step."""
 
     tracker: HandTrackerConfig = field(default_factory=HandTrackerConfig)
     occluder_prior: bool = False
@@ -68,10 +74,13 @@ class HandLoopConfig:
     occluder_radius_px: int = 5
     occluder_arm: bool = True
     overlap: str = "lagged"
+    worker: str = "process"
 
     def __post_init__(self) -> None:
         if self.overlap not in OVERLAP_MODES:
             raise ValueError(f"hand loop overlap must be one of {', '.join(OVERLAP_MODES)}, got {self.overlap!r}")
+        if self.worker not in WORKERS:
+            raise ValueError(f"hand loop worker must be one of {', '.join(WORKERS)}, got {self.worker!r}")
 
 
 @nb.njit(cache=True, nogil=True)
@@ -129,6 +138,7 @@ class HandLoop:
 
     def __init__(self, parts: list[PartSpec], intrinsics: Intrinsics, config: HandLoopConfig | None = None) -> None:
         self.config = config or HandLoopConfig()
+        self._all_parts = list(parts)
         self.parts = {p.name: p for p in parts if p.box is not None}
         self.intrinsics = intrinsics
         self.tracker = HandTracker(self.config.tracker, focal=intrinsics.fx)
@@ -145,6 +155,8 @@ class HandLoop:
         self.step_seconds = (0.0, 0.0)  # wall, thread CPU of the last step
         self._pool: ThreadPoolExecutor | None = None
         self._pending: Future | None = None
+        self._process: HandProcess | None = None
+        self._process_pending = False
 
     # ------------------------------------------------------------------ the step in a worker thread
     def step(self, color: np.ndarray, depth: np.ndarray | None, table_plane: tuple[np.ndarray, float] | None,
@@ -164,12 +176,23 @@ class HandLoop:
 
     def start(self, color: np.ndarray, depth: np.ndarray | None, table_plane: tuple[np.ndarray, float] | None,
               poses: dict[str, Pose]) -> None:  # fmt: skip
-        """:meth:`step` in the loop's worker thread (in the caller's with ``overlap`` "off"); the arrays must not
-        change until :meth:`wait` returns (``poses`` is copied). Until then only :attr:`next_occluder` of the
-        previous step and :meth:`touched_parts` may be read."""
+        """:meth:`step` in the loop's worker (in the caller's thread with ``overlap`` "off"); with ``worker`` "thread"
+        the arrays must not change until :meth:`wait` returns (``poses`` is copied; the process worker copies the
+        frame). Until then only :attr:`next_occluder` of the previous step and :meth:`touched_parts` may be read.
+
+        With ``worker`` "process" the step's results (:attr:`estimates`, :attr:`masks`, :attr:`occluder`,
+        :attr:`next_occluder`, :attr:`step_seconds`) are the child's, taken by :meth:`wait`; :attr:`tracker` is not
+        advanced. A frame the step cannot take, or a hand process that died (it is restarted), raises from
+        :meth:`wait`, as an error of the step in the thread does."""
         self.wait()
         if self.config.overlap == "off":
             self.step(color, depth, table_plane, poses)
+            return
+        if self.config.worker == "process":
+            if self._process is None:
+                self._process = HandProcess(self._all_parts, self.intrinsics, self.config)
+            self._process.submit(color, depth, table_plane, poses)
+            self._process_pending = True
             return
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hands")
@@ -180,9 +203,34 @@ class HandLoop:
         pending, self._pending = self._pending, None
         if pending is not None:
             pending.result()
+        if self._process_pending:
+            self._process_pending = False
+            assert self._process is not None
+            try:
+                res = self._process.result()
+            except HandProcessError:
+                self.estimates, self.masks = [], {}  # the process died: its hands are unknown
+                self.occluder = self.next_occluder = None
+                raise
+            if res is not None:
+                self._take(res)
+
+    def _take(self, res: dict) -> None:
+        """A step result of the hand process (:func:`tracker.hands.process.step_result`) as this loop's state."""
+        size, scale = res["size"], res["scale"]
+        self.estimates = res["estimates"]
+        self.masks = hand_masks_from(res["masks"], size, scale)
+        self.occluder = mask_from(res["occluder"], size)
+        self.next_occluder = mask_from(res["next_occluder"], size)
+        self.step_seconds = res["seconds"]
+
+    @property
+    def worker_pid(self) -> int | None:
+        """Process id of the hand process (``worker`` "process" after the first :meth:`start`), else None."""
+        return None if self._process is None else self._process.pid
 
     def close(self) -> None:
-        """Join a pending step (its error is dropped) and end the worker thread."""
+        """Join a pending step (its error is dropped) and end the worker thread or process."""
         try:
             self.wait()
         except Exception:  # noqa: BLE001 - closing: the step's error was or will not be reported
@@ -190,6 +238,9 @@ class HandLoop:
         if self._pool is not None:
             self._pool.shutdown(wait=False)
             self._pool = None
+        if self._process is not None:
+            self._process.close()
+            self._process = None
 
     def tracker_occluders(self) -> np.ndarray | None:
         """The occluder prior for this frame's cube-tracker step: H_{k−1} predicted to frame k with ``overlap``

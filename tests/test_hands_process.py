@@ -1,0 +1,160 @@
+"""The hand step in a child process (``HandLoopConfig.worker`` "process", :mod:`tracker.hands.process`): same results
+as the step run in this process; bad frames, a dying process and closing."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from tracker.geometry.camera import Intrinsics
+from tracker.hands.loop import HandLoop, HandLoopConfig
+from tracker.hands.process import HandProcessError
+from tracker.hands.tracker import HandTrackerConfig
+
+
+def _entering_palm(k: int) -> np.ndarray:
+    """Frame k of a skin-coloured 70×60 palm on a 24 px wide forearm, entering from the left image border at 7 px per
+    frame over a grey table, drifting down 1 px per frame (0: no hand)."""
+    img = np.zeros((480, 640, 3), np.uint8) + np.uint8([120, 130, 140])
+    if k:
+        x = -60 + 7 * k
+        y = 200 + k
+        img[y + 18 : y + 42, : max(x, 0)] = [205, 150, 120]  # the forearm, from the border
+        img[y : y + 60, max(x, 0) : max(x + 70, 0)] = [215, 160, 130]
+    return img
+
+
+def _loop(worker: str, overlap: str = "wait") -> HandLoop:
+    cfg = HandLoopConfig(tracker=HandTrackerConfig(seed=3), occluder_prior=True, overlap=overlap, worker=worker)
+    return HandLoop([], Intrinsics.default(), cfg)
+
+
+@pytest.mark.parametrize("overlap", ["wait", "lagged"])
+def test_process_step_equals_the_step_in_this_process(overlap):
+    """A seeded sequence (automatic track start on a hand entering from the border): the child process gives the same
+    estimates, hand masks and occluder masks (this frame's, and the one predicted to the next frame) as the step run
+    in the caller's thread; the hand is found, so the comparison covers tracking, not only empty frames."""
+    here, there = _loop("thread", "off"), _loop("process", overlap)
+    try:
+        with_hands = 0
+        for k in range(16):
+            frame = _entering_palm(k)
+            here.start(frame, None, None, {})
+            there.start(frame, None, None, {})
+            there.wait()
+            assert there.worker_pid is not None and there.worker_pid != os.getpid()
+            assert [e.box for e in there.estimates] == [e.box for e in here.estimates]
+            assert [e.id for e in there.estimates] == [e.id for e in here.estimates]
+            for a, b in zip(there.estimates, here.estimates, strict=True):
+                assert np.array_equal(a.state, b.state) and a.score == b.score
+            assert there.masks.keys() == here.masks.keys()
+            for tid, m in here.masks.items():
+                assert np.array_equal(there.masks[tid], m)
+            for mine, theirs in ((here.occluder, there.occluder), (here.next_occluder, there.next_occluder)):
+                assert (mine is None) == (theirs is None)
+                assert mine is None or np.array_equal(mine, theirs)
+            assert there.step_seconds[1] > 0.0  # the child's thread CPU time of the step
+            with_hands += bool(here.estimates)
+        assert with_hands >= 5
+        assert here.estimates and here.masks[here.estimates[0].id].any()
+    finally:
+        there.close()
+
+
+def test_a_bad_frame_is_reported_and_the_process_goes_on():
+    """A frame of the wrong size is refused before it reaches the child; a malformed table plane fails inside the
+    child's step: both raise from wait with their own error types, and the next good frame is stepped by the same
+    child."""
+    loop = _loop("process")
+    try:
+        loop.start(_entering_palm(0), None, None, {})
+        loop.wait()
+        pid = loop.worker_pid
+        loop.start(np.zeros((10, 10), np.uint8), None, None, {})
+        with pytest.raises(ValueError, match="uint8 RGB image"):
+            loop.wait()
+        depth = np.full((480, 640), 0.7, np.float32)
+        loop.start(_entering_palm(1), depth, ("not a plane",), {})
+        with pytest.raises(Exception) as info:
+            loop.wait()
+        assert not isinstance(info.value, HandProcessError)  # the step's own error, the process lives
+        loop.start(_entering_palm(2), None, None, {})
+        loop.wait()
+        assert loop.worker_pid == pid
+    finally:
+        loop.close()
+
+
+def test_a_dying_hand_process_is_reported_and_restarted():
+    """The child is killed mid-session: the next wait reports it (HandProcessError, the hands are cleared), a new
+    child starts; once it is ready, it is given the session's first frame again (the skin model's session background,
+    hand-free), then the current frames: hands are tracked again (automatic start) and the results equal those of a
+    fresh in-thread loop given the first frame and then the same frames."""
+    loop = _loop("process")
+    try:
+        for k in range(8):
+            loop.start(_entering_palm(k), None, None, {})
+            loop.wait()
+        assert loop.estimates
+        first = loop.worker_pid
+        os.kill(first, signal.SIGKILL)
+        loop._process._res.proc.join()
+        loop.start(_entering_palm(8), None, None, {})
+        with pytest.raises(HandProcessError, match="ended"):
+            loop.wait()
+        assert loop.estimates == [] and loop.masks == {}
+        assert loop.worker_pid is not None and loop.worker_pid != first
+        assert loop._process.restarts == 1
+        assert loop._process.wait_ready(120.0)
+        fresh = _loop("thread", "off")
+        fresh.start(_entering_palm(0), None, None, {})
+        for k in range(9, 25):
+            loop.start(_entering_palm(k), None, None, {})
+            fresh.start(_entering_palm(k), None, None, {})
+            loop.wait()
+            assert [e.box for e in loop.estimates] == [e.box for e in fresh.estimates]
+        assert loop.estimates
+    finally:
+        loop.close()
+
+
+def test_close_ends_the_child_and_frees_the_shared_memory():
+    from multiprocessing.shared_memory import SharedMemory
+
+    loop = _loop("process")
+    loop.start(_entering_palm(0), None, None, {})
+    loop.wait()
+    proc = loop._process._res.proc
+    name = loop._process._res.shm.name
+    loop.close()
+    assert not proc.is_alive() and proc.exitcode == 0  # asked to stop, not killed
+    with pytest.raises(FileNotFoundError):
+        SharedMemory(name=name)
+    loop.close()  # twice is harmless
+
+
+def test_pipeline_reports_a_dead_hand_process_and_keeps_running():
+    """In the pipeline (the server's worker calls it per frame) a killed hand process costs one frame's hands: that
+    snapshot carries the error, the cube tracker's poses are still there, and after the new child is ready the
+    snapshots come without errors."""
+    from tracker.pipeline import AssemblyPipeline
+    from tracker.sources.simulator import SimulatedTable
+
+    src = SimulatedTable("guidance-demo", seed=100, realtime=False)
+    pipe = AssemblyPipeline(src.parts, src.intrinsics, mode="guidance", initial_poses=src.initial_poses, hands=True)
+    try:
+        for i in range(3):
+            assert not pipe.process(src.render(i)).errors
+        os.kill(pipe.hands.worker_pid, signal.SIGKILL)
+        pipe.hands._process._res.proc.join()
+        snap = pipe.process(src.render(3))
+        assert any(e.startswith("hands: HandProcessError") for e in snap.errors)
+        assert set(snap.poses) == {p.name for p in src.parts}
+        assert pipe.hands._process.wait_ready(120.0)
+        for i in range(4, 7):
+            assert not pipe.process(src.render(i)).errors
+    finally:
+        pipe.hands.close()

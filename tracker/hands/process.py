@@ -1,0 +1,378 @@
+"""The hand step in a child process of its own (``HandLoopConfig.worker`` "process"; product addition).
+
+Why: in the server the hand step ran in a thread of the server process, which already keeps most of the 2 cores busy
+(pipeline thread, websocket, JPEG); the step's Python parts then compete with the pipeline thread for the global
+interpreter lock, and its wall time was twice its CPU time. A child process has its own interpreter lock.
+
+:class:`HandProcess` starts (``spawn``) a child that owns a :class:`~tracker.hands.loop.HandLoop` running in its own
+thread (``overlap`` "off") and runs :meth:`HandLoop.step` on the frames it is sent:
+
+* Frames go through shared memory: two slots of colour (uint8 H×W×3) and depth (float32 H×W, metres), used in turn,
+  so that the frame the child keeps as its previous frame is never overwritten while it is still read. The table
+  plane and the parts' poses go over a pipe (small).
+* Results come back over the pipe, compact: the estimates, every hand mask M_k and the occluder masks H_k as the
+  crop of their bounding rectangle (working resolution for the hand masks, full resolution for H_k), the step's wall
+  and thread CPU time. :func:`hand_masks_from` / :func:`mask_from` rebuild the full-resolution bool images, equal
+  to those of the step run in the caller's process.
+* Errors: an exception of the step (a bad frame) comes back and is raised again by :meth:`HandProcess.result` with
+  its type (built-in types; others as RuntimeError), and the child keeps running. A child that dies (crash, killed)
+  or does not answer within ``step_timeout`` seconds is reported by :class:`HandProcessError` from
+  :meth:`HandProcess.result` and a new child is started at once; until it is ready (imports, a few seconds), steps
+  are refused with a :class:`HandProcessError` that says so, without waiting. The new child is first given the
+  session's first frame again (kept by the parent; the skin model's session background is fitted on it, and it is
+  assumed hand-free), then the current one: the hands start afresh (tracks restart by automatic initialisation).
+  After :data:`MAX_RESTARTS` deaths in a row without a completed step the process is not started again and every
+  step reports why. Only the first start waits for the child (``start_timeout``), so that a fresh loop gives the
+  same hands as the step run in place.
+* :meth:`HandProcess.close` asks the child to end, kills it if it does not within a few seconds, and frees the shared
+  memory; it also runs when the object is garbage-collected.
+
+Units: pixels of the colour image, metres, camera frame (as :mod:`tracker.hands.loop`).
+"""
+
+from __future__ import annotations
+
+import builtins
+import multiprocessing as mp
+import signal
+import weakref
+from dataclasses import replace
+from multiprocessing.connection import Connection
+from multiprocessing.shared_memory import SharedMemory
+from typing import Any
+
+import numpy as np
+
+MAX_RESTARTS = 5
+"""Deaths of the child in a row (no completed step between them) after which it is not started again."""
+
+
+class HandProcessError(RuntimeError):
+    """The hand process died, hung, is starting again, or was given up; the message says which."""
+
+
+def _crop(mask: np.ndarray | None) -> tuple[int, int, np.ndarray] | None:
+    """(x, y, crop) of the bounding rectangle of a 2-D mask's set pixels; None for None or an empty mask."""
+    if mask is None:
+        return None
+    rows = np.flatnonzero(mask.any(axis=1))
+    if not len(rows):
+        return None
+    cols = np.flatnonzero(mask.any(axis=0))
+    y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return x0, y0, np.ascontiguousarray(mask[y0:y1, x0:x1])
+
+
+def mask_from(crop: tuple[int, int, np.ndarray] | None, size: tuple[int, int], scale: int = 1) -> np.ndarray | None:
+    """Full-resolution bool image (``size`` = (W, H)) from a crop (x, y, 0/1 image) at a resolution ``scale`` times
+    lower (each of its pixels covers ``scale`` × ``scale`` full pixels; what falls past the image is dropped);
+    None for None."""
+    if crop is None:
+        return None
+    x, y, img = crop
+    W, H = size
+    out = np.zeros((H, W), bool)
+    if scale > 1:
+        img = np.repeat(np.repeat(img, scale, axis=0), scale, axis=1)
+    x, y = x * scale, y * scale
+    h, w = min(img.shape[0], H - y), min(img.shape[1], W - x)
+    if h > 0 and w > 0:
+        out[y : y + h, x : x + w] = img[:h, :w].astype(bool)
+    return out
+
+
+def hand_masks_from(crops: dict[int, tuple[int, int, np.ndarray] | None], size: tuple[int, int],
+                    scale: int) -> dict[int, np.ndarray]:  # fmt: skip
+    """The full-resolution hand masks (bool H×W per track id) from their working-resolution crops (an empty mask:
+    None)."""
+    W, H = size
+    return {tid: np.zeros((H, W), bool) if c is None else mask_from(c, size, scale) for tid, c in crops.items()}
+
+
+def step_result(loop: Any) -> dict[str, Any]:
+    """What a :class:`~tracker.hands.loop.HandLoop` that has just run :meth:`step` hands back to the parent."""
+    tracker = loop.tracker
+    return {
+        "estimates": loop.estimates,
+        "masks": {tid: _crop(m) for tid, m in tracker.hand_masks_small().items()},
+        "occluder": _crop(loop.occluder),
+        "next_occluder": _crop(loop.next_occluder),
+        "seconds": loop.step_seconds,
+        "size": tracker.full_size,
+        "scale": tracker.s,
+    }
+
+
+def _child(conn: Connection, shm_name: str, shape: tuple[int, int], parts: list, intrinsics: Any,
+           config: Any) -> None:  # fmt: skip
+    """The child: a HandLoop running its steps in place on the frames in shared memory, until told to stop."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the process group: the parent closes this process
+    shm = None
+    try:
+        import cv2
+
+        from tracker.hands.loop import HandLoop
+
+        cv2.setNumThreads(1)  # one core for the hand step; the other is the pipeline's (same results, see tests)
+        loop = HandLoop(parts, intrinsics, replace(config, overlap="off", worker="thread"))
+        shm = SharedMemory(name=shm_name)
+        slots = _slots(shm, shape)
+        conn.send(("ready",))
+    except BaseException as exc:  # noqa: BLE001 - opening failed: tell the parent
+        try:
+            conn.send(("failed", f"{type(exc).__name__}: {exc}"))
+        except OSError:
+            pass
+        if shm is not None:
+            shm.close()
+        return
+    try:
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                return
+            if msg is None:
+                return
+            _, slot, has_depth, table_plane, poses = msg
+            color, depth = slots[slot]
+            try:
+                loop.step(color, depth if has_depth else None, table_plane, poses)
+                reply: tuple = ("done", step_result(loop))
+            except Exception as exc:  # noqa: BLE001 - handed to the parent, the process goes on
+                reply = ("error", type(exc).__name__, str(exc))
+            conn.send(reply)
+    finally:
+        del slots
+        shm.close()
+
+
+def _slots(shm: SharedMemory, shape: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The two (colour, depth) frame slots laid out in ``shm``."""
+    H, W = shape
+    n_color, n_depth = H * W * 3, H * W * 4
+    return [(np.ndarray((H, W, 3), np.uint8, buffer=shm.buf, offset=i * (n_color + n_depth)),
+             np.ndarray((H, W), np.float32, buffer=shm.buf, offset=i * (n_color + n_depth) + n_color))
+            for i in range(2)]  # fmt: skip
+
+
+class _Resources:
+    """The child process, its pipe and the shared memory: what :meth:`HandProcess.close` (or the finalizer) frees."""
+
+    def __init__(self) -> None:
+        self.proc: Any = None
+        self.conn: Connection | None = None
+        self.shm: SharedMemory | None = None
+
+    def stop_child(self) -> None:
+        proc, conn, self.proc, self.conn = self.proc, self.conn, None, None
+        if conn is not None:
+            try:
+                conn.send(None)
+            except OSError:
+                pass
+            conn.close()
+        if proc is not None:
+            proc.join(timeout=5.0)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(timeout=2.0)
+
+    def free(self) -> None:
+        self.stop_child()
+        if self.shm is not None:
+            shm, self.shm = self.shm, None
+            shm.close()
+            try:
+                shm.unlink()
+            except FileNotFoundError:
+                pass
+
+
+class HandProcess:
+    """One hand step at a time in a child process (see the module docstring): :meth:`submit` a frame, then
+    :meth:`result` for its step's result (a dict, see :func:`step_result`). ``parts``, ``intrinsics``, ``config``:
+    as for :class:`~tracker.hands.loop.HandLoop` (frames must have the intrinsics' size)."""
+
+    def __init__(self, parts: list, intrinsics: Any, config: Any, start_timeout: float = 120.0,
+                 step_timeout: float = 20.0) -> None:  # fmt: skip
+        self.parts = list(parts)
+        self.intrinsics = intrinsics
+        self.config = config
+        self.start_timeout = float(start_timeout)
+        self.step_timeout = float(step_timeout)
+        self.shape = (int(intrinsics.height), int(intrinsics.width))
+        self.restarts = 0  # children started after the first one
+        self._res = _Resources()
+        self._finalizer = weakref.finalize(self, _Resources.free, self._res)
+        self._ready = False
+        self._started_once = False
+        self._deaths = 0  # deaths in a row without a completed step
+        self._given_up: str | None = None
+        self._slot = 0
+        self._pending = False
+        self._refused: BaseException | None = None
+        self._closed = False
+        self._first: tuple | None = None  # the session's first frame (colour, depth, table plane, poses), copied
+        self._replay = False  # a restarted child is first given the session's first frame
+
+    # ------------------------------------------------------------------ the child
+    @property
+    def pid(self) -> int | None:
+        """The child's process id (None if none runs)."""
+        return None if self._res.proc is None else self._res.proc.pid
+
+    def _spawn(self) -> None:
+        """Start a child (the shared memory is made once and kept across restarts); does not wait for it."""
+        ctx = mp.get_context("spawn")
+        H, W = self.shape
+        if self._res.shm is None:
+            self._res.shm = SharedMemory(create=True, size=2 * (H * W * 3 + H * W * 4))
+            self._slots = _slots(self._res.shm, self.shape)
+        conn, child_conn = ctx.Pipe()
+        proc = ctx.Process(target=_child, name="hand-step", daemon=True,
+                           args=(child_conn, self._res.shm.name, self.shape, self.parts, self.intrinsics, self.config))
+        proc.start()
+        child_conn.close()
+        self._res.proc, self._res.conn = proc, conn
+        self._ready = False
+        if self._started_once:
+            self.restarts += 1
+        self._started_once = True
+
+    def _check_ready(self, timeout: float) -> bool:
+        """Whether the child has said it is ready (waits up to ``timeout`` s); raises HandProcessError if it failed."""
+        if self._ready:
+            return True
+        conn = self._res.conn
+        assert conn is not None
+        try:
+            if not conn.poll(timeout):
+                return False
+            msg = conn.recv()
+        except (EOFError, OSError):
+            msg = ("failed", f"it ended (exit code {self._exitcode()})")
+        if msg[0] != "ready":
+            self._died(f"the hand process could not start: {msg[1]}")
+        self._ready = True
+        return True
+
+    def wait_ready(self, timeout: float | None = None) -> bool:
+        """Start the child if none runs and wait until it is ready (``timeout`` s, default ``start_timeout``);
+        whether it is."""
+        if self._given_up is not None or self._closed:
+            return False
+        if self._res.proc is None:
+            self._spawn()
+        return self._check_ready(self.start_timeout if timeout is None else timeout)
+
+    def _exitcode(self) -> int | None:
+        proc = self._res.proc
+        if proc is None:
+            return None
+        proc.join(timeout=1.0)
+        return proc.exitcode
+
+    def _died(self, message: str) -> None:
+        """The child died or hung: end it, start the next one (unless given up) and raise HandProcessError."""
+        self._res.stop_child()
+        self._ready = False
+        self._pending = False
+        self._deaths += 1
+        if self._deaths >= MAX_RESTARTS:
+            self._given_up = f"{message}; given up after {self._deaths} failures in a row"
+            raise HandProcessError(self._given_up)
+        self._spawn()
+        self._replay = self._first is not None
+        raise HandProcessError(f"{message}; a new hand process is starting (the hands start again)")
+
+    # ------------------------------------------------------------------ steps
+    def submit(self, color: np.ndarray, depth: np.ndarray | None, table_plane: Any, poses: dict) -> None:
+        """Hand one frame (RGB uint8 H×W×3, depth metres H×W or None) to the child. Never raises: a bad frame or an
+        unavailable process is reported by the next :meth:`result`."""
+        self._refused = None
+        try:
+            self._submit(color, depth, table_plane, poses)
+        except Exception as exc:  # noqa: BLE001 - reported by result()
+            self._refused = exc
+
+    def _submit(self, color: np.ndarray, depth: np.ndarray | None, table_plane: Any, poses: dict) -> None:
+        if self._closed:
+            raise HandProcessError("the hand process is closed")
+        if self._pending:
+            raise RuntimeError("hand process: a step is still running (call result() first)")
+        if self._given_up is not None:
+            raise HandProcessError(self._given_up)
+        H, W = self.shape
+        color = np.asarray(color)
+        if color.shape != (H, W, 3) or color.dtype != np.uint8:
+            raise ValueError(f"hand tracker: expected a {H}×{W}×3 uint8 RGB image, got {color.dtype} {color.shape}")
+        if depth is not None:
+            depth = np.asarray(depth)
+            if depth.shape != (H, W):
+                raise ValueError(f"hand tracker: expected a {H}×{W} depth image, got {depth.shape}")
+        if self._res.proc is None:
+            self._spawn()
+        if not self._check_ready(self.start_timeout if not self._deaths and not self.restarts else 0.0):
+            if not self._deaths and not self.restarts:
+                self._died(f"the hand process did not start within {self.start_timeout:.0f} s")
+            raise HandProcessError("the hand process is starting again; no hands on this frame")
+        if self._first is None:
+            self._first = (color.copy(), None if depth is None else depth.copy(), table_plane, dict(poses))
+        elif self._replay:  # the session's hand-free first frame, for the skin model's session background
+            self._replay = False
+            self._send(*self._first)
+            try:
+                self.result()
+            except HandProcessError:
+                raise
+            except Exception:  # noqa: BLE001 - the first frame's own error was reported when it was first stepped
+                pass
+        self._send(color, depth, table_plane, poses)
+
+    def _send(self, color: np.ndarray, depth: np.ndarray | None, table_plane: Any, poses: dict) -> None:
+        """Write the frame into the next slot and ask the child to step it."""
+        self._slot ^= 1
+        slot_color, slot_depth = self._slots[self._slot]
+        slot_color[...] = color
+        if depth is not None:
+            slot_depth[...] = depth
+        try:
+            assert self._res.conn is not None
+            self._res.conn.send(("step", self._slot, depth is not None, table_plane, dict(poses)))
+        except OSError:
+            self._died(f"the hand process ended (exit code {self._exitcode()})")
+        self._pending = True
+
+    def result(self) -> dict[str, Any] | None:
+        """The result of the step of the last :meth:`submit` (None if none was submitted since the last result);
+        raises what the step raised, or HandProcessError (see the module docstring)."""
+        refused, self._refused = self._refused, None
+        if refused is not None:
+            raise refused
+        if not self._pending:
+            return None
+        conn = self._res.conn
+        assert conn is not None
+        try:
+            answered = conn.poll(self.step_timeout)
+            msg = conn.recv() if answered else None
+        except (EOFError, OSError):
+            self._died(f"the hand process ended during the step (exit code {self._exitcode()})")
+        if msg is None:
+            self._died(f"the hand process did not answer within {self.step_timeout:.0f} s and was ended")
+        self._pending = False
+        self._deaths = 0
+        if msg[0] == "done":
+            return msg[1]
+        _, kind, text = msg
+        exc_type = getattr(builtins, kind, None)
+        if not (isinstance(exc_type, type) and issubclass(exc_type, Exception)):
+            exc_type, text = RuntimeError, f"{kind}: {text}"
+        raise exc_type(text)
+
+    def close(self) -> None:
+        """End the child (politely, then by force) and free the shared memory."""
+        self._closed = True
+        self._pending = False
+        self._finalizer()
