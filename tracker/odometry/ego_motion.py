@@ -31,7 +31,8 @@ Per frame, before the particle filter's step:
    it aligns to its keyframe, so the motion since the rest is measured whole and applied at once. A camera drifting
    slowly along the table changes the depth too little for that test (a sway near its turning point: 3–5 mm before
    it woke on tuning seeds), so every ``IDLE_CHECK_FRAMES``-th idle frame also runs the mask and the odometry and
-   wakes when the pose has left the dead band (else it stays idle: nothing applied, nothing observed). With
+   wakes when the pose has moved by more than ``IDLE_WAKE_M`` / ``IDLE_WAKE_DEG`` (else it stays idle: nothing
+   applied, nothing observed). With
    ``fused`` the smooth path stands still while idle (no velocity, its clock moving on) and takes the wake frame's
    dense pose as it comes: it is the motion since the rest, not one frame's. A fixed camera then costs about a
    millisecond per frame instead of the full stage.
@@ -82,8 +83,14 @@ STILL_FRAMES = 10
 """After this many measured frames in a row whose camera motion stays inside the dead band, the odometry idles
 (step 5 of the module docstring)."""
 IDLE_CHECK_FRAMES = 5
-"""While idle, every this many frames the odometry runs anyway and wakes when the camera has moved (module docstring,
-step 5)."""
+"""While idle, every this many frames the odometry runs anyway and wakes when the camera has moved by more than
+``IDLE_WAKE_M`` / ``IDLE_WAKE_DEG`` since the rest (module docstring, step 5)."""
+IDLE_WAKE_M = 0.001
+"""Translation (metres) since the rest that the idle check takes for a motion; more than the dead band, which the
+dense step's jitter with a hand in view left often enough to keep a fixed camera awake half the time (tuning seed 3
+of guess-1, fixed camera)."""
+IDLE_WAKE_DEG = 0.1
+"""Rotation bound of :data:`IDLE_WAKE_M`, degrees."""
 IDLE_GRID_PX = 8
 """Pixel step of the depth grid the idle test compares (80×60 samples at 640×480)."""
 IDLE_CHANGE_M = 0.0015
@@ -321,13 +328,13 @@ class EgoMotion:
         return EgoMotionStep(self.pose, True, None, 1e3 * (time.perf_counter() - t0), "camera at rest: idle")
 
     def _at_rest(self, dense: Pose) -> bool:
-        """Idle check: does the odometry's pose ``dense`` (its own world frame) stay inside the dead band of the pose
-        the tracker's state refers to?"""
+        """Idle check: does the odometry's pose ``dense`` (its own world frame) stay within ``IDLE_WAKE_M`` /
+        ``IDLE_WAKE_DEG`` of the pose the tracker's state refers to?"""
         if self._applied is None:
             return False
         T = dense.as_matrix() if self.fused is None else self.fused.from_dense(dense)
         dt, dr = motion_size(invert(T) @ self._applied)
-        return dt <= DEADBAND_M and np.degrees(dr) <= DEADBAND_DEG
+        return dt <= IDLE_WAKE_M and np.degrees(dr) <= IDLE_WAKE_DEG
 
     def _depth_grid(self, frame: Frame) -> np.ndarray | None:
         return None if frame.depth is None else np.array(frame.depth[::IDLE_GRID_PX, ::IDLE_GRID_PX], np.float32)
