@@ -277,13 +277,109 @@ def test_above_table_points_kernel_matches_numpy(with_plane):
     assert kept > 1000  # the windows were not empty
 
 
-def test_hand_carry_rotation_vector_is_scipys_to_the_bit():
+def register_rigid_reference(src, dst, iterations, max_step, max_turn, guess=None, axis=None):
+    """The numpy / KD-tree form of :func:`tracker.filter.hand_carry.register_rigid` before its rounds were compiled
+    (:mod:`tracker.geometry.point_icp`); scipy's rotation conversions; without the turn fallback."""
+    from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
 
-    from tracker.filter.hand_carry import _rot, _rotvec
+    from tracker.filter.hand_carry import PAIR_BOUND, point_normals
+
+    def rot(w):
+        return Rotation.from_rotvec(w).as_matrix()
+
+    zero = (np.zeros(3), np.zeros(3))
+    tree = cKDTree(dst)
+    normals = point_normals(dst, tree=tree)
+    c = src.mean(axis=0)
+    rel = src - c
+    radius2 = max(float((rel**2).sum(1).mean()), 1e-6)
+    starts = [zero]
+    if guess is not None:
+        starts.append(guess)
+    best, best_cost = zero, np.inf
+    for w, t in starts:
+        w, t = w.copy(), t.copy()
+        for _ in range(iterations):
+            Rw = rot(w)
+            moved = rel @ Rw.T + c + t
+            d, j = tree.query(moved, distance_upper_bound=PAIR_BOUND)
+            ok = np.isfinite(d)
+            if ok.sum() < 6:
+                break
+            n = normals[j[ok]]
+            q = moved[ok] - c - t
+            r = np.einsum("mi,mi->m", n, dst[j[ok]] - moved[ok])
+            Jr = np.cross(q, n)
+            if axis is not None:
+                Jr = (Jr @ axis)[:, None]
+            nr = Jr.shape[1]
+            J = np.hstack([Jr, n])
+            A = J.T @ J
+            lam = 1e-2 * np.trace(A[nr:, nr:]) / 3.0
+            A[:nr, :nr] += lam * radius2 * np.eye(nr)
+            A[nr:, nr:] += 1e-3 * np.trace(A[nr:, nr:]) * np.eye(3)
+            x = np.linalg.solve(A, J.T @ r)
+            dw = x[0] * axis if axis is not None else x[:3]
+            w = Rotation.from_matrix(rot(dw) @ Rw).as_rotvec()
+            t = t + x[nr:]
+            if np.linalg.norm(x[nr:]) < 5e-5 and np.linalg.norm(dw) < 1e-4:
+                break
+        d, _ = tree.query(rel @ rot(w).T + c + t)
+        cost = float(np.mean(np.minimum(d, PAIR_BOUND)))
+        if cost < best_cost:
+            best, best_cost = (w, t), cost
+    w, t = best
+    th, norm = float(np.linalg.norm(w)), float(np.linalg.norm(t))
+    if th > max_turn:
+        w = w * (max_turn / th)
+    if norm > max_step:
+        t = t * (max_step / norm)
+    return w, t
+
+
+@pytest.mark.parametrize("axis", [None, np.array([0.0, -0.8, -0.6])])
+def test_compiled_hand_registration_matches_the_numpy_reference(axis):
+    from scipy.spatial.transform import Rotation
+
+    from tracker.filter.hand_carry import register_rigid
+
+    rng = np.random.default_rng(21)
+    moved_some = 0
+    for trial in range(40):
+        # a hand-like patch: a curved palm with a thumb, sampled unevenly; the next frame's points turned and shifted,
+        # with noise, a part of them missing and clutter added
+        n_palm = int(rng.integers(150, 500))
+        uv = rng.uniform([-0.05, -0.035], [0.05, 0.035], (n_palm, 2))
+        palm = np.column_stack([uv, 0.15 * (uv**2).sum(1)])
+        thumb = rng.uniform([0.02, 0.03, -0.01], [0.035, 0.065, 0.012], (int(rng.integers(20, 120)), 3))
+        src = np.vstack([palm, thumb]) + [rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), rng.uniform(0.45, 0.7)]
+        c = src.mean(axis=0)
+        turn = Rotation.from_rotvec(rng.normal(0.0, 0.05, 3)).as_matrix()
+        shift = rng.normal(0.0, 0.006, 3)
+        dst = (src - c) @ turn.T + c + shift + rng.normal(0, 0.0004, src.shape)
+        dst = dst[rng.random(dst.shape[0]) > 0.15]
+        dst = np.vstack([dst, c + rng.uniform(-0.08, 0.08, (30, 3))])
+        guess = (rng.normal(0.0, 0.02, 3), rng.normal(0.0, 0.004, 3)) if trial % 2 else None
+        iterations = int(rng.integers(1, 12))
+        got = register_rigid(src, dst, iterations, 0.03, 0.2, guess, axis)
+        ref = register_rigid_reference(src, dst, iterations, 0.03, 0.2, guess, axis)
+        assert np.allclose(got[0], ref[0], rtol=0, atol=1e-9), (trial, got[0], ref[0])
+        assert np.allclose(got[1], ref[1], rtol=0, atol=1e-9), (trial, got[1], ref[1])
+        moved_some += np.linalg.norm(got[1]) > 1e-3
+    assert moved_some > 20  # the registrations did move
+
+
+def test_compiled_rotation_conversions_match_scipy():
+    from scipy.spatial.transform import Rotation
+
+    from tracker.geometry.point_icp import matrix_rotvec, rotvec_matrix
 
     rng = np.random.default_rng(5)
     for _ in range(2000):
         w = rng.normal(0.0, 10 ** rng.uniform(-6, 0.4), 3)  # tiny to large turns, both sides of the series
-        R = _rot(w)
-        assert np.array_equal(_rotvec(R), Rotation.from_matrix(R).as_rotvec())
+        if np.linalg.norm(w) > 3.1:
+            continue
+        R = rotvec_matrix(w)
+        assert np.allclose(R, Rotation.from_rotvec(w).as_matrix(), rtol=0, atol=1e-14)
+        assert np.allclose(matrix_rotvec(R), Rotation.from_matrix(R).as_rotvec(), rtol=0, atol=1e-12)

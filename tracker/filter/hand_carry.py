@@ -23,7 +23,6 @@ put while the hand moves on, and starts it for a part whose place the camera see
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -32,7 +31,7 @@ import numpy as np
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
 from tracker.geometry.depth_points import window_points
-from tracker.geometry.pose import _matrix_to_quat_one
+from tracker.geometry.point_icp import build_grid, rigid_icp
 
 
 @dataclass
@@ -407,44 +406,23 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
         return zero
     from scipy.spatial import cKDTree
 
-    tree = cKDTree(dst)
-    normals = point_normals(dst, tree=tree)
+    dst = np.ascontiguousarray(dst, np.float64)
+    normals = np.ascontiguousarray(point_normals(dst, tree=cKDTree(dst)))
     c = src.mean(axis=0)
-    rel = src - c
+    rel = np.ascontiguousarray(src - c, np.float64)
     radius2 = max(float((rel**2).sum(1).mean()), 1e-6)
+    # grid cells no smaller than the pairing bound (exact nearest neighbour within it), at most ~64 per side
+    cell = max(PAIR_BOUND, float(np.ptp(dst, axis=0).max()) / 64.0)
+    grid = build_grid(dst, cell)
+    use_axis = axis is not None
+    ax = np.asarray(axis, np.float64).reshape(3) if use_axis else np.zeros(3)
     starts = [zero]
     if guess is not None and (np.any(guess[0]) or np.any(guess[1])):
         starts.append((np.asarray(guess[0], np.float64), np.asarray(guess[1], np.float64)))
     best, best_cost = zero, np.inf
     for w, t in starts:
-        w, t = w.copy(), t.copy()
-        for _ in range(max(iterations, 1)):
-            Rw = _rot(w)
-            moved = rel @ Rw.T + c + t
-            d, j = tree.query(moved, distance_upper_bound=PAIR_BOUND)
-            ok = np.isfinite(d)
-            if ok.sum() < 6:
-                break
-            n = normals[j[ok]]
-            q = moved[ok] - c - t  # rotated offsets from the centroid
-            r = np.einsum("mi,mi->m", n, dst[j[ok]] - moved[ok])
-            Jr = np.cross(q, n)  # d(residual)/d(small rotation)
-            if axis is not None:
-                Jr = (Jr @ axis)[:, None]
-            nr = Jr.shape[1]
-            J = np.hstack([Jr, n])
-            A = J.T @ J
-            lam = 1e-2 * np.trace(A[nr:, nr:]) / 3.0
-            A[:nr, :nr] += lam * radius2 * np.eye(nr)
-            A[nr:, nr:] += 1e-3 * np.trace(A[nr:, nr:]) * np.eye(3)
-            x = np.linalg.solve(A, J.T @ r)
-            dw = x[0] * axis if axis is not None else x[:3]
-            w = _rotvec(_rot(dw) @ Rw)
-            t = t + x[nr:]
-            if np.linalg.norm(x[nr:]) < 5e-5 and np.linalg.norm(dw) < 1e-4:
-                break
-        d, _ = tree.query(rel @ _rot(w).T + c + t)
-        cost = float(np.mean(np.minimum(d, PAIR_BOUND)))
+        w, t, cost = rigid_icp(rel, c, dst, normals, *grid, cell, PAIR_BOUND, np.array(w, np.float64).reshape(3),
+                               np.array(t, np.float64).reshape(3), int(iterations), radius2, ax, use_axis)
         if cost < best_cost:
             best, best_cost = (w, t), cost
     w, t = best
@@ -463,19 +441,3 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
 def _rot(w: np.ndarray) -> np.ndarray:
     """Rotation matrix (3, 3) of one rotation vector (rad)."""
     return rotvec_to_matrix(w)[0]
-
-
-def _rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (rad) of one rotation matrix: scipy's ``Rotation.from_matrix(R).as_rotvec()`` with the same
-    floating-point operations (Shepperd's quaternion normalised once, w >= 0; angle 2 atan2(|v|, w), its series
-    below 1e-3 rad), without the object's per-call cost."""
-    x, y, z, w = _matrix_to_quat_one(np.asarray(R, np.float64)).tolist()
-    if w < 0:
-        x, y, z, w = -x, -y, -z, -w
-    angle = 2 * math.atan2(math.sqrt(x * x + y * y + z * z), w)
-    if angle <= 1e-3:
-        angle2 = angle * angle
-        scale = 2 + angle2 / 12 + 7 * angle2 * angle2 / 2880
-    else:
-        scale = angle / math.sin(angle / 2)
-    return np.array([scale * x, scale * y, scale * z])
