@@ -136,3 +136,9 @@ def test_a_carried_part_is_not_pushed_through_the_table(frames):
     assert low_off[held].min() < -5.0, low_off[held]
     assert low_on[held].min() > -1.5, low_on[held]
     assert err_on[held].max() < err_off[held].max() - 3.0, (err_on[held], err_off[held])
+
+
+def test_the_default_preset_lets_go_on_lift_and_keeps_carried_parts_above_the_table():
+    cfg = TrackerConfig.preset("default")
+    assert cfg.carry_release_on_lift > 0 and cfg.carry_above_table
+    assert TrackerConfig().carry_release_on_lift == 0 and not TrackerConfig().carry_above_table  # seed: neither

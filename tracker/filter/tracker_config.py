@@ -569,5 +569,7 @@ PRESETS["default"] = {
     "carry_shadow": True,
     "carry_max_step": 0.05,
     "table_upright": True,
+    "carry_release_on_lift": 3,
+    "carry_above_table": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
