@@ -324,15 +324,17 @@ def test_camera_motion_moves_the_constant_velocity_memory():
 
 def test_odometry_idles_while_the_camera_is_at_rest_and_wakes_when_it_moves():
     """A camera at rest: after STILL_FRAMES measured frames inside the dead band the odometry runs only on every
-    IDLE_CHECK_FRAMES-th frame (the others compare a coarse depth grid); a hand over the table does not wake it; a
-    camera that moves does, and the motion since the rest is measured and applied at once."""
-    from tracker.odometry.ego_motion import IDLE_CHECK_FRAMES, STILL_FRAMES
+    idle_check-th frame (the others compare a coarse depth grid); a hand over the table does not wake it; a camera
+    that moves does, and the motion since the rest is measured and applied at once."""
+    from tracker.odometry.ego_motion import STILL_FRAMES
+
+    IDLE_CHECK_FRAMES = 5
 
     src = SimulatedTable("static", seed=0, n_frames=1)
     frame = src.render(0)
     rest = [Pose()] * (STILL_FRAMES + 1)
     moved = Pose(np.array([0.0, 0.0, -0.004]))  # the camera 4 mm nearer the table: every depth 4 mm less (about)
-    ego = EgoMotion("default", src.intrinsics, src.parts)
+    ego = EgoMotion("default", src.intrinsics, src.parts, idle_check=IDLE_CHECK_FRAMES)
     ego.odometry = _ScriptedOdometry(rest + [Pose()] * 2 + [moved])
     steps = [ego.step(frame) for _ in range(STILL_FRAMES + 1 + 2 * IDLE_CHECK_FRAMES)]
     assert len(ego.odometry.poses) == 1  # measured STILL_FRAMES + 1 times, then idle with two checks
@@ -345,6 +347,11 @@ def test_odometry_idles_while_the_camera_is_at_rest_and_wakes_when_it_moves():
     step = ego.step(near)
     assert not ego.odometry.poses and ego.idle_frames == 2 * IDLE_CHECK_FRAMES + 1  # woken: measured this frame
     assert step.camera_motion is not None and np.allclose(step.camera_motion[:3, 3], [0.0, 0.0, 0.004])
+    plain = EgoMotion("default", src.intrinsics, src.parts)  # the default: no checks, the depth test only
+    plain.odometry = _ScriptedOdometry(rest)
+    for _ in range(STILL_FRAMES + 1 + 2 * IDLE_CHECK_FRAMES):
+        plain.step(frame)
+    assert plain.idle_checks == 0 and plain.idle_frames == 2 * IDLE_CHECK_FRAMES and not plain.odometry.poses
     lazy = EgoMotion("default", src.intrinsics, src.parts, idle=False)
     lazy.odometry = _ScriptedOdometry(rest * 2)
     for _ in range(STILL_FRAMES + 6):
@@ -355,15 +362,17 @@ def test_odometry_idles_while_the_camera_is_at_rest_and_wakes_when_it_moves():
 @pytest.mark.parametrize("method", ["default", "fused"])
 def test_a_slow_drift_the_depth_test_misses_wakes_the_idle_odometry_at_its_next_check(method):
     """A camera sliding slowly along the table barely changes the depth (a sway near its turning point): the idle
-    odometry's own check, every IDLE_CHECK_FRAMES-th idle frame, must find the motion and apply it whole. With fused,
-    the smooth path stood still meanwhile, so the 3 mm since the rest (over its 2 mm jump bound for one frame) is
-    taken, not rejected as a wrong registration."""
-    from tracker.odometry.ego_motion import IDLE_CHECK_FRAMES, STILL_FRAMES
+    odometry's own check (``idle_check``, off by default), every 5th idle frame here, must find the motion and apply
+    it whole. With fused, the smooth path stood still meanwhile, so the 3 mm since the rest (over its 2 mm jump bound
+    for one frame) is taken, not rejected as a wrong registration."""
+    from tracker.odometry.ego_motion import STILL_FRAMES
+
+    IDLE_CHECK_FRAMES = 5
 
     src = SimulatedTable("static", seed=0, n_frames=1)
     frame = src.render(0)
     slid = Pose(np.array([0.003, 0.0, 0.0]))
-    ego = EgoMotion(method, src.intrinsics, src.parts)
+    ego = EgoMotion(method, src.intrinsics, src.parts, idle_check=IDLE_CHECK_FRAMES)
     ego.odometry = _ScriptedOdometry([Pose()] * (STILL_FRAMES + 1) + [slid])
     steps = [ego.step(frame) for _ in range(STILL_FRAMES + 1 + IDLE_CHECK_FRAMES)]
     if method == "fused":

@@ -30,9 +30,9 @@ Per frame, before the particle filter's step:
    is applied, the step counts as measured. When the depth has changed, the odometry runs again on that frame:
    it aligns to its keyframe, so the motion since the rest is measured whole and applied at once. A camera drifting
    slowly along the table changes the depth too little for that test (a sway near its turning point: 3–5 mm before
-   it woke on tuning seeds), so every ``IDLE_CHECK_FRAMES``-th idle frame also runs the mask and the odometry and
-   wakes when the pose has moved by more than ``IDLE_WAKE_M`` / ``IDLE_WAKE_DEG`` (else it stays idle: nothing
-   applied, nothing observed). With
+   it woke on tuning seeds); with ``idle_check`` > 0 every ``idle_check``-th idle frame also runs the mask and the
+   odometry and wakes when the pose has moved by more than ``IDLE_WAKE_M`` / ``IDLE_WAKE_DEG`` (else it stays idle:
+   nothing applied, nothing observed). It is off by default (:data:`IDLE_CHECK_FRAMES`). With
    ``fused`` the smooth path stands still while idle (no velocity, its clock moving on) and takes the wake frame's
    dense pose as it comes: it is the motion since the rest, not one frame's. A fixed camera then costs about a
    millisecond per frame instead of the full stage.
@@ -82,9 +82,11 @@ MAX_STEP_DEG = 1.5
 STILL_FRAMES = 10
 """After this many measured frames in a row whose camera motion stays inside the dead band, the odometry idles
 (step 5 of the module docstring)."""
-IDLE_CHECK_FRAMES = 5
-"""While idle, every this many frames the odometry runs anyway and wakes when the camera has moved by more than
-``IDLE_WAKE_M`` / ``IDLE_WAKE_DEG`` since the rest (module docstring, step 5)."""
+IDLE_CHECK_FRAMES = 0
+"""Default ``idle_check`` of :class:`EgoMotion`: while idle, every this many frames the odometry runs anyway and wakes
+when the camera has moved by more than ``IDLE_WAKE_M`` / ``IDLE_WAKE_DEG`` since the rest (module docstring, step 5);
+0 = never. Off: on a fixed camera (tuning seed 3 of guess-1) a check with a hand in view registered wrongly by over
+1 mm, woke the odometry, and 2 mm of motion were then applied to a camera that never moved."""
 IDLE_WAKE_M = 0.001
 """Translation (metres) since the rest that the idle check takes for a motion; more than the dead band, which the
 dense step's jitter with a hand in view left often enough to keep a fixed camera awake half the time (tuning seed 3
@@ -195,14 +197,16 @@ class EgoMotion:
 
     ``method``: ``default`` (dense RGB-D odometry), ``fastslam`` or ``fused``; ``intrinsics`` of the frames;
     ``parts``: the tracked parts (for their silhouettes); ``idle``: skip the odometry while the camera is at rest
-    (step 5 of the module docstring)."""
+    (step 5 of the module docstring); ``idle_check``: while idle, run the odometry every this many frames to check
+    the rest (0: never)."""
 
     def __init__(self, method: str, intrinsics: Intrinsics, parts: Sequence[PartSpec], seed: int = 0,
-                 idle: bool = True) -> None:
+                 idle: bool = True, idle_check: int = IDLE_CHECK_FRAMES) -> None:
         from tracker.odometry import OdometryConfig, make_odometry
 
         self.method = method
         self.idle = bool(idle)
+        self.idle_check = int(idle_check)
         self.intrinsics = intrinsics
         self.parts = list(parts)
         self.odometry = make_odometry("default" if method == "fused" else method, intrinsics, seed=seed,
@@ -230,7 +234,7 @@ class EgoMotion:
         self._still = 0  # measured frames in a row inside the dead band
         self._grid: np.ndarray | None = None  # the last measured frame's depth grid (idle test)
         self._rest: tuple[np.ndarray, float] | None = None  # idle: (depth grid at rest, change threshold m)
-        self._idle_count = 0  # idle frames since the rest began (every IDLE_CHECK_FRAMES-th runs the odometry)
+        self._idle_count = 0  # idle frames since the rest began (every idle_check-th runs the odometry)
         self.idle_frames = 0
         self.idle_checks = 0  # idle frames on which the odometry ran to check the rest
         self.moved = False  # the last step applied a camera motion (the table plane is to be propagated)
@@ -266,7 +270,7 @@ class EgoMotion:
         if self.idle and self._rest is not None:
             if self._still_at_rest(frame):
                 self._idle_count += 1
-                if self._idle_count % IDLE_CHECK_FRAMES:
+                if self.idle_check <= 0 or self._idle_count % self.idle_check:
                     return self._idle_step(now, poses, t0)
                 checking = True  # the depth looks the same: check with the odometry every few idle frames
             else:
