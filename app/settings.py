@@ -83,6 +83,9 @@ class Settings(BaseSettings):
     auto_place_interval_s: float = Field(2.0, gt=0, description="seconds between automatic placement attempts")
     hands: bool = Field(False, description="track the hands: occluder prior for the parts, 'holding the red cube' in "
                         "the panel, connections confirmed only after the hand lets go")
+    hands_worker: Literal["process", "thread"] = Field(
+        "process", description="where the hand step runs beside the tracker: a child process (default) or a thread"
+    )
     tracker_config: str | None = None
     n_particles: int | None = Field(
         SERVER_PARTICLES,

@@ -155,6 +155,12 @@ class AppState:
             self._preset_ids = [p["id"] for p in list_presets()]
         return self._preset_ids
 
+    def hand_config(self) -> Any:
+        """The hand loop's configuration from the settings (``hands_worker``: child process or thread)."""
+        from tracker.hands.loop import HandLoopConfig
+
+        return HandLoopConfig(worker=self.settings.hands_worker)
+
     def resolve_task(self, mode: str, ref: str | None) -> Any:
         """The task object for a reference: a preset id, or ``teacher:<n>`` (a stored sentence task).
 
@@ -234,6 +240,7 @@ class AppState:
                 word_assignment=word_assignment,
                 odometry=self.settings.odometry,
                 hands=self.settings.hands,
+                hand_config=self.hand_config() if self.settings.hands else None,
             )
 
         try:

@@ -121,7 +121,7 @@ def wait_until_processing(proc: subprocess.Popen, base: str, frames: int = 10, t
 
 
 def run_case(name: str, realtime: bool, seconds: float, particles: int | None, db: Path, jpeg: bool = True,
-             hands: bool = False) -> dict:
+             hands: bool = False, hands_worker: str | None = None) -> dict:
     port = free_port()
     cmd = [
         sys.executable,
@@ -145,11 +145,14 @@ def run_case(name: str, realtime: bool, seconds: float, particles: int | None, d
         cmd += ["--particles", str(particles)]
     if hands:
         cmd.append("--hands")
+    if hands_worker:
+        cmd += ["--hands-worker", hands_worker]
     env = dict(os.environ, ASSEMBLY_AGENT_MAX_FPS="1000")
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     base = f"http://127.0.0.1:{port}"
     try:
         wait_until_processing(proc, base)
+        load = os.getloadavg()[0]
         cpu0, w0 = cpu_seconds(proc.pid), time.time()
         st0 = httpx.get(f"{base}/api/status").json()["worker"]
         msgs, n_jpeg = asyncio.run(read_ws(f"ws://127.0.0.1:{port}/ws", seconds, jpeg))
@@ -183,6 +186,8 @@ def run_case(name: str, realtime: bool, seconds: float, particles: int | None, d
         "latency_ms_p95": round(lat[int(0.95 * (len(lat) - 1))], 1) if lat else None,
         "processing_to_ws_ms_median": round(statistics.median(lat_proc), 1) if lat_proc else None,
         "cpu_percent": round(100.0 * (cpu1 - cpu0) / (w1 - w0), 1),
+        "cpu_ms_per_frame": round(1000.0 * (cpu1 - cpu0) / max(n1 - n0, 1), 1),
+        "load_avg_1min": round(load, 2),
         "tracker_ms_median": round(statistics.median(tracker_ms), 1) if tracker_ms else None,
         "tracker_ms_p95": round(tracker_ms[int(0.95 * (len(tracker_ms) - 1))], 1) if tracker_ms else None,
         "tracker_cpu_ms_median": round(statistics.median(tracker_cpu), 1) if tracker_cpu else None,
@@ -357,6 +362,11 @@ def main() -> int:
     ap.add_argument("--note", default="", help="a sentence appended to the markdown (e.g. earlier figures)")
     ap.add_argument("--hands", action="store_true",
                     help="also the two websocket runs with the hand tracker on (serve --hands; issue 14's >= 28/s)")
+    ap.add_argument("--hands-thread", action="store_true",
+                    help="with --hands: also the two hands-on runs with the hand step in a thread of the server "
+                    "(serve --hands-worker thread) instead of its child process")
+    ap.add_argument("--no-browser", action="store_true",
+                    help="only the websocket runs (the browser runs' figures are kept from server.json)")
     ap.add_argument("--browser-only", action="store_true",
                     help="only the server + headless browser runs (the other runs' figures are kept from server.json)")
     args = ap.parse_args()
@@ -364,7 +374,7 @@ def main() -> int:
     db = Path("/tmp") / f"bench-server-{os.getpid()}.sqlite3"
     mach = machine()
     earlier = RESULTS / "server.json"
-    kept = json.loads(earlier.read_text()) if args.browser_only and earlier.exists() else {}
+    kept = json.loads(earlier.read_text()) if (args.browser_only or args.no_browser) and earlier.exists() else {}
     cases = kept.get("cases", []) if args.browser_only else [
         run_case("unpaced", False, args.seconds, args.particles, db, args.jpeg),
         run_case("realtime-30fps", True, args.seconds, args.particles, db, args.jpeg),
@@ -374,7 +384,14 @@ def main() -> int:
             run_case("unpaced, hands on", False, args.seconds, args.particles, db, args.jpeg, hands=True),
             run_case("realtime-30fps, hands on", True, args.seconds, args.particles, db, args.jpeg, hands=True),
         ]
-    browser_cases = [
+        if args.hands_thread:
+            cases += [
+                run_case("unpaced, hands on, thread", False, args.seconds, args.particles, db, args.jpeg, hands=True,
+                         hands_worker="thread"),
+                run_case("realtime-30fps, hands on, thread", True, args.seconds, args.particles, db, args.jpeg,
+                         hands=True, hands_worker="thread"),
+            ]
+    browser_cases = kept.get("browser_cases", []) if args.no_browser else [
         run_browser_case("panel without 3-D scene (baseline)", False, args.seconds, args.particles, db),
         run_browser_case("panel with 3-D scene", True, args.seconds, args.particles, db),
     ]
@@ -404,22 +421,29 @@ def main() -> int:
         " pessimistic).",
         "",
         "| run | processed fps (target ≥ 25) | latency capture → ws, median / p95 ms (target < 100) | "
-        "tracker ms/frame: wall median / p95, CPU median | server CPU (100 % = 1 core) | stale frames skipped | "
-        "ws messages |",
-        "|---|---|---|---|---|---|---|",
+        "tracker ms/frame: wall median / p95, CPU median | server CPU (100 % = 1 core) | server CPU ms per frame | "
+        "stale frames skipped | ws messages | load |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in cases:
         lines.append(
             f"| {c['case']} | {c['processed_fps']} | {c['latency_ms_median']} / {c['latency_ms_p95']} | "
             f"{c['tracker_ms_median']} / {c['tracker_ms_p95']}, {c['tracker_cpu_ms_median']} | {c['cpu_percent']} % | "
-            f"{c['stale_frames_dropped']} | {c['ws_messages']} of {c['frames_processed']} frames |"
+            f"{c.get('cpu_ms_per_frame', '–')} | {c['stale_frames_dropped']} | {c['ws_messages']} of "
+            f"{c['frames_processed']} frames | {c.get('load_avg_1min', '–')} |"
         )
+    lines += ["", "Server CPU = the server process, its simulator process and its hand process (with hands on, worker "
+              "\"process\"); CPU ms per frame = that CPU time over the frames processed; load = the machine's 1-minute "
+              "load average when the run's measurement started (above 1, other jobs shared the 2 cores)."]
     for c in cases:
         lines += [
             "",
             f"Median time per stage (ms, {c['case']} run): "
             + ", ".join(f"{k} {v}" for k, v in c["stage_ms_median"].items()),
         ]
+    if args.no_browser and browser_cases:
+        lines += ["", "The browser runs below are kept from an earlier run (`--no-browser` re-measured only the "
+                  "websocket runs above)."]
     if result["cases_machine"]:
         lines += ["", "The runs above are kept from an earlier run (`--browser-only` re-measured only the browser"
                   f" runs below); its 1-minute load average was {result['cases_machine']['load_avg_1min']:.1f}."]

@@ -84,6 +84,13 @@ def register(subparsers) -> None:
         "prior for the parts, connections confirmed after the hand lets go); default off",
     )
     p.add_argument(
+        "--hands-worker",
+        choices=("process", "thread"),
+        default=None,
+        help="with --hands: run the hand step in a child process (default; its own interpreter lock and core) or in a "
+        "thread of the server",
+    )
+    p.add_argument(
         "--allowed-host",
         action="append",
         dest="allowed_hosts",
@@ -179,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
             "realtime": args.realtime,
             "auto_place": getattr(args, "auto_place", None),
             "hands": getattr(args, "hands", None),
+            "hands_worker": getattr(args, "hands_worker", None),
             "allowed_hosts": args.allowed_hosts,
             "allowed_origins": args.allowed_origins,
             "recording_dirs": args.recording_dirs,

@@ -273,3 +273,84 @@ def dominant_component(u0, v0, u1, v1, cc, n_comp):
             best = counts[i]
             lab = i
     return lab, best
+
+
+@nb.njit(cache=True, nogil=True)
+def boxes_of(states, ox, oy):
+    """Inclusive integer boxes [N, 4] (:func:`box_of`) of states [N, ≥4] shifted by (−``ox``, −``oy``) into the ROI."""
+    n = states.shape[0]
+    out = np.empty((n, 4), np.int64)
+    for i in range(n):
+        u0, v0, u1, v1 = box_of(states[i, 0] - ox, states[i, 1] - oy, states[i, 2], states[i, 3])
+        out[i, 0] = u0
+        out[i, 1] = v0
+        out[i, 2] = u1
+        out[i, 3] = v1
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def first_of_each_box(boxes):
+    """Per row of ``boxes`` [N, 4], the index of the first row with the same box (statistics are computed once per
+    distinct box: after resampling many particles share one)."""
+    n = boxes.shape[0]
+    first = np.empty(n, np.int64)
+    for i in range(n):
+        first[i] = i
+        for j in range(i):
+            if (first[j] == j and boxes[j, 0] == boxes[i, 0] and boxes[j, 1] == boxes[i, 1]
+                    and boxes[j, 2] == boxes[i, 2] and boxes[j, 3] == boxes[i, 3]):  # fmt: skip
+                first[i] = j
+                break
+    return first
+
+
+@nb.njit(cache=True, nogil=True)
+def observe_states(states, ox, oy, mask, lab1, lab2, n_clusters, d2_scale, cent1, cent2, ac_hat, am_hat, v2_scale):
+    """(p(y_k | x_k), a_{c,1}) of every state [N, 6] (ROI origin ``ox``, ``oy``): :func:`box_observation` once per
+    distinct box, then :func:`observation_likelihood` with each state's velocity."""
+    boxes = boxes_of(states, ox, oy)
+    first = first_of_each_box(boxes)
+    n = states.shape[0]
+    obs = np.empty((n, 7))
+    lik = np.empty(n)
+    ac1 = np.empty(n)
+    for i in range(n):
+        if first[i] == i:
+            obs[i] = box_observation(boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3], mask, lab1, lab2, n_clusters,
+                                     d2_scale)  # fmt: skip
+        else:
+            obs[i] = obs[first[i]]
+        lik[i] = observation_likelihood(obs[i], states[i, 4], states[i, 5], cent1, cent2, ac_hat, am_hat, v2_scale)
+        ac1[i] = obs[i, 0]
+    return lik, ac1
+
+
+@nb.njit(cache=True, nogil=True)
+def transition_stats_of_states(states, ox, oy, mask, flow1, flow2, lab1, lab2, n_clusters, n_r):
+    """:func:`transition_stats` [N, 2, 9] of every state's box (ROI origin ``ox``, ``oy``) on both forward flow
+    versions, once per distinct box."""
+    boxes = boxes_of(states, ox, oy)
+    first = first_of_each_box(boxes)
+    n = states.shape[0]
+    out = np.empty((n, 2, 9))
+    for i in range(n):
+        if first[i] != i:
+            out[i] = out[first[i]]
+            continue
+        u0, v0, u1, v1 = boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3]
+        for a in range(2):
+            if a == 0:
+                r = transition_stats(u0, v0, u1, v1, mask, flow1, lab1, n_clusters, n_r)
+            else:
+                r = transition_stats(u0, v0, u1, v1, mask, flow2, lab2, n_clusters, n_r)
+            out[i, a, 0] = r[0]
+            out[i, a, 1] = r[1]
+            out[i, a, 2] = r[2]
+            out[i, a, 3] = r[3]
+            out[i, a, 4] = r[4]
+            out[i, a, 5] = r[5]
+            out[i, a, 6] = r[6]
+            out[i, a, 7] = r[7]
+            out[i, a, 8] = r[8]
+    return out

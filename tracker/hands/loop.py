@@ -144,7 +144,7 @@ class HandLoop:
         self.tracker = HandTracker(self.config.tracker, focal=intrinsics.fx)
         self.contacts = ContactMonitor()
         self.estimates: list[HandEstimate] = []
-        self.masks: dict[int, np.ndarray] = {}
+        self._masks: dict[int, np.ndarray] | None = {}  # None: not made yet from the tracker (see masks)
         self.states: dict[tuple[int, str], str] = {}
         self._centres: dict[str, np.ndarray] = {}  # projected part centres of the previous frame (px)
         self.positions: dict[int, np.ndarray] = {}  # per hand: camera-frame point of its box centre (m)
@@ -209,7 +209,7 @@ class HandLoop:
             try:
                 res = self._process.result()
             except HandProcessError:
-                self.estimates, self.masks = [], {}  # the process died: its hands are unknown
+                self.estimates, self._masks = [], {}  # the process died: its hands are unknown
                 self.occluder = self.next_occluder = None
                 raise
             if res is not None:
@@ -219,10 +219,18 @@ class HandLoop:
         """A step result of the hand process (:func:`tracker.hands.process.step_result`) as this loop's state."""
         size, scale = res["size"], res["scale"]
         self.estimates = res["estimates"]
-        self.masks = hand_masks_from(res["masks"], size, scale)
+        self._masks = hand_masks_from(res["masks"], size, scale)
         self.occluder = mask_from(res["occluder"], size)
         self.next_occluder = mask_from(res["next_occluder"], size)
         self.step_seconds = res["seconds"]
+
+    @property
+    def masks(self) -> dict[int, np.ndarray]:
+        """The hand masks M_k of the last step: full-resolution bool H×W per track id
+        (:meth:`HandTracker.hand_masks`)."""
+        if self._masks is None:
+            self._masks = self.tracker.hand_masks()
+        return self._masks
 
     @property
     def worker_pid(self) -> int | None:
@@ -256,7 +264,7 @@ class HandLoop:
         normal, offset)`` or None; ``poses``: the parts' last estimated poses (camera frame)."""
         exclude = self.exclusion(depth, table_plane, poses)
         self.estimates = self.tracker.process(color, depth, exclude)
-        self.masks = self.tracker.hand_masks()
+        self._masks = None  # made from the tracker when first read (the hand process never needs them full-size)
         return self.estimates
 
     def exclusion(self, depth: np.ndarray | None, table_plane: tuple[np.ndarray, float] | None,
@@ -351,10 +359,11 @@ class HandLoop:
     def _occluder_union(self) -> np.ndarray | None:
         """The undilated H_k at the working resolution: uint8 0/1 union of the hand masks and the arm mask; None
         without hands or if empty."""
-        if not any(e.id in self.masks and e.box[2] > e.box[0] and e.box[3] > e.box[1] for e in self.estimates):
+        small = self.tracker.hand_masks_small()
+        if not any(e.id in small and e.box[2] > e.box[0] and e.box[3] > e.box[1] for e in self.estimates):
             return None
         union: np.ndarray | None = None
-        for m in self.tracker.hand_masks_small().values():
+        for m in small.values():
             union = m.copy() if union is None else union | m
         arm = self.tracker.arm_mask_small() if self.config.occluder_arm else None
         if arm is not None:

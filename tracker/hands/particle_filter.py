@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from tracker.hands.box_stats import box_observation, box_of, observation_likelihood, transition_stats
+from tracker.hands.box_stats import box_of, observe_states, transition_stats_of_states
 from tracker.hands.certainty import TAU_D, certain_state
 from tracker.hands.features import HandFeatures
 from tracker.hands.palm_cut import anchor_state, holds_anchor, match_anchor
@@ -123,31 +123,18 @@ def _propagate(parts, stats, cent, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, 
 
 
 def observe(parts: np.ndarray, feats: HandFeatures, n_clusters: int, prm: PFParams) -> tuple[np.ndarray, np.ndarray]:
-    """(p(y_k | x_k^i), a_{c,1}) of every particle; the box statistics once per distinct box."""
-    ox, oy = feats.roi[0], feats.roi[1]
-    boxes = np.array([box_of(p[0] - ox, p[1] - oy, p[2], p[3]) for p in parts], np.int64)
-    uniq, inv = np.unique(boxes, axis=0, return_inverse=True)
-    inv = np.asarray(inv).ravel()
-    obs = np.stack([box_observation(int(u0), int(v0), int(u1), int(v1), feats.mcur, feats.labb[0], feats.labb[1],
-                                    n_clusters, prm.d2_scale) for u0, v0, u1, v1 in uniq])  # fmt: skip
-    c1 = feats.centb[0].astype(np.float64)
-    c2 = feats.centb[1].astype(np.float64)
-    lik = np.array([observation_likelihood(obs[j], p[4], p[5], c1, c2, prm.ac_hat, prm.am_hat, prm.v2_scale)
-                    for j, p in zip(inv, parts, strict=True)])  # fmt: skip
-    return lik, obs[inv, 0]
+    """(p(y_k | x_k^i), a_{c,1}) of every particle; the box statistics once per distinct box (one numba call)."""
+    return observe_states(np.ascontiguousarray(parts, np.float64), float(feats.roi[0]), float(feats.roi[1]),
+                          feats.mcur, feats.labb[0], feats.labb[1], n_clusters, float(prm.d2_scale),
+                          feats.centb[0].astype(np.float64), feats.centb[1].astype(np.float64), float(prm.ac_hat),
+                          float(prm.am_hat), float(prm.v2_scale))  # fmt: skip
 
 
 def box_stats_per_particle(parts: np.ndarray, feats: HandFeatures, n_clusters: int, n_r: int) -> np.ndarray:
     """transition_stats [N, 2, 9] of every particle's box at k−1 on both forward flows (once per distinct box)."""
-    ox, oy = feats.roi[0], feats.roi[1]
-    boxes = np.array([box_of(p[0] - ox, p[1] - oy, p[2], p[3]) for p in parts], np.int64)
-    uniq, inv = np.unique(boxes, axis=0, return_inverse=True)
-    per = np.empty((len(uniq), 2, 9))
-    for j, (u0, v0, u1, v1) in enumerate(uniq):
-        for a in range(2):
-            per[j, a] = transition_stats(int(u0), int(v0), int(u1), int(v1), feats.mprev, feats.ff[a], feats.labf[a],
-                                         n_clusters, n_r)  # fmt: skip
-    return per[np.asarray(inv).ravel()]
+    return transition_stats_of_states(np.ascontiguousarray(parts, np.float64), float(feats.roi[0]),
+                                      float(feats.roi[1]), feats.mprev, feats.ff[0], feats.ff[1], feats.labf[0],
+                                      feats.labf[1], n_clusters, n_r)  # fmt: skip
 
 
 MODE_F = 0.5

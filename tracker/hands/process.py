@@ -173,7 +173,7 @@ class _Resources:
                 pass
             conn.close()
         if proc is not None:
-            proc.join(timeout=5.0)
+            proc.join(timeout=10.0)
             if proc.is_alive():
                 proc.kill()
                 proc.join(timeout=2.0)
