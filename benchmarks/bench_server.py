@@ -104,7 +104,7 @@ async def read_ws(url: str, seconds: float, images: bool) -> tuple[list[dict], i
     return out, n_jpeg
 
 
-def wait_until_processing(proc: subprocess.Popen, base: str, frames: int = 10, timeout_s: float = 120.0) -> None:
+def wait_until_processing(proc: subprocess.Popen, base: str, frames: int = 10, timeout_s: float = 300.0) -> None:
     """Wait until the server subprocess has processed ``frames`` frames (RuntimeError if it exits or is too slow)."""
     t0 = time.time()
     while True:
@@ -122,6 +122,16 @@ def wait_until_processing(proc: subprocess.Popen, base: str, frames: int = 10, t
 
 def run_case(name: str, realtime: bool, seconds: float, particles: int | None, db: Path, jpeg: bool = True,
              hands: bool = False, hands_worker: str | None = None) -> dict:
+    """One websocket run (see the module docstring); a run that fails (the server does not start processing, no
+    message for 30 s) is recorded with its error instead of ending the benchmark."""
+    try:
+        return _run_case(name, realtime, seconds, particles, db, jpeg, hands, hands_worker)
+    except (RuntimeError, TimeoutError, OSError) as exc:
+        return {"case": name, "realtime": realtime, "error": f"{type(exc).__name__}: {exc}"[:300]}
+
+
+def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, db: Path, jpeg: bool,
+              hands: bool, hands_worker: str | None) -> dict:
     port = free_port()
     cmd = [
         sys.executable,
@@ -426,6 +436,9 @@ def main() -> int:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in cases:
+        if "error" in c:
+            lines.append(f"| {c['case']} | failed: {c['error']} | | | | | | | |")
+            continue
         lines.append(
             f"| {c['case']} | {c['processed_fps']} | {c['latency_ms_median']} / {c['latency_ms_p95']} | "
             f"{c['tracker_ms_median']} / {c['tracker_ms_p95']}, {c['tracker_cpu_ms_median']} | {c['cpu_percent']} % | "
@@ -436,6 +449,8 @@ def main() -> int:
               "\"process\"); CPU ms per frame = that CPU time over the frames processed; load = the machine's 1-minute "
               "load average when the run's measurement started (above 1, other jobs shared the 2 cores)."]
     for c in cases:
+        if "error" in c:
+            continue
         lines += [
             "",
             f"Median time per stage (ms, {c['case']} run): "
