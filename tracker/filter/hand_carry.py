@@ -106,6 +106,8 @@ class HandCarry:
         self._prev_depth: np.ndarray | None = None  # last frame's depth image (carry start registration)
         self._prev_motion: np.ndarray | None = None  # 4×4 camera motion since that image (None: the camera stayed)
         self.shadows: list[Shadow | None] = [None] * n_parts  # hidden resting parts' would-be carries
+        self.was_in_air = np.zeros(n_parts, bool)  # the carried part has been in the air during this carry
+        self.set_down = np.zeros(n_parts, np.int64)  # frames in a row it has then been on the table (note_heights)
 
     @property
     def carried(self) -> np.ndarray:
@@ -115,12 +117,22 @@ class HandCarry:
     def release(self, obj: int) -> None:
         """End the carry of part ``obj`` (it was let go)."""
         self.patches[obj] = None
+        self.was_in_air[obj], self.set_down[obj] = False, 0
 
     def start(self, obj: int, patch: np.ndarray) -> None:
         """Carry part ``obj`` from now on with the hand points ``patch`` (M, 3) around it (camera frame, m)."""
         self.patches[obj] = np.asarray(patch, np.float64)
         self.last_step[obj] = 0.0
         self.last_turn[obj] = 0.0
+        self.was_in_air[obj], self.set_down[obj] = False, 0
+
+    def note_heights(self, heights: np.ndarray, min_height: float) -> None:
+        """After the frame's motion decisions: per carried part, whether it has been in the air during this carry and
+        for how many frames in a row it has since been set down on the table (``heights``: lowest point above the
+        table before this frame's motion, m; ``min_height``: the in-the-air bound, m)."""
+        carried = self.carried
+        self.was_in_air = carried & (self.was_in_air | (heights > min_height))
+        self.set_down = np.where(carried & (heights <= min_height) & self.was_in_air, self.set_down + 1, 0)
 
     def move_with_camera(self, Rd: np.ndarray, td: np.ndarray) -> None:
         """The camera moved: a point x of the old camera frame is ``Rd @ x + td`` in the new one. The remembered

@@ -101,10 +101,7 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
             out_of_table(trk, i, plane)
         recentre(trk, i)
     trk._last_centers = centers
-    carried = trk._carry.carried
-    down = heights <= cfg.carry_min_height  # before this frame's motion
-    trk._carry_up = carried & (trk._carry_up | (heights > cfg.carry_min_height))
-    trk._carry_still = np.where(carried & down & trk._carry_up, trk._carry_still + 1, 0)
+    trk._carry.note_heights(heights, cfg.carry_min_height)
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
 
 
@@ -128,7 +125,7 @@ def lifted_off(trk, obj: int, position: np.ndarray, new_position: np.ndarray, he
     cfg = trk.config
     if cfg.carry_release_on_lift <= 0 or plane is None or not np.isfinite(height):
         return False
-    if trk._carry_still[obj] < cfg.carry_release_on_lift:
+    if trk._carry.set_down[obj] < cfg.carry_release_on_lift:
         return False
     return float((new_position - position) @ plane[0]) > cfg.carry_lift_m
 

@@ -197,8 +197,6 @@ class MultiObjectTracker:
         self.n_reacquired = 0  # re-acquisition attempts since initialize (diagnostics, tests)
         self._loss = LossMonitor(k, self.config.loss_bad_frames)
         self._was_carried = np.zeros(k, bool)
-        self._carry_still = np.zeros(k, np.int64)  # frames in a row a carried part has been set down on the table
-        self._carry_up = np.zeros(k, bool)  # a carried part that has been in the air during this carry
         self._est_vel = np.zeros((k, 6))  # constant-velocity model: per-frame velocity estimate per part
         self._prev_poses: dict | None = None
         self._cooldown = np.zeros(k, np.int64)
