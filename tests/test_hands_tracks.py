@@ -370,3 +370,35 @@ def test_a_collapsed_track_restarts_on_its_hand_when_it_comes_out_from_under_the
     assert min(on[t] for t in range(25, 36)) > 0.75  # back on its hand from frame 25 on, id kept (no swap to B)
     assert max(off[t] for t in range(20, 27)) < 0.2  # without it: on a sliver or lost until frame 28
     assert min(off[t] for t in range(30, 36)) > 0.75  # ... then re-acquired as a lost track
+
+
+def test_two_tracks_sharing_two_touching_hands_split_them_and_keep_their_ids():
+    """Hands A and B touch (B over A's lower right, one skin region); A's box has grown over both hands while B's
+    track stayed on A's skin, inside A's box (as on hands-s2 when B's hand came out from under A's). With
+    ``shared_split`` the region is split and each track goes back to its own hand with its id; without it B's track
+    stays on A's hand."""
+
+    def run(split: bool) -> tuple[dict[int, list[int]], list[int], list[int], int, int]:
+        tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0, shared_split=split))
+        tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE))
+        img, box_a, box_b = _stacking(0)
+        tr.process(img)
+        a, b = tr.start_track(box_a), tr.start_track(box_b)
+        for t in range(1, 14):
+            img, box_a, box_b = _stacking(t)
+            tr.process(img)
+        ta, tb = (next(t for t in tr.tracks if t.id == i) for i in (a, b))
+        union = np.array([120.5, 139.5, 41.0, 59.0, 0.0, 0.0])  # box [100, 110, 142, 170]: both hands
+        on_a = np.array([114.5, 122.5, 29.0, 25.0, 0.0, 0.0])  # box [100, 110, 130, 136]: A's upper part
+        ta.filt.set_state(union)
+        tb.filt.set_state(on_a)
+        for t in range(14, 20):
+            img, box_a, box_b = _stacking(t)
+            ests = {e.id: e.box for e in tr.process(img)}
+        return ests, box_a, box_b, a, b
+
+    ests, box_a, box_b, a, b = run(True)
+    assert set(ests) == {a, b}
+    assert dice(ests[a], box_a) > 0.7 and dice(ests[b], box_b) > 0.7
+    ests, box_a, box_b, a, b = run(False)
+    assert b not in ests or dice(ests[b], box_b) < 0.5
