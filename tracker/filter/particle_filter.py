@@ -195,6 +195,8 @@ class MultiObjectTracker:
         self._carry = HandCarry(k, self.config, self.intrinsics, np.asarray(self._radius, np.float64))
         self.n_reseeded = 0  # re-seeding events since initialize (diagnostics, tests)
         self.n_reacquired = 0  # re-acquisition attempts since initialize (diagnostics, tests)
+        self.silhouette_placed = np.zeros(k, bool)  # parts the table-silhouette stage placed this frame
+        self.last_silhouette: list = [None] * k  # its fits this frame (diagnostics)
         self._loss = LossMonitor(k, self.config.loss_bad_frames)
         self._was_carried = np.zeros(k, bool)
         self._est_vel = np.zeros((k, 6))  # constant-velocity model: per-frame velocity estimate per part

@@ -90,12 +90,14 @@ def placed_by_depth(trk: MultiObjectTracker, obj: int) -> bool:
 
 def unplaced_parts(trk: MultiObjectTracker, landmarks) -> list[int]:
     """Indices of the parts this frame's depth did not place: not a landmark (``landmarks``: indices), not carried,
-    not moving with their blob, no healthy dense refinement. They follow the camera's motion as the scene shows it
+    not moving with their blob, no healthy dense refinement, not placed by their colour outline on the table
+    (:mod:`tracker.refine.table_silhouette`). They follow the camera's motion as the scene shows it
     (:func:`follow_scene`) or as the fused odometry corrects it
     (:func:`tracker.filter.camera_motion.follow_correction`)."""
     carried = trk._carry.carried
     return [i for i in range(len(trk.names))
-            if not (i in landmarks or carried[i] or trk._blob_moved[i] or placed_by_depth(trk, i))]
+            if not (i in landmarks or carried[i] or trk._blob_moved[i] or placed_by_depth(trk, i)
+                    or trk.silhouette_placed[i])]
 
 
 def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:

@@ -402,6 +402,26 @@ class TrackerConfig(BaseModel):
         "depth lies within this many metres of the point's own is not paired (the depth shows the part there; the "
         "blob left out a shaded face, which would turn the part). 0 = off.",
     )
+    table_silhouette: bool = Field(
+        False, description="A resting part seen in colour but not placed by the depth (a hand's projector shadow) is "
+        "placed on the table from its colour blob's outline (refine/table_silhouette.py).",
+    )
+    table_silhouette_max_height: float = Field(
+        0.006, gt=0.0, description="Table silhouette: largest height (m) of a part's lowest corner above or below the "
+        "table for it to count as resting.")
+    table_silhouette_max_tilt_deg: float = Field(
+        10.0, gt=0.0, le=45.0,
+        description="Table silhouette: largest tilt (degrees) of a resting part's face from flat.")
+    table_silhouette_min_iou: float = Field(
+        0.7, ge=0.0, le=1.0, description="Table silhouette: smallest intersection over union (and share of the blob "
+        "inside) of the fitted expected silhouette and the blob for the fit to be taken.")
+    table_silhouette_max_step: float = Field(
+        0.015, gt=0.0, description="Table silhouette: largest move (m) of the part's centre taken in one frame.")
+    table_silhouette_max_turn_deg: float = Field(
+        15.0, gt=0.0, description="Table silhouette: largest turn (degrees) taken in one frame.")
+    table_silhouette_snap: bool = Field(
+        True, description="Table silhouette: move the part along the table's normal onto it before the fit.")
+    table_silhouette_iterations: int = Field(8, ge=1, description="Table silhouette: Gauss-Newton updates per frame.")
     refine_max_translation: float = Field(0.03, gt=0.0, description="Largest accepted refinement correction, metres.")
     refine_max_rotation: float = Field(0.35, gt=0.0, description="Largest accepted refinement rotation, radians.")
 

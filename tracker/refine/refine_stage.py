@@ -18,6 +18,7 @@ from tracker.filter.colour_input import blob_mask, blob_target
 from tracker.filter.frame_context import table_normal_offset
 from tracker.filter.penalties import intersection_flags
 from tracker.geometry.pose import Pose
+from tracker.refine import table_silhouette
 from tracker.refine.dense_depth import RefineSettings
 from tracker.refine.icp_refinement import PartSurfaceModel, icp_refine, part_points
 from tracker.refine.part_refiner import PartRefiner
@@ -35,7 +36,7 @@ def refine(trk: MultiObjectTracker, state: TrackerState, depth, detections, tabl
     cfg = trk.config
     if cfg.dense_refinement and depth is not None:
         plane = table_normal_offset(table)
-        dense_refine(trk, state, depth, detections, None if plane is None else plane[0], frame_depth)
+        dense_refine(trk, state, depth, detections, plane, frame_depth)
     elif cfg.icp_refinement:
         icp_refine_parts(trk, state, depth, detections, table)
 
@@ -107,12 +108,14 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
 
 
 def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray, detections,
-                 up: np.ndarray | None = None, frame_depth: np.ndarray | None = None) -> None:
+                 plane: tuple[np.ndarray, float] | None = None, frame_depth: np.ndarray | None = None) -> None:
     """Dense-depth refinement of every visible part (:mod:`tracker.refine.part_refiner`) and re-acquisition of
     lost or just released parts (:mod:`tracker.refine.recovery`); the particles move with each accepted
     correction. A coloured part is refined only on the pixels of its colour blob (hands and other parts left out)
-    and not at all while its blob is missing. ``up``: the table's normal (camera frame) or None: cubes are then also
-    re-acquired from turns about it (a part put down on the table differs from its estimate by such a turn)."""
+    and not at all while its blob is missing. ``plane``: the table plane ``(normal, offset)`` (camera frame) or None:
+    cubes are then also re-acquired from turns about its normal (a part put down on the table differs from its
+    estimate by such a turn), and resting parts the depth does not place are fitted on it from their colour outline
+    (:mod:`tracker.refine.table_silhouette`)."""
     k = len(trk.parts)
     poses, active, allowed, visible, outlines = [], [], [], [], []
     for i, name in enumerate(trk.names):
@@ -132,6 +135,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         visible.append(seen)
         outlines.append(None if mask is None else getattr(detections.get(name), "contour", None))
     corrections = trk._refiner.refine(depth, poses, active, allowed, outlines, frame_depth)
+    placed = table_silhouette.place_on_table(trk, poses, corrections, detections, plane, frame_depth)
+    trk.silhouette_placed = placed
     carried = np.asarray(trk._carry.carried, bool).copy()
     released = trk._was_carried & ~carried
     trk._was_carried = carried
@@ -140,6 +145,9 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         res = trk._refiner.last[i]
         supported = res if corrections[i] is not None else None
         need = trk._loss.update(i, supported, visible[i] and not carried[i], bool(released[i]))
+        if placed[i]:  # placed by its colour outline on the table: not re-acquired from its sliver of depth
+            trk._loss.reset(i)
+            continue
         beyond = res is not None and res.healthy and corrections[i] is None  # supported, but a large correction
         start, current = poses[i], res
         if visible[i] and allowed[i] is not None and trk._blob_off[i]:
@@ -149,8 +157,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
             start, current = (poses[i][0], blob_target(trk, i, detections.get(trk.names[i]), depth)), None
         if trk.config.reacquire and (need or beyond) and trk._cooldown[i] == 0 and visible[i]:
             starts = CUBE_STARTS if trk.parts[i].box is not None else MESH_STARTS
-            if up is not None and trk.parts[i].box is not None:
-                starts = np.concatenate([starts, turns_about(up, CUBE_TURNS_DEG)])
+            if plane is not None and trk.parts[i].box is not None:
+                starts = np.concatenate([starts, turns_about(plane[0], CUBE_TURNS_DEG)])
             found = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts, current, outlines[i],
                               frame_depth)
             if current is None and res is not None and res.healthy and (found is None or res.score >= found.score):
