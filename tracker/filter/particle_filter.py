@@ -206,6 +206,7 @@ class MultiObjectTracker:
         self._blob_moved = np.zeros(k, bool)
         self._blob_reappeared = np.zeros(k, bool)  # confident blob this frame but not in the last
         self._landmarks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # scene motion: last frame's landmark poses
+        self._scene_keyframes: dict = {}  # scene motion: unplaced part → (landmarks, its R, t) at its keyframe
         self._blob_uv_target: dict[int, np.ndarray] = {}  # carried parts: image position their blob says
         self._last_time: float | None = None
         self._quiet_memory = None  # quiet parts: last frame's blobs, estimate centres, small corrections

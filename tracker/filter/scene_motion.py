@@ -102,30 +102,75 @@ def unplaced_parts(trk: MultiObjectTracker, landmarks) -> list[int]:
 
 def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
     """Apply the landmarks' consensus motion since the previous frame to the parts the depth did not place
-    (module docstring)."""
+    (module docstring); with ``scene_motion_keyframe``, a part unplaced since an earlier frame is moved by the motion
+    since that frame instead (:func:`follow_from_keyframes`)."""
     cfg = trk.config
     now = landmarks(trk)
     prev, trk._landmarks = trk._landmarks, now
     if not cfg.scene_motion or not prev:
+        trk._scene_keyframes = {}
         return
+    unplaced = unplaced_parts(trk, now)
+    if cfg.scene_motion_keyframe:
+        unplaced = follow_from_keyframes(trk, state, now, unplaced)
+    motion = consensus_motion(landmark_motions(trk, prev, now), cfg.scene_motion_tolerance,
+                              cfg.scene_motion_min_anchors)
+    for i in unplaced:
+        if motion is not None:
+            move_by(trk, state, i, *motion)
+        if cfg.scene_motion_keyframe:  # this frame is the part's keyframe from now on
+            est = trk.estimates[trk.names[i]]
+            trk._scene_keyframes[i] = (now, est.R.copy(), est.t.copy())
+
+
+def landmark_motions(trk: MultiObjectTracker, before: dict, now: dict) -> list:
+    """Each landmark's own rigid motion from ``before`` to ``now`` (index → (R, t)) with its centre before, for
+    :func:`consensus_motion`; landmarks in both only."""
     pairs = []
     for i, (R1, t1) in now.items():
-        if i not in prev:
+        if i not in before:
             continue
-        R0, t0 = prev[i]
+        R0, t0 = before[i]
         Rd = R1 @ R0.T
         pairs.append((Rd, t1 - Rd @ t0, R0 @ trk.center[i] + t0))
-    motion = consensus_motion(pairs, cfg.scene_motion_tolerance, cfg.scene_motion_min_anchors)
-    if motion is None:
-        return
-    Rd, td = motion
-    for i in unplaced_parts(trk, now):
-        name = trk.names[i]
-        est = trk.estimates[name]
-        c = est.R @ trk.center[i] + est.t
-        if np.linalg.norm(Rd @ c + td - c) < cfg.scene_motion_deadband:
-            continue
-        move_part(trk, i, Rd, td)
-        state.poses[name] = trk.estimates[name]
-        state.particles[name] = trk.p[:, i].astype(np.float32)
+    return pairs
 
+
+def move_by(trk: MultiObjectTracker, state: TrackerState, i: int, Rd: np.ndarray, td: np.ndarray) -> None:
+    """Move part ``i`` by the camera-frame motion ``x ↦ Rd x + td`` unless that moves its centre by less than
+    ``scene_motion_deadband``."""
+    name = trk.names[i]
+    est = trk.estimates[name]
+    c = est.R @ trk.center[i] + est.t
+    if np.linalg.norm(Rd @ c + td - c) < trk.config.scene_motion_deadband:
+        return
+    move_part(trk, i, Rd, td)
+    state.poses[name] = trk.estimates[name]
+    state.particles[name] = trk.p[:, i].astype(np.float32)
+
+
+def follow_from_keyframes(trk: MultiObjectTracker, state: TrackerState, now: dict, unplaced: list[int]) -> list[int]:
+    """``scene_motion_keyframe``: a part unplaced since an earlier frame (its keyframe: the landmarks' poses and its
+    own pose then) is put where the landmarks' consensus motion since that frame takes its keyframe pose. Chaining
+    frame-to-frame motions adds up the landmarks' refinement noise as a random walk over a long occlusion; this does
+    not. Keyframes of parts placed again are dropped. Returns the unplaced parts left to move frame to frame: those
+    without a keyframe or whose keyframe's landmarks no longer agree on a motion (they get a new keyframe)."""
+    cfg = trk.config
+    keys = {i: k for i, k in trk._scene_keyframes.items() if i in unplaced}
+    trk._scene_keyframes = keys
+    rest = []
+    for i in unplaced:
+        key = keys.get(i)
+        motion = None
+        if key is not None:
+            motion = consensus_motion(landmark_motions(trk, key[0], now), cfg.scene_motion_tolerance,
+                                      cfg.scene_motion_min_anchors)
+        if motion is None:
+            rest.append(i)
+            continue
+        Rm, tm = motion
+        est = trk.estimates[trk.names[i]]
+        R_target, t_target = Rm @ key[1], Rm @ key[2] + tm
+        Rd = R_target @ est.R.T
+        move_by(trk, state, i, Rd, t_target - Rd @ est.t)
+    return rest

@@ -248,6 +248,10 @@ class TrackerConfig(BaseModel):
         "this frame (hidden, or seen in colour without depth) and that are neither carried nor moving with their blob "
         "follow the camera motion that the well-seen resting parts agree on.",
     )
+    scene_motion_keyframe: bool = Field(
+        False, description="Scene motion: a part unplaced for several frames is moved by the landmarks' motion since "
+        "the frame it was last placed (its keyframe), not by chained frame-to-frame motions.",
+    )
     scene_motion_tolerance: float = Field(
         0.003, gt=0.0, description="Metres: landmarks agree with a camera motion when it moves their centre within "
         "this distance of their own motion (and turns them by less than tolerance / 0.05 rad from it).",
