@@ -183,6 +183,9 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         state.particles[name] = trk.p[:, i].astype(np.float32)
         trk.estimates[name] = ref
         applied[i] = corr
+        if placed[i]:  # the rest prior holds it here, not where it was last seen with its depth
+            trk._rest_t[i] = corr.t.copy()
+            trk._rest_R[i] = corr.R.copy()
     quiet_parts.remember(trk, detections, state.poses, applied)
 
 
