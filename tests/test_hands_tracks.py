@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tracker.hands import identity
-from tracker.hands.flow import forward_backward
+from tracker.hands.flow import forward_backward, four_flows
 from tracker.hands.metrics import dice
 from tracker.hands.palm_cut import holds_anchor, match_anchor, palm_anchors
 from tracker.hands.particle_filter import mode_estimate
@@ -170,6 +170,25 @@ def test_thin_crops_get_a_flow():
     a = rng.integers(0, 255, (13, 79), dtype=np.uint8)
     fw, bw = forward_backward(a, np.roll(a, 1, axis=1))
     assert fw.shape == (13, 79, 2) and bw.shape == (13, 79, 2) and fw.flags.c_contiguous
+
+
+def test_four_flows_invert_on_the_reduced_grid():
+    """A smooth texture moved 3 px right and 2 px down: on a crop twice the flow's largest side (the flows and their
+    inversions computed at half size and scaled back), the first versions read (3, 2) forward and (−3, −2) backward,
+    and the second versions (inverted on the reduced grid) the same, in full-resolution pixels."""
+    import cv2
+
+    rng = np.random.default_rng(1)
+    tex = cv2.GaussianBlur(rng.integers(0, 255, (220, 260), dtype=np.uint8), (0, 0), 3.0)
+    tex = cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX)
+    prev, cur = tex[10:210, 10:250], tex[8:208, 7:247]  # cur(x) = prev(x − (3, 2))
+    ff1, fb1, ff2, fb2 = four_flows(np.ascontiguousarray(prev), np.ascontiguousarray(cur), "dis", max_side=120)
+    for f, want in ((ff1, (3, 2)), (fb1, (-3, -2)), (ff2, (3, 2)), (fb2, (-3, -2))):
+        assert f.shape == (200, 240, 2)
+        med = np.median(f[40:160, 40:200].reshape(-1, 2), axis=0)
+        assert np.allclose(med, want, atol=0.5), (med, want)
+    fw, bw = forward_backward(np.ascontiguousarray(prev), np.ascontiguousarray(cur), "dis", max_side=120)
+    assert np.array_equal(fw, ff1) and np.array_equal(bw, fb1)
 
 
 def test_same_seed_same_tracks(s1):

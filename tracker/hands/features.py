@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from tracker.hands.flow import forward_backward, invert
+from tracker.hands.flow import four_flows
 from tracker.hands.motion_clusters import MotionClusters
 
 
@@ -55,9 +55,7 @@ def compute_features(prev_grey: np.ndarray, cur_grey: np.ndarray, mprev: np.ndar
     W, H = image_size
     pg = np.ascontiguousarray(prev_grey[y0:y1, x0:x1])
     cg = np.ascontiguousarray(cur_grey[y0:y1, x0:x1])
-    ff1, fb1 = forward_backward(pg, cg, flow_method, max_side)
-    ff2 = invert(fb1)
-    fb2 = invert(ff1)
+    ff1, fb1, ff2, fb2 = four_flows(pg, cg, flow_method, max_side)
     lf1, cf1 = clusters.segment(ff1, mprev, "f1")
     lf2, cf2 = clusters.segment(ff2, mprev, "f2")
     if backward:

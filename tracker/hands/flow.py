@@ -6,6 +6,7 @@ greyscale crops. Flows are arrays [h, w, 2] of (u, v) in pixels per frame, x rig
 * :func:`forward_backward`: f^{f,1} (I_{k−1} → I_k) and f^{b,1} (I_k → I_{k−1}); if the crop's longer side exceeds
   ``max_side`` (L_ROI = 192 px) both images are downscaled by the smallest integer factor that satisfies it, and
   the flow is scaled back (values and grid).
+* :func:`four_flows`: both flows and their second versions, the inversion on the reduced grid.
 * :func:`invert`: the second version f^{·,2} of a flow from the other direction (eqs. 6.2–6.3), fast mode of
   §14.2: every scattered point x + f(x) receives −f(x) at its nearest grid pixel, collisions are averaged,
   empty pixels are filled from their filled neighbours (see :func:`invert`).
@@ -53,6 +54,17 @@ def forward_backward(prev: np.ndarray, cur: np.ndarray, method: str = "dis",
                      max_side: int = 192) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """(forward, backward) flows of two greyscale crops, computed at a reduced size if the crop is larger than
     ``max_side``, returned on the crops' full grid in full-resolution pixels."""
+    fw, bw, _, _ = four_flows(prev, cur, method, max_side, inverted=False)
+    return fw, bw
+
+
+def four_flows(prev: np.ndarray, cur: np.ndarray, method: str = "dis", max_side: int = 192,
+               inverted: bool = True) -> tuple[np.ndarray, ...]:  # fmt: skip
+    """(f^{f,1}, f^{b,1}, f^{f,2}, f^{b,2}) of two greyscale crops: the forward and backward flows as
+    :func:`forward_backward`, and the second versions (:func:`invert` of the backward and of the forward flow). The
+    inversion runs on the reduced grid the flows were computed on (a crop larger than ``max_side``), and all four
+    are then scaled back, so its cost falls with the square of the reduction like the flow's. ``inverted=False``:
+    the last two are None."""
     h, w = prev.shape
     f = max(1, int(np.ceil(max(h, w) / float(max_side))))
     if f > 1:
@@ -63,19 +75,18 @@ def forward_backward(prev: np.ndarray, cur: np.ndarray, method: str = "dis",
         p, c = prev, cur
     if min(p.shape) < 8:  # DIS needs a few pixels; a tiny crop has no usable motion
         z = np.zeros((h, w, 2), np.float32)
-        return z, z.copy()
+        return (z, z.copy(), z.copy(), z.copy()) if inverted else (z, z.copy(), None, None)
     ph, pw = p.shape
     if min(ph, pw) < MIN_SIDE:  # OpenCV's DIS crashes on thin images (seen at 13×79): pad by edge replication
         pad = ((0, max(0, MIN_SIDE - ph)), (0, max(0, MIN_SIDE - pw)))
         p, c = np.pad(p, pad, mode="edge"), np.pad(c, pad, mode="edge")
     fw = np.ascontiguousarray(flow(p, c, method)[:ph, :pw])
     bw = np.ascontiguousarray(flow(c, p, method)[:ph, :pw])
-    p = p[:ph, :pw]
+    flows = [fw, bw, invert(bw), invert(fw)] if inverted else [fw, bw]
     if f > 1:
-        sx, sy = w / float(p.shape[1]), h / float(p.shape[0])
-        fw = cv2.resize(fw, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32([sx, sy])
-        bw = cv2.resize(bw, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32([sx, sy])
-    return fw, bw
+        sx, sy = w / float(pw), h / float(ph)
+        flows = [cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32([sx, sy]) for x in flows]
+    return tuple(flows) if inverted else (flows[0], flows[1], None, None)
 
 
 def invert(f: np.ndarray) -> np.ndarray:
