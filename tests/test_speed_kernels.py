@@ -383,3 +383,19 @@ def test_compiled_rotation_conversions_match_scipy():
         R = rotvec_matrix(w)
         assert np.allclose(R, Rotation.from_rotvec(w).as_matrix(), rtol=0, atol=1e-14)
         assert np.allclose(matrix_rotvec(R), Rotation.from_matrix(R).as_rotvec(), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("rect", [(100.0, 300.5, 50.0, 200.0), (-np.inf, np.inf, -np.inf, np.inf),
+                                  (np.inf, -np.inf, np.inf, -np.inf), (10.0, 10.0, 3.0, 400.0)])
+def test_pixels_in_rect_matches_numpy(rect):
+    from tracker.filter.weigh import pixels_in_rect
+
+    rng = np.random.default_rng(3)
+    pu = rng.integers(0, 640, 3000).astype(np.float64)
+    pv = rng.integers(0, 480, 3000).astype(np.float64)
+    ref = np.nonzero((pu >= rect[0]) & (pu <= rect[1]) & (pv >= rect[2]) & (pv <= rect[3]))[0]
+    got = pixels_in_rect(pu, pv, *rect)
+    assert got.dtype == np.int64
+    np.testing.assert_array_equal(got, ref)
+    if rect[0] < rect[1]:
+        assert got.size > 0

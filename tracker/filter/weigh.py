@@ -167,7 +167,7 @@ def _pass_render_likelihood(trk, i, p_prev, R_prev, v_prev, p_cur, R_cur, v_cur,
     render, before and after the likelihood, and the set of parts it moved."""
     cfg = trk.config
     k = len(trk.parts)
-    old_p, old_R = p_cur[:, i].copy(), R_cur[:, i].copy()
+    rect = render.bbox(trk, i, p_cur[:, i], R_cur[:, i])  # where the part was drawn before this pass
     p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i],
                                                           noise_scale[i])
     changed_objs = {i}
@@ -181,23 +181,36 @@ def _pass_render_likelihood(trk, i, p_prev, R_prev, v_prev, p_cur, R_cur, v_cur,
             if forced[:, o].any():
                 changed_objs.add(o)
     # pixels whose depth may change: old and new projections of every changed part
-    rect = render.bbox(trk, i, old_p, old_R)
     rect = render.union(rect, render.bbox(trk, i, p_cur[:, i], R_cur[:, i]))
     for o in changed_objs - {i}:
         sel = forced[:, o]
         rect = render.union(rect, render.bbox(trk, o, before_p[sel, o], before_R[sel, o]))
         rect = render.union(rect, render.bbox(trk, o, p_cur[sel, o], R_cur[sel, o]))
-    subset = np.nonzero((pu >= rect[0]) & (pu <= rect[1]) & (pv >= rect[2]) & (pv <= rect[3]))[0]
+    subset = pixels_in_rect(pu, pv, float(rect[0]), float(rect[1]), float(rect[2]), float(rect[3]))
     ta = time.perf_counter()
     render.render(trk, i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, subset, D, loc, dirty)
     for o in changed_objs - {i}:
         render.render(trk, o, p_cur, R_cur, np.nonzero(forced[:, o])[0].astype(np.int64), rays, pu, pv, gi, gj,
                      subset, D, loc, dirty)
     tb = time.perf_counter()
-    update_log_likelihood(D, loc, subset.astype(np.int64), z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
+    update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta,
                           lam, tail, use_occ, dirty, alpha, cmask, cvalid, occ_cap)
     tc = time.perf_counter()
     return ta, tb, tc, changed_objs
+
+
+@nb.njit(cache=True)
+def pixels_in_rect(pu: np.ndarray, pv: np.ndarray, umin: float, umax: float, vmin: float, vmax: float) -> np.ndarray:
+    """Indices (int64, ascending) of the evaluated pixels at full-resolution ``(pu, pv)`` inside the rectangle
+    ``umin <= u <= umax``, ``vmin <= v <= vmax`` (pixels; bounds may be infinite): ``np.nonzero`` of the four
+    comparisons, in one pass."""
+    out = np.empty(pu.shape[0], np.int64)
+    n = 0
+    for g in range(pu.shape[0]):
+        if pu[g] >= umin and pu[g] <= umax and pv[g] >= vmin and pv[g] <= vmax:
+            out[n] = g
+            n += 1
+    return out[:n]
 
 
 def log_penalties(trk, p, R, plane) -> np.ndarray:
