@@ -107,6 +107,8 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     penalties = PenaltyTerms(trk, plane)
     skip = trk._quiet_now  # decided before the evaluated pixels (filter/quiet_parts.py)
     first = True
+    # the rendered depths and cached pixel terms are not read after the frame's last pass: its resampling leaves them
+    last_pass = max((j for j in range(k) if not skip[j]), default=0)
     for i in range(k + 1):
         if i == k:  # every pass skipped: the weights still take the likelihood of the prediction (and penalties)
             if not first:
@@ -138,9 +140,11 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
             p_prev, R_prev, v_prev = p_prev[idx], R_prev[idx], v_prev[idx]
             p_cur, R_cur, v_cur = p_cur[idx], R_cur[idx], v_cur[idx]
             # dirty flags are all clear; ô is reached through anc
-            D, C, Q, F = (trk._take(spare, key, arr, idx) for key, arr in (("D", D), ("C", C), ("Q", Q), ("F", F)))
+            if i != last_pass:
+                D, C = (trk._take(spare, key, arr, idx) for key, arr in (("D", D), ("C", C)))
+                penalties.take(idx)
+            Q, F = (trk._take(spare, key, arr, idx) for key, arr in (("Q", Q), ("F", F)))
             ell, ell_prev, anc = ell[idx], ell_prev[idx], anc[idx]
-            penalties.take(idx)
             log_w = np.full(n, -np.log(n))
             n_resampled += 1
         te = time.perf_counter()
