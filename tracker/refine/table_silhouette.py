@@ -19,9 +19,11 @@ the silhouette residuals of :mod:`tracker.refine.region_term` (rendered outline 
 outline points hidden by something in front dropped) are minimised over the planar twist ``ξ = B q`` with
 ``q = (θ, a, b)``: a turn θ about the table normal ``n`` through the part's centre and a shift ``a e₁ + b e₂`` along
 the table (``e₁ ⟂ n``, ``e₂ = n × e₁``). Gauss-Newton on ``(Bᵀ H B + Λ) q = −Bᵀ g`` with ``H``, ``g`` the term's
-normal equations. The part's tilt is not changed; with ``table_silhouette_snap`` it is first moved along the
-normal onto the table (its lowest corner on the plane: the outline of a part floating a millimetre above the table
-would otherwise be matched by shifting it along the table).
+normal equations. A blob smaller than ``table_silhouette_turn_coverage`` of the part's whole silhouette (a sliver
+beside a hand) fixes the shift but hardly the turn: the part is then only shifted. The part's tilt is not changed;
+with ``table_silhouette_snap`` it is first moved along the normal onto the table (its lowest corner on the plane:
+the outline of a part floating a millimetre above the table would otherwise be matched by shifting it along the
+table).
 
 The result is taken only when it explains the blob: the share of the blob inside the part's expected visible
 silhouette (rendered at full resolution with every part, minus pixels whose measured depth is in front of it,
@@ -89,12 +91,15 @@ def planar_basis(up: np.ndarray) -> np.ndarray:
 
 def fit_on_table(term: RegionTerm, R0: np.ndarray, t0: np.ndarray, center: np.ndarray, up: np.ndarray,
                  depth: np.ndarray, intrinsics: Intrinsics, iterations: int = 8, lambda_rot: float = 25.0,
-                 lambda_trans: float = 2500.0, min_points: int = 12) -> tuple[np.ndarray, np.ndarray, int]:
+                 lambda_trans: float = 2500.0, min_points: int = 12,
+                 turn: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
     """Minimise the silhouette ``term``'s residuals over the planar twists about the part's centre (``center``, body
-    frame) from the pose ``(R0, t0)``. Returns the pose and the number of outline points paired at the last update
-    (0 when too few were ever paired; the pose is then the start)."""
+    frame) from the pose ``(R0, t0)`` (shifts only when ``turn`` is False). Returns the pose and the number of
+    outline points paired at the last update (0 when too few were ever paired; the pose is then the start)."""
     B = planar_basis(up)
     prior = np.diag([lambda_rot, lambda_trans, lambda_trans])
+    if not turn:
+        B, prior = B[:, 1:], prior[1:, 1:]
     R = np.array(R0, np.float64)
     t = np.array(t0, np.float64)
     n = 0
@@ -142,6 +147,18 @@ def silhouette_agreement(trk: MultiObjectTracker, obj: int, poses: list, blob: n
     inter = int(np.count_nonzero(expected & b))
     union = int(np.count_nonzero(expected | b)) + (total - int(np.count_nonzero(b)))
     return inter / max(union, 1), inter / total
+
+
+def silhouette_area(trk: MultiObjectTracker, obj: int, pose: tuple[np.ndarray, np.ndarray]) -> int:
+    """Pixels of part ``obj``'s whole silhouette at ``pose`` (rendered alone, eroded like a blob)."""
+    own = [None] * len(trk.parts)
+    own[obj] = pose
+    rect = trk._refiner._rect(own)
+    if rect is None:
+        return 0
+    u0, v0, u1, v1 = rect
+    render = render_surfaces(trk.intrinsics, trk._refiner.shapes, own, (u0, v0, u1, v1), 1)
+    return int(np.count_nonzero(cv2.erode((render.label == obj).astype(np.uint8), _ERODE)))
 
 
 def resting(trk: MultiObjectTracker, obj: int, R: np.ndarray, t: np.ndarray, plane) -> bool:
@@ -209,8 +226,10 @@ def fit_part(trk: MultiObjectTracker, obj: int, poses: list, blob: np.ndarray, c
     if term is None:
         return None
     ts = t0 - up * lowest_height(trk, obj, R0, t0, plane) if cfg.table_silhouette_snap else t0
+    turn = (cfg.table_silhouette_turn_coverage <= 0.0
+            or np.count_nonzero(blob) >= cfg.table_silhouette_turn_coverage * silhouette_area(trk, obj, (R0, ts)))
     R, t, n = fit_on_table(term, R0, ts, trk.center[obj], up, frame_depth, trk.intrinsics,
-                           cfg.table_silhouette_iterations)
+                           cfg.table_silhouette_iterations, turn=turn)
     if n == 0:
         return SilhouetteFit(R0, t0, 0.0, 0.0, 0.0, False, "too few outline points paired")
     occl = ref.region.occlusion_m
