@@ -149,3 +149,32 @@ def test_a_fit_that_does_not_explain_the_blob_is_not_taken(frames):
     assert near.accepted and np.linalg.norm(near.t - truth.t) < 0.001
     far = fit_part(trk, 0, [(truth.R, truth.t + TILT @ np.array([0.04, 0.0, 0.0]))], blob, det.contour, PLANE, depth)
     assert not far.accepted and far.reason
+
+
+def test_a_sliver_only_shifts_the_part(frames):
+    """With ``table_silhouette_turn_coverage``, a blob covering less than that share of the part's whole silhouette
+    (here the left third of the cube, the rest hidden from the colour camera) corrects the shift but keeps the
+    rotation; without it the sliver turns the part as well."""
+    from tracker.filter.colour_input import blob_mask
+    from tracker.refine.table_silhouette import fit_part
+
+    part = PartSpec.cube("red", "red", edge=EDGE)
+    rgb, depth, truth = frames[N_SEEN + 4]
+    rgb = rgb.copy()
+    cols = np.nonzero((rgb == (200, 20, 25)).all(axis=2).any(axis=0))[0]
+    rgb[:, cols[0] + (cols[-1] - cols[0]) // 3:] = 120  # a grey occluder without depth over the rest
+    turn = Rotation.from_rotvec(NORMAL * np.radians(4.0)).as_matrix()
+    start = (turn @ truth.R, truth.t + TILT @ np.array([0.003, 0.002, 0.0]))
+    out = {}
+    for coverage in (0.0, 0.5):
+        cfg = TrackerConfig.preset("default").with_overrides(table_silhouette=True,
+                                                             table_silhouette_turn_coverage=coverage)
+        trk = MultiObjectTracker([part], INTR, cfg, seed=0)
+        trk.initialize({"red": truth})
+        trk._blobs = {}
+        det = ColorDetector.from_parts([part]).detect(rgb)["red"]
+        out[coverage] = fit_part(trk, 0, [start], blob_mask(trk, det, depth.shape), det.contour, PLANE, depth)
+    kept = out[0.5]
+    assert np.allclose(kept.R, start[0], atol=1e-9)  # the rotation is left as it was
+    assert np.linalg.norm(kept.t - truth.t) < 0.5 * np.linalg.norm(start[1] - truth.t)  # the shift is corrected
+    assert not np.allclose(out[0.0].R, start[0], atol=1e-4)  # without the rule the sliver turns it
