@@ -153,16 +153,18 @@ def test_a_fit_that_does_not_explain_the_blob_is_not_taken(frames):
 
 def test_a_sliver_only_shifts_the_part(frames):
     """With ``table_silhouette_turn_coverage``, a blob covering less than that share of the part's whole silhouette
-    (here the left third of the cube, the rest hidden from the colour camera) corrects the shift but keeps the
-    rotation; without it the sliver turns the part as well."""
+    (here the left third of the cube, the rest hidden by an occluder 15 cm in front of it) corrects the shift but
+    keeps the rotation; without it the sliver turns the part as well."""
     from tracker.filter.colour_input import blob_mask
     from tracker.refine.table_silhouette import fit_part
 
     part = PartSpec.cube("red", "red", edge=EDGE)
     rgb, depth, truth = frames[N_SEEN + 4]
-    rgb = rgb.copy()
+    rgb, depth = rgb.copy(), depth.copy()
     cols = np.nonzero((rgb == (200, 20, 25)).all(axis=2).any(axis=0))[0]
-    rgb[:, cols[0] + (cols[-1] - cols[0]) // 3:] = 120  # a grey occluder without depth over the rest
+    cut = cols[0] + (cols[-1] - cols[0]) // 3
+    rgb[:, cut:] = 120  # a grey occluder over the rest
+    depth[:, cut:] = truth.t[2] - 0.15
     turn = Rotation.from_rotvec(NORMAL * np.radians(4.0)).as_matrix()
     start = (turn @ truth.R, truth.t + TILT @ np.array([0.003, 0.002, 0.0]))
     out = {}
