@@ -180,3 +180,21 @@ def test_a_sliver_only_shifts_the_part(frames):
     assert np.allclose(kept.R, start[0], atol=1e-9)  # the rotation is left as it was
     assert np.linalg.norm(kept.t - truth.t) < 0.5 * np.linalg.norm(start[1] - truth.t)  # the shift is corrected
     assert not np.allclose(out[0.0].R, start[0], atol=1e-4)  # without the rule the sliver turns it
+
+
+def test_without_the_turn_a_whole_blob_only_shifts_the_part(frames):
+    """``table_silhouette_turn`` off: the part keeps the rotation its depth last gave it and is only shifted."""
+    from tracker.filter.colour_input import blob_mask
+    from tracker.refine.table_silhouette import fit_part
+
+    part = PartSpec.cube("red", "red", edge=EDGE)
+    rgb, depth, truth = frames[N_SEEN + 4]
+    cfg = TrackerConfig.preset("default").with_overrides(table_silhouette=True, table_silhouette_turn=False)
+    trk = MultiObjectTracker([part], INTR, cfg, seed=0)
+    trk.initialize({"red": truth})
+    trk._blobs = {}
+    det = ColorDetector.from_parts([part]).detect(rgb)["red"]
+    start = (truth.R, truth.t + TILT @ np.array([0.003, -0.002, 0.0]))
+    fit = fit_part(trk, 0, [start], blob_mask(trk, det, depth.shape), det.contour, PLANE, depth)
+    assert fit.accepted and np.allclose(fit.R, truth.R, atol=1e-9)
+    assert np.linalg.norm(fit.t - truth.t) < 0.0005

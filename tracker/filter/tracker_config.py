@@ -425,6 +425,9 @@ class TrackerConfig(BaseModel):
         15.0, gt=0.0, description="Table silhouette: largest turn (degrees) taken in one frame.")
     table_silhouette_snap: bool = Field(
         True, description="Table silhouette: move the part along the table's normal onto it before the fit.")
+    table_silhouette_turn: bool = Field(
+        True, description="Table silhouette: fit the turn about the table's normal as well as the shift (else the "
+        "part keeps the rotation its depth last gave it).")
     table_silhouette_turn_coverage: float = Field(
         0.0, ge=0.0, le=1.0, description="Table silhouette: a blob covering less than this share of the part's whole "
         "silhouette only shifts it (no turn); 0 = always turn too.")

@@ -20,7 +20,8 @@ outline points hidden by something in front dropped) are minimised over the plan
 ``q = (θ, a, b)``: a turn θ about the table normal ``n`` through the part's centre and a shift ``a e₁ + b e₂`` along
 the table (``e₁ ⟂ n``, ``e₂ = n × e₁``). Gauss-Newton on ``(Bᵀ H B + Λ) q = −Bᵀ g`` with ``H``, ``g`` the term's
 normal equations. A blob smaller than ``table_silhouette_turn_coverage`` of the part's whole silhouette (a sliver
-beside a hand) fixes the shift but hardly the turn: the part is then only shifted. The part's tilt is not changed;
+beside a hand) fixes the shift but hardly the turn: the part is then only shifted (always without
+``table_silhouette_turn``). The part's tilt is not changed;
 with ``table_silhouette_snap`` it is first moved along the normal onto the table (its lowest corner on the plane:
 the outline of a part floating a millimetre above the table would otherwise be matched by shifting it along the
 table).
@@ -226,8 +227,9 @@ def fit_part(trk: MultiObjectTracker, obj: int, poses: list, blob: np.ndarray, c
     if term is None:
         return None
     ts = t0 - up * lowest_height(trk, obj, R0, t0, plane) if cfg.table_silhouette_snap else t0
-    turn = (cfg.table_silhouette_turn_coverage <= 0.0
-            or np.count_nonzero(blob) >= cfg.table_silhouette_turn_coverage * silhouette_area(trk, obj, (R0, ts)))
+    turn = cfg.table_silhouette_turn and (
+        cfg.table_silhouette_turn_coverage <= 0.0
+        or np.count_nonzero(blob) >= cfg.table_silhouette_turn_coverage * silhouette_area(trk, obj, (R0, ts)))
     R, t, n = fit_on_table(term, R0, ts, trk.center[obj], up, frame_depth, trk.intrinsics,
                            cfg.table_silhouette_iterations, turn=turn)
     if n == 0:
