@@ -63,7 +63,7 @@ silhouette before the two are compared."""
 
 @dataclass
 class SilhouetteFit:
-    """Outcome of :func:`fit_on_table` and its check: ``R``, ``t`` the fitted pose (body → camera); ``iou`` and
+    """Outcome of :func:`fit_part` (the fit and its check): ``R``, ``t`` the fitted pose (body → camera); ``iou`` and
     ``inside`` (share of the blob inside the expected silhouette) at the fitted pose, ``iou0`` at the start."""
 
     R: np.ndarray
@@ -96,7 +96,8 @@ def fit_on_table(term: RegionTerm, R0: np.ndarray, t0: np.ndarray, center: np.nd
                  turn: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
     """Minimise the silhouette ``term``'s residuals over the planar twists about the part's centre (``center``, body
     frame) from the pose ``(R0, t0)`` (shifts only when ``turn`` is False). Returns the pose and the number of
-    outline points paired at the last update (0 when too few were ever paired; the pose is then the start)."""
+    outline points paired at the last update (0 when an update had fewer than ``min_points``; the pose is then the
+    start)."""
     B = planar_basis(up)
     prior = np.diag([lambda_rot, lambda_trans, lambda_trans])
     if not turn:
