@@ -343,15 +343,20 @@ def _stacking(t: int) -> tuple[np.ndarray, list[int], list[int]]:
     return img, [100, 110, 130, 150], [xb, 130, xb + 30, 170]
 
 
-def test_a_lost_hand_comes_back_out_of_the_other_hands_skin_region():
-    tr = HandTracker(HandTrackerConfig(auto_init=True, scale=1, seed=0))
+def _stacking_tracks(tr: HandTracker) -> tuple[int, int]:
+    """Start ``tr`` on the table, then tracks on the two stacking hands; run it to frame 13. Returns their ids."""
     tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE))
     img, box_a, box_b = _stacking(0)
     tr.process(img)
     a, b = tr.start_track(box_a), tr.start_track(box_b)
     for t in range(1, 14):
-        img, box_a, box_b = _stacking(t)
-        tr.process(img)
+        tr.process(_stacking(t)[0])
+    return a, b
+
+
+def test_a_lost_hand_comes_back_out_of_the_other_hands_skin_region():
+    tr = HandTracker(HandTrackerConfig(auto_init=True, scale=1, seed=0))
+    a, b = _stacking_tracks(tr)
     # B's track is lost while the two hands form one skin region (as when a fast hand leaves its box behind), and
     # A's box grows over the joint region (the section-6 box of the whole region, as on hands-s2)
     tr._end([t.id == b for t in tr.tracks])
@@ -399,13 +404,7 @@ def test_two_tracks_sharing_two_touching_hands_split_them_and_keep_their_ids():
 
     def run(split: bool) -> tuple[dict[int, list[int]], list[int], list[int], int, int]:
         tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0, shared_split=split))
-        tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE))
-        img, box_a, box_b = _stacking(0)
-        tr.process(img)
-        a, b = tr.start_track(box_a), tr.start_track(box_b)
-        for t in range(1, 14):
-            img, box_a, box_b = _stacking(t)
-            tr.process(img)
+        a, b = _stacking_tracks(tr)
         ta, tb = (next(t for t in tr.tracks if t.id == i) for i in (a, b))
         union = np.array([120.5, 139.5, 41.0, 59.0, 0.0, 0.0])  # box [100, 110, 142, 170]: both hands
         on_a = np.array([114.5, 122.5, 29.0, 25.0, 0.0, 0.0])  # box [100, 110, 130, 136]: A's upper part

@@ -666,18 +666,11 @@ class HandTracker(TrackIdentity):
         b = state_box(tr.filt.estimate)
         if box_area(b) < REACQ_GROWTH * tr.area_ref:
             return None
-        h, w = rgb.shape[:2]
-        u0, v0, u1, v1 = max(b[0], 0), max(b[1], 0), min(b[2], w - 1), min(b[3], h - 1)
-        if u1 <= u0 or v1 <= v0:
+        pts = self._largest_component(rgb, b)
+        if pts is None:
             return None
-        sub = np.ascontiguousarray(self._frame_mask(rgb)[v0 : v1 + 1, u0 : u1 + 1])
-        n, lab, stats, _ = cv2.connectedComponentsWithStats(sub, connectivity=4, ltype=cv2.CV_32S)
-        if n < 2:
-            return None
-        k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-        ys, xs = np.nonzero(lab == k)
-        parts = two_means(np.column_stack([xs + u0, ys + v0]).astype(np.float64))
-        if parts is None or min(len(p) for p in parts) < REACQ_MIN_SHARE * len(xs):
+        parts = two_means(pts)
+        if parts is None or min(len(p) for p in parts) < REACQ_MIN_SHARE * len(pts):
             return None
         states = [np.array([(p[:, 0].min() + p[:, 0].max()) / 2.0, (p[:, 1].min() + p[:, 1].max()) / 2.0,
                             np.ptp(p[:, 0]), np.ptp(p[:, 1]), 0.0, 0.0]) for p in parts]  # fmt: skip
@@ -693,6 +686,20 @@ class HandTracker(TrackIdentity):
         new.area_ref, new.centre_ref = tr.area_ref, states[other][:2].copy()
         tr.since_merge, tr.merged, tr.dup = 0, False, {}
         return lo.id
+
+    def _largest_component(self, rgb: np.ndarray, b) -> np.ndarray | None:
+        """Image pixels ``(N, 2)`` (u, v as floats) of the largest 4-connected component of this frame's colour mask
+        inside the box ``b = [u0, v0, u1, v1]`` (inclusive, clipped to the image), or None when it holds none."""
+        h, w = rgb.shape[:2]
+        u0, v0, u1, v1 = max(b[0], 0), max(b[1], 0), min(b[2], w - 1), min(b[3], h - 1)
+        if u1 <= u0 or v1 <= v0:
+            return None
+        sub = np.ascontiguousarray(self._frame_mask(rgb)[v0 : v1 + 1, u0 : u1 + 1])
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(sub, connectivity=4, ltype=cv2.CV_32S)
+        if n < 2:
+            return None
+        ys, xs = np.nonzero(lab == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA])))
+        return np.column_stack([xs + u0, ys + v0]).astype(np.float64)
 
     def _split_shared(self, pair: tuple[int, int], rgb: np.ndarray) -> tuple[int, int] | None:
         """Product addition (``shared_split``): two hands that touch in one colour component while one track's box
@@ -721,21 +728,13 @@ class HandTracker(TrackIdentity):
             return None
         if inside_fraction(state_box(small.filt.estimate), b) < SPLIT_INSIDE:
             return None
-        h, w = rgb.shape[:2]
-        u0, v0, u1, v1 = max(b[0], 0), max(b[1], 0), min(b[2], w - 1), min(b[3], h - 1)
-        if u1 <= u0 or v1 <= v0:
+        pts = self._largest_component(rgb, b)
+        if pts is None:
             return None
-        sub = np.ascontiguousarray(self._frame_mask(rgb)[v0 : v1 + 1, u0 : u1 + 1])
-        n, lab, stats, _ = cv2.connectedComponentsWithStats(sub, connectivity=4, ltype=cv2.CV_32S)
-        if n < 2:
-            return None
-        k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-        if stats[k, cv2.CC_STAT_AREA] < SPLIT_SKIN * (big.skin_apart + small.skin_apart):
+        if len(pts) < SPLIT_SKIN * (big.skin_apart + small.skin_apart):
             return None  # not both hands' worth of skin: the lower hand is still mostly hidden
-        ys, xs = np.nonzero(lab == k)
-        pts = np.column_stack([xs + u0, ys + v0]).astype(np.float64)
         parts = two_means(pts)
-        if parts is None or min(len(p) for p in parts) < REACQ_MIN_SHARE * len(xs):
+        if parts is None or min(len(p) for p in parts) < REACQ_MIN_SHARE * len(pts):
             return None
         states = [np.array([(p[:, 0].min() + p[:, 0].max()) / 2.0, (p[:, 1].min() + p[:, 1].max()) / 2.0,
                             np.ptp(p[:, 0]), np.ptp(p[:, 1]), 0.0, 0.0]) for p in parts]  # fmt: skip
