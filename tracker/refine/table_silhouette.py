@@ -50,6 +50,7 @@ from tracker.filter.colour_input import blob_mask, confident
 from tracker.filter.hidden_parts import lowest_height
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
+from tracker.refine.dense_depth import RefineResult
 from tracker.refine.region_term import RegionTerm
 from tracker.refine.surface_render import render_surfaces
 
@@ -121,22 +122,30 @@ def fit_on_table(term: RegionTerm, R0: np.ndarray, t0: np.ndarray, center: np.nd
     return R, t, n
 
 
+def _render_window(trk: MultiObjectTracker, obj: int, poses: list, pad: int):
+    """Full-resolution render of the parts at ``poses`` over part ``obj``'s image rectangle widened by ``pad`` px
+    (clipped to the image): ``(render, (u0, v0, u1, v1))``, or None when the part does not project."""
+    own = [None] * len(poses)
+    own[obj] = poses[obj]
+    rect = trk._refiner._rect(own)
+    if rect is None:
+        return None
+    intr = trk.intrinsics
+    u0, v0, u1, v1 = rect
+    rect = (max(u0 - pad, 0), max(v0 - pad, 0), min(u1 + pad, intr.width), min(v1 + pad, intr.height))
+    return render_surfaces(intr, trk._refiner.shapes, poses, rect, 1), rect
+
+
 def silhouette_agreement(trk: MultiObjectTracker, obj: int, poses: list, blob: np.ndarray, frame_depth: np.ndarray,
                          occlusion_m: float) -> tuple[float, float]:
     """``(iou, inside)`` of part ``obj``'s expected visible silhouette at ``poses[obj]`` (every part rendered at
     ``poses``, full resolution; pixels whose measured depth lies more than ``occlusion_m`` in front of the part are
     not expected in the blob) and its ``blob`` mask (H×W); ``inside``: share of the blob's pixels in the
     silhouette. Both 0 when the part does not project."""
-    own = [None] * len(poses)
-    own[obj] = poses[obj]
-    rect = trk._refiner._rect(own)
-    if rect is None:
+    found = _render_window(trk, obj, poses, pad=6)
+    if found is None:
         return 0.0, 0.0
-    u0, v0, u1, v1 = rect
-    pad = 6
-    u0, v0 = max(u0 - pad, 0), max(v0 - pad, 0)
-    u1, v1 = min(u1 + pad, blob.shape[1]), min(v1 + pad, blob.shape[0])
-    render = render_surfaces(trk.intrinsics, trk._refiner.shapes, poses, (u0, v0, u1, v1), 1)
+    render, (u0, v0, u1, v1) = found
     sil = render.label == obj
     meas = frame_depth[v0:v1, u0:u1]
     with np.errstate(invalid="ignore"):
@@ -155,12 +164,10 @@ def silhouette_area(trk: MultiObjectTracker, obj: int, pose: tuple[np.ndarray, n
     """Pixels of part ``obj``'s whole silhouette at ``pose`` (rendered alone, eroded like a blob)."""
     own = [None] * len(trk.parts)
     own[obj] = pose
-    rect = trk._refiner._rect(own)
-    if rect is None:
+    found = _render_window(trk, obj, own, pad=0)
+    if found is None:
         return 0
-    u0, v0, u1, v1 = rect
-    render = render_surfaces(trk.intrinsics, trk._refiner.shapes, own, (u0, v0, u1, v1), 1)
-    return int(np.count_nonzero(cv2.erode((render.label == obj).astype(np.uint8), _ERODE)))
+    return int(np.count_nonzero(cv2.erode((found[0].label == obj).astype(np.uint8), _ERODE)))
 
 
 def resting(trk: MultiObjectTracker, obj: int, R: np.ndarray, t: np.ndarray, plane) -> bool:
@@ -179,8 +186,6 @@ def place_on_table(trk: MultiObjectTracker, poses: list, corrections: list, dete
     (``corrections[k]`` None) that qualifies, fit it on the table from its estimate ``poses[k] = (R, t)``; an accepted
     fit becomes its correction (``corrections`` is updated). Returns the bool mask of the parts placed; the fits are
     kept in ``trk.last_silhouette`` (diagnostics)."""
-    from tracker.refine.dense_depth import RefineResult
-
     cfg = trk.config
     k = len(trk.parts)
     placed = np.zeros(k, bool)
