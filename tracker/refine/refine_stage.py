@@ -142,12 +142,12 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
     trk._was_carried = carried
     trk._cooldown = np.maximum(trk._cooldown - 1, 0)
     for i in range(k):
-        res = trk._refiner.last[i]
-        supported = res if corrections[i] is not None else None
-        need = trk._loss.update(i, supported, visible[i] and not carried[i], bool(released[i]))
         if placed[i]:  # placed by its colour outline on the table: not re-acquired from its sliver of depth
             trk._loss.reset(i)
             continue
+        res = trk._refiner.last[i]
+        supported = res if corrections[i] is not None else None
+        need = trk._loss.update(i, supported, visible[i] and not carried[i], bool(released[i]))
         beyond = res is not None and res.healthy and corrections[i] is None  # supported, but a large correction
         start, current = poses[i], res
         if visible[i] and allowed[i] is not None and trk._blob_off[i]:
