@@ -1,0 +1,80 @@
+"""The hand tracker's compiled kernels against the plain numpy forms they replace (same values, bit for bit)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker.hands.motion_clusters import MotionClusters, _gather, _nearest
+
+
+def _flow_and_mask(seed: int, h: int = 37, w: int = 53) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    flow = rng.normal(0.0, 3.0, (h, w, 2)).astype(np.float32)
+    flow[rng.random((h, w)) < 0.1] = np.round(flow[rng.random((h, w)) < 0.1][:1])  # repeated vectors: ties
+    mask = (rng.random((h, w)) < 0.4).astype(np.uint8)
+    return flow, mask
+
+
+def test_gather_is_boolean_indexing():
+    for seed in range(3):
+        flow, mask = _flow_and_mask(seed)
+        got = _gather(flow, mask)
+        assert got.dtype == np.float32
+        np.testing.assert_array_equal(got, flow[mask.astype(bool)])
+    assert _gather(flow, np.zeros_like(mask)).shape == (0, 2)
+
+
+def test_nearest_is_numpy_argmin_of_float32_distances():
+    rng = np.random.default_rng(4)
+    fit = rng.normal(0.0, 2.0, (200, 2)).astype(np.float32)
+    prev = fit[[3, 3, 50, 120]].copy()  # two equal centroids: the first wins
+    fit[7] = np.nan  # a NaN distance wins for every centroid: index 0, as numpy's argmin
+    prev[2, 1] = np.nan
+    want = np.argmin(((fit[:, None, :] - prev[None]) ** 2).sum(-1), axis=1).astype(np.int32)
+    got = _nearest(fit, prev)
+    np.testing.assert_array_equal(got, want)
+    assert got[7] == 0 and (np.delete(got, 7) == 2).all()  # the first NaN distance wins, as in numpy
+    prev[2, 1] = 0.0
+    want = np.argmin(((fit[:, None, :] - prev[None]) ** 2).sum(-1), axis=1).astype(np.int32)
+    np.testing.assert_array_equal(_nearest(fit, prev), want)
+    assert set(want.tolist()) >= {0, 2, 3}
+
+
+def _segment_numpy(mc: MotionClusters, flow: np.ndarray, mask: np.ndarray, key: str):
+    """The segmentation as first written (numpy gather, numpy warm start, labels filled with −1 first)."""
+    import cv2
+
+    from tracker.hands.motion_clusters import ATTEMPTS, MAX_FIT, MAX_ITER, _assign
+
+    h, w = mask.shape
+    labels = np.full((h, w), -1, np.int32)
+    cent = np.full((mc.n_clusters, 2), np.nan)
+    sel = mask.astype(bool)
+    vec = flow[sel].astype(np.float32)
+    n = len(vec)
+    k = min(mc.n_clusters, n)
+    fit = vec if n <= MAX_FIT else vec[mc.rng.choice(n, MAX_FIT, replace=False)]
+    cv2.setRNGSeed(int(mc.rng.integers(1 << 30)))
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, MAX_ITER, 0.01)
+    prev = mc._prev.get(key)
+    if prev is not None and len(prev) == k:
+        init = np.argmin(((fit[:, None, :] - prev[None]) ** 2).sum(-1), axis=1).astype(np.int32)[:, None]
+        _, _, centers = cv2.kmeans(fit, k, init, crit, 1, cv2.KMEANS_USE_INITIAL_LABELS)
+    else:
+        _, _, centers = cv2.kmeans(fit, k, None, crit, ATTEMPTS, cv2.KMEANS_PP_CENTERS)
+    counts, su, sv = _assign(flow, sel, np.asarray(centers, np.float32), labels)
+    ok = counts > 0
+    cent[:k][ok] = np.stack([su[ok] / counts[ok], sv[ok] / counts[ok]], axis=1)
+    mc._prev[key] = np.asarray(centers, np.float32)
+    return labels, cent
+
+
+def test_segmentation_equals_the_numpy_form_over_warm_started_frames():
+    a, b = MotionClusters(4, seed=3), MotionClusters(4, seed=3)
+    for frame in range(6):
+        flow, mask = _flow_and_mask(10 + frame, 60, 70)  # 60·70·0.4 ≈ 1700 vectors > MAX_FIT: subsampled fit
+        la, ca = a.segment(flow, mask, "f1")
+        lb, cb = _segment_numpy(b, flow, mask, "f1")
+        np.testing.assert_array_equal(la, lb)
+        np.testing.assert_array_equal(ca, cb)
+        assert (la[mask == 0] == -1).all() and (la[mask == 1] >= 0).all()
