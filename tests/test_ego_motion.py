@@ -467,3 +467,27 @@ def test_an_idle_odometry_leaves_the_hidden_parts_to_scene_motion():
     assert not hand_hidden_parts_to_the_odometry(trk, ego) and trk._landmarks == landmarks
     ego._observe_pending = True  # measured: the correction after the step will move the hidden parts
     assert hand_hidden_parts_to_the_odometry(trk, ego) and trk._landmarks == {}
+
+
+def test_the_command_session_and_the_pipeline_give_the_hand_boxes_to_the_odometry():
+    """Hand boxes known for a frame (``frame.meta["hand_boxes"]``; in the pipeline also the hand tracker's latest
+    boxes) are masked out of the odometry in the command's session as in the pipeline (the session gave none)."""
+    from types import SimpleNamespace
+
+    from app.commands.track import TrackSession
+    from tracker.odometry.ego_motion import frame_hand_boxes
+
+    src = SimulatedTable("static", seed=3, options=SimOptions(camera_motion="handheld"), n_frames=2)
+    box = [40, 380, 120, 460]  # bare table in the lower left corner
+    session = TrackSession(src.parts, src.intrinsics, src.initial_poses, TrackerConfig.preset("default"), seed=0,
+                           odometry="default")
+    session.step(src.render(0))
+    assert not session.ego.last_mask[box[1]:box[3], box[0]:box[2]].any()  # the table there is used without a box
+    frame = src.render(1)
+    frame.meta["hand_boxes"] = [box, None]
+    session.step(frame)
+    assert session.ego.last_mask[box[1]:box[3], box[0]:box[2]].all()
+    pipe = AssemblyPipeline(src.parts, src.intrinsics, mode=None, initial_poses=src.initial_poses, odometry="default")
+    pipe.hands = SimpleNamespace(estimates=[SimpleNamespace(box=[200, 10, 260.4, 70])])
+    assert pipe._hand_boxes(frame) == [box, [200, 10, 260, 70]]
+    assert frame_hand_boxes(src.render(0), [[5, 5, 5, 9]]) == []  # an empty box is dropped

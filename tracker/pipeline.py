@@ -507,10 +507,13 @@ class AssemblyPipeline:
             errors.append(f"odometry: {type(exc).__name__}: {exc}")
         timings["odometry"] = time.perf_counter() - t0
 
-    @staticmethod
-    def _hand_boxes(frame: Frame) -> list:
-        """Pixel boxes of hands known for ``frame`` (a hand tracker's ``hand_boxes`` in its meta), else none."""
-        return [b for b in (frame.meta.get("hand_boxes") or []) if b is not None]
+    def _hand_boxes(self, frame: Frame) -> list:
+        """Pixel boxes of the hands for the odometry's mask: those in ``frame.meta["hand_boxes"]`` and, with hands
+        on, the hand tracker's latest boxes (its last step's: a frame behind when it runs beside the tracker)."""
+        from tracker.odometry.ego_motion import frame_hand_boxes
+
+        tracked = [] if self.hands is None else [e.box for e in self.hands.estimates]
+        return frame_hand_boxes(frame, tracked)
 
     def _perceive(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> dict:
         """Table plane (found, re-checked), colour detections and, when on, automatic placement of missing parts."""

@@ -287,8 +287,10 @@ class TrackSession:
         """Odometry on: move the tracker's state by the camera's motion; propagate the table when it moved, else
         follow it as with odometry off."""
         from tracker.filter.camera_motion import apply_camera_motion
+        from tracker.odometry.ego_motion import frame_hand_boxes
 
-        ego = self.ego.step(frame, self.table, self.poses, self.carried)
+        # hand boxes a source gives (frame.meta) are masked out of the odometry, as in the pipeline
+        ego = self.ego.step(frame, self.table, self.poses, self.carried, frame_hand_boxes(frame))
         self.ego_step = ego
         if ego.camera_motion is not None:
             apply_camera_motion(self.tracker, ego.camera_motion)

@@ -7,7 +7,8 @@ Per frame, before the particle filter's step:
    the silhouettes of the parts that stay put in the world frame (static parts carry texture and geometry the
    odometry needs: the simulated table's grain leaves translation along the planks nearly unobserved); the
    silhouettes of moving parts (carried, under a hand box, or shifted by more than ``MOVING_MIN_M`` in the world
-   frame within ``MOVING_WINDOW_S``); and hand boxes when a hand tracker (or the simulator) gives them.
+   frame within ``MOVING_WINDOW_S``); and hand boxes when a source or a hand tracker gives them
+   (:func:`frame_hand_boxes`).
 2. **Odometry step** (:func:`tracker.odometry.make_odometry`): the camera's pose ``T_wc`` in the world frame (=
    the first frame's camera frame; camera → world, metres).
 3. **Camera motion** for the tracker: ``T_new_old = T_wc⁻¹ · T_applied`` where ``T_applied`` is the camera pose
@@ -120,6 +121,20 @@ class EgoMotionStep:
     camera_motion: np.ndarray | None
     ms: float
     message: str = ""
+
+
+def frame_hand_boxes(frame: Frame, extra: Iterable[Sequence[int] | None] = ()) -> list[list[int]]:
+    """Pixel boxes ``[u0, v0, u1, v1]`` (end-exclusive) of the hands known for ``frame``, for :meth:`EgoMotion.step`:
+    those a source or a hand tracker put in ``frame.meta["hand_boxes"]``, then ``extra`` (e.g. a hand tracker's
+    latest boxes). None entries and empty boxes are dropped."""
+    out = []
+    for box in [*(frame.meta.get("hand_boxes") or []), *extra]:
+        if box is None:
+            continue
+        u0, v0, u1, v1 = (int(round(float(x))) for x in box)
+        if u1 > u0 and v1 > v0:
+            out.append([u0, v0, u1, v1])
+    return out
 
 
 def part_silhouettes(shape: tuple[int, int], intrinsics: Intrinsics, parts: Sequence[PartSpec],
