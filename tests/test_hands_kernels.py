@@ -78,3 +78,57 @@ def test_segmentation_equals_the_numpy_form_over_warm_started_frames():
         np.testing.assert_array_equal(la, lb)
         np.testing.assert_array_equal(ca, cb)
         assert (la[mask == 0] == -1).all() and (la[mask == 1] >= 0).all()
+
+
+def _invert_numpy(f: np.ndarray) -> np.ndarray:
+    """:func:`tracker.hands.flow.invert` as first written (the fill rounds in numpy)."""
+    import cv2
+
+    from tracker.hands.flow import _splat
+
+    h, w = f.shape[:2]
+    out = np.zeros((h, w, 2), np.float32)
+    filled = _splat(np.ascontiguousarray(f, np.float32), out)
+    if not filled.any():
+        return out
+    empty = ~filled
+    wgt = filled.astype(np.float32)
+    for _ in range(4):
+        if not empty.any():
+            break
+        num = cv2.blur(out * wgt[..., None], (7, 7))
+        den = cv2.blur(wgt, (7, 7))
+        fill = empty & (den > 1e-6)
+        out[fill] = num[fill] / den[fill][:, None]
+        wgt[fill] = 1.0
+        empty &= ~fill
+    if empty.any():
+        out[empty] = out[~empty].mean(axis=0)
+    return out
+
+
+def test_flow_inversion_equals_the_numpy_form():
+    from tracker.hands.flow import invert
+
+    rng = np.random.default_rng(5)
+    for scale in (0.5, 3.0, 12.0):  # few holes; many holes (several fill rounds); holes left after four rounds
+        f = (rng.normal(0.0, scale, (41, 57, 2)) + np.float32([1.5, -0.5])).astype(np.float32)
+        np.testing.assert_array_equal(invert(f), _invert_numpy(f))
+    f = np.full((20, 30, 2), 50.0, np.float32)  # everything lands outside: nothing filled
+    np.testing.assert_array_equal(invert(f), _invert_numpy(f))
+    f = np.zeros((40, 40, 2), np.float32)
+    f[:, :, 0] = 30.0
+    f[:2, :2] = 0.0  # four pixels filled in one corner: the fill does not reach the far side in four rounds
+    np.testing.assert_array_equal(invert(f), _invert_numpy(f))
+
+
+def test_flow_scaling_equals_the_numpy_broadcast():
+    from tracker.hands.flow import _scaled
+
+    rng = np.random.default_rng(6)
+    f = rng.normal(0.0, 4.0, (33, 47, 2)).astype(np.float32)
+    sx, sy = 47 / 23.0, 33 / 16.0
+    want = f * np.float32([sx, sy])
+    got = _scaled(f.copy(), np.float32(sx), np.float32(sy))
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)

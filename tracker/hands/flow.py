@@ -84,9 +84,20 @@ def four_flows(prev: np.ndarray, cur: np.ndarray, method: str = "dis", max_side:
     bw = np.ascontiguousarray(flow(c, p, method)[:ph, :pw])
     flows = [fw, bw, invert(bw), invert(fw)] if inverted else [fw, bw]
     if f > 1:
-        sx, sy = w / float(pw), h / float(ph)
-        flows = [cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR) * np.float32([sx, sy]) for x in flows]
+        sx, sy = np.float32(w / float(pw)), np.float32(h / float(ph))
+        flows = [_scaled(cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR), sx, sy) for x in flows]
     return tuple(flows) if inverted else (flows[0], flows[1], None, None)
+
+
+@nb.njit(cache=True, nogil=True)
+def _scaled(f, sx, sy):
+    """``f`` [h, w, 2] float32 with its u components times ``sx`` and its v components times ``sy`` (float32), in
+    place (numpy's ``f * np.float32([sx, sy])`` without the slow broadcast over a last axis of 2); returns ``f``."""
+    for y in range(f.shape[0]):
+        for x in range(f.shape[1]):
+            f[y, x, 0] *= sx
+            f[y, x, 1] *= sy
+    return f
 
 
 def invert(f: np.ndarray) -> np.ndarray:
@@ -101,16 +112,14 @@ def invert(f: np.ndarray) -> np.ndarray:
         return out
     empty = ~filled
     wgt = filled.astype(np.float32)
+    left = int(np.count_nonzero(empty))
     for _ in range(4):
-        if not empty.any():
+        if not left:
             break
-        num = cv2.blur(out * wgt[..., None], (7, 7))
+        num = cv2.blur(_weighted(out, wgt), (7, 7))
         den = cv2.blur(wgt, (7, 7))
-        fill = empty & (den > 1e-6)
-        out[fill] = num[fill] / den[fill][:, None]
-        wgt[fill] = 1.0
-        empty &= ~fill
-    if empty.any():
+        left = _fill(out, wgt, empty, num, den, np.float32(1e-6))
+    if left:
         out[empty] = out[~empty].mean(axis=0)
     return out
 
@@ -138,3 +147,35 @@ def _splat(f, out):
                 out[y, x, 0] = np.float32(su[y, x] / cnt[y, x])
                 out[y, x, 1] = np.float32(sv[y, x] / cnt[y, x])
     return filled
+
+
+@nb.njit(cache=True, nogil=True)
+def _weighted(out, wgt):
+    """``out * wgt[..., None]`` (float32 [h, w, 2])."""
+    r = np.empty_like(out)
+    for y in range(out.shape[0]):
+        for x in range(out.shape[1]):
+            r[y, x, 0] = out[y, x, 0] * wgt[y, x]
+            r[y, x, 1] = out[y, x, 1] * wgt[y, x]
+    return r
+
+
+@nb.njit(cache=True, nogil=True)
+def _fill(out, wgt, empty, num, den, eps):
+    """One round of the normalised-convolution fill of :func:`invert`, in place: every empty pixel whose box average
+    of filled neighbours has weight ``den`` > ``eps`` takes ``num / den`` (float32) and counts as filled; returns how
+    many stay empty."""
+    left = 0
+    for y in range(out.shape[0]):
+        for x in range(out.shape[1]):
+            if not empty[y, x]:
+                continue
+            d = den[y, x]
+            if d > eps:
+                out[y, x, 0] = num[y, x, 0] / d
+                out[y, x, 1] = num[y, x, 1] / d
+                wgt[y, x] = 1.0
+                empty[y, x] = False
+            else:
+                left += 1
+    return left
