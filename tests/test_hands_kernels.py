@@ -132,3 +132,91 @@ def test_flow_scaling_equals_the_numpy_broadcast():
     got = _scaled(f.copy(), np.float32(sx), np.float32(sy))
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, want)
+
+
+def _blob_scene():
+    """A colour mask with two blobs (one cut into two touching pieces' worth of area) and its components, a flow
+    field moving them (2, 1) px, and the flow's motion labels: the inputs of the particle filter's propagation."""
+    import cv2
+
+    mask = np.zeros((90, 120), np.uint8)
+    cv2.ellipse(mask, (40, 45), (18, 25), 0, 0, 360, 1, -1)
+    cv2.rectangle(mask, (80, 20), (105, 60), 1, -1)
+    n, cc, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4, ltype=cv2.CV_32S)
+    boxes = np.stack([stats[:, 0], stats[:, 1], stats[:, 0] + stats[:, 2] - 1, stats[:, 1] + stats[:, 3] - 1], 1)
+    flow = np.zeros((90, 120, 2), np.float32)
+    flow[..., 0], flow[..., 1] = 2.0, 1.0
+    flow += np.random.default_rng(7).normal(0, 0.3, flow.shape).astype(np.float32)
+    labels = np.where(mask > 0, 0, -1).astype(np.int32)
+    cut = np.zeros(n, bool)
+    cut[0] = True
+    return mask, cc, int(n - 1), stats[:, 4].astype(np.int64), boxes.astype(np.int64), cut, flow, labels
+
+
+def test_propagation_reuses_the_section6_test_of_equal_particles_without_changing_a_result():
+    from tracker.hands.box_stats import transition_stats_of_states
+    from tracker.hands.particle_filter import _propagate
+
+    mask, cc, n_comp, area, boxes, cut, flow, labels = _blob_scene()
+    rng = np.random.default_rng(8)
+    base = np.array([[40.0, 45.0, 36.0, 50.0, 2.0, 1.0], [92.0, 40.0, 25.0, 40.0, 0.0, 0.0],
+                     [40.5, 44.0, 20.0, 20.0, 1.0, 0.0], [60.0, 45.0, 30.0, 30.0, 0.0, 0.0]])  # fmt: skip
+    parts = base[rng.integers(0, len(base), 24)]  # many exact copies, as after resampling
+    stats = transition_stats_of_states(parts, 0.0, 0.0, mask, flow, flow, labels, labels, 4, 64)
+    cent = np.full((2, 4, 2), np.nan)
+    cent[:, 0] = (2.0, 1.0)
+    u3 = rng.random((len(parts), 3))
+    z = rng.standard_normal((len(parts), 3, 2))
+    args = (cc, n_comp, area, boxes, cut, 0.0, 0.0, 120.0, 90.0)
+    out, det = _propagate(parts, stats, cent, *args, u3, z, 10, 0.8, 1.0, 1.0, 1.0)
+    assert det.any() and not det.all()  # both kinds of transition happen
+    for i in range(len(parts)):  # one particle at a time: nothing to reuse
+        o, d = _propagate(parts[i : i + 1], stats[i : i + 1], cent, *args, u3[i : i + 1], z[i : i + 1], 10, 0.8, 1.0,
+                          1.0, 1.0)  # fmt: skip
+        np.testing.assert_array_equal(o[0], out[i])
+        assert d[0] == det[i]
+
+
+def test_wrist_cut_per_particle_equals_the_python_form():
+    from tracker.hands.box_stats import box_of
+    from tracker.hands.palm_cut import ANCHOR_INSIDE, anchor_state, holds_anchor
+    from tracker.hands.particle_filter import _take_anchor
+
+    rng = np.random.default_rng(9)
+    anc = np.array([30.0, 40.0, 55.0, 70.0])
+    prev = np.column_stack([rng.uniform(20, 60, 40), rng.uniform(30, 80, 40), rng.uniform(10, 60, (40, 2)),
+                            rng.normal(0, 2, (40, 2))])  # fmt: skip
+    new = prev + rng.normal(0, 3, prev.shape)
+    new[::3, 2:4] = (80.0, 90.0)  # boxes over the whole arm: they hold the anchor
+    new[1::3, 2:4] = (30.0, 30.0)
+    det = rng.random(40) < 0.6
+    want_new, want_det = new.copy(), det.copy()
+    for i in range(40):
+        if want_det[i] and not holds_anchor(box_of(*want_new[i, :4]), anc):
+            continue
+        want_new[i] = anchor_state(anc, (prev[i, 0], prev[i, 1]))
+        want_det[i] = True
+    got_new, got_det = new.copy(), det.copy()
+    _take_anchor(got_new, got_det, prev, anc, ANCHOR_INSIDE)
+    np.testing.assert_array_equal(got_new, want_new)
+    np.testing.assert_array_equal(got_det, want_det)
+    assert 0 < int((det & (got_new[:, 0] == 42.5)).sum()) < int(det.sum())  # some mode particles kept, some taken
+
+
+def test_part_window_equals_the_numpy_form():
+    from tracker.hands.loop import _window
+
+    rng = np.random.default_rng(10)
+    fx, fy, cx, cy, W, H = 600.0, 610.0, 319.5, 239.5, 640, 480
+    for _ in range(200):
+        pts = rng.normal(0, 0.05, (8, 3)) + (rng.uniform(-0.5, 0.5), rng.uniform(-0.4, 0.4), rng.uniform(-0.05, 1.0))
+        ok, u0, v0, u1, v1 = _window(pts, fx, fy, cx, cy, W, H)
+        if pts[:, 2].min() <= 1e-3:
+            assert not ok
+            continue
+        us, vs = fx * pts[:, 0] / pts[:, 2] + cx, fy * pts[:, 1] / pts[:, 2] + cy
+        want = (max(int(np.floor(us.min())) - 1, 0), max(int(np.floor(vs.min())) - 1, 0),
+                min(int(np.ceil(us.max())) + 2, W), min(int(np.ceil(vs.max())) + 2, H))  # fmt: skip
+        assert ok == (want[2] > want[0] and want[3] > want[1])
+        if ok:
+            assert (u0, v0, u1, v1) == want

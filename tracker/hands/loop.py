@@ -119,6 +119,32 @@ def _near_plane(z, rx, ry, n, off, clearance, out):
                 out[i, j] = True
 
 
+@nb.njit(cache=True, nogil=True)
+def _window(pts, fx, fy, cx, cy, W, H):
+    """(ok, u0, v0, u1, v1) of :meth:`HandLoop._part_window` from the camera-frame vertices ``pts`` [K, 3]: the
+    projected vertices' box, floor − 1 / ceil + 2, clipped to W×H; ok False if a vertex is within 1 mm of the camera
+    plane or the box is empty."""
+    zmin = np.inf
+    for k in range(pts.shape[0]):
+        zmin = min(zmin, pts[k, 2])
+    if zmin <= 1e-3:
+        return False, 0, 0, 0, 0
+    umin = vmin = np.inf
+    umax = vmax = -np.inf
+    for k in range(pts.shape[0]):
+        u = fx * pts[k, 0] / pts[k, 2] + cx
+        v = fy * pts[k, 1] / pts[k, 2] + cy
+        umin = min(umin, u)
+        umax = max(umax, u)
+        vmin = min(vmin, v)
+        vmax = max(vmax, v)
+    u0 = max(int(np.floor(umin)) - 1, 0)
+    v0 = max(int(np.floor(vmin)) - 1, 0)
+    u1 = min(int(np.ceil(umax)) + 2, W)
+    v1 = min(int(np.ceil(vmax)) + 2, H)
+    return u1 > u0 and v1 > v0, u0, v0, u1, v1
+
+
 def box_part_depth(part: PartSpec, pose: Pose, intrinsics: Intrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Depth (camera z, metres; ``inf`` where the ray misses) of box part ``part`` at ``pose`` seen through the pixel
     grid ``u`` (columns, 1-D) × ``v`` (rows, 1-D): a [len(v), len(u)] float32 array (slab test per pixel)."""
@@ -304,14 +330,9 @@ class HandLoop:
         if pose is None:
             return None
         pts = self._vertices[part.name] @ np.asarray(pose.R).T + np.asarray(pose.t)
-        if pts[:, 2].min() <= 1e-3:
-            return None
         intr = self.intrinsics
-        us = intr.fx * pts[:, 0] / pts[:, 2] + intr.cx
-        vs = intr.fy * pts[:, 1] / pts[:, 2] + intr.cy
-        u0, v0 = max(int(np.floor(us.min())) - 1, 0), max(int(np.floor(vs.min())) - 1, 0)
-        u1, v1 = min(int(np.ceil(us.max())) + 2, W), min(int(np.ceil(vs.max())) + 2, H)
-        return (u0, v0, u1, v1) if u1 > u0 and v1 > v0 else None
+        ok, u0, v0, u1, v1 = _window(pts, float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), W, H)
+        return (u0, v0, u1, v1) if ok else None
 
     def occluder_mask(self, union: np.ndarray | None = None) -> np.ndarray | None:
         """H_k (spec §14.5): full-resolution bool H×W, the dilation by r_occ of the union of the hand masks and of

@@ -22,7 +22,7 @@ import numpy as np
 from tracker.hands.box_stats import box_of, observe_states, transition_stats_of_states
 from tracker.hands.certainty import TAU_D, certain_state
 from tracker.hands.features import HandFeatures
-from tracker.hands.palm_cut import anchor_state, holds_anchor, match_anchor
+from tracker.hands.palm_cut import ANCHOR_INSIDE, match_anchor
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,8 @@ def _propagate(parts, stats, cent, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, 
     det = np.zeros(n, np.bool_)
     c = np.empty((2, 2))
     ratio = np.empty((2, 2))
+    cert_pass = np.zeros(n, np.bool_)
+    cert_state = np.zeros((n, 6))
     for i in range(n):
         x, y, w, h, vx, vy = parts[i]
         ok = stats[i, 0, 0] >= n_min
@@ -83,7 +85,28 @@ def _propagate(parts, stats, cent, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, 
                 c[a, 1] = cent[a, m, 1]
             ratio[a, 0] = stats[i, a, 5]
             ratio[a, 1] = stats[i, a, 6]
-        passed, st = certain_state(x, y, w, h, c, ratio, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, tau_d)
+        # the section-6 test depends only on (x, y, w, h) and the box statistics: a particle equal to an earlier one
+        # (resampling copies particles; the deterministic transition puts many on one state) takes its result
+        same = -1
+        for j in range(i):
+            if parts[j, 0] == x and parts[j, 1] == y and parts[j, 2] == w and parts[j, 3] == h:
+                eq = True
+                for a in range(2):
+                    for q in range(9):
+                        sj = stats[j, a, q]
+                        si = stats[i, a, q]
+                        if not (sj == si or (sj != sj and si != si)):
+                            eq = False
+                if eq:
+                    same = j
+                    break
+        if same >= 0:
+            passed = cert_pass[same]
+            st = cert_state[same]
+        else:
+            passed, st = certain_state(x, y, w, h, c, ratio, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, tau_d)
+        cert_pass[i] = passed
+        cert_state[i] = st
         if passed:
             out[i] = st
             det[i] = True
@@ -120,6 +143,33 @@ def _propagate(parts, stats, cent, cc, n_comp, cc_area, cc_box, cc_cut, ox, oy, 
         out[i, 2] = min(max(out[i, 2], 4.0), W)
         out[i, 3] = min(max(out[i, 3], 4.0), H)
     return out, det
+
+
+@nb.njit(cache=True, nogil=True)
+def _take_anchor(new, det, parts, anc, inside):
+    """The wrist cut for every particle, in place: a particle not in the section-6 mode, or whose section-6 box is
+    larger than the anchor ``anc`` (inclusive box) and holds at least ``inside`` of its area, takes the anchor's
+    state (:func:`~tracker.hands.palm_cut.anchor_state`, velocity from the particle's centre at k−1 in ``parts``)
+    and counts as in the mode (:func:`~tracker.hands.palm_cut.holds_anchor` per particle, compiled)."""
+    u0, v0, u1, v1 = anc[0], anc[1], anc[2], anc[3]
+    sb = (u1 - u0 + 1) * (v1 - v0 + 1)
+    for i in range(new.shape[0]):
+        if det[i]:
+            b0, b1, b2, b3 = box_of(new[i, 0], new[i, 1], new[i, 2], new[i, 3])
+            iw = min(b2, u1) - max(b0, u0) + 1
+            ih = min(b3, v1) - max(b1, v0) + 1
+            sa = (b2 - b0 + 1) * (b3 - b1 + 1)
+            if not (sa > sb and max(iw, 0.0) * max(ih, 0.0) >= inside * sb):
+                continue
+        x = 0.5 * (u0 + u1)
+        y = 0.5 * (v0 + v1)
+        new[i, 0] = x
+        new[i, 1] = y
+        new[i, 2] = u1 - u0
+        new[i, 3] = v1 - v0
+        new[i, 4] = x - parts[i, 0]
+        new[i, 5] = y - parts[i, 1]
+        det[i] = True
 
 
 def observe(parts: np.ndarray, feats: HandFeatures, n_clusters: int, prm: PFParams) -> tuple[np.ndarray, np.ndarray]:
@@ -239,12 +289,8 @@ class HandParticleFilter:
             k = int(match_anchor(np.array([box_of(e[0] + e[4], e[1] + e[5], e[2], e[3])], np.float64),
                                  feats.anchors)[0])  # fmt: skip
             if k >= 0:
-                anc = feats.anchors[k]
-                for i in range(n):
-                    if det[i] and not holds_anchor(box_of(new[i, 0], new[i, 1], new[i, 2], new[i, 3]), anc):
-                        continue
-                    new[i] = anchor_state(anc, (self.particles[i, 0], self.particles[i, 1]))
-                    det[i] = True
+                _take_anchor(new, det, self.particles, np.ascontiguousarray(feats.anchors[k], np.float64),
+                             ANCHOR_INSIDE)  # fmt: skip
         lik, _ = observe(new, feats, self.n_clusters, prm)
         w = self.weights * lik
         s = w.sum()
