@@ -220,3 +220,25 @@ def test_part_window_equals_the_numpy_form():
         assert ok == (want[2] > want[0] and want[3] > want[1])
         if ok:
             assert (u0, v0, u1, v1) == want
+
+
+def test_cropped_components_equal_the_whole_mask_labelling():
+    import cv2
+
+    from tracker.hands.palm_cut import cropped_components
+
+    rng = np.random.default_rng(11)
+    for trial in range(40):
+        mask = np.zeros((61, 83), np.uint8)
+        y, x = int(rng.integers(0, 40)), int(rng.integers(0, 60))  # odd and even corners
+        h, w = int(rng.integers(1, 61 - y)), int(rng.integers(1, 83 - x))
+        mask[y : y + h, x : x + w] = rng.random((h, w)) < (0.3 if trial % 2 else 0.6)  # many small components
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4, ltype=cv2.CV_32S)
+        cn, clab, cstats, (x0, y0) = cropped_components(mask)
+        assert cn == n and x0 % 2 == 0 and y0 % 2 == 0
+        np.testing.assert_array_equal(cstats[1:], stats[1:])
+        full = np.zeros_like(lab)
+        full[y0 : y0 + clab.shape[0], x0 : x0 + clab.shape[1]] = clab
+        np.testing.assert_array_equal(full, lab)
+    cn, clab, cstats, _ = cropped_components(np.zeros((10, 12), np.uint8))
+    assert cn == 1 and not clab.any()

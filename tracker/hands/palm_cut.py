@@ -98,7 +98,7 @@ def palm_anchors(mask: np.ndarray, depth: np.ndarray | None, scale: int, focal: 
     if depth is None:
         return np.zeros((0, 4))
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)))
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4, ltype=cv2.CV_32S)
+    n, lab, stats, (ox, oy) = cropped_components(mask)
     h, w = mask.shape
     b = max(1, int(round(2.0 / scale)))
     out = []
@@ -106,11 +106,30 @@ def palm_anchors(mask: np.ndarray, depth: np.ndarray | None, scale: int, focal: 
         x, y, bw, bh, area = (int(v) for v in stats[i])
         if area < min_area or not (x < b or y < b or x + bw > w - b or y + bh > h - b):
             continue
-        sub = lab[y : y + bh, x : x + bw] == i
+        sub = lab[y - oy : y - oy + bh, x - ox : x - ox + bw] == i
         cut = palm_cut(sub, depth, scale, focal, hand_length_m, origin=(x, y), image_size=(w, h))
         if cut.border and cut.has_forearm:
             out.append(cut.box)
     return np.asarray(out, np.float64).reshape(-1, 4)
+
+
+def cropped_components(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, tuple[int, int]]:
+    """4-connected components of a uint8 mask, labelled only inside the bounding rectangle of its set pixels (its
+    top-left corner moved to even coordinates): ``(n, labels, stats, (x0, y0))`` as ``cv2.connectedComponentsWithStats``
+    gives them for the whole mask, except that ``labels`` covers the rectangle only (pixel (x, y) of the mask is
+    ``labels[y − y0, x − x0]``) and the background's row 0 of ``stats`` describes the rectangle. Components, their
+    numbering (raster order of their first pixel) and their rows 1… of ``stats`` (in mask coordinates) are those of
+    the whole mask; a mask with hands in a corner costs a fraction of the full labelling."""
+    x, y, w, h = cv2.boundingRect(mask)
+    if w == 0 or h == 0:
+        x = y = 0
+        w, h = min(mask.shape[1], 1), min(mask.shape[0], 1)
+    x0, y0 = x - (x & 1), y - (y & 1)
+    sub = np.ascontiguousarray(mask[y0 : y + h, x0 : x + w])
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(sub, connectivity=4, ltype=cv2.CV_32S)
+    stats[:, 0] += x0
+    stats[:, 1] += y0
+    return n, lab, stats, (x0, y0)
 
 
 def match_anchor(boxes: np.ndarray, anchors: np.ndarray, min_f: float = ANCHOR_MIN_F) -> np.ndarray:

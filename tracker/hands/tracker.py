@@ -92,7 +92,7 @@ from tracker.hands.box_stats import box_area, box_observation, box_of, dominant_
 from tracker.hands.features import HandFeatures, compute_features
 from tracker.hands.kalman import HandKalmanFilter
 from tracker.hands.motion_clusters import MotionClusters
-from tracker.hands.palm_cut import match_anchor, palm_anchors, palm_cut
+from tracker.hands.palm_cut import cropped_components, match_anchor, palm_anchors, palm_cut
 from tracker.hands.particle_filter import HandParticleFilter, PFParams
 from tracker.hands.skin_model import SkinModel
 from tracker.hands.track_boxes import (
@@ -935,7 +935,7 @@ class HandTracker(TrackIdentity):
         r = max(1, int(round(2.0 / self.s)))
         disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk)
-        n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4, ltype=cv2.CV_32S)
+        n, lab, stats, (ox, oy) = cropped_components(mask)
         min_area = cfg.min_area_frac * w * h
         b = max(1, int(round(2.0 / self.s)))
         track_boxes = [state_box(tr.filt.estimate) for tr in self.tracks if not any(tr is t for t in ignore)]
@@ -947,7 +947,7 @@ class HandTracker(TrackIdentity):
             bx, by, bw, bh = (int(v) for v in stats[i, :4])
             box = (bx, by, bx + bw - 1, by + bh - 1)
             if track_boxes:
-                comp = lab[by : by + bh, bx : bx + bw] == i
+                comp = lab[by - oy : by - oy + bh, bx - ox : bx - ox + bw] == i
                 covered = np.zeros_like(comp)
                 for tb in track_boxes:
                     a0, b0 = max(tb[0] - bx, 0), max(tb[1] - by, 0)
@@ -979,7 +979,9 @@ class HandTracker(TrackIdentity):
             return None
         _, i, c = best
         self._candidates = [x for x in cands if x is not c]
-        return self._initial_state(lab == i, depth)
+        comp = np.zeros((h, w), bool)
+        comp[oy : oy + lab.shape[0], ox : ox + lab.shape[1]] = lab == i
+        return self._initial_state(comp, depth)
 
     def _initial_state(self, comp: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
         """Palm box (working resolution) of a border-entering component: its pixels within L_hand of its far end."""
