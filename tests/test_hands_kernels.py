@@ -242,3 +242,45 @@ def test_cropped_components_equal_the_whole_mask_labelling():
         np.testing.assert_array_equal(full, lab)
     cn, clab, cstats, _ = cropped_components(np.zeros((10, 12), np.uint8))
     assert cn == 1 and not clab.any()
+
+
+def test_skin_log_densities_on_the_colour_grid_equal_the_row_form():
+    from tracker.hands.skin_model import _GRID, Gmm2D, SkinModel
+
+    model = SkinModel.load()
+    rng = np.random.default_rng(12)
+    px = np.clip(rng.normal((190, 140, 110), 20, (3000, 3)), 0, 255).astype(np.uint8)
+    adapted = model.adapted(px, max_shift=1.0).skin
+    random = Gmm2D(np.array([0.2, 0.5, 0.3]), rng.uniform(60, 200, (3, 2)), np.array([[[90.0, 20.0], [20.0, 40.0]],
+                   [[10.0, -3.0], [-3.0, 8.0]], [[400.0, 0.0], [0.0, 300.0]]]))  # fmt: skip
+    for g in (model.skin, model.background, adapted, random):
+        want, got = g.logpdf(_GRID), g.grid_logpdf()
+        np.testing.assert_array_equal(got, want)
+        assert np.array_equal(np.signbit(got), np.signbit(want))
+
+
+def test_part_surface_exclusion_equals_the_numpy_form():
+    from tracker.geometry.camera import Intrinsics
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+    from tracker.hands.loop import _box_rays, _mark_part_surface, box_part_depth
+
+    intr = Intrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
+    part = PartSpec.cube("red", "red")
+    pose = Pose.from_rotvec(np.array([0.3, -0.5, 0.2]), np.array([0.02, -0.01, 0.45]))
+    u, v = np.arange(250, 390, 2), np.arange(170, 310, 2)
+    zr = box_part_depth(part, pose, intr, u, v)
+    rng = np.random.default_rng(13)
+    for dtype in (np.float32, np.float64):
+        z = np.full((120, 160), 0.6, dtype)
+        win = z[40:110, 60:130]
+        win[:] = np.where(np.isfinite(zr), zr, 0.6) + rng.choice([-0.02, -0.01, -0.0100001, 0.0, 0.01], zr.shape)
+        win[rng.random(zr.shape) < 0.05] = np.nan
+        want = np.zeros(z.shape, bool)
+        with np.errstate(invalid="ignore"):
+            want[40:110, 60:130] = np.isfinite(zr) & (win >= zr - 0.01)
+        got = np.zeros(z.shape, bool)
+        half, R, o, x, y = _box_rays(part, pose, intr, u, v)
+        _mark_part_surface(R, o, half, x, y, z[::1, ::1], 60, 40, np.float32(0.01), got)
+        np.testing.assert_array_equal(got, want)
+        assert 0 < want.sum() < np.isfinite(zr).sum()

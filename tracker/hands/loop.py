@@ -145,17 +145,38 @@ def _window(pts, fx, fy, cx, cy, W, H):
     return u1 > u0 and v1 > v0, u0, v0, u1, v1
 
 
-def box_part_depth(part: PartSpec, pose: Pose, intrinsics: Intrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Depth (camera z, metres; ``inf`` where the ray misses) of box part ``part`` at ``pose`` seen through the pixel
-    grid ``u`` (columns, 1-D) × ``v`` (rows, 1-D): a [len(v), len(u)] float32 array (slab test per pixel)."""
+def _box_rays(part: PartSpec, pose: Pose, intrinsics: Intrinsics, u: np.ndarray, v: np.ndarray) -> tuple:
+    """(half extents, R, camera centre in the box frame, ray x [len(u)], ray y [len(v)]) for :func:`_slab_grid`."""
     half = np.asarray(part.box, np.float64) / 2.0
     R = np.ascontiguousarray(pose.R, np.float64)
     o = -R.T @ np.asarray(pose.t, np.float64)  # camera centre in the box frame
     x = (np.asarray(u, np.float64) - intrinsics.cx) / intrinsics.fx
     y = (np.asarray(v, np.float64) - intrinsics.cy) / intrinsics.fy
+    return half, R, o, x, y
+
+
+def box_part_depth(part: PartSpec, pose: Pose, intrinsics: Intrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Depth (camera z, metres; ``inf`` where the ray misses) of box part ``part`` at ``pose`` seen through the pixel
+    grid ``u`` (columns, 1-D) × ``v`` (rows, 1-D): a [len(v), len(u)] float32 array (slab test per pixel)."""
+    half, R, o, x, y = _box_rays(part, pose, intrinsics, u, v)
     out = np.empty((len(y), len(x)), np.float32)
     _slab_grid(R, o, half, x, y, out)
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _mark_part_surface(R, o, half, x, y, z, u0, v0, clearance, out):
+    """The part-surface exclusion of one part in one pass: ``out[v0 + i, u0 + j] |= `` the ray (x[j], y[i], 1) hits
+    the box (:func:`_slab_grid`, its depth rounded to float32 as there) and the measured depth ``z[v0 + i, u0 + j]``
+    is not in front of it by more than ``clearance`` (float32), i.e. ``isfinite(zr) & (z >= zr − clearance)`` with
+    numpy's float32 arithmetic."""
+    row = np.empty((1, x.shape[0]), np.float32)
+    for i in range(y.shape[0]):
+        _slab_grid(R, o, half, x, y[i : i + 1], row)
+        for j in range(x.shape[0]):
+            zr = row[0, j]
+            if zr != np.inf and z[v0 + i, u0 + j] >= zr - clearance:
+                out[v0 + i, u0 + j] = True
 
 
 class HandLoop:
@@ -320,9 +341,9 @@ class HandLoop:
                 u0, v0, u1, v1 = (-(-c // s) for c in win)  # first working pixel at or after each bound
                 if u1 <= u0 or v1 <= v0:
                     continue
-                zr = box_part_depth(part, pose, self.intrinsics, np.arange(u0, u1) * s, np.arange(v0, v1) * s)
-                zm = z[v0:v1, u0:u1]
-                out[v0:v1, u0:u1] |= np.isfinite(zr) & (zm >= zr - cfg.part_clearance_m)
+                half, R, o, x, y = _box_rays(part, pose, self.intrinsics, np.arange(u0, u1) * s,
+                                             np.arange(v0, v1) * s)  # fmt: skip
+                _mark_part_surface(R, o, half, x, y, z, u0, v0, np.float32(cfg.part_clearance_m), out)
         return out
 
     def _part_window(self, part: PartSpec, pose: Pose | None, H: int, W: int) -> tuple[int, int, int, int] | None:
