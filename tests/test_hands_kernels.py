@@ -284,3 +284,62 @@ def test_part_surface_exclusion_equals_the_numpy_form():
         _mark_part_surface(R, o, half, x, y, z[::1, ::1], 60, 40, np.float32(0.01), got)
         np.testing.assert_array_equal(got, want)
         assert 0 < want.sum() < np.isfinite(zr).sum()
+
+
+def test_mask_upsampling_equals_opencv_nearest_on_the_whole_image():
+    import cv2
+
+    from tracker.hands.tracker import HandTracker, HandTrackerConfig
+
+    rng = np.random.default_rng(14)
+    for s, (W, H) in ((2, (640, 480)), (2, (641, 481)), (3, (640, 480)), (1, (320, 240))):
+        tr = HandTracker(HandTrackerConfig(scale=s))
+        tr.full_size = (W, H)
+        h, w = H // s, W // s
+        for _ in range(5):
+            small = np.zeros((h, w), np.uint8)
+            y, x = int(rng.integers(0, h - 5)), int(rng.integers(0, w - 5))
+            small[y : y + 40, x : x + 60] = rng.random(small[y : y + 40, x : x + 60].shape) < 0.5
+            up = small if s == 1 else cv2.resize(small, (w * s, h * s), interpolation=cv2.INTER_NEAREST)
+            want = np.zeros((H, W), bool)
+            want[: min(H, h * s), : min(W, w * s)] = up[:H, :W].astype(bool)
+            np.testing.assert_array_equal(tr._upsampled(small), want)
+        assert not tr._upsampled(np.zeros((h, w), np.uint8)).any()
+
+
+def test_roi_bounds_equal_the_python_loop():
+    from tracker.hands.track_boxes import state_box
+    from tracker.hands.tracker import _roi_bounds
+
+    rng = np.random.default_rng(15)
+    for margin in (12.0, 17.25, 33.5):
+        states = np.column_stack([rng.uniform(-20, 340, 30), rng.uniform(-20, 260, 30), rng.uniform(2, 90, (30, 2)),
+                                  rng.normal(0, 3, (30, 2))])  # fmt: skip
+        states[0, :4] = (-3.3, -2.6, 5.0, 4.0)  # a box past the image corner
+        x0, y0, x1, y1 = 320, 240, 0, 0
+        for p in states:
+            u0, v0, u1, v1 = state_box(p)
+            x0, y0 = min(x0, int(u0 - margin)), min(y0, int(v0 - margin))
+            x1, y1 = max(x1, int(u1 + margin) + 1), max(y1, int(v1 + margin) + 1)
+        assert _roi_bounds(states, margin, 320, 240, 0, 0) == (x0, y0, x1, y1)
+        assert x0 < 0 and y0 < 0  # boxes past the image edge: int() truncates towards zero there
+
+
+def test_table_plane_marking_equals_the_numpy_form():
+    from tracker.hands.loop import _near_plane
+
+    rng = np.random.default_rng(16)
+    z = rng.uniform(0.4, 0.9, (60, 80)).astype(np.float32)
+    z[rng.random(z.shape) < 0.1] = np.nan
+    rx, ry = (np.arange(80) * 2 - 79.5) / 150.0, (np.arange(60) * 2 - 59.5) / 150.0
+    n = np.array([0.01, -0.8, -0.6]) / np.linalg.norm([0.01, -0.8, -0.6])
+    for off in (0.45, 0.55, 0.6):
+        want = np.zeros(z.shape, bool)
+        want[::7] = True  # pixels already marked stay marked
+        with np.errstate(invalid="ignore"):
+            want |= np.abs(z * (n[0] * rx[None, :] + n[1] * ry[:, None] + n[2]) + off) < 0.015
+        got = np.zeros(z.shape, bool)
+        got[::7] = True
+        _near_plane(z[:, :], rx, ry, n, off, 0.015, got)
+        np.testing.assert_array_equal(got, want)
+        assert 0 < (want & ~np.isnan(z)).sum() < z.size

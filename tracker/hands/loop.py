@@ -111,12 +111,11 @@ def _slab_grid(R, o, half, x, y, out):
 @nb.njit(cache=True, nogil=True)
 def _near_plane(z, rx, ry, n, off, clearance, out):
     """Mark the pixels of the depth grid ``z`` (rays (rx[j], ry[i], 1)) within ``clearance`` of the plane
-    n·X + off = 0."""
+    n·X + off = 0 (a NaN depth is not: its comparison is false). Branch-free, so that the inner loop vectorises."""
     for i in range(z.shape[0]):
+        b = n[1] * ry[i]
         for j in range(z.shape[1]):
-            d = z[i, j]
-            if d == d and abs(d * (n[0] * rx[j] + n[1] * ry[i] + n[2]) + off) < clearance:
-                out[i, j] = True
+            out[i, j] |= abs(z[i, j] * (n[0] * rx[j] + b + n[2]) + off) < clearance
 
 
 @nb.njit(cache=True, nogil=True)

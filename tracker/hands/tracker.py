@@ -84,6 +84,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import cv2
+import numba as nb
 import numpy as np
 
 from tracker.hands import identity
@@ -418,11 +419,15 @@ class HandTracker(TrackIdentity):
         assert self.full_size is not None
         W, H = self.full_size
         s = self.s
-        h, w = small.shape
         out = np.zeros((H, W), bool)
-        hh, ww = min(H, h * s), min(W, w * s)
-        up = small if s == 1 else cv2.resize(small.view(np.uint8), (w * s, h * s), interpolation=cv2.INTER_NEAREST)
-        out[:hh, :ww] = up[:hh, :ww].view(bool)
+        x, y, w, h = cv2.boundingRect(np.ascontiguousarray(small.view(np.uint8)))  # only the set pixels' rectangle
+        if w == 0 or h == 0:
+            return out
+        crop = small[y : y + h, x : x + w].view(bool)
+        up = crop if s == 1 else np.broadcast_to(crop[:, None, :, None], (h, s, w, s)).reshape(h * s, w * s)
+        hh, ww = min(H - y * s, h * s), min(W - x * s, w * s)
+        if hh > 0 and ww > 0:
+            out[y * s : y * s + hh, x * s : x * s + ww] = up[:hh, :ww]
         return out
 
     # ------------------------------------------------------------------ frames
@@ -523,12 +528,8 @@ class HandTracker(TrackIdentity):
         for tr in self.tracks:
             e = tr.filt.estimate
             margin = max(24.0 / self.s, 0.5 * max(e[2], e[3]), 2.0 * float(np.hypot(e[4], e[5])))
-            for p in tr.filt.boxes_for_roi():
-                u0, v0, u1, v1 = state_box(p)
-                x0 = min(x0, int(u0 - margin))
-                y0 = min(y0, int(v0 - margin))
-                x1 = max(x1, int(u1 + margin) + 1)
-                y1 = max(y1, int(v1 + margin) + 1)
+            boxes = np.ascontiguousarray(np.atleast_2d(tr.filt.boxes_for_roi()), np.float64)
+            x0, y0, x1, y1 = _roi_bounds(boxes, float(margin), x0, y0, x1, y1)
         return max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
 
     def _step_tracks(self, rgb: np.ndarray, grey: np.ndarray, size: tuple[int, int]) -> list[HandEstimate]:
@@ -996,6 +997,20 @@ class HandTracker(TrackIdentity):
         """Focal length in full-resolution pixels (0.82·width without intrinsics)."""
         assert self.full_size is not None
         return float(self.focal) if self.focal else 0.82 * self.full_size[0]
+
+
+@nb.njit(cache=True, nogil=True)
+def _roi_bounds(states, margin, x0, y0, x1, y1):
+    """(x0, y0, x1, y1) grown to hold every state's inclusive box (:func:`box_of`) expanded by ``margin``: per box
+    ``x0 = min(x0, int(u0 − margin))``, ``x1 = max(x1, int(u1 + margin) + 1)`` (int truncates towards zero, as
+    Python's), the same for y."""
+    for i in range(states.shape[0]):
+        u0, v0, u1, v1 = box_of(states[i, 0], states[i, 1], states[i, 2], states[i, 3])
+        x0 = min(x0, int(u0 - margin))
+        y0 = min(y0, int(v0 - margin))
+        x1 = max(x1, int(u1 + margin) + 1)
+        y1 = max(y1, int(v1 + margin) + 1)
+    return x0, y0, x1, y1
 
 
 def _snapshot(filt: HandParticleFilter | HandKalmanFilter) -> dict:
