@@ -27,8 +27,15 @@ def _entering_palm(k: int) -> np.ndarray:
     return img
 
 
+STEP_TIMEOUT = 600.0
+"""Seconds a step of the child may take here: its first step loads the compiled kernels and fits the session
+background, which took more than the default 20 s when the machine ran other jobs at a load of 25 on 2 cores (the
+timeout would restart the child and the comparisons below would fail for the load, not for the code)."""
+
+
 def _loop(worker: str, overlap: str = "wait") -> HandLoop:
-    cfg = HandLoopConfig(tracker=HandTrackerConfig(seed=3), occluder_prior=True, overlap=overlap, worker=worker)
+    cfg = HandLoopConfig(tracker=HandTrackerConfig(seed=3), occluder_prior=True, overlap=overlap, worker=worker,
+                         step_timeout_s=STEP_TIMEOUT)  # fmt: skip
     return HandLoop([], Intrinsics.default(), cfg)
 
 
@@ -144,7 +151,8 @@ def test_pipeline_reports_a_dead_hand_process_and_keeps_running():
     from tracker.sources.simulator import SimulatedTable
 
     src = SimulatedTable("guidance-demo", seed=100, realtime=False)
-    pipe = AssemblyPipeline(src.parts, src.intrinsics, mode="guidance", initial_poses=src.initial_poses, hands=True)
+    pipe = AssemblyPipeline(src.parts, src.intrinsics, mode="guidance", initial_poses=src.initial_poses, hands=True,
+                            hand_config=HandLoopConfig(step_timeout_s=STEP_TIMEOUT))  # fmt: skip
     try:
         for i in range(3):
             assert not pipe.process(src.render(i)).errors

@@ -63,7 +63,10 @@ class HandLoopConfig:
     (spec §14.5); ``occluder_arm``: add the forearm (the colour components reaching into a hand's box) to H_k;
     ``overlap``: "lagged" | "wait" | "off", how the pipeline runs the hand step beside the cube tracker (module
     docstring); ``worker``: "process" | "thread", where :meth:`HandLoop.start` runs the step unless ``overlap`` is
-    "off" (a child process, :mod:`tracker.hands.process`, or a thread of this process). The prior is off by default:
+    "off" (a child process, :mod:`tracker.hands.process`, or a thread of this process); ``step_timeout_s``: seconds
+    the process worker may take for one step before it counts as hung and is restarted (its first step also loads the
+    compiled kernels and fits the session background, which on a machine loaded far beyond its cores took longer than
+    the default). The prior is off by default:
     on guidance-demo tuning seeds 0–2 (300 frames, tracked poses) the cube tracker had 46 part-frames > 10 mm off
     without it, 68 with H_k and 80 with the lagged H_{k−1}; without it the tracker never waits for the hand step."""
 
@@ -75,6 +78,7 @@ class HandLoopConfig:
     occluder_arm: bool = True
     overlap: str = "lagged"
     worker: str = "process"
+    step_timeout_s: float = 20.0
 
     def __post_init__(self) -> None:
         if self.overlap not in OVERLAP_MODES:
@@ -236,7 +240,8 @@ class HandLoop:
             return
         if self.config.worker == "process":
             if self._process is None:
-                self._process = HandProcess(self._all_parts, self.intrinsics, self.config)
+                self._process = HandProcess(self._all_parts, self.intrinsics, self.config,
+                                            step_timeout=self.config.step_timeout_s)  # fmt: skip
             self._process.submit(color, depth, table_plane, poses)
             self._process_pending = True
             return
