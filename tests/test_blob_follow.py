@@ -12,7 +12,7 @@ PLANE = (np.array([0.0, 0.0, -1.0]), 0.7)  # a fronto-parallel table 0.7 m away:
 HALF = 0.018  # the default cube's half side (m)
 
 
-def _run(follow: bool, area_jump: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def _run(follow: bool, area_jump: bool = False, overlap: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """A red cube slides 4 mm per frame to the right, 20 frames, at 0.682 m, with no depth anywhere near it (as
     in a hand's projector shadow); only its colour blob is seen, the same size every frame (or, with
     ``area_jump``, alternately full and a third, as a changing occlusion would make it). Returns the estimated and
@@ -24,7 +24,8 @@ def _run(follow: bool, area_jump: bool = False) -> tuple[np.ndarray, np.ndarray]
     from tracker.perception.color_detection import ColorDetection
 
     intr = Intrinsics.default(640, 480)
-    cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, blob_follow=follow)
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, blob_follow=follow,
+                                                       blob_follow_overlap=overlap)
     tr = MultiObjectTracker([PartSpec.cube("red", "red")], intr, cfg, seed=0)
     start = Pose([-0.02, 0.0, 0.682], [0, 0, 0, 1])
     tr.initialize({"red": start})
@@ -64,3 +65,51 @@ def test_blob_follow_ignores_a_blob_whose_area_jumps():
     without, _ = _run(False, area_jump=True)
     assert np.ptp(truth) > 40.0
     np.testing.assert_array_equal(with_follow, without)
+
+
+def _shrinking(overlap: bool) -> tuple[np.ndarray, int]:
+    """A red cube rests at 0.682 m with no depth near it while something comes over it from the right: its blob
+    loses 2 px of its right side per frame (at most a sixth of its area per frame, so the area test lets it through)
+    for 12 frames. Returns the image position (u) of the estimate's centre minus the truth's, per frame, and the
+    number of frames in which blob follow moved the part."""
+    from tracker.filter.particle_filter import MultiObjectTracker
+    from tracker.frame import Frame
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+    from tracker.perception.color_detection import ColorDetection
+
+    intr = Intrinsics.default(640, 480)
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, blob_follow_overlap=overlap)
+    tr = MultiObjectTracker([PartSpec.cube("red", "red")], intr, cfg, seed=0)
+    truth = Pose([-0.02, 0.0, 0.682], [0, 0, 0, 1])
+    tr.initialize({"red": truth})
+    depth = np.full((480, 640), 0.7, np.float32)
+    depth[100:380, 140:560] = np.nan
+    corners = truth.transform_points(np.array([[-HALF, -HALF, -HALF], [HALF, HALF, -HALF]]))
+    (u0, v0), (u1, v1) = np.round(intr.project(corners))
+    true_u = intr.project(truth.t[None])[0, 0]
+    off, followed = [], 0
+    for i in range(12):
+        right = u1 - 2 * i
+        box = np.array([[u0, v0], [right, v0], [right, v1], [u0, v1]], np.int32)
+        blob = ColorDetection("red", ((u0 + right) / 2, (v0 + v1) / 2), 1.0, float((right - u0) * (v1 - v0)), None,
+                              box)
+        st = tr.step(Frame(i, i / 30, np.zeros((480, 640, 3), np.uint8), depth, intr), {"red": blob}, PLANE)
+        off.append(intr.project(st.poses["red"].t[None])[0, 0] - true_u)
+        followed += int(tr._blob_moved[0])
+    return np.array(off), followed
+
+
+def test_a_blob_that_only_shrinks_is_not_followed_with_the_outline_test():
+    """A hand coming over a resting part moves its blob's centroid away from the hand: without the outline test
+    blob follow drags the part along; with it the part stays put (the colour input's pull remains)."""
+    dragged, n_dragged = _shrinking(False)
+    held, n_held = _shrinking(True)
+    assert n_dragged >= 8 and n_held == 0, (n_dragged, n_held)
+    assert dragged[-1] < -10.0, dragged  # pixels: the centroid moved 11 px left and the part went with it
+    assert np.abs(held).max() < 0.7 * np.abs(dragged).max(), (held, dragged)
+
+
+def test_the_outline_test_still_follows_a_moving_blob():
+    est, truth = _run(True, overlap=True)
+    assert np.abs(est - truth)[5:].max() < 2.5

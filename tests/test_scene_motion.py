@@ -43,6 +43,36 @@ def test_no_motion_without_enough_agreeing_landmarks():
     assert np.allclose(R, np.eye(3), atol=1e-3) and np.linalg.norm(t - [0.01, 0.0, 0.0]) < 0.001
 
 
+def test_the_spread_fit_does_not_carry_a_landmarks_turn_jitter_to_a_far_part():
+    """Two landmarks 12 cm apart see a camera that slides 0.5 mm; the refinement turns each by about 1.2° of jitter
+    about itself (its centre stays put). A hidden part 15 cm away should move by the camera's 0.5 mm: the mean of
+    the landmarks' turns, applied about the camera, moves it by millimetres; the spread fit keeps it near 0.5 mm."""
+    td = np.array([0.0005, 0.0, 0.0])
+    jitter = [Rotation.from_euler("xyz", a, degrees=True).as_matrix() for a in ([0.9, 0.5, -0.7], [0.6, 0.9, -0.4])]
+    centres = [np.array([-0.06, 0.02, 0.62]), np.array([0.06, 0.03, 0.64])]
+    # each landmark turns about its own centre c and slides with the camera: x -> J (x - c) + c + td
+    pairs = [(J, c - J @ c + td, c) for J, c in zip(jitter, centres, strict=True)]
+    probe = np.array([0.0, 0.17, 0.66])
+    moved = {}
+    for spread in (0.0, 0.005):
+        R, t = consensus_motion(pairs, tolerance=0.003, min_agree=2, spread=spread)
+        moved[spread] = np.linalg.norm(R @ probe + t - (probe + td))
+    assert moved[0.0] > 0.002, moved  # metres: the mean turn about the landmarks, 15 cm away
+    assert moved[0.005] < 0.4 * moved[0.0], moved
+
+
+def test_the_spread_fit_recovers_a_true_camera_motion():
+    rng = np.random.default_rng(5)
+    Rd = Rotation.from_euler("xyz", [0.4, -0.3, 0.2], degrees=True).as_matrix()
+    td = np.array([0.004, -0.002, 0.003])
+    centres = rng.uniform([-0.15, -0.1, 0.55], [0.15, 0.1, 0.75], (4, 3))
+    pairs = [_landmark(Rd, td, c, rng) for c in centres]
+    R, t = consensus_motion(pairs, tolerance=0.003, min_agree=2, spread=0.005)
+    probe = np.array([0.05, 0.05, 0.65])
+    assert np.linalg.norm((R @ probe + t) - (Rd @ probe + td)) < 0.0005
+    assert abs(np.linalg.det(R) - 1.0) < 1e-9
+
+
 def _healthy(ok: bool):
     """A dense-depth refinement outcome that is (not) healthy."""
     from tracker.refine.dense_depth import RefineResult

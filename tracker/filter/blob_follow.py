@@ -66,6 +66,12 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
             blobs[i] = confident_blob(trk, detections.get(name))
     previous = trk._follow_blobs
     trk._follow_blobs = blobs
+    windows_before = getattr(trk, "_follow_windows", None)
+    if cfg.blob_follow_overlap and detections:
+        trk._follow_windows = [blob_window(detections.get(nm)) if blobs[i] is not None else None
+                               for i, nm in enumerate(trk.names)]
+    else:
+        trk._follow_windows = None
     trk._blob_uv_target = {}
     trk._blob_reappeared = np.array([b is not None and (previous is None or previous[i] is None)
                                      for i, b in enumerate(blobs)], bool)
@@ -81,6 +87,9 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
         shift = now[0] - before[0]
         if float(np.hypot(*shift)) < cfg.blob_follow_min_px:
             continue
+        if cfg.blob_follow_overlap and windows_before is not None and not moved_outline(
+                trk._follow_windows[i], windows_before[i], shift):
+            continue  # the outline only shrank where something came over it: an occlusion, not a motion
         last = trk._refiner.last[i] if trk._refiner is not None else None
         unsupported = last is None or not last.healthy  # the depth could not place it in the last frame
         if not (unsupported or depth_poor(trk, detections.get(name), depth)):
@@ -95,6 +104,52 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
             put_centre_on(trk, i, uv)
         moved[i] = True
     return moved
+
+
+BlobWindow = tuple[int, int, np.ndarray]
+"""``(x0, y0, mask)``: a blob's filled outline (bool, full-resolution pixels) in the window whose top-left pixel is
+``(x0, y0)``."""
+
+
+def blob_window(det) -> BlobWindow | None:
+    """The filled outline of a detection's blob (not eroded), or None without one."""
+    contour = getattr(det, "contour", None) if det is not None else None
+    if contour is None:
+        return None
+    import cv2
+
+    pts = np.asarray(contour, np.int32).reshape(-1, 2)
+    if pts.shape[0] < 3:
+        return None
+    x0, y0 = int(pts[:, 0].min()), int(pts[:, 1].min())
+    w, h = int(pts[:, 0].max()) - x0 + 1, int(pts[:, 1].max()) - y0 + 1
+    win = np.zeros((h, w), np.uint8)
+    cv2.fillPoly(win, [pts - np.array([x0, y0], np.int32)], 1)
+    return x0, y0, win.astype(bool)
+
+
+def overlap(now: BlobWindow, before: BlobWindow, dx: int, dy: int) -> int:
+    """Pixels of blob ``now`` that blob ``before``, moved by ``(dx, dy)`` pixels, covers."""
+    x0, y0, wn = now
+    bx0, by0, wb = before
+    ys, xs = np.nonzero(wn)
+    xs = xs + (x0 - dx - bx0)
+    ys = ys + (y0 - dy - by0)
+    ok = (xs >= 0) & (ys >= 0) & (xs < wb.shape[1]) & (ys < wb.shape[0])
+    return int(np.count_nonzero(wb[ys[ok], xs[ok]]))
+
+
+def moved_outline(now: BlobWindow | None, before: BlobWindow | None, shift: np.ndarray) -> bool:
+    """Does the blob's outline show the motion its centroid shift (pixels) says (``blob_follow_overlap``)? It does
+    when last frame's outline moved by the shift covers more of this frame's blob than it does unmoved. A hand
+    coming over a resting part takes pixels off one side of its blob: the centroid moves away from the hand, but the
+    blob left is still inside the old outline, which unmoved covers it best. Without outlines: True."""
+    if now is None or before is None:
+        return True
+    dx, dy = (int(round(float(v))) for v in shift)
+    if dx == 0 and dy == 0:
+        return False
+    return overlap(now, before, dx, dy) > overlap(now, before, 0, 0)
 
 
 def centre(trk: MultiObjectTracker, obj: int) -> np.ndarray:

@@ -44,6 +44,11 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
         return
     shifts = _image_shifts(trk, Rd, td)
     trk._follow_blobs = _shifted(getattr(trk, "_follow_blobs", None), shifts)
+    windows = getattr(trk, "_follow_windows", None)
+    if windows:  # the blob outlines of blob follow's overlap test move with their centroids
+        trk._follow_windows = [w if w is None or i not in shifts else
+                               (w[0] + int(round(float(shifts[i][0]))), w[1] + int(round(float(shifts[i][1]))), w[2])
+                               for i, w in enumerate(windows)]
     trk._last_centers = {i: np.asarray(c, np.float64) + shifts.get(i, 0.0)
                          for i, c in getattr(trk, "_last_centers", {}).items()}
     trk.p = trk.p @ Rd.T + td

@@ -70,6 +70,7 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     # the part left behind
     centers = {i: b[0] for i, b in enumerate(trk._follow_blobs or []) if b is not None}
     moving = (np.abs(delta).sum(1) > 0) | (np.abs(rot - np.eye(3)).sum((1, 2)) > 0)
+    trk._carry_moved = np.zeros(k, bool)
     for i in np.nonzero(moving)[0]:
         nm = trk.names[i]
         new_pos = rot[i] @ pos[i] + delta[i]
@@ -95,6 +96,7 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
                 trk._carry.release(i)
                 continue
         move_part(trk, i, rot[i], delta[i])
+        trk._carry_moved[i] = True
         if cfg.table_upright and plane is not None and trk.meshes[i] is None:
             set_down_upright(trk, i, plane)
         if cfg.carry_above_table and plane is not None:

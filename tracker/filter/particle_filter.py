@@ -203,7 +203,9 @@ class MultiObjectTracker:
         self._prev_poses: dict | None = None
         self._cooldown = np.zeros(k, np.int64)
         self._follow_blobs = None  # last frame's confident blobs (centroid, area) per part, for blob follow
+        self._follow_windows = None  # and their outlines (blob_follow_overlap)
         self._blob_moved = np.zeros(k, bool)
+        self._carry_moved = np.zeros(k, bool)  # parts the hand carry moved this frame (hidden_parts.follow_hands)
         self._blob_reappeared = np.zeros(k, bool)  # confident blob this frame but not in the last
         self._landmarks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # scene motion: last frame's landmark poses
         self._scene_keyframes: dict = {}  # scene motion: unplaced part → (landmarks, its R, t) at its keyframe

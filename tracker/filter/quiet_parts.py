@@ -51,6 +51,10 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
     quiet = np.zeros(k, bool)
     memory = trk._quiet_memory
     trk._quiet_memory = None  # one frame old at most: set again after this frame's refinement
+    if cfg.carry_hidden_skip > 0:
+        # hidden in the hand that has just moved it: the depth shows the hand, not the part, and the pass would only
+        # spread it over the hand's surface; the hand's registration is its motion
+        quiet |= trk._carry_moved & ~detected & (trk.visibility < cfg.carry_hidden_skip)
     if not cfg.quiet_skip or memory is None or not detections:
         trk._quiet_skips[:] = 0
         trk._quiet_now = quiet

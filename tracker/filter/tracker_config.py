@@ -81,6 +81,11 @@ class TrackerConfig(BaseModel):
         "seen: a part picked up and turned while half in the hand is held, once hidden, where it was last seen and "
         "not where it was last seen whole.",
     )
+    carry_hidden_skip: float = Field(
+        0.0, ge=0.0, le=1.0, description="A part the hand carry moved this frame, without a reliable colour blob and "
+        "with an estimated visible fraction below this, skips its coordinate pass (0 = never): it moves with the "
+        "hand's registration alone.",
+    )
     table_upright: bool = Field(
         False, description="A box-shaped part on the table that the depth does not place lies on one of its faces: "
         "when it rests unseen (support prior on), or is carried hidden with its lowest point within carry_min_height "
@@ -243,6 +248,11 @@ class TrackerConfig(BaseModel):
     blob_follow_min_px: float = Field(
         1.0, ge=0.0, description="Smallest centroid motion (pixels) blob follow applies.",
     )
+    blob_follow_overlap: bool = Field(
+        False, description="Blob follow moves a part only when the blob's outline shows the motion: last frame's "
+        "outline moved by the centroid's shift covers more of this frame's blob than unmoved. A blob that only "
+        "shrank (a hand coming over a resting part) is not followed.",
+    )
     scene_motion: bool = Field(
         False, description="Scene motion (not in the spec; filter/scene_motion.py): parts that the depth did not place "
         "this frame (hidden, or seen in colour without depth) and that are neither carried nor moving with their blob "
@@ -257,6 +267,11 @@ class TrackerConfig(BaseModel):
         "this distance of their own motion (and turns them by less than tolerance / 0.05 rad from it).",
     )
     scene_motion_min_anchors: int = Field(2, ge=1, description="Fewest agreeing landmarks for a scene motion.")
+    scene_motion_spread: float = Field(
+        0.0, ge=0.0, description="Metres: 0 = the landmarks' consensus motion turns by the mean of their own turns; "
+        "> 0 = the least-squares rigid motion of points this far around each landmark's centre, each moved by the "
+        "landmark's own motion (a part's turn jitter counts with its size, the landmarks' spread with theirs).",
+    )
     scene_motion_deadband: float = Field(
         0.0003, ge=0.0, description="Metres: smaller motions of a hidden part's centre are not applied.",
     )
