@@ -4,8 +4,9 @@ On held-out simulator seeds: the hand tracker alone (particle filter, N_s = 30, 
 the same frames, ratio PF / KF) on ``hands-s1``..``s3`` with automatic track start, and the whole hand step of the
 pipeline (:class:`tracker.hands.loop.HandLoop`: exclusion of table and part pixels, tracker, hand masks, occluder
 mask, touching / holding) on ``guidance-demo`` with the simulator's part poses. Thread CPU time
-(``time.thread_time``, one core; numba kernels compiled before timing; the first frame's one-off session background
-fit is not counted).
+(``time.thread_time``, one core: OpenCV on one thread, as in the server's hand process, so that its worker threads do
+not escape the thread CPU time (before session 12 they did: the DIS flow, k-means and resizing were partly uncounted);
+numba kernels compiled before timing; the first frame's one-off session background fit is not counted).
 
     .venv/bin/python benchmarks/bench_hands_speed.py [--seeds 100] [--frames 300]
 
@@ -87,6 +88,9 @@ def main() -> int:
     seeds = [int(s) for s in args.seeds.split(",")]
     if min(seeds) < 100:
         raise SystemExit("report held-out seeds only (>= 100)")
+    import cv2
+
+    cv2.setNumThreads(1)  # one core, as the hand process (tracker.hands.process); worker threads would escape the timer
     tracker_cpu("hands-s1", seeds[0], 30, "pf")  # compile the numba kernels before timing
     rows, out = [], {"machine": machine_info(), "seeds": seeds, "frames": args.frames, "runs": {}}
     for scen in ("hands-s1", "hands-s2", "hands-s3"):
@@ -105,7 +109,8 @@ def main() -> int:
     md = "\n".join([
         "## Hand tracking (issue 14): CPU time per frame", "",
         f"Thread CPU time per frame (ms, mean / median / p95; {args.frames} frames, 640×480, the tracker working at "
-        "320×240), held-out seeds. Baseline: the thesis's Kalman reference tracker on the same frames (ratio PF / KF). "
+        "320×240; OpenCV on one thread, as in the server's hand process), held-out seeds. "
+        "Baseline: the thesis's Kalman reference tracker on the same frames (ratio PF / KF). "
         "The last row is the pipeline's whole hand step (exclusion of table and part pixels, tracker, hand masks, "
         "occluder mask, touching / holding) on the guidance scene. Target: ≤ 10 ms per frame on one core.", "",
         f"Machine: {m.get('nproc')} cores, {m.get('cpu')}; 1-minute load average {m.get('load_avg_1min')} at the end: "

@@ -420,3 +420,32 @@ def test_two_tracks_sharing_two_touching_hands_split_them_and_keep_their_ids():
     assert dice(ests[a], box_a) > 0.7 and dice(ests[b], box_b) > 0.7
     ests, box_a, box_b, a, b = run(False)
     assert b not in ests or dice(ests[b], box_b) < 0.5
+
+
+def test_each_tracker_computes_its_flows_with_its_own_instances():
+    """OpenCV's DIS instance keeps buffers that make its flow depend slightly on what it computed before: two hand
+    trackers in one thread (the particle filter and the Kalman reference of one experiment) each use their own, so
+    that neither's results depend on the other having run first; within a tracker the instance is kept."""
+    from tracker.hands import flow as hand_flow
+
+    img = np.zeros((240, 320, 3), np.uint8) + np.uint8([120, 130, 140])
+    frames = []
+    for k in range(3):
+        f = img.copy()
+        f[100 + k : 140 + k, 60 + 4 * k : 95 + 4 * k] = [215, 160, 130]
+        frames.append(f)
+    trackers = [HandTracker(HandTrackerConfig(method=m, auto_init=False, session_background=False))
+                for m in ("pf", "kalman")]  # fmt: skip
+    for tr in trackers:
+        tr.process(frames[0])
+        tr.start_track([60, 100, 95, 140])
+    for f in frames[1:]:
+        for tr in trackers:
+            tr.process(f)
+    a, b = (tr._flows for tr in trackers)
+    assert a and b and a.keys() == b.keys()
+    first = next(iter(a.values()))
+    assert all(a[k] is not b[k] for k in a)
+    assert all(v is not hand_flow._dis(k) for k, v in a.items())  # not the thread's shared instance either
+    trackers[0].process(frames[2])
+    assert next(iter(trackers[0]._flows.values())) is first

@@ -47,15 +47,17 @@ class HandFeatures:
 
 def compute_features(prev_grey: np.ndarray, cur_grey: np.ndarray, mprev: np.ndarray, mcur: np.ndarray,
                      roi: tuple[int, int, int, int], image_size: tuple[int, int], clusters: MotionClusters,
-                     flow_method: str = "dis", max_side: int = 192, backward: bool = True) -> HandFeatures:  # fmt: skip
+                     flow_method: str = "dis", max_side: int = 192, backward: bool = True,
+                     flow_cache: dict | None = None) -> HandFeatures:  # fmt: skip
     """Features of the ROI from the full-frame greyscale images and the ROI colour masks (uint8 0/1 of the ROI).
 
-    ``backward=False`` skips the backward segmentations (the Kalman tracker does not use them)."""
+    ``backward=False`` skips the backward segmentations (the Kalman tracker does not use them); ``flow_cache``: the
+    caller's optical-flow instances (:func:`tracker.hands.flow.flow`)."""
     x0, y0, x1, y1 = roi
     W, H = image_size
     pg = np.ascontiguousarray(prev_grey[y0:y1, x0:x1])
     cg = np.ascontiguousarray(cur_grey[y0:y1, x0:x1])
-    ff1, fb1, ff2, fb2 = four_flows(pg, cg, flow_method, max_side)
+    ff1, fb1, ff2, fb2 = four_flows(pg, cg, flow_method, max_side, cache=flow_cache)
     lf1, cf1 = clusters.segment(ff1, mprev, "f1")
     lf2, cf2 = clusters.segment(ff2, mprev, "f2")
     if backward:

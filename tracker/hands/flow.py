@@ -27,24 +27,31 @@ MIN_SIDE = 32
 _LOCAL = threading.local()
 """One DIS instance per thread and preset: an instance keeps working buffers between calls, so two threads (a hand
 step in the hand loop's worker beside another in the caller's thread, or two stations' pipelines) must not share
-one (they did, and the flow came out as garbage)."""
+one (they did, and the flow came out as garbage). Those buffers also make an instance's flow depend slightly on
+the frames it computed before: a hand tracker therefore passes its own ``cache`` (:class:`HandTracker` keeps one),
+so that its results do not depend on other trackers run before it in the same thread (session 12: in one process,
+the Kalman reference run after particle-filter runs on a tuning sequence of hands-s2 scored F̄^b 0.700 instead of
+its 0.751 alone)."""
 
 
-def _dis(preset: int) -> cv2.DISOpticalFlow:
-    cache = getattr(_LOCAL, "dis", None)
+def _dis(preset: int, cache: dict | None = None) -> cv2.DISOpticalFlow:
+    """The DIS instance of ``preset`` in ``cache`` (None: this thread's), created on first use."""
     if cache is None:
-        cache = _LOCAL.dis = {}
+        cache = getattr(_LOCAL, "dis", None)
+        if cache is None:
+            cache = _LOCAL.dis = {}
     if preset not in cache:
         cache[preset] = cv2.DISOpticalFlow_create(preset)
     return cache[preset]
 
 
-def flow(prev: np.ndarray, cur: np.ndarray, method: str = "dis") -> np.ndarray:
-    """Dense flow prev → cur of two uint8 greyscale images of one size; [h, w, 2] float32."""
+def flow(prev: np.ndarray, cur: np.ndarray, method: str = "dis", cache: dict | None = None) -> np.ndarray:
+    """Dense flow prev → cur of two uint8 greyscale images of one size; [h, w, 2] float32. ``cache``: where the DIS
+    instances live (a dict owned by the caller, e.g. one hand tracker; None: one per thread)."""
     if method == "dis":
-        return _dis(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(prev, cur, None)
+        return _dis(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM, cache).calc(prev, cur, None)
     if method == "dis-fast":
-        return _dis(cv2.DISOPTICAL_FLOW_PRESET_FAST).calc(prev, cur, None)
+        return _dis(cv2.DISOPTICAL_FLOW_PRESET_FAST, cache).calc(prev, cur, None)
     if method == "farneback":
         return cv2.calcOpticalFlowFarneback(prev, cur, None, 0.5, 3, 15, 3, 5, 1.2, 0)
     raise ValueError(f"unknown optical flow method {method!r}; choose dis, dis-fast or farneback")
@@ -59,12 +66,12 @@ def forward_backward(prev: np.ndarray, cur: np.ndarray, method: str = "dis",
 
 
 def four_flows(prev: np.ndarray, cur: np.ndarray, method: str = "dis", max_side: int = 192,
-               inverted: bool = True) -> tuple[np.ndarray, ...]:  # fmt: skip
+               inverted: bool = True, cache: dict | None = None) -> tuple[np.ndarray, ...]:  # fmt: skip
     """(f^{f,1}, f^{b,1}, f^{f,2}, f^{b,2}) of two greyscale crops: the forward and backward flows as
     :func:`forward_backward`, and the second versions (:func:`invert` of the backward and of the forward flow). The
     inversion runs on the reduced grid the flows were computed on (a crop larger than ``max_side``), and all four
     are then scaled back, so its cost falls with the square of the reduction like the flow's. ``inverted=False``:
-    the last two are None."""
+    the last two are None. ``cache``: see :func:`flow`."""
     h, w = prev.shape
     f = max(1, int(np.ceil(max(h, w) / float(max_side))))
     if f > 1:
@@ -80,8 +87,8 @@ def four_flows(prev: np.ndarray, cur: np.ndarray, method: str = "dis", max_side:
     if min(ph, pw) < MIN_SIDE:  # OpenCV's DIS crashes on thin images (seen at 13×79): pad by edge replication
         pad = ((0, max(0, MIN_SIDE - ph)), (0, max(0, MIN_SIDE - pw)))
         p, c = np.pad(p, pad, mode="edge"), np.pad(c, pad, mode="edge")
-    fw = np.ascontiguousarray(flow(p, c, method)[:ph, :pw])
-    bw = np.ascontiguousarray(flow(c, p, method)[:ph, :pw])
+    fw = np.ascontiguousarray(flow(p, c, method, cache)[:ph, :pw])
+    bw = np.ascontiguousarray(flow(c, p, method, cache)[:ph, :pw])
     flows = [fw, bw, invert(bw), invert(fw)] if inverted else [fw, bw]
     if f > 1:
         sx, sy = np.float32(w / float(pw)), np.float32(h / float(ph))

@@ -296,6 +296,7 @@ class HandTracker(TrackIdentity):
                                   am_hat=cfg.am_hat, d2_scale=80.0 / s2, v2_scale=7.0 / s2)  # fmt: skip
         self.rng = np.random.default_rng(cfg.seed)
         self.clusters = MotionClusters(cfg.n_clusters, seed=cfg.seed)
+        self._flows: dict = {}  # this tracker's own optical-flow instances (tracker.hands.flow.flow)
         self.tracks: list[_Track] = []
         self.lost: list[_Lost] = []
         self.next_id = 1
@@ -547,7 +548,8 @@ class HandTracker(TrackIdentity):
             mprev = self._skin(self._prev_rgb, self._prev_excl, y0, y1, x0, x1)
         mcur = np.ascontiguousarray(self._frame_mask(rgb)[y0:y1, x0:x1])
         feats = compute_features(self._prev_grey, grey, mprev, mcur, roi, size, self.clusters, cfg.flow,
-                                 max(8, cfg.roi_limit // self.s), backward=cfg.method == "pf")  # fmt: skip
+                                 max(8, cfg.roi_limit // self.s), backward=cfg.method == "pf",
+                                 flow_cache=self._flows)  # fmt: skip
         if cfg.palm_cut:
             feats.anchors = palm_anchors(self._frame_mask(rgb), self._depth, self.s, self._focal_px(),
                                          cfg.hand_length_m, cfg.min_area_frac * size[0] * size[1])  # fmt: skip
