@@ -109,3 +109,42 @@ def test_a_hidden_cube_set_down_on_the_table_lies_on_a_face(upright):
         assert yaw_err < 1.0, yaw_err
     else:
         assert tilt_deg > 8.0, tilt_deg
+
+
+@pytest.mark.parametrize("lift, tilt_deg, carried, turned", [
+    (0.0, 12.0, False, True),  # resting on the table, tilted: laid on its face
+    (0.03, 12.0, False, False),  # 3 cm above the table: in the air, left as it is
+    (0.0, 30.0, False, False),  # tilted beyond resting_upright_deg (20°): not a resting box's error
+    (0.0, 12.0, True, False),  # carried: the hand holds it as it is
+])
+def test_a_visible_box_resting_on_the_table_is_turned_onto_a_face(lift, tilt_deg, carried, turned):
+    """``resting_upright_deg``: after the refinement, a box whose lowest point is on the table and whose estimate is
+    tilted by less than the bound is turned upright about its centre (its turn about the table normal, its centre
+    and its particles' spread around it kept); in the air, tilted farther or carried it is not."""
+    from scipy.spatial.transform import Rotation
+
+    from tracker.filter.particle_filter import TrackerState
+
+    tr = _tracker(resting_upright_deg=20.0)
+    plane = (np.array([0.0, 0.0, -1.0]), 0.7)
+    rot = Rotation.from_euler("x", tilt_deg, degrees=True) * Rotation.from_euler("z", 25, degrees=True)
+    # the tilted cube's lowest corner on (or `lift` above) the table: its centre at 0.7 - lift - the half diagonal
+    low = float((np.abs(rot.as_matrix().T @ plane[0]) * 0.018).sum())
+    pose = Pose([0.0, 0.0, 0.7 - lift - low], rot.as_quat())
+    tr.initialize({"red": pose})
+    if carried:
+        tr._carry.start(0, np.zeros((10, 3)))
+    spread = tr.p[:, 0] - pose.t
+    state = TrackerState(index=0, timestamp=0.0, poses={"red": pose}, particles={}, weights=np.ones(50) / 50)
+    hidden_parts.upright_resting(tr, state, plane)
+    est = tr.estimates["red"]
+    tilt_after = np.degrees(np.arccos(np.clip(np.abs(est.R.T @ plane[0]).max(), -1.0, 1.0)))
+    if turned:
+        assert tilt_after < 1e-6 and state.poses["red"] is est
+        assert np.linalg.norm(est.t - pose.t) < 1e-9  # a cube's origin is its centre: it turns in place
+        yaw = np.degrees(abs(Rotation.from_matrix(est.R @ Rotation.from_euler("z", 25, degrees=True).as_matrix().T)
+                             .as_rotvec()[2]))
+        assert yaw < 1.0, yaw
+        np.testing.assert_allclose(np.linalg.norm(tr.p[:, 0] - est.t, axis=1), np.linalg.norm(spread, axis=1))
+    else:
+        assert abs(tilt_after - tilt_deg) < 1e-6 and state.poses["red"] is pose

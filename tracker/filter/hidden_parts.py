@@ -230,6 +230,31 @@ def update_support(trk, unseen: np.ndarray, pos: np.ndarray, heights: np.ndarray
             trk._rest_t[i] = trk._rest_t[i] - h * plane[0]
 
 
+def upright_resting(trk, state, plane) -> None:
+    """``resting_upright_deg``: every box part that rests on the table — lowest point within ``carry_min_height`` of
+    the table plane ``(normal, offset)`` (camera frame), not carried, not moving with its blob, not moved by more
+    than ``carry_min_motion`` in the carry test's window — whose estimate is
+    tilted from lying on a face by less than ``resting_upright_deg`` is turned upright about its centre
+    (:func:`set_down_upright`); ``state.poses`` gets the new estimates. A box on a flat table lies on a face; a
+    refinement that sees only some of its faces (another part on top of it or in front) can tilt it."""
+    max_tilt = np.radians(trk.config.resting_upright_deg)
+    if max_tilt <= 0 or plane is None:
+        return
+    normal = np.asarray(plane[0], np.float64)
+    moved = trk._carry.moved()  # distance travelled in the carry test's window (m), 0 for parts with no history
+    for i, name in enumerate(trk.names):
+        if (trk.meshes[i] is not None or trk._carry.carried[i] or trk._blob_moved[i]
+                or moved[i] > trk.config.carry_min_motion):
+            continue  # a part that moves may be in a hand that tilts it
+        est = trk.estimates[name]
+        tilt = float(np.arccos(np.clip(np.abs(est.R.T @ normal).max(), -1.0, 1.0)))
+        if tilt < 1e-6 or tilt > max_tilt:
+            continue
+        if set_down_upright(trk, i, plane):
+            state.poses[name] = trk.estimates[name]
+            state.particles[name] = trk.p[:, i].astype(np.float32)
+
+
 def set_down_upright(trk, obj: int, plane) -> bool:
     """If box part ``obj`` would touch the table (``plane`` = (normal, offset), camera frame) when turned upright
     about its centre (lowest point within ``carry_min_height``), turn it so (:func:`upright`); returns whether it

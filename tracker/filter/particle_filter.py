@@ -265,6 +265,7 @@ class MultiObjectTracker:
         hidden_parts.update_rest_anchors(self, detected)
         tg = time.perf_counter()
         refine_stage.refine(self, state, ctx.refine_depth, detections, ctx.table, ctx.depth)
+        hidden_parts.upright_resting(self, state, ctx.table_plane)
         hidden_parts.update_moving_anchors(self)
         scene_motion.follow_scene(self, state)
         ctx.timings["refine"] = (time.perf_counter() - tg) * 1e3

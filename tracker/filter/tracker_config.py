@@ -81,6 +81,11 @@ class TrackerConfig(BaseModel):
         "seen: a part picked up and turned while half in the hand is held, once hidden, where it was last seen and "
         "not where it was last seen whole.",
     )
+    resting_upright_deg: float = Field(
+        0.0, ge=0.0, le=45.0, description="Degrees (0 = off): a box part resting on the table (lowest point within "
+        "carry_min_height of it, not carried, not moving with its blob) whose estimate is tilted from lying on a "
+        "face by less than this is turned upright about its centre after the refinement.",
+    )
     carry_hidden_skip: float = Field(
         0.0, ge=0.0, le=1.0, description="A part the hand carry moved this frame, without a reliable colour blob and "
         "with an estimated visible fraction below this, skips its coordinate pass (0 = never): it moves with the "
