@@ -118,20 +118,21 @@ def test_the_carry_ends_when_the_hand_leaves():
     assert not carry.carried[0] and np.allclose(d, 0.0) and np.allclose(rot, np.eye(3))
 
 
-@pytest.mark.parametrize("follow", [True, False])
-def test_tracker_keeps_a_cube_carried_inside_the_hand(follow):
-    """Simulated guess-2 (seed 1): the hand lifts the blue cube, carries it ~25 cm completely hidden in its grasp
-    and puts it down. With the hand carry the estimate stays with the hand; without it, it stays where the cube
-    vanished. Both find the cube again once it is put down and visible (re-seeding)."""
+def _carry_run(**overrides) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Simulated guess-2 (tuning seed 1), frames 75-194, N = 120, default preset with ``overrides``: the hand lifts
+    the blue cube, carries it ~25 cm completely hidden in its grasp and puts it down. Returns the blue cube's
+    translation error per frame, whether it is completely hidden, in how many frames it was carried and in how many
+    its coordinate pass was skipped."""
     from tracker.filter.particle_filter import MultiObjectTracker
     from tracker.perception.color_detection import ColorDetector
     from tracker.sources.simulator import SimulatedTable
 
     src = SimulatedTable("guess-2", seed=1, realtime=False)
     det = ColorDetector.from_parts(src.parts)
-    cfg = TrackerConfig.preset("default").with_overrides(n_particles=120, carry_follow=follow)
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=120, **overrides)
     tr = MultiObjectTracker(src.parts, src.intrinsics, cfg, seed=5)
-    errs, hidden, carried = [], [], 0
+    blue = tr.names.index("blue")
+    errs, hidden, carried, skipped = [], [], 0, 0
     for i in range(75, 195):
         f = src.render(i)
         g = f.meta["groundtruth"]
@@ -141,7 +142,16 @@ def test_tracker_keeps_a_cube_carried_inside_the_hand(follow):
         errs.append(st.poses["blue"].translation_error(g["poses"]["blue"]))
         hidden.append(g["visible"]["blue"] == 0.0)
         carried += "blue" in st.carried
-    errs, hidden = np.array(errs), np.array(hidden)
+        skipped += int(tr._quiet_now[blue])
+    return np.array(errs), np.array(hidden), carried, skipped
+
+
+@pytest.mark.parametrize("follow", [True, False])
+def test_tracker_keeps_a_cube_carried_inside_the_hand(follow):
+    """With the hand carry the estimate of the cube carried out of sight (:func:`_carry_run`) stays with the hand;
+    without it, it stays where the cube vanished. Both find the cube again once it is put down and visible
+    (re-seeding)."""
+    errs, hidden, carried, _ = _carry_run(carry_follow=follow)
     assert hidden.sum() > 30  # the script really hides the cube in the hand
     if follow:
         assert carried > 30
@@ -152,37 +162,12 @@ def test_tracker_keeps_a_cube_carried_inside_the_hand(follow):
     assert errs[-10:].mean() < 0.005, errs[-10:]
 
 
-def _carry_errors(skip: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """The guess-2 carry of the test above (tuning seed 1), N = 120: translation error of the blue cube per frame,
-    whether it is completely hidden, and how many frames its coordinate pass was skipped."""
-    from tracker.filter.particle_filter import MultiObjectTracker
-    from tracker.perception.color_detection import ColorDetector
-    from tracker.sources.simulator import SimulatedTable
-
-    src = SimulatedTable("guess-2", seed=1, realtime=False)
-    det = ColorDetector.from_parts(src.parts)
-    cfg = TrackerConfig.preset("default").with_overrides(n_particles=120, carry_hidden_skip=skip)
-    tr = MultiObjectTracker(src.parts, src.intrinsics, cfg, seed=5)
-    blue = tr.names.index("blue")
-    errs, hidden, skipped = [], [], 0
-    for i in range(75, 195):
-        f = src.render(i)
-        g = f.meta["groundtruth"]
-        if i == 75:
-            tr.initialize(g["poses"])
-        st = tr.step(f, det.detect(f.color), src.table_plane)
-        errs.append(st.poses["blue"].translation_error(g["poses"]["blue"]))
-        hidden.append(g["visible"]["blue"] == 0.0)
-        skipped += int(tr._quiet_now[blue])
-    return np.array(errs), np.array(hidden), skipped
-
-
 def test_a_part_hidden_in_the_moving_hand_skips_its_pass_and_keeps_closer_to_it():
     """carry_hidden_skip: while the hand carries the cube out of sight, its coordinate pass (which can only spread it
     over the hand's surface) is skipped and it moves with the hand's registration; its worst error in the hand is
     smaller, and it is found again once put down."""
-    with_pass, hidden, none_skipped = _carry_errors(0.0)
-    skipping, _, skipped = _carry_errors(0.1)
+    with_pass, hidden, _, none_skipped = _carry_run(carry_hidden_skip=0.0)
+    skipping, _, _, skipped = _carry_run(carry_hidden_skip=0.1)
     assert none_skipped == 0 and skipped > 30, (none_skipped, skipped)
     assert skipping[hidden].max() < 0.7 * with_pass[hidden].max(), (skipping[hidden].max(), with_pass[hidden].max())
     assert skipping[-10:].mean() < 0.005
