@@ -233,9 +233,9 @@ def update_support(trk, unseen: np.ndarray, pos: np.ndarray, heights: np.ndarray
 def upright_resting(trk, state, plane) -> None:
     """``resting_upright_deg``: every box part that rests on the table — lowest point within ``carry_min_height`` of
     the table plane ``(normal, offset)`` (camera frame), not carried, not moving with its blob, not moved by more
-    than ``carry_min_motion`` in the carry test's window — whose estimate is
-    tilted from lying on a face by less than ``resting_upright_deg`` is turned upright about its centre
-    (:func:`set_down_upright`); ``state.poses`` gets the new estimates. A box on a flat table lies on a face; a
+    than ``carry_min_motion`` in the carry test's window — whose estimate is tilted from lying on a face by less
+    than ``resting_upright_deg`` is turned upright about its centre (:func:`set_down_upright`); ``state.poses``
+    gets the new estimates. A box on a flat table lies on a face; a
     refinement that sees only some of its faces (another part on top of it or in front) can tilt it."""
     max_tilt = np.radians(trk.config.resting_upright_deg)
     if max_tilt <= 0 or plane is None:

@@ -63,8 +63,7 @@ def consensus_motion(pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], tol
     (:func:`fit_rigid`, with a weak prior of no turn) of six points per landmark, its centre ± ``spread`` along
     each camera axis, each moved by the landmark's own motion: a landmark's own turn then counts with its size's
     lever arm, the landmarks' spread across the table with theirs, so that the refinement's turn jitter of a small
-    part is not carried to a part
-    15 cm away as millimetres of false motion."""
+    part is not carried to a part 15 cm away as millimetres of false motion."""
     if len(pairs) < min_agree:
         return None
     best: list[int] = []
