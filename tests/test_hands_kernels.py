@@ -343,3 +343,34 @@ def test_table_plane_marking_equals_the_numpy_form():
         _near_plane(z[:, :], rx, ry, n, off, 0.015, got)
         np.testing.assert_array_equal(got, want)
         assert 0 < (want & ~np.isnan(z)).sum() < z.size
+
+
+def test_a_part_is_seen_only_inside_its_window():
+    """The contact test renders a part's depth only inside its window (:meth:`HandLoop._part_window`): the slab test
+    over a whole hands window finds no ray outside it, for parts turned every way, near and far, partly off the
+    image."""
+    from tracker.geometry.camera import Intrinsics
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+    from tracker.hands.loop import HandLoop, box_part_depth
+
+    intr = Intrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
+    part = PartSpec.cube("red", "red")
+    loop = HandLoop([part], intr)
+    rng = np.random.default_rng(17)
+    us, vs = np.arange(0, 640), np.arange(0, 480)
+    seen = 0
+    for _ in range(25):
+        t = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.25, 0.25), rng.uniform(0.15, 0.9)])
+        pose = Pose.from_rotvec(rng.normal(0, 1.5, 3), t)
+        win = loop._part_window(part, pose, 480, 640)
+        zr = box_part_depth(part, pose, intr, us, vs)
+        if win is None:
+            assert not np.isfinite(zr).any()
+            continue
+        u0, v0, u1, v1 = win
+        inside = np.zeros(zr.shape, bool)
+        inside[v0:v1, u0:u1] = True
+        assert not np.isfinite(zr[~inside]).any()
+        seen += bool(np.isfinite(zr).any())
+    assert seen >= 10

@@ -466,7 +466,11 @@ class HandLoop:
                 pw = self._part_window(part, poses.get(name), H, W)
                 if pw is None or pw[0] >= u1 or pw[2] <= u0 or pw[1] >= v1 or pw[3] <= v0:
                     continue
-                zr = box_part_depth(part, poses[name], self.intrinsics, us, vs)
+                # the slab test only inside the part's window: every ray outside it misses the box (inf)
+                a0, b0 = max(pw[0], u0) - u0, max(pw[1], v0) - v0
+                a1, b1 = min(pw[2], u1) - u0, min(pw[3], v1) - v0
+                zr = np.full((len(vs), len(us)), np.inf, np.float32)
+                zr[b0:b1, a0:a1] = box_part_depth(part, poses[name], self.intrinsics, us[a0:a1], vs[b0:b1])
                 sils[name] = np.isfinite(zr)
                 part_depths[name] = zr
         self.states = self.contacts.update(masks, sils, positions, crop_depth, part_depths, hand_vel, part_vel)
