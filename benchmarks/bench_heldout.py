@@ -132,13 +132,15 @@ def run_session(job: dict) -> dict:
 
     opts = SimOptions(speed=job["speed"], occlusion=job["occlusion"], camera_motion=job["motion"])
     src = SimulatedTable(job["scenario"], seed=job["seed"], options=opts, realtime=False, n_frames=job["frames"])
-    cfg = TrackerConfig.preset("default")
+    cfg = TrackerConfig.preset("default").with_overrides(**job.get("overrides", {}))
     if job.get("particles"):
         cfg = cfg.with_overrides(n_particles=job["particles"])
     odometry = job.get("odometry") or "off"
-    sessions = {"ours": TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=0, odometry=odometry)}
+    rng_seed = int(job.get("tracker_seed", 0))
+    sessions = {"ours": TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=rng_seed,
+                                     odometry=odometry)}
     if odometry != "off":  # the same tracker with odometry off, on the same frames
-        sessions["off"] = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=0)
+        sessions["off"] = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=rng_seed)
     ours = sessions["ours"]
     icp = ICPTracker(src.parts, src.intrinsics)
     icp.initialize(src.initial_poses)
@@ -219,7 +221,10 @@ def markdown(res: dict) -> str:
         f"start and {res['load_1min_at_end']} at the end"
         + (": the machine was shared with other jobs, so wall-clock times are pessimistic (thread CPU time, the "
            "column shown, is less affected)." if loaded else ".")
-        + f" Commit {res['commit']}." + (f" {res['note']}" if res["note"] else ""),
+        + f" Commit {res['commit']}." + (f" {res['note']}" if res["note"] else "")
+        + (f" Our tracker's random seed: {res['tracker_seed']}." if res.get("tracker_seed") else "")
+        + (f" Settings changed from the default preset (development run): {res['overrides']}."
+           if res.get("overrides") else ""),
         "",
         f"{len(res['sessions'])} sessions of {res['frames']} frames (30 fps), seeds {res['seeds_text']}"
         + ("" if len(res["sessions"]) == len(DESIGN) else
@@ -294,6 +299,21 @@ def markdown(res: dict) -> str:
     return "\n".join(lines)
 
 
+def parse_overrides(items: list[str]) -> dict:
+    """``KEY=VALUE`` texts (``--set``) as a dict of tracker settings; a VALUE is read as JSON (numbers, true/false,
+    lists), else kept as text. ValueError for an item without ``=``."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--set {item!r}: give KEY=VALUE, e.g. blob_follow_overlap=true")
+        try:
+            out[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key.strip()] = value
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", default=None, help=f"simulator seeds, e.g. 100-109 or 100,105 (default {DEFAULT_SEEDS}; "
@@ -309,6 +329,12 @@ def main(argv=None) -> int:
                     help="camera odometry of our tracker (issue 15); when on, the same tracker with odometry off "
                     "runs beside it on the same frames and the results go to results/heldout_odometry[_MODE][_dev].* "
                     "(MODE: fastslam, fused)")
+    ap.add_argument("--tracker-seed", type=int, default=0, help="random seed of our particle filter (default 0); a "
+                    "tuning decision should hold for several: long hidden carries cross the 'lost' threshold or not "
+                    "with it")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="with --dev only: a tracker setting of the default preset changed for this run (repeatable; "
+                    "VALUE read as JSON, else as text), e.g. --set blob_follow_overlap=true")
     ap.add_argument("--note", default="", help="a sentence added to the figures' notes")
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite the .md from the .json and exit")
@@ -333,6 +359,13 @@ def main(argv=None) -> int:
             raise ValueError(f"--sessions {bad}: the design has sessions 1–{len(DESIGN)}")
         if args.frames < 1 or args.jobs < 1:
             raise ValueError("--frames and --jobs must be at least 1")
+        overrides = parse_overrides(args.set)
+        if overrides and not args.dev:
+            raise ValueError("--set changes the tracker's settings: only for development runs (--dev); reported "
+                             "figures are the default preset's")
+        from tracker.filter.tracker_config import TrackerConfig
+
+        TrackerConfig.preset("default").with_overrides(**overrides)  # an unknown or invalid setting stops here
         check_design()
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -348,7 +381,7 @@ def main(argv=None) -> int:
         scenario, motion, occlusion, speed = DESIGN[k - 1]
         jobs.append({"session": k, "scenario": scenario, "motion": motion, "occlusion": occlusion, "speed": speed,
                      "seed": seeds[(k - 1) % len(seeds)], "frames": args.frames, "particles": args.particles,
-                     "odometry": args.odometry})
+                     "odometry": args.odometry, "tracker_seed": args.tracker_seed, "overrides": overrides})
     sessions = []
     if args.jobs == 1:
         results = map(run_session, jobs)
@@ -363,6 +396,7 @@ def main(argv=None) -> int:
         pool.join()
     sessions.sort(key=lambda s: s["session"])
     res = {"machine": info, "commit": commit, "note": args.note, "dev": args.dev, "seeds_text": seeds_text,
+           "tracker_seed": args.tracker_seed, "overrides": overrides,
            "odometry": args.odometry,
            "frames": args.frames, "jobs": args.jobs, "sessions": sessions, "overall": overall(sessions),
            "load_1min_at_end": round(os.getloadavg()[0], 2)}

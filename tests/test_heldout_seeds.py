@@ -62,6 +62,17 @@ def test_bench_heldout_design_covers_every_pair_and_refuses_tuning_seeds(capsys)
     assert "development" in capsys.readouterr().err
 
 
+def test_bench_heldout_changes_settings_only_in_development_runs(capsys):
+    assert bench_heldout.parse_overrides(["blob_follow_overlap=true", "carry_radius=0.1", "velocity_model=constant"]) \
+        == {"blob_follow_overlap": True, "carry_radius": 0.1, "velocity_model": "constant"}
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        bench_heldout.parse_overrides(["carry_radius"])
+    assert bench_heldout.main(["--set", "carry_radius=0.1", "--no-write"]) == 2  # a reported run: default preset
+    assert "--dev" in capsys.readouterr().err
+    assert bench_heldout.main(["--dev", "--set", "no_such_setting=1", "--no-write"]) == 2
+    assert "no_such_setting" in capsys.readouterr().err
+
+
 def test_tracker_benchmarks_refuse_tuning_seeds_unless_dev(capsys):
     from benchmarks import bench_moving_camera, bench_tracker
 
