@@ -241,6 +241,14 @@ def test_camera_motion_moves_the_blob_memory_with_the_image_motion_of_each_part(
     assert np.allclose(trk._follow_blobs[0][0], expected, atol=1e-9) and trk._follow_blobs[0][1] == 400.0
     assert trk._follow_blobs[1] is None
     assert expected[0] - uv[0][0] - 3.0 > 5.0  # ~9 px at 0.6 m: a shift blob follow would have counted twice
+    # with blob_follow_overlap the blob's outline is remembered too and moves with it, to the nearest pixel
+    outline = (100, 50, np.ones((4, 4), bool))
+    trk._follow_blobs = [(uv[0], 16.0, outline), None]
+    apply_camera_motion(trk, _transform([0.0, 0.0, 0.0], [0.01, 0.0, 0.0]))
+    moved = trk._follow_blobs[0][2]
+    shift = trk._follow_blobs[0][0] - uv[0]
+    assert (moved[0], moved[1]) == (100 + round(shift[0]), 50 + round(shift[1])) and moved[2] is outline[2]
+    assert moved[0] - 100 > 5
 
 
 def test_camera_motion_moves_scene_motions_landmark_memory():

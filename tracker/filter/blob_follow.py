@@ -59,19 +59,16 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
     cfg = trk.config
     k = len(trk.parts)
     moved = np.zeros(k, bool)
-    blobs: list[tuple[np.ndarray, float] | None] = [None] * k
+    blobs: list[tuple | None] = [None] * k  # (centroid, area), with blob_follow_overlap also the outline
     depth = ctx.depth
     if detections and depth is not None:
         for i, name in enumerate(trk.names):
-            blobs[i] = confident_blob(trk, detections.get(name))
+            blob = confident_blob(trk, detections.get(name))
+            if blob is not None and cfg.blob_follow_overlap:
+                blob = (*blob, blob_window(detections.get(name)))
+            blobs[i] = blob
     previous = trk._follow_blobs
     trk._follow_blobs = blobs
-    windows_before = getattr(trk, "_follow_windows", None)
-    if cfg.blob_follow_overlap and detections:
-        trk._follow_windows = [blob_window(detections.get(nm)) if blobs[i] is not None else None
-                               for i, nm in enumerate(trk.names)]
-    else:
-        trk._follow_windows = None
     trk._blob_uv_target = {}
     trk._blob_reappeared = np.array([b is not None and (previous is None or previous[i] is None)
                                      for i, b in enumerate(blobs)], bool)
@@ -87,8 +84,7 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
         shift = now[0] - before[0]
         if float(np.hypot(*shift)) < cfg.blob_follow_min_px:
             continue
-        if cfg.blob_follow_overlap and windows_before is not None and not moved_outline(
-                trk._follow_windows[i], windows_before[i], shift):
+        if cfg.blob_follow_overlap and not moved_outline(outline_of(now), outline_of(before), shift):
             continue  # the outline only shrank where something came over it: an occlusion, not a motion
         last = trk._refiner.last[i] if trk._refiner is not None else None
         unsupported = last is None or not last.healthy  # the depth could not place it in the last frame
@@ -137,6 +133,11 @@ def overlap(now: BlobWindow, before: BlobWindow, dx: int, dy: int) -> int:
     ys = ys + (y0 - dy - by0)
     ok = (xs >= 0) & (ys >= 0) & (xs < wb.shape[1]) & (ys < wb.shape[0])
     return int(np.count_nonzero(wb[ys[ok], xs[ok]]))
+
+
+def outline_of(blob: tuple | None) -> BlobWindow | None:
+    """The outline kept with a followed blob ``(centroid, area[, outline])`` (``blob_follow_overlap``), or None."""
+    return blob[2] if blob is not None and len(blob) > 2 else None
 
 
 def moved_outline(now: BlobWindow | None, before: BlobWindow | None, shift: np.ndarray) -> bool:

@@ -44,11 +44,6 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
         return
     shifts = _image_shifts(trk, Rd, td)
     trk._follow_blobs = _shifted(getattr(trk, "_follow_blobs", None), shifts)
-    windows = getattr(trk, "_follow_windows", None)
-    if windows:  # the blob outlines of blob follow's overlap test move with their centroids
-        trk._follow_windows = [w if w is None or i not in shifts else
-                               (w[0] + int(round(float(shifts[i][0]))), w[1] + int(round(float(shifts[i][1]))), w[2])
-                               for i, w in enumerate(windows)]
     trk._last_centers = {i: np.asarray(c, np.float64) + shifts.get(i, 0.0)
                          for i, c in getattr(trk, "_last_centers", {}).items()}
     trk.p = trk.p @ Rd.T + td
@@ -95,13 +90,23 @@ def _image_shifts(trk, Rd: np.ndarray, td: np.ndarray) -> dict[int, np.ndarray]:
 
 
 def _shifted(blobs, shifts: dict[int, np.ndarray]):
-    """The last frame's blobs (blob follow, :mod:`tracker.filter.blob_follow`: ``(centroid px, area)`` or None per
-    part) with each centroid moved by its part's image shift, so that a blob's shift to this frame is the part's own
-    motion (the camera's share is applied to the part already here; unmoved, it would be counted twice)."""
+    """The last frame's blobs (blob follow, :mod:`tracker.filter.blob_follow`: ``(centroid px, area)``, with
+    ``blob_follow_overlap`` also ``outline``, or None per part) with each centroid (and outline, to the nearest pixel)
+    moved by its part's image shift, so that a blob's shift to this frame is the part's own motion (the camera's
+    share is applied to the part already here; unmoved, it would be counted twice)."""
     if not blobs:
         return blobs
-    return [blob if blob is None or i not in shifts else (np.asarray(blob[0], np.float64) + shifts[i], blob[1])
-            for i, blob in enumerate(blobs)]
+    out = []
+    for i, blob in enumerate(blobs):
+        if blob is not None and i in shifts:
+            d = shifts[i]
+            moved = (np.asarray(blob[0], np.float64) + d, blob[1])
+            if len(blob) > 2 and blob[2] is not None:
+                x0, y0, mask = blob[2]
+                moved += ((x0 + int(round(float(d[0]))), y0 + int(round(float(d[1]))), mask),)
+            blob = moved
+        out.append(blob)
+    return out
 
 
 def move_part(trk, obj: int, R: np.ndarray, t: np.ndarray) -> None:

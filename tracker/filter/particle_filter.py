@@ -202,8 +202,7 @@ class MultiObjectTracker:
         self._est_vel = np.zeros((k, 6))  # constant-velocity model: per-frame velocity estimate per part
         self._prev_poses: dict | None = None
         self._cooldown = np.zeros(k, np.int64)
-        self._follow_blobs = None  # last frame's confident blobs (centroid, area) per part, for blob follow
-        self._follow_windows = None  # and their outlines (blob_follow_overlap)
+        self._follow_blobs = None  # last frame's confident blobs (centroid, area[, outline]) per part, for blob follow
         self._blob_moved = np.zeros(k, bool)
         self._carry_moved = np.zeros(k, bool)  # parts the hand carry moved this frame (hidden_parts.follow_hands)
         self._blob_reappeared = np.zeros(k, bool)  # confident blob this frame but not in the last

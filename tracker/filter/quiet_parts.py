@@ -16,6 +16,8 @@ depth. A part is *quiet* in a frame when all of these hold:
 
 A quiet part keeps its noise-free prediction (its particles as they are, moved by the motion model) and the
 likelihood of that prediction, which the first full render of the frame has already evaluated; its pass is skipped.
+The same skip serves one accuracy setting, whatever ``quiet_skip`` says: ``carry_hidden_skip``, a part hidden in the
+hand that has just moved it.
 Pixels: full-resolution image coordinates; positions camera frame, metres.
 """
 
