@@ -31,6 +31,7 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
     trk._color_targets = []  # (part index, (u, v), weight) for the optional colour likelihood term
     detected = np.zeros(k, bool)
     trk._blob_off = np.zeros(k, bool)  # reliable blob off the estimate's silhouette (re-acquisition looks at it)
+    trk._pre_reseed = {}  # part index -> its estimate before this frame's re-seed at its blob (the hand carry's)
     if cfg.use_color_input and detections:
         for i, name in enumerate(trk.names):
             det = detections.get(name)
@@ -54,6 +55,7 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
             if cfg.color_area_weighting and not off_silhouette:
                 score *= area_ratio(trk, i, area) if ratio is None else ratio
             if off_silhouette and cfg.reseed_fraction > 0 and depth is not None:
+                trk._pre_reseed[i] = trk.estimates[name]
                 reseed(trk, i, det, depth)
                 hit = surface_depth(trk, i, center)
             if cfg.color_likelihood_px > 0:

@@ -9,11 +9,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tracker.filter.blob_follow import recentre
+from tracker.filter.blob_follow import centre, recentre
 from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import box_surface_depth, reseed
 from tracker.filter.hand_carry import supported_by_other
 from tracker.filter.motion_model import rotvec_to_matrix
+from tracker.geometry.box_renderer import pixel_rays
 from tracker.filter.predict import adaptive_noise
 from tracker.filter.scene_motion import placed_by_depth
 
@@ -38,6 +39,13 @@ def hold_hidden_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, de
             if blob_left_rest(trk, i, detections.get(trk.names[i])):
                 trk._rest_on[i] = False  # a sliver of the part shows where it was not: it is moving
         trk._rest_on &= ~trk._blob_moved  # seen to move with its blob (filter/blob_follow.py)
+        if cfg.carry_rest_prior and cfg.carry_follow:
+            # hidden in a moving hand: held where the hand's motion took it, as a resting part where it was left
+            held = trk._carry_moved & (trk.visibility < cfg.rest_prior_max_visibility)
+            for i in np.nonzero(held)[0]:
+                est = trk.estimates[trk.names[i]]
+                trk._rest_t[i], trk._rest_R[i] = est.t.copy(), est.R.copy()
+            trk._rest_on |= held
         if trk._rest_on.any():
             trk.v[:, trk._rest_on] = 0.0
             if cfg.rest_prior_rotation:  # the depth cannot turn it; the last good view's rotation holds
@@ -64,7 +72,8 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
         for i in np.nonzero(hidden & ~trk._carry.carried & ~detected)[0]:
             if revealed(trk, i, depth) and not take_shadow(trk, i, pos):
                 grab(trk, i, depth, pos, plane)
-    rot, delta = trk._carry.update(depth, pos, hidden, ~hidden, heights, plane,
+    held = hidden | (trk._carry.carried & (trk.visibility < cfg.carry_keep_visibility))  # carry_keep_visibility
+    rot, delta = trk._carry.update(depth, pos, held, ~held, heights, plane,
                                    np.array([nm in touched for nm in trk.names], bool))
     # confident blobs (filter/blob_follow.py), however small: a sliver that stays put while the hand moves on is
     # the part left behind
@@ -83,19 +92,23 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
                 reseed(trk, i, detections.get(nm), depth)
             continue
         if trk._blob_off[i]:
-            continue  # the colour stage has just put it on its blob, which already shows this frame's motion
-        if lifted_off(trk, i, pos[i], new_pos, heights[i], plane):
-            trk._carry.release(i)  # the hand rises from a part it has put down: it lets go
-            trk._carry.forget(i)  # its motion with the hand is over: the motion test must not take it up again
-            continue
-        if i in centers and i in trk._last_centers:
-            uv = trk.intrinsics.project(np.array([pos[i], new_pos]))
-            hand_px = float(np.linalg.norm(uv[1] - uv[0]))
-            blob_px = float(np.linalg.norm(centers[i] - trk._last_centers[i]))
-            if hand_px > 3.0 and blob_px < 0.3 * hand_px:
-                trk._carry.release(i)
+            # the colour stage has just put it on its blob, which shows this frame's motion across the image; with
+            # carry_blob_depth the hand's motion gives its depth and turn
+            if not (cfg.carry_blob_depth and carry_onto_blob(trk, i, rot[i], delta[i], detections.get(nm))):
                 continue
-        move_part(trk, i, rot[i], delta[i])
+        else:
+            if lifted_off(trk, i, pos[i], new_pos, heights[i], plane):
+                trk._carry.release(i)  # the hand rises from a part it has put down: it lets go
+                trk._carry.forget(i)  # its motion with the hand is over: the motion test must not take it up again
+                continue
+            if i in centers and i in trk._last_centers:
+                uv = trk.intrinsics.project(np.array([pos[i], new_pos]))
+                hand_px = float(np.linalg.norm(uv[1] - uv[0]))
+                blob_px = float(np.linalg.norm(centers[i] - trk._last_centers[i]))
+                if hand_px > 3.0 and blob_px < 0.3 * hand_px:
+                    trk._carry.release(i)
+                    continue
+            move_part(trk, i, rot[i], delta[i])
         trk._carry_moved[i] = True
         if cfg.table_upright and plane is not None and trk.meshes[i] is None:
             set_down_upright(trk, i, plane)
@@ -105,6 +118,24 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     trk._last_centers = centers
     trk._carry.note_heights(heights, cfg.carry_min_height)
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
+
+
+def carry_onto_blob(trk, obj: int, R: np.ndarray, t: np.ndarray, det) -> bool:
+    """Carried part ``obj``, which the colour stage has just put on its blob's ray at the blob's depth or, without
+    depth on the blob, at its old depth (:func:`~tracker.filter.colour_input.reseed`), is turned by the hand's motion
+    this frame (x ↦ ``R`` x + ``t``, camera frame, m) and put on that ray at the depth the hand's motion takes its
+    centre from where it was before that re-seed (``carry_blob_depth``): the blob says where across the image, the hand
+    how far and how turned. Returns whether it was moved."""
+    pre = trk._pre_reseed.get(obj)
+    center = getattr(det, "center", None) if det is not None else None
+    if pre is None or center is None:
+        return False
+    z = float((R @ (pre.R @ trk.center[obj] + pre.t) + t)[2])
+    if z <= 0.05:
+        return False
+    target = pixel_rays(trk.intrinsics, np.array([float(center[0])]), np.array([float(center[1])]))[0] * z
+    move_part(trk, obj, R, target - R @ centre(trk, obj))
+    return True
 
 
 def out_of_table(trk, obj: int, plane) -> None:

@@ -170,6 +170,29 @@ class TrackerConfig(BaseModel):
         "has the table right under it, never 1.5 cm behind its far side, so a box snatched from the table was only "
         "noticed once its blob showed up elsewhere.",
     )
+    carry_keep_visibility: float = Field(
+        0.0, ge=0.0, le=1.0, description="A carry starts below rest_prior_max_visibility but ends only when the "
+        "part's estimated visible fraction reaches this (hysteresis; 0 or less than rest_prior_max_visibility = off): a "
+        "part coming out of the hand is moved with it, as a prediction its depth then corrects, instead of being "
+        "dropped by a one-frame rise of the estimate while the hand still moves it.",
+    )
+    carry_blob_depth: bool = Field(
+        False, description="A carried part whose reliable blob lies off its silhouette (the colour stage re-seeds it "
+        "on the blob's ray, at its old depth when the blob has no depth) is turned by the hand's motion and put on "
+        "that ray at the depth the hand's motion gives it, instead of keeping the re-seed's depth and turn (a part "
+        "carried toward the camera fell behind by the hand's whole motion along the ray).",
+    )
+    carry_reacquire_keep_turn: bool = Field(
+        False, description="A part re-acquired while carried is refitted from its own rotation only (the hand's "
+        "motion turned it), not from the other start rotations: a sliver of a part in a hand fits a wrong face as "
+        "well as the right one.",
+    )
+    carry_rest_prior: bool = Field(
+        False, description="A part the hand carry moved this frame while it is hidden (estimated visible fraction below "
+        "rest_prior_max_visibility) gets the rest prior at the pose the hand's motion gave it (anchor, rotation, "
+        "rest_prior_sigma): its coordinate pass, which has only the hand's surface to go by, cannot walk it away "
+        "from the hand.",
+    )
     carry_stride: int = Field(2, ge=1, description="Pixel stride (full resolution) of the hand points.")
     visible_fraction_full: float = Field(
         0.5, gt=0.0, le=1.0, description="Visible fraction from which a part gets its full motion noise.",

@@ -159,6 +159,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
             starts = CUBE_STARTS if trk.parts[i].box is not None else MESH_STARTS
             if plane is not None and trk.parts[i].box is not None:
                 starts = np.concatenate([starts, turns_about(plane[0], CUBE_TURNS_DEG)])
+            if carried[i] and trk.config.carry_reacquire_keep_turn:
+                starts = starts[:1]  # in the hand: the hand's motion has turned it, a sliver of it may not
             found = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts, current, outlines[i],
                               frame_depth)
             if current is None and res is not None and res.healthy and (found is None or res.score >= found.score):
