@@ -73,6 +73,10 @@ def above_table_points(depth: np.ndarray, intrinsics: Intrinsics, center: np.nda
 PAIR_BOUND = 0.02
 """Largest distance (m) of a nearest-neighbour pair in the hand-patch registrations."""
 
+KEY_STEP, KEY_TURN, KEY_INLIER = 0.005, 0.05, 0.005
+"""Largest correction (m, rad) the keyframe registration (``carry_keyframe``) makes to a frame's hand motion, and
+the distance (m) within which a keyframe point counts as still on the hand."""
+
 SHADOW_POINTS = 200
 SHADOW_ITERATIONS = 8
 """Patch points and rounds of a shadow carry's registration (a point-to-point shift, :func:`register_shift`, of
@@ -100,6 +104,7 @@ class HandCarry:
         self.intrinsics = intrinsics
         self.radii = np.asarray(radii, np.float64)  # bounding radius per part (m)
         self.patches: list[np.ndarray | None] = [None] * n_parts  # hand points near each carried part, last frame
+        self.keys: list[np.ndarray | None] = [None] * n_parts  # keyframe hand patch per carry, moved to now (m)
         self.last_step = np.zeros((n_parts, 3))  # last frame's hand translation per part (initial guess, m)
         self.last_turn = np.zeros((n_parts, 3))  # last frame's hand rotation vector per part (initial guess, rad)
         self.history: deque[tuple[float, np.ndarray]] = deque()  # (time s, positions (K, 3))
@@ -117,11 +122,13 @@ class HandCarry:
     def release(self, obj: int) -> None:
         """End the carry of part ``obj`` (it was let go)."""
         self.patches[obj] = None
+        self.keys[obj] = None
         self.was_in_air[obj], self.set_down[obj] = False, 0
 
     def start(self, obj: int, patch: np.ndarray) -> None:
         """Carry part ``obj`` from now on with the hand points ``patch`` (M, 3) around it (camera frame, m)."""
         self.patches[obj] = np.asarray(patch, np.float64)
+        self.keys[obj] = self.patches[obj].copy()
         self.last_step[obj] = 0.0
         self.last_turn[obj] = 0.0
         self.was_in_air[obj], self.set_down[obj] = False, 0
@@ -145,6 +152,7 @@ class HandCarry:
                 sh.t, sh.step = Rd @ sh.t, Rd @ sh.step
                 sh.patch = None if sh.patch is None else sh.patch @ Rd.T + td
         self.patches = [None if pts is None else pts @ Rd.T + td for pts in self.patches]
+        self.keys = [None if pts is None else pts @ Rd.T + td for pts in self.keys]
         self.last_step = self.last_step @ Rd.T
         self.last_turn = self.last_turn @ Rd.T  # a rotation vector in the camera frame turns with the camera
         if self._prev_depth is not None:
@@ -215,6 +223,7 @@ class HandCarry:
         for i in range(k):
             if released[i] or not hidden[i]:
                 self.patches[i] = None
+                self.keys[i] = None
                 self.shadows[i] = None
                 continue
             exclude = [(positions[o], self.radii[o] + 0.005) for o in range(k) if o != i and not carried[o]]
@@ -244,6 +253,7 @@ class HandCarry:
                                exclude)
             if pts.shape[0] < cfg.carry_min_points:
                 self.patches[i] = None  # the hand left: the part stays where it was put down
+                self.keys[i] = None
                 continue
             if cfg.carry_rotation:
                 axis = plane[0] if (plane is not None and cfg.carry_rotation_axis == "table") else None
@@ -258,13 +268,40 @@ class HandCarry:
             Rw = _rot(w)
             rot[i] = Rw
             delta[i] = c + t - Rw @ c
+            if cfg.carry_keyframe and self.keys[i] is not None:
+                rot[i], delta[i] = self._to_keyframe(i, rot[i], delta[i], pts, plane)
             self.last_step[i], self.last_turn[i] = t, w
             new_pos = Rw @ positions[i] + delta[i]
             near = ((pts - new_pos) ** 2).sum(1) <= cfg.carry_radius**2
             self.patches[i] = pts[near] if near.sum() >= cfg.carry_min_points else None
+            if self.keys[i] is None and self.patches[i] is not None:
+                self.keys[i] = self.patches[i].copy()
         self._prev_depth = depth  # kept by reference: a source that reuses its buffer gives the same object (unused)
         self._prev_motion = None
         return rot, delta
+
+    def _to_keyframe(self, obj: int, R: np.ndarray, d: np.ndarray, pts: np.ndarray,
+                     plane) -> tuple[np.ndarray, np.ndarray]:
+        """``carry_keyframe``: this frame's hand motion (x ↦ ``R`` x + ``d``, from last frame's patch) corrected by
+        registering the carry's keyframe patch, moved by every motion since, to this frame's hand points ``pts``: the
+        frame-to-frame registrations' errors do not add up while the hand keeps its shape. When fewer than
+        ``carry_keyframe_inliers`` of the keyframe's points then lie within 5 mm of this frame's points (the hand
+        changed its grip, or turned other surfaces to the camera) the keyframe starts again from this frame."""
+        cfg = self.config
+        from scipy.spatial import cKDTree
+
+        key = self.keys[obj] @ R.T + d
+        axis = plane[0] if (plane is not None and cfg.carry_rotation_axis == "table") else None
+        w2, t2 = register_rigid(key, pts, cfg.carry_iterations, KEY_STEP, KEY_TURN, None, axis)
+        c2 = key.mean(axis=0)
+        R2 = _rot(w2)
+        moved = (key - c2) @ R2.T + c2 + t2
+        dist, _ = cKDTree(pts).query(moved, distance_upper_bound=KEY_INLIER)
+        if np.isfinite(dist).mean() < cfg.carry_keyframe_inliers:
+            self.keys[obj] = None  # taken again from this frame's patch (below)
+            return R, d
+        self.keys[obj] = moved
+        return R2 @ R, R2 @ d + c2 + t2 - R2 @ c2
 
     def _follow_shadow(self, obj: int, depth: np.ndarray, position: np.ndarray, plane, exclude) -> None:
         """Follow the hand over hidden resting part ``obj`` (at ``position``, camera frame, m) as if it carried the

@@ -14,9 +14,9 @@ from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import box_surface_depth, reseed
 from tracker.filter.hand_carry import supported_by_other
 from tracker.filter.motion_model import rotvec_to_matrix
-from tracker.geometry.box_renderer import pixel_rays
 from tracker.filter.predict import adaptive_noise
 from tracker.filter.scene_motion import placed_by_depth
+from tracker.geometry.box_renderer import pixel_rays
 
 if TYPE_CHECKING:
     from tracker.filter.frame_context import FrameContext

@@ -193,6 +193,15 @@ class TrackerConfig(BaseModel):
         "rest_prior_sigma): its coordinate pass, which has only the hand's surface to go by, cannot walk it away "
         "from the hand.",
     )
+    carry_keyframe: bool = Field(
+        False, description="Each frame's hand motion is corrected by registering the carry's first hand patch, moved "
+        "by every motion since, to the current hand points (at most 5 mm and 0.05 rad): the frame-to-frame errors of "
+        "a long carry do not add up while the hand keeps its shape.",
+    )
+    carry_keyframe_inliers: float = Field(
+        0.5, ge=0.0, le=1.0, description="Fraction of the keyframe's points that must lie within 5 mm of the current "
+        "hand points after its registration; below it the keyframe starts again from the current patch.",
+    )
     carry_stride: int = Field(2, ge=1, description="Pixel stride (full resolution) of the hand points.")
     visible_fraction_full: float = Field(
         0.5, gt=0.0, le=1.0, description="Visible fraction from which a part gets its full motion noise.",
