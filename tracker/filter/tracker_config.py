@@ -172,9 +172,9 @@ class TrackerConfig(BaseModel):
     )
     carry_keep_visibility: float = Field(
         0.0, ge=0.0, le=1.0, description="A carry starts below rest_prior_max_visibility but ends only when the "
-        "part's estimated visible fraction reaches this (hysteresis; 0 or less than rest_prior_max_visibility = off): a "
-        "part coming out of the hand is moved with it, as a prediction its depth then corrects, instead of being "
-        "dropped by a one-frame rise of the estimate while the hand still moves it.",
+        "part's estimated visible fraction reaches this (hysteresis; 0 or less than rest_prior_max_visibility = "
+        "off): a part coming out of the hand is moved with it, as a prediction its depth then corrects, instead "
+        "of being dropped by a one-frame rise of the estimate while the hand still moves it.",
     )
     carry_blob_depth: bool = Field(
         False, description="A carried part whose reliable blob lies off its silhouette (the colour stage re-seeds it "
@@ -188,8 +188,8 @@ class TrackerConfig(BaseModel):
         "well as the right one.",
     )
     carry_rest_prior: bool = Field(
-        False, description="A part the hand carry moved this frame while it is hidden (estimated visible fraction below "
-        "rest_prior_max_visibility) gets the rest prior at the pose the hand's motion gave it (anchor, rotation, "
+        False, description="A part the hand carry moved this frame while it is hidden (estimated visible fraction "
+        "below rest_prior_max_visibility) gets the rest prior at the pose the hand's motion gave it (anchor, rotation, "
         "rest_prior_sigma): its coordinate pass, which has only the hand's surface to go by, cannot walk it away "
         "from the hand.",
     )
