@@ -399,3 +399,22 @@ def test_pixels_in_rect_matches_numpy(rect):
     np.testing.assert_array_equal(got, ref)
     if rect[0] < rect[1]:
         assert got.size > 0
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.int8])
+@pytest.mark.parametrize("ordered", [True, False])
+def test_in_place_row_gather_matches_fancy_indexing(dtype, ordered):
+    from tracker.filter.resampling import systematic_resample, take_rows_inplace
+
+    rng = np.random.default_rng(3)
+    for trial in range(20):
+        n, m = 50 + trial, 17
+        a = (rng.normal(size=(n, m)) * 50).astype(dtype)
+        w = rng.random(n) ** 8  # degenerate weights: many duplicates, as a resampling that fires
+        idx = systematic_resample(w / w.sum(), rng) if ordered else rng.integers(0, n, n)
+        if ordered:
+            assert np.all(np.diff(idx) >= 0)
+        expected = a[idx]
+        take_rows_inplace(a, idx)
+        assert a.dtype == dtype
+        np.testing.assert_array_equal(a, expected)

@@ -52,3 +52,37 @@ def take_rows(src: np.ndarray, idx: np.ndarray, out: np.ndarray) -> None:
         r = idx[i]
         for c in range(m):
             out[i, c] = src[r, c]
+
+
+@nb.njit(cache=True)
+def take_rows_inplace(a: np.ndarray, idx: np.ndarray) -> None:
+    """``a[:] = a[idx]`` for a 2-D array ``a`` (rows), in place, copying only the rows that change.
+
+    With ``idx`` non-decreasing (as :func:`systematic_resample` returns it) no extra storage is needed: rows whose
+    source lies after them are filled front to back, then rows whose source lies before them back to front (a
+    source row is never overwritten before it is read: a row ``r`` filled in the first sweep has ``idx[r] > r``, so
+    no later row ``j > r`` can take from it, ``idx[j] >= idx[r] > r``). Other ``idx`` go through a copy of the
+    rows."""
+    n = idx.shape[0]
+    ordered = True
+    for j in range(1, n):
+        if idx[j] < idx[j - 1]:
+            ordered = False
+            break
+    m = a.shape[1]
+    if not ordered:
+        src = a[idx].copy()
+        for j in range(n):
+            for c in range(m):
+                a[j, c] = src[j, c]
+        return
+    for j in range(n):
+        r = idx[j]
+        if r > j:
+            for c in range(m):
+                a[j, c] = a[r, c]
+    for j in range(n - 1, -1, -1):
+        r = idx[j]
+        if r < j:
+            for c in range(m):
+                a[j, c] = a[r, c]

@@ -5,7 +5,7 @@ particles (Algorithm 6), re-render what changed (:mod:`tracker.filter.render`: z
 evaluated pixels), update the per-particle log-likelihood relative to the no-object hypothesis
 (:mod:`tracker.filter.depth_likelihood`) plus the log penalties and priors, multiply the carried weights by
 exp(ℓ_k − ℓ_{k−1}) and resample (:mod:`tracker.filter.resampling`) when D_KL(w‖U) exceeds D_KL,max, copying every
-per-particle buffer with the particles.
+per-particle buffer with the particles (the pixel buffers in place, only the rows that change).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from tracker.filter.depth_likelihood import (
 )
 from tracker.filter.frame_context import FrameContext, PassResult
 from tracker.filter.penalties import _obb_overlap, intersection_log_penalty, lowest_heights, table_log_penalty
-from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, systematic_resample
+from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, systematic_resample, take_rows_inplace
 
 if TYPE_CHECKING:
     from tracker.filter.particle_filter import MultiObjectTracker
@@ -76,12 +76,13 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     all_pix = np.arange(npix, dtype=np.int64)
     if k > 1:  # with one part, its own pass below renders it everywhere it can be: no render needed here
         for i in range(k):
-            render.render(trk, i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, all_pix, D, loc, dirty)
+            # only the pixels of the part's region (loc ≥ 0): the renderers skip every other pixel anyway
+            render.render(trk, i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, np.flatnonzero(regions[i]), D,
+                          loc, dirty)
     t2 = time.perf_counter()
     C = trk._buffer("C0", (n, npix), np.float32, 0.0)
     Q = trk._buffer("Q0", (n, npix), np.float32, -1.0)  # consistent with D = inf: nothing covered yet
     F = trk._buffer("F0", (n, npix), np.int8, -1)
-    spare = {"D": "D1", "C": "C1", "Q": "Q1", "F": "F1"}  # double buffers for resampling without allocation
     ell = np.zeros(n)
     anc = np.arange(n)
     prm = trk.likelihood
@@ -141,9 +142,11 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
             p_cur, R_cur, v_cur = p_cur[idx], R_cur[idx], v_cur[idx]
             # dirty flags are all clear; ô is reached through anc
             if i != last_pass:
-                D, C = (trk._take(spare, key, arr, idx) for key, arr in (("D", D), ("C", C)))
+                take_rows_inplace(D, idx)
+                take_rows_inplace(C, idx)
                 penalties.take(idx)
-            Q, F = (trk._take(spare, key, arr, idx) for key, arr in (("Q", Q), ("F", F)))
+            take_rows_inplace(Q, idx)
+            take_rows_inplace(F, idx)
             ell, ell_prev, anc = ell[idx], ell_prev[idx], anc[idx]
             log_w = np.full(n, -np.log(n))
             n_resampled += 1
