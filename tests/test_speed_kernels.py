@@ -418,3 +418,95 @@ def test_in_place_row_gather_matches_fancy_indexing(dtype, ordered):
         take_rows_inplace(a, idx)
         assert a.dtype == dtype
         np.testing.assert_array_equal(a, expected)
+
+
+def _copies(rng, n_unique, n):
+    """Row indices (n,) into n_unique distinct rows, copies adjacent (as a systematic resampling leaves them)."""
+    return np.sort(rng.integers(0, n_unique, n))
+
+
+@pytest.mark.parametrize("shape", ["box", "mesh"])
+def test_renderers_give_a_copied_particle_the_depths_of_its_own_render(shape):
+    """Particles whose pose equals the previous particle's take its depths (not rendered again): the depths and dirty
+    flags equal rendering every particle on its own, including over earlier, different depths."""
+    from tracker.geometry.box_renderer import render_boxes_at_pixels
+    from tracker.geometry.mesh_renderer import render_mesh_at_pixels
+
+    rng = np.random.default_rng(11)
+    n, k, f = 40, 2, 4
+    gj, gi = np.meshgrid(np.arange(30, 90), np.arange(50, 110), indexing="ij")
+    gi, gj = gi.ravel().astype(np.int64), gj.ravel().astype(np.int64)
+    pu, pv = (1 + f * gi).astype(np.float64), (1 + f * gj).astype(np.float64)
+    rays = np.stack([(pu - INTR.cx) / INTR.fx, (pv - INTR.cy) / INTR.fy, np.ones_like(pu)], 1)
+    p = gi.size
+    rows = _copies(rng, 9, n)
+    t = np.zeros((n, k, 3))
+    t[:, 1] = np.array([0.0, 0.0, 0.6]) + rng.normal(0, 0.01, (9, 3))[rows]
+    R = np.tile(np.eye(3), (n, k, 1, 1))
+    R[:, 1] = rotvec_to_matrix(rng.normal(0, 0.5, (9, 3)))[rows]
+    turned = rng.random(n) < 0.2  # same position as the particle before, another rotation
+    R[turned, 1] = rotvec_to_matrix(rng.normal(0, 0.5, (int(turned.sum()), 3)))
+    half = np.array([[0.02, 0.02, 0.02], [0.018, 0.025, 0.03]])
+    center = np.zeros((k, 3))
+    verts = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float) * half[1]
+    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
+                      [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], np.int64)
+    loc = np.full((k, p), -1, np.int64)
+    loc[1, ::2] = np.arange((p + 1) // 2)  # the part's region: every other pixel
+    subset = np.arange(p, dtype=np.int64)
+    start = rng.choice([np.inf, 0.5, 0.7], (n, (p + 1) // 2)).astype(np.float32)  # earlier depths to change
+
+    def run(particle_lists):
+        out, dirty = start.copy(), np.zeros((n, p), np.uint8)
+        for parts in particle_lists:
+            if shape == "box":
+                render_boxes_at_pixels(R, t, center, half, 1, parts, rays, pu, pv, subset, INTR.fx, INTR.fy,
+                                       INTR.cx, INTR.cy, out, loc, dirty)
+            else:
+                render_mesh_at_pixels(R, t, verts, faces, 1, parts, gi, gj, subset, float(f), 1.0, INTR.fx,
+                                      INTR.fy, INTR.cx, INTR.cy, out, loc, dirty)
+        return out, dirty
+
+    together = run([np.arange(n, dtype=np.int64)])
+    alone = run([np.array([j], np.int64) for j in range(n)])
+    assert np.isfinite(together[0]).sum() > 100  # the part is seen
+    np.testing.assert_array_equal(together[0], alone[0])
+    np.testing.assert_array_equal(together[1], alone[1])
+
+
+def test_likelihood_kernel_reuses_a_pixel_result_only_for_equal_inputs():
+    """Copied particles (equal rendered depths, mostly equal ô) next to each other give the same contributions,
+    posteriors, front parts and log-likelihoods as each particle evaluated alone (nothing to reuse)."""
+    from tracker.filter.depth_likelihood import LikelihoodParams, pixel_constants, update_log_likelihood
+
+    prm = LikelihoodParams()
+    rng = np.random.default_rng(8)
+    n, k, p = 60, 2, 80
+    z = rng.uniform(0.5, 1.0, p)
+    rows = _copies(rng, 12, n)
+    D = np.full((12, k, p), np.inf, np.float32)
+    D[:, 0, :50] = (z[:50] + rng.normal(0, 0.005, (12, 50))).astype(np.float32)
+    D[:, 1, 30:70] = (z[30:70] + rng.normal(0.01, 0.02, (12, 40))).astype(np.float32)
+    D = D[rows].reshape(n, k * p)
+    o_hat = rng.uniform(0, 1, (12, p)).astype(np.float32)[rows]
+    o_hat[rng.random((n, p)) < 0.1] = 0.25  # copies whose ô differs at some pixels
+    C0 = rng.normal(0, 1, (n, p)).astype(np.float32)
+    loc = np.arange(k * p, dtype=np.int64).reshape(k, p)
+    cmask = (rng.random((k, p)) < 0.8).astype(np.uint8)
+    s, e, lpi = pixel_constants(z, prm)
+
+    def run(rows_at_once):
+        C, Q, F = C0.copy(), np.full((n, p), -1, np.float32), np.full((n, p), -1, np.int8)
+        ell = np.zeros(n)
+        dirty = np.ones((n, p), np.uint8)
+        for r in rows_at_once:
+            update_log_likelihood(D[r], loc, np.arange(p, dtype=np.int64), z, s, e, lpi, o_hat[r],
+                                  np.arange(r.stop - r.start), C[r], Q[r], F[r], ell[r], prm.tail_weight,
+                                  prm.occluder_rate, prm.tail_weight / prm.max_depth, True, dirty[r], 0.7, cmask,
+                                  np.array([1, 0], np.uint8), 3.0)
+        return C, Q, F, ell
+
+    together = run([slice(0, n)])
+    alone = run([slice(j, j + 1) for j in range(n)])  # one particle per call: nothing to reuse
+    for a, b in zip(together, alone, strict=True):
+        np.testing.assert_array_equal(a, b)

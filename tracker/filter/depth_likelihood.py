@@ -189,6 +189,10 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
       remains). All-zero ``cvalid`` = depth only (the spec).
     * ``occ_cap`` > 0: likewise cap at 0 the contribution of every pixel where the rendered part lies more than
       ``occ_cap`` σ behind the observed depth (occlusion is then no evidence for a pose; 0 = the spec).
+
+    A pixel's contribution and posterior depend only on its z-buffer depth, front part and ô: when these equal the
+    ones last computed at the pixel in this call (a particle that is a copy of the one before, as a resampling
+    leaves them), that result is taken again (the same values) instead of evaluating the kernels.
     """
     n = D.shape[0]
     k = loc.shape[0]
@@ -205,6 +209,13 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
                 cover_part[ii, n_cover[ii]] = o
                 cover_col[ii, n_cover[ii]] = col
                 n_cover[ii] += 1
+    # per subset pixel, the inputs and results of its last evaluation in this call
+    memo_ok = np.zeros(m, np.bool_)
+    memo_d = np.empty(m)
+    memo_front = np.empty(m, np.int64)
+    memo_oh = np.empty(m, o_hat.dtype)
+    memo_c = np.empty(m)
+    memo_q = np.empty(m, Q.dtype)
     for j in range(n):
         acc = 0.0
         for ii in range(m):
@@ -224,17 +235,28 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
                 c = 0.0
                 Q[j, i] = -1.0
             else:
-                oh = o_hat[anc[j], i]
-                forced = cvalid[front] and not cmask[front, i]
-                if forced:
-                    oh = 1.0
-                lik, num = _pixel_terms(d, z[i], s[i], e[i], oh, beta, lam, tail, True if oh == 1.0 else use_occ)
-                c = alpha * (math.log(lik) - log_po_inf[i])
-                if c > 0.0 and (forced or (occ_cap > 0.0 and d - z[i] > occ_cap * s[i])):
-                    # a pixel that cannot show the part carries no evidence for it; without this cap the truncated
-                    # occluder density 1/(1 − e^(−λd)) rewards parts for hiding just behind a hand
-                    c = 0.0
-                Q[j, i] = num / lik if use_occ else o_hat[anc[j], i]
+                oh_in = o_hat[anc[j], i]
+                if memo_ok[ii] and memo_d[ii] == d and memo_front[ii] == front and memo_oh[ii] == oh_in:
+                    c = memo_c[ii]
+                    Q[j, i] = memo_q[ii]
+                else:
+                    oh = oh_in
+                    forced = cvalid[front] and not cmask[front, i]
+                    if forced:
+                        oh = 1.0
+                    lik, num = _pixel_terms(d, z[i], s[i], e[i], oh, beta, lam, tail, True if oh == 1.0 else use_occ)
+                    c = alpha * (math.log(lik) - log_po_inf[i])
+                    if c > 0.0 and (forced or (occ_cap > 0.0 and d - z[i] > occ_cap * s[i])):
+                        # a pixel that cannot show the part carries no evidence for it; without this cap the
+                        # truncated occluder density 1/(1 − e^(−λd)) rewards parts for hiding just behind a hand
+                        c = 0.0
+                    Q[j, i] = num / lik if use_occ else oh_in
+                    memo_ok[ii] = True
+                    memo_d[ii] = d
+                    memo_front[ii] = front
+                    memo_oh[ii] = oh_in
+                    memo_c[ii] = c
+                    memo_q[ii] = Q[j, i]
             acc += c - C[j, i]
             C[j, i] = c
         ell[j] += acc

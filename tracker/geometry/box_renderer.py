@@ -69,10 +69,16 @@ def render_boxes_at_pixels(R, t, center, half, obj, particles, rays, pu, pv, sub
       ``loc`` (K, P) int64 gives the column of part k at pixel i, or −1 (pixel outside the part's region: skipped).
       Pixels outside the box's projected bounding rectangle get ``inf``.
     * ``dirty`` (N, P) uint8: set to 1 where a written depth differs from the previous one.
+
+    A particle whose pose of ``obj`` equals the previous listed particle's (copies left by a resampling) takes that
+    particle's depths instead of casting its rays again (the same values).
     """
     hx, hy, hz = half[obj, 0], half[obj, 1], half[obj, 2]
     for jj in range(particles.shape[0]):
         j = particles[jj]
+        if jj > 0 and _same_pose(R, t, obj, particles[jj - 1], j):
+            _copy_row(particles[jj - 1], j, obj, subset, out, loc, dirty)
+            continue
         Rm = R[j, obj]
         # box centre in the camera frame
         bx = Rm[0, 0] * center[obj, 0] + Rm[0, 1] * center[obj, 1] + Rm[0, 2] * center[obj, 2] + t[j, obj, 0]
@@ -127,6 +133,33 @@ def render_boxes_at_pixels(R, t, center, half, obj, particles, rays, pu, pv, sub
             if out[j, col] != d:
                 out[j, col] = d
                 dirty[j, i] = 1
+
+
+@nb.njit(cache=True, inline="always")
+def _same_pose(R, t, obj, a, b):
+    """Do particles ``a`` and ``b`` have exactly the same pose of part ``obj`` (``R`` (N, K, 3, 3), ``t`` (N, K, 3))?"""
+    for r in range(3):
+        if t[a, obj, r] != t[b, obj, r]:
+            return False
+        for c in range(3):
+            if R[a, obj, r, c] != R[b, obj, r, c]:
+                return False
+    return True
+
+
+@nb.njit(cache=True)
+def _copy_row(src, j, obj, subset, out, loc, dirty):
+    """Particle ``j`` takes particle ``src``'s depths of part ``obj`` at the ``subset`` pixels (rendered just
+    before in the same call), flagging in ``dirty`` the pixels whose depth changes (as a render would)."""
+    for ii in range(subset.shape[0]):
+        i = subset[ii]
+        col = loc[obj, i]
+        if col < 0:
+            continue
+        d = out[src, col]
+        if out[j, col] != d:
+            out[j, col] = d
+            dirty[j, i] = 1
 
 
 def pixel_rays(intrinsics: Intrinsics, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:

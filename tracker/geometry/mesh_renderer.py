@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from tracker.geometry.box_renderer import _copy_row, _same_pose
 from tracker.geometry.parts import PartSpec
 
 
@@ -64,6 +65,8 @@ def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset,
     * ``dirty`` (N, P) uint8: set to 1 where a written depth differs from the previous one.
     * ``lattice``: rasterise only every ``lattice``-th grid pixel in each axis (a pixel off that lattice reads the
       nearest lattice pixel's depth); for large parts whose evaluated pixels were thinned to that lattice.
+
+    A particle whose pose equals the previous listed particle's takes its depths without rasterising again.
     """
     if subset.shape[0] == 0:
         return
@@ -92,6 +95,9 @@ def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset,
     iz = np.empty(nv)
     for jj in range(particles.shape[0]):
         p = particles[jj]
+        if jj > 0 and _same_pose(R, t, obj, particles[jj - 1], p):  # a copy left by a resampling: same depths
+            _copy_row(particles[jj - 1], p, obj, subset, out, loc, dirty)
+            continue
         Rm = R[p, obj]
         zbuf[:, :] = np.inf
         for a in range(nv):
