@@ -510,3 +510,29 @@ def test_likelihood_kernel_reuses_a_pixel_result_only_for_equal_inputs():
     alone = run([slice(j, j + 1) for j in range(n)])  # one particle per call: nothing to reuse
     for a, b in zip(together, alone, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_colour_input_disc_median_matches_numpy():
+    """The compiled gather of the blob's valid depths in the disc around the centroid (colour input's u_z) gives
+    numpy's count and median, for odd and even counts, holes and NaN."""
+    from tracker.filter.motion_model import _disc_median
+
+    rng = np.random.default_rng(4)
+    for trial in range(200):
+        h, w = 40, 50
+        depth = rng.uniform(0.5, 0.9, (h, w)).astype(np.float32)
+        depth[rng.random((h, w)) < 0.1] = np.nan
+        depth[rng.random((h, w)) < 0.1] = 0.0
+        mask = rng.random((h, w)) < 0.7
+        px, py = rng.uniform(0, w), rng.uniform(0, h)
+        r = rng.uniform(0.3, 9.0)
+        u0, u1 = max(0, int(round(px)) - 9), min(w, int(round(px)) + 10)
+        v0, v1 = max(0, int(round(py)) - 9), min(h, int(round(py)) + 10)
+        patch = depth[v0:v1, u0:u1]
+        vv, uu = np.mgrid[v0:v1, u0:u1]
+        inside = ((uu - px) ** 2 + (vv - py) ** 2 <= max(r, 0.5) ** 2) & mask[v0:v1, u0:u1]
+        vals = patch[inside & np.isfinite(patch) & (patch > 0)]
+        n, med = _disc_median(depth, mask, u0, u1, v0, v1, px, py, max(r, 0.5) ** 2)
+        assert n == vals.size
+        if vals.size:
+            assert med == float(np.median(vals))

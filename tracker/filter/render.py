@@ -72,17 +72,20 @@ def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
     cfg = trk.config
     intr = trk.intrinsics
     k = len(trk.parts)
-    bounds = np.empty((k, 4))
     f = cfg.wide_noise_fraction
     spread = np.sqrt((1.0 - f) + f * cfg.wide_noise_scale**2)
-    for i in range(k):
-        rect = union(bbox(trk, i, p_prev[:, i], R_prev[:, i]), bbox(trk, i, p_det[:, i], R_det[:, i]))
-        zc = max(float(np.median(p_det[:, i, 2])), 0.05)
-        radius = float(np.linalg.norm(trk.half[i]) + np.linalg.norm(trk.center[i]))
-        scale = spread * trk._noise_scale[i]
-        margin = (cfg.roi_margin_px * cfg.downsample
-                  + 3.0 * scale * (cfg.sigma_v + cfg.sigma_w * radius) * intr.fx / zc)
-        bounds[i] = (rect[0] - margin, rect[1] + margin, rect[2] - margin, rect[3] + margin)
+    radii = trk.__dict__.get("_roi_radii")  # per part |half| + |centre| (m), fixed for the tracker's life
+    if radii is None or radii.shape[0] != k:
+        radii = np.array([float(np.linalg.norm(trk.half[i]) + np.linalg.norm(trk.center[i])) for i in range(k)])
+        trk._roi_radii = radii
+    corners = trk.__dict__.get("_roi_corners")
+    if corners is None or corners.shape[0] != k:
+        corners = np.ascontiguousarray(np.stack(trk.corners), np.float64)
+        trk._roi_corners = corners
+    bounds = _region_bounds(p_prev, R_prev, p_det, R_det, corners, radii,
+                            np.asarray(trk._noise_scale, np.float64), float(spread),
+                            float(cfg.roi_margin_px * cfg.downsample), float(cfg.sigma_v), float(cfg.sigma_w),
+                            intr.fx, intr.fy, intr.cx, intr.cy)
     # a part that covers many grid pixels (a large mesh, a part close to the camera) is evaluated on an even subset
     # of at most ``likelihood_pixels_per_part`` of them (0: all): the likelihood's cost stays bounded, the refinement
     # after the filter restores the precision; the subset is a coarser lattice of the grid (every c-th pixel in each
@@ -100,6 +103,38 @@ def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
     if not any_valid or not pix.size:
         return None
     return pix, regions
+
+
+@nb.njit(cache=True)
+def _region_bounds(p_prev, R_prev, p_det, R_det, corners, radii, noise_scale, spread, margin_px, sigma_v, sigma_w,
+                   fx, fy, cx, cy):
+    """Per part (K, 4) the rectangle ``(umin, umax, vmin, vmax)`` of :func:`evaluated_pixels`: the union of
+    :func:`bbox` at the previous (``p_prev`` (N, K, 3), ``R_prev`` (N, K, 3, 3)) and the predicted poses, widened
+    by ``margin_px`` plus 3σ of the motion noise at the predicted positions' median depth (the operations of the
+    Python form, same values; ``corners`` (K, 8, 3) body frame, ``radii`` (K,) metres)."""
+    k = corners.shape[0]
+    out = np.empty((k, 4))
+    for i in range(k):
+        if p_prev.shape[0] == 0:
+            a = (np.inf, -np.inf, np.inf, -np.inf)
+            b = a
+        else:
+            a = _projected_bounds(R_prev[:, i], p_prev[:, i], corners[i], fx, fy, cx, cy)
+            b = _projected_bounds(R_det[:, i], p_det[:, i], corners[i], fx, fy, cx, cy)
+        # union as Python's min / max take it (the first argument unless the second is strictly beyond it)
+        u0 = b[0] if b[0] < a[0] else a[0]
+        u1 = b[1] if b[1] > a[1] else a[1]
+        v0 = b[2] if b[2] < a[2] else a[2]
+        v1 = b[3] if b[3] > a[3] else a[3]
+        med = np.median(p_det[:, i, 2])
+        zc = 0.05 if 0.05 > med else med
+        scale = spread * noise_scale[i]
+        margin = margin_px + 3.0 * scale * (sigma_v + sigma_w * radii[i]) * fx / zc
+        out[i, 0] = u0 - margin
+        out[i, 1] = u1 + margin
+        out[i, 2] = v0 - margin
+        out[i, 3] = v1 + margin
+    return out
 
 
 @nb.njit(cache=True)
