@@ -518,7 +518,7 @@ def test_colour_input_disc_median_matches_numpy():
     from tracker.filter.motion_model import _disc_median
 
     rng = np.random.default_rng(4)
-    for trial in range(200):
+    for _trial in range(200):
         h, w = 40, 50
         depth = rng.uniform(0.5, 0.9, (h, w)).astype(np.float32)
         depth[rng.random((h, w)) < 0.1] = np.nan
