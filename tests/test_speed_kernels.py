@@ -536,3 +536,25 @@ def test_colour_input_disc_median_matches_numpy():
         assert n == vals.size
         if vals.size:
             assert med == float(np.median(vals))
+
+
+@pytest.mark.parametrize("wide", [(0.0, 1.0), (0.2, 3.0), (0.5, 1.0)])
+def test_noise_samples_match_the_numpy_form(wide):
+    """The motion noise scaled in one compiled pass gives the numpy form's samples from the same random stream."""
+    from tracker.filter.motion_model import sample_noise
+
+    def numpy_form(rng, m, sigma_v, sigma_w, wide_fraction, wide_scale):
+        w = rng.standard_normal((m, 6))
+        scale = np.ones(m)
+        if wide_fraction > 0.0 and wide_scale != 1.0:
+            scale = np.where(rng.random(m) < wide_fraction, wide_scale, 1.0)
+        w[:, :3] *= (sigma_v * scale)[:, None]
+        w[:, 3:] *= (sigma_w * scale)[:, None]
+        return w
+
+    a, b = np.random.default_rng(9), np.random.default_rng(9)
+    for sigma_v, sigma_w in ((0.002, 0.03), (1e-4, 0.7), (0.013, 0.0)):
+        got = sample_noise(a, 225, sigma_v, sigma_w, *wide)
+        want = numpy_form(b, 225, sigma_v, sigma_w, *wide)
+        assert np.array_equal(got, want)
+    assert a.random() == b.random()  # the same draws taken from the stream

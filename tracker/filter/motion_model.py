@@ -56,11 +56,22 @@ def propagate(
     fb = np.empty(m)
     _velocity_pass(np.asarray(p_ref, np.float64), np.asarray(v_prev, np.float64), np.asarray(noise, np.float64),
                    np.asarray(u, np.float64).reshape(3), float(k_v), float(b), p, v, K, fa, fb)
-    E = _EYE + fa[:, None, None] * K + fb[:, None, None] * (K @ K)
+    E = K @ K
+    _rodrigues_sum(K, fa, fb, E)
     return p, E @ np.asarray(R_ref, np.float64), v
 
 
-_EYE = np.eye(3)[None]
+@nb.njit(cache=True)
+def _rodrigues_sum(K, fa, fb, E):
+    """In place ``E = (I + fa K) + fb E`` per particle (``E`` holding K K on entry): the element-wise sums of
+    :func:`propagate_numpy` / :func:`rotvec_to_matrix` in their order (same values)."""
+    for j in range(K.shape[0]):
+        for a in range(3):
+            for c in range(3):
+                eye = 1.0 if a == c else 0.0
+                E[j, a, c] = (eye + fa[j] * K[j, a, c]) + fb[j] * E[j, a, c]
+
+
 
 
 def propagate_numpy(
@@ -113,12 +124,27 @@ def sample_noise(
     (a two-component Gaussian mixture: precise at rest, still able to follow fast motion).
     """
     w = rng.standard_normal((m, 6))
-    scale = np.ones(m)
     if wide_fraction > 0.0 and wide_scale != 1.0:
-        scale = np.where(rng.random(m) < wide_fraction, wide_scale, 1.0)
-    w[:, :3] *= (sigma_v * scale)[:, None]
-    w[:, 3:] *= (sigma_w * scale)[:, None]
+        _scale_noise(w, rng.random(m), float(wide_fraction), float(wide_scale), float(sigma_v), float(sigma_w))
+    else:
+        _scale_noise(w, np.empty(0), 0.0, 1.0, float(sigma_v), float(sigma_w))
     return w
+
+
+@nb.njit(cache=True)
+def _scale_noise(w, draws, wide_fraction, wide_scale, sigma_v, sigma_w):
+    """In place: row j of the standard normal samples ``w`` (m, 6) times σ_v·s_j (linear) and σ_ω·s_j (angular),
+    s_j = ``wide_scale`` where ``draws[j] < wide_fraction`` else 1 (``draws`` empty: s_j = 1); the products of
+    :func:`sample_noise`'s numpy form (σ·s first, then the sample), same values."""
+    for j in range(w.shape[0]):
+        s = 1.0
+        if draws.shape[0] > 0 and draws[j] < wide_fraction:
+            s = wide_scale
+        fv = sigma_v * s
+        fw = sigma_w * s
+        for a in range(3):
+            w[j, a] *= fv
+            w[j, a + 3] *= fw
 
 
 def color_input(
