@@ -558,3 +558,18 @@ def test_noise_samples_match_the_numpy_form(wide):
         want = numpy_form(b, 225, sigma_v, sigma_w, *wide)
         assert np.array_equal(got, want)
     assert a.random() == b.random()  # the same draws taken from the stream
+
+
+def test_mean_poses_of_all_parts_equal_each_part_alone():
+    """The estimate of every part in one call gives each part's :func:`mean_pose` bit for bit."""
+    from tracker.filter.motion_model import mean_pose, mean_poses
+
+    rng = np.random.default_rng(12)
+    for n, k in ((225, 7), (50, 1), (31, 3)):
+        p = rng.normal(0.0, 0.2, (n, k, 3))
+        R = np.stack([rotvec_to_matrix(rng.normal(0.0, 0.3, 3) + rng.normal(0.0, 0.05, (n, 3))) for _ in range(k)], 1)
+        w = rng.random(n) ** 4
+        got = mean_poses(p, R, w / w.sum())
+        for i in range(k):
+            want = mean_pose(p[:, i], R[:, i], w / w.sum())
+            assert np.array_equal(got[i].t, want.t) and np.array_equal(got[i].q, want.q)

@@ -246,3 +246,19 @@ def mean_pose(p: np.ndarray, R: np.ndarray, weights: np.ndarray) -> Pose:
     w = np.asarray(weights, np.float64)
     w = w / w.sum()
     return Pose.from_rt(mean_rotation(R, w), (w[:, None] * p).sum(axis=0))
+
+
+def mean_poses(p: np.ndarray, R: np.ndarray, weights: np.ndarray) -> list[Pose]:
+    """:func:`mean_pose` of every part at once: particle positions ``p`` (N, K, 3), rotations ``R`` (N, K, 3, 3),
+    weights (N,) → K poses. The quaternions of all parts in one pass and the K eigen-decompositions in one call;
+    each part's sums as :func:`mean_pose` forms them (the same poses)."""
+    w = np.asarray(weights, np.float64)
+    w = w / w.sum()
+    k = p.shape[1]
+    q_all = matrix_to_quat(np.asarray(R, np.float64))  # (N, K, 4)
+    M = np.empty((k, 4, 4))
+    for i in range(k):
+        q = np.ascontiguousarray(q_all[:, i])
+        M[i] = (q * w[:, None]).T @ q
+    _, vecs = np.linalg.eigh(M)
+    return [Pose.from_rt(quat_to_matrix(vecs[i, :, -1]), (w[:, None] * p[:, i]).sum(axis=0)) for i in range(k)]

@@ -45,7 +45,7 @@ from tracker.filter.depth_likelihood import (
 )
 from tracker.filter.frame_context import FrameContext, PassResult, table_normal_offset
 from tracker.filter.hand_carry import HandCarry
-from tracker.filter.motion_model import mean_pose, propagate, sample_noise
+from tracker.filter.motion_model import mean_poses, propagate, sample_noise
 from tracker.filter.penalties import intersection_log_penalty
 from tracker.filter.resampling import normalize_log_weights, take_rows
 from tracker.filter.tracker_config import TrackerConfig
@@ -349,11 +349,8 @@ class MultiObjectTracker:
 
     def _make_state(self, frame, t0, timings) -> TrackerState:
         w = normalize_log_weights(self.log_w)
-        poses = {}
-        particles = {}
-        for i, name in enumerate(self.names):
-            poses[name] = mean_pose(self.p[:, i], self.R[:, i], w)
-            particles[name] = self.p[:, i].astype(np.float32)
+        poses = dict(zip(self.names, mean_poses(self.p, self.R, w), strict=True))
+        particles = {name: self.p[:, i].astype(np.float32) for i, name in enumerate(self.names)}
         self.estimates = poses
         return TrackerState(frame.index, float(frame.timestamp), poses, particles, w, timings)
 
