@@ -573,3 +573,27 @@ def test_mean_poses_of_all_parts_equal_each_part_alone():
         for i in range(k):
             want = mean_pose(p[:, i], R[:, i], w / w.sum())
             assert np.array_equal(got[i].t, want.t) and np.array_equal(got[i].q, want.q)
+
+
+def test_box_depth_at_one_pixel_matches_the_renderer():
+    """The colour input's one-pixel surface depth gives the box renderer's float32 depth (hits, misses, a box
+    partly behind the camera)."""
+    from types import SimpleNamespace
+
+    from tracker.filter.colour_input import _box_depth_at, box_surface_depth
+
+    rng = np.random.default_rng(6)
+    half = np.array([[0.018, 0.018, 0.025]])
+    center = np.array([[0.0, 0.0, 0.004]])
+    hits = 0
+    for trial in range(300):
+        t = np.array([rng.normal(0, 0.1), rng.normal(0, 0.1), 0.03 if trial % 50 == 0 else rng.uniform(0.3, 1.2)])
+        pose = Pose.from_rt(rotvec_to_matrix(rng.normal(0, 1.0, 3))[0], t)
+        trk = SimpleNamespace(estimates={"a": pose}, names=["a"], center=center, half=half, intrinsics=INTR)
+        uv = INTR.project(t[None])[0] + rng.normal(0, 15, 2)
+        want = box_surface_depth(trk, 0, np.array([uv[0]]), np.array([uv[1]]))[0]
+        got = _box_depth_at(np.ascontiguousarray(pose.R), pose.t, center[0], half[0], float(uv[0]), float(uv[1]),
+                            INTR.fx, INTR.fy, INTR.cx, INTR.cy)
+        assert got == want or (np.isnan(got) and np.isnan(want))
+        hits += bool(np.isfinite(want))
+    assert 50 < hits < 300

@@ -260,7 +260,32 @@ def surface_depth(trk, obj: int, center) -> float:
         rpx = trk._radius[obj] * trk.intrinsics.fx / max(float(est.t[2]), 0.05)
         inside = np.hypot(uv[0] - center[0], uv[1] - center[1]) <= rpx
         return float(est.t[2]) - surface_fallback(trk, obj) if inside else np.inf
-    return float(box_surface_depth(trk, obj, np.array([float(center[0])]), np.array([float(center[1])]))[0])
+    intr = trk.intrinsics
+    return _box_depth_at(np.ascontiguousarray(est.R, np.float64), est.t, trk.center[obj], trk.half[obj],
+                         float(center[0]), float(center[1]), intr.fx, intr.fy, intr.cx, intr.cy)
+
+
+@nb.njit(cache=True)
+def _box_depth_at(R, t, center, half, u, v, fx, fy, cx, cy):
+    """:func:`box_surface_depth` at one pixel ``(u, v)`` in one compiled call (the same renderer and float32 depth,
+    without its per-call arrays): ``R`` (3, 3), ``t`` (3,) the pose, ``center``, ``half`` (3,) the box."""
+    Rs = np.empty((1, 1, 3, 3))
+    ts = np.empty((1, 1, 3))
+    for a in range(3):
+        ts[0, 0, a] = t[a]
+        for b in range(3):
+            Rs[0, 0, a, b] = R[a, b]
+    pu = np.array([u])
+    pv = np.array([v])
+    rays = np.empty((1, 3))
+    rays[0, 0] = (u - cx) / fx
+    rays[0, 1] = (v - cy) / fy
+    rays[0, 2] = 1.0
+    out = np.full((1, 1), np.inf, np.float32)
+    zero = np.zeros(1, np.int64)
+    render_boxes_at_pixels(Rs, ts, center.reshape(1, 3), half.reshape(1, 3), 0, zero, rays, pu, pv, zero, fx, fy, cx,
+                           cy, out, zero.reshape(1, 1), np.zeros((1, 1), np.uint8))
+    return float(out[0, 0])
 
 
 def box_surface_depth(trk, obj: int, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
