@@ -70,8 +70,11 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     hidden = trk.visibility < cfg.rest_prior_max_visibility  # little depth evidence (previous frame)
     if cfg.carry_revealed_fraction > 0 and depth is not None:
         for i in np.nonzero(hidden & ~trk._carry.carried & ~detected)[0]:
-            if revealed(trk, i, depth) and not take_shadow(trk, i, pos):
-                grab(trk, i, depth, pos, plane)
+            if revealed(trk, i, depth):
+                if not take_shadow(trk, i, pos):
+                    grab(trk, i, depth, pos, plane)
+            elif cfg.carry_shadow_take_m > 0:
+                take_shadow(trk, i, pos, cfg.carry_shadow_take_m)
     held = hidden | (trk._carry.carried & (trk.visibility < cfg.carry_keep_visibility))  # carry_keep_visibility
     rot, delta = trk._carry.update(depth, pos, held, ~held, heights, plane,
                                    np.array([nm in touched for nm in trk.names], bool))
@@ -197,13 +200,16 @@ def revealed(trk, obj: int, depth: np.ndarray) -> bool:
     return bool(behind.mean() > 0.9)
 
 
-def take_shadow(trk, obj: int, pos: np.ndarray) -> bool:
+def take_shadow(trk, obj: int, pos: np.ndarray, min_shift: float | None = None) -> bool:
     """Part ``obj`` is not where it was (:func:`revealed`): if the hand that hid it went away
     (:class:`~tracker.filter.hand_carry.Shadow`, moved by more than the part's bounding radius), the part went with
     it: it is shifted by the hand's motion since and carried on if the hand is still in view. Returns whether it
-    was."""
+    was. With ``min_shift`` (m, ``carry_shadow_take_m``) the part's place need not be seen through: a hand still in
+    view that has moved that far from where it hid the part, the part still hidden, has taken it (its place may stay
+    under the arm for many frames); a part left behind shows its blob again and is put back on it."""
     sh = trk._carry.shadows[obj]
-    if sh is None or np.linalg.norm(sh.t) < trk._carry.radii[obj]:
+    bound = trk._carry.radii[obj] if min_shift is None else min_shift
+    if sh is None or np.linalg.norm(sh.t) < bound or (min_shift is not None and sh.patch is None):
         return False
     trk._carry.take_shadow(obj)
     move_part(trk, obj, np.eye(3), sh.t)

@@ -164,6 +164,12 @@ class TrackerConfig(BaseModel):
         "it is moved by that motion and carried on, instead of being put at the centroid of the hand points near "
         "where it was.",
     )
+    carry_shadow_take_m: float = Field(
+        0.0, ge=0.0, description="A hidden resting part whose shadow carry (carry_shadow) has followed the hand over "
+        "it this far (m) with the hand still in view is taken to be in that hand: moved by the hand's motion and "
+        "carried on, without waiting for its place to be seen through (0 = off; an arm can cover the place the whole "
+        "time).",
+    )
     revealed_surface: bool = Field(
         False, description="The see-through test of carry_revealed_fraction compares the depth with the estimate's "
         "rendered surface at each pixel (1.5 cm behind it) instead of with its far side: a box resting on the table "
