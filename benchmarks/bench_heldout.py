@@ -137,9 +137,10 @@ def run_session(job: dict) -> dict:
         cfg = cfg.with_overrides(n_particles=job["particles"])
     odometry = job.get("odometry") or "off"
     rng_seed = int(job.get("tracker_seed", 0))
+    hands = bool(job.get("hands"))
     sessions = {"ours": TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=rng_seed,
-                                     odometry=odometry)}
-    if odometry != "off":  # the same tracker with odometry off, on the same frames
+                                     odometry=odometry, hands=hands)}
+    if odometry != "off" or hands:  # the same tracker without odometry / hand tracker, on the same frames
         sessions["off"] = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=rng_seed)
     ours = sessions["ours"]
     icp = ICPTracker(src.parts, src.intrinsics)
@@ -149,6 +150,7 @@ def run_session(job: dict) -> dict:
     cpu = {k: [] for k in logs}
     odo_ok = 0
     hand_frames = 0
+    hands_cpu = []
     t_start = time.perf_counter()
     for i in range(src.n_frames):
         frame = src.render(i)
@@ -161,6 +163,7 @@ def run_session(job: dict) -> dict:
             wall[k].append(1e3 * dt)
             logs[k].add(state.poses, g["poses"])
         odo_ok += ours.ego_step is not None and ours.ego_step.ok
+        hands_cpu.append(1e3 * ours.last_hands_cpu)
         plane = (ours.table.normal, ours.table.offset) if ours.table is not None else None
         c0, w0 = time.thread_time(), time.perf_counter()
         poses = icp.step(frame.depth, plane)
@@ -170,7 +173,8 @@ def run_session(job: dict) -> dict:
     res = {k: job[k] for k in ("session", "scenario", "motion", "occlusion", "speed", "seed")}
     res.update({"frames": src.n_frames, "parts": len(src.parts), "hand_frames": int(hand_frames),
                 "n_particles": cfg.n_particles, "table": ours.table is not None, "icp_backend": icp.backend,
-                "odometry": odometry, "odometry_measured": int(odo_ok),
+                "odometry": odometry, "odometry_measured": int(odo_ok), "hands": hands,
+                "hands_cpu_ms_median": round(float(np.median(hands_cpu)), 2) if hands else None,
                 "seconds": round(time.perf_counter() - t_start, 1)})
     for k, log in logs.items():
         runs = lost_runs(log)
@@ -202,6 +206,12 @@ def overall(sessions: list[dict]) -> dict:
     return out
 
 
+def _hands_ms(res: dict) -> str:
+    """Median over the sessions of the hand tracker's median thread CPU per frame (ms), as text."""
+    v = [s["hands_cpu_ms_median"] for s in res["sessions"] if s.get("hands_cpu_ms_median") is not None]
+    return f"{float(np.median(v)):.1f}" if v else "–"
+
+
 def markdown(res: dict) -> str:
     m, o = res["machine"], res["overall"]
     dev = res["dev"]
@@ -213,6 +223,8 @@ def markdown(res: dict) -> str:
              else "## DEVELOPMENT run on tuning seeds 0–4 (never reported)")
     if res.get("odometry", "off") != "off":
         title += f" — camera odometry {res['odometry']} against off (issue 15)"
+    if res.get("hands"):
+        title += " — with the hand tracker's touched parts against without (issues 11, 14)"
     lines = [
         title,
         "",
@@ -242,15 +254,22 @@ def markdown(res: dict) -> str:
         "thread CPU time of the tracker step per frame"
         + (" (with odometry on: plus the odometry stage — mask, odometry, camera motion; "
            "`tracker/odometry/ego_motion.py`; the parts are moved by the camera's motion before each step and the "
-           "table plane is propagated)." if res.get("odometry", "off") != "off" else "."),
+           "table plane is propagated)." if res.get("odometry", "off") != "off" else ".")
+        + (" With hands: the hand tracker (`tracker/hands/loop.py`) runs after each tracker step, as in the pipeline "
+           "with hands on, and the parts a hand touched go to the next step (a hidden part a hand touches is carried "
+           "by it); its CPU is not in the column (the pipeline runs it in its own process), its median per frame is "
+           f"{_hands_ms(res)} ms." if res.get("hands") else ""),
         "",
         "| # | scenario | camera | occl. | speed | seed | parts | tracker | t median mm | t p95 mm | r median ° "
         "| r p95 ° | lost | CPU ms/frame |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     odometry = res.get("odometry", "off")
-    labels = [("ours", "ours" if odometry == "off" else f"ours, odometry {odometry}"), ("off", "ours, odometry off"),
-              ("icp", "ICP")]
+    if res.get("hands"):
+        labels = [("ours", "ours, hands"), ("off", "ours, no hands"), ("icp", "ICP")]
+    else:
+        labels = [("ours", "ours" if odometry == "off" else f"ours, odometry {odometry}"),
+                  ("off", "ours, odometry off"), ("icp", "ICP")]
     labels = [(k, label) for k, label in labels if res["sessions"] and k in res["sessions"][0]]
     for s in res["sessions"]:
         for k, label in labels:
@@ -281,7 +300,8 @@ def markdown(res: dict) -> str:
     cells = " | ".join(f"{ratio(mm + '_worst')} / {ratio(mm + '_median')}" for mm in METRICS)
     if "off" in o:
         off_cells = " | ".join(f"{ratio(mm + '_worst', 'off')} / {ratio(mm + '_median', 'off')}" for mm in METRICS)
-        lines.append(f"| ratio odometry {odometry} / off | {off_cells} | | {ratio('cpu_ms_median_worst', 'off')} / "
+        what = "hands / no hands" if res.get("hands") else f"odometry {odometry} / off"
+        lines.append(f"| ratio {what} | {off_cells} | | {ratio('cpu_ms_median_worst', 'off')} / "
                      f"{ratio('cpu_ms_median_median', 'off')} | |")
     lines += [
         f"| ratio ours / ICP | {cells} | | {ratio('cpu_ms_median_worst')} / {ratio('cpu_ms_median_median')} | |",
@@ -292,8 +312,9 @@ def markdown(res: dict) -> str:
         "Reproduce: `.venv/bin/python benchmarks/bench_heldout.py --jobs 2"
         + (" --dev" if dev else "")
         + (f" --odometry {res['odometry']}" if res.get("odometry", "off") != "off" else "")
-        + "` (≈ 1 min of CPU per session" + ("; three trackers per session)." if res.get("odometry", "off") != "off"
-                                             else ")."),
+        + (" --hands" if res.get("hands") else "")
+        + "` (≈ 1 min of CPU per session"
+        + ("; three trackers per session)." if res.get("odometry", "off") != "off" or res.get("hands") else ")."),
         "",
     ]
     return "\n".join(lines)
@@ -329,6 +350,9 @@ def main(argv=None) -> int:
                     help="camera odometry of our tracker (issue 15); when on, the same tracker with odometry off "
                     "runs beside it on the same frames and the results go to results/heldout_odometry[_MODE][_dev].* "
                     "(MODE: fastslam, fused)")
+    ap.add_argument("--hands", action="store_true", help="our tracker with the hand tracker's touched parts (as the "
+                    "pipeline with hands on); the same tracker without runs beside it on the same frames and the "
+                    "results go to results/heldout_hands[_dev].*")
     ap.add_argument("--tracker-seed", type=int, default=0, help="random seed of our particle filter (default 0); a "
                     "tuning decision should hold for several: long hidden carries cross the 'lost' threshold or not "
                     "with it")
@@ -341,6 +365,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     stem = ("heldout_dev" if args.dev else "heldout") if args.odometry == "off" else (
         "heldout_odometry" + ("" if args.odometry == "default" else f"_{args.odometry}") + ("_dev" if args.dev else ""))
+    if args.hands:
+        stem = "heldout_hands" + ("_dev" if args.dev else "")
     if args.markdown_only:
         print(rewrite_markdown(stem, markdown))
         return 0
@@ -357,6 +383,9 @@ def main(argv=None) -> int:
         bad = [k for k in picked if not 1 <= k <= len(DESIGN)]
         if bad:
             raise ValueError(f"--sessions {bad}: the design has sessions 1–{len(DESIGN)}")
+        if args.hands and args.odometry != "off":
+            raise ValueError("--hands compares the tracker with and without the hand tracker: give it without "
+                             "--odometry")
         if args.frames < 1 or args.jobs < 1:
             raise ValueError("--frames and --jobs must be at least 1")
         overrides = parse_overrides(args.set)
@@ -381,7 +410,8 @@ def main(argv=None) -> int:
         scenario, motion, occlusion, speed = DESIGN[k - 1]
         jobs.append({"session": k, "scenario": scenario, "motion": motion, "occlusion": occlusion, "speed": speed,
                      "seed": seeds[(k - 1) % len(seeds)], "frames": args.frames, "particles": args.particles,
-                     "odometry": args.odometry, "tracker_seed": args.tracker_seed, "overrides": overrides})
+                     "odometry": args.odometry, "tracker_seed": args.tracker_seed, "overrides": overrides,
+                     "hands": args.hands})
     sessions = []
     if args.jobs == 1:
         results = map(run_session, jobs)
@@ -397,7 +427,7 @@ def main(argv=None) -> int:
     sessions.sort(key=lambda s: s["session"])
     res = {"machine": info, "commit": commit, "note": args.note, "dev": args.dev, "seeds_text": seeds_text,
            "tracker_seed": args.tracker_seed, "overrides": overrides,
-           "odometry": args.odometry,
+           "odometry": args.odometry, "hands": args.hands,
            "frames": args.frames, "jobs": args.jobs, "sessions": sessions, "overall": overall(sessions),
            "load_1min_at_end": round(os.getloadavg()[0], 2)}
     md = markdown(res)

@@ -56,6 +56,9 @@ def register(subparsers) -> None:
     p.add_argument("--odometry", default="off", choices=("default", "fastslam", "fused", "off"),
                    help="camera ego-motion (default off): the parts are moved by the camera's motion before each "
                         "step and the table plane is propagated; --out still gets camera-frame poses")
+    p.add_argument("--hands", action="store_true",
+                   help="run the hand tracker beside the part tracker: a hidden part a hand touches is carried by it "
+                        "(as the server with --hands); about 7 ms more per frame")
     p.add_argument("--init", default=None, choices=("given", "auto"),
                    help="first-frame poses: 'given' (objects.json) or 'auto' (found in the first frame); "
                         "default: the given ones, missing ones found automatically")
@@ -212,11 +215,13 @@ class TrackSession:
     ``parts``/``poses``: the parts and their first-frame poses (camera frame, metres); ``table``: the first frame's
     plane when already known; ``use_table`` False: never look for one. ``step(frame)`` returns the tracker state and
     the seconds spent in the tracker step (without decoding, plane and colour detection); ``last_cpu`` is the
-    thread CPU seconds of that step.
+    thread CPU seconds of that step. ``hands``: run the hand tracker (:class:`tracker.hands.loop.HandLoop`, in this
+    thread) after each tracker step, as the pipeline does with hands on: the parts a hand touched in the last frame
+    go to the next tracker step (a hidden part a hand touches is carried by it); its thread CPU is ``last_hands_cpu``.
     """
 
     def __init__(self, parts, intrinsics, poses, cfg, seed: int = 0, use_color: bool = True, table=None,
-                 use_table: bool = True, odometry: str = "off") -> None:
+                 use_table: bool = True, odometry: str = "off", hands: bool = False) -> None:
         from tracker.filter.particle_filter import MultiObjectTracker
         from tracker.odometry.ego_motion import MODES, EgoMotion
 
@@ -247,6 +252,12 @@ class TrackSession:
         self._corners = {n: self.tracker.corners[i] for i, n in enumerate(self.tracker.names)}
         if self.ego is not None and table is not None:
             self.ego.anchor_table(table)
+        self.hands = None
+        self.last_hands_cpu = 0.0
+        if hands:
+            from tracker.hands.loop import HandLoop, HandLoopConfig
+
+            self.hands = HandLoop(self.parts, intrinsics, HandLoopConfig(overlap="off"))
 
     def step(self, frame):
         """Track one frame; returns ``(TrackerState, tracker seconds)``. With odometry on, the camera's motion is
@@ -263,8 +274,9 @@ class TrackSession:
             from tracker.filter.camera_motion import hand_hidden_parts_to_the_odometry
 
             hand_hidden_parts_to_the_odometry(self.tracker, self.ego)
+        touched = self.hands.touched_parts() if self.hands is not None else None
         t0, c0 = time.perf_counter(), time.thread_time()
-        state = self.tracker.step(frame, dets, self.table)
+        state = self.tracker.step(frame, dets, self.table, touched=touched)
         dt = time.perf_counter() - t0
         self.last_cpu = time.thread_time() - c0
         if fused:  # odometry fused: the resting parts check the camera; the hidden parts follow its correction
@@ -276,12 +288,23 @@ class TrackSession:
                 follow_correction(self.tracker, correction, state.poses)
             self.last_ego_cpu += time.thread_time() - c0
         self.track_seconds += dt
+        if self.hands is not None:
+            self._track_hands(frame, state.poses)
         self.poses = dict(state.poses)
         self.carried = list(state.carried)
         self.skipped += not state.depth_used
         self.frames += 1
         return state, dt
 
+
+    def _track_hands(self, frame, poses) -> None:
+        """The hand tracker's step on this frame and its touching / holding at the new poses (``hands`` on)."""
+        from tracker.filter.frame_context import table_normal_offset
+
+        c0 = time.thread_time()
+        self.hands.step(frame.color, frame.depth, table_normal_offset(self.table), poses)
+        self.hands.update_contacts(poses, frame.depth)
+        self.last_hands_cpu = time.thread_time() - c0
 
     def _follow_camera(self, frame) -> None:
         """Odometry on: move the tracker's state by the camera's motion; propagate the table when it moved, else
@@ -350,7 +373,8 @@ def run(args: argparse.Namespace) -> int:
             src.close()
             raise
     session = TrackSession(parts, src.intrinsics, poses, cfg, seed=args.seed, use_color=not args.no_color,
-                           table=first_table, use_table=not args.no_table, odometry=args.odometry)
+                           table=first_table, use_table=not args.no_table, odometry=args.odometry,
+                           hands=args.hands)
     errors = PoseErrorLog(parts) if src.has_groundtruth else None
     out = open(args.out, "w") if args.out else None  # noqa: SIM115
     n = 0
