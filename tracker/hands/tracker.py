@@ -43,13 +43,14 @@ initialisation of new tracks:
   2-means and each track restarts on its part, the grown one on the part nearer the centre it had at one-hand size
   (:meth:`HandTracker._split_shared`). Tuning seeds 0–4 of ``hands-s2``, ground-truth start, mean F̄^b 0.672 →
   0.692 (seed 2 0.60 → 0.69); automatic start and S1, S3 unchanged within ±0.01.
-* Each hand's own skin pixels through an overlap (product addition, ``ownership``, on by default): an owner map of
+* Each hand's own skin pixels through an overlap (product addition, ``ownership``, off by default): an owner map of
   the skin pixels, carried from frame to frame by the backward optical flow, gives each track, while the two hands
   touch, the colour components without the other hand's pixels for its section-6 mode and re-seeding
   (:mod:`tracker.hands.ownership`). Tuning seeds 0–4 of ``hands-s2``, ground-truth start, four filter seeds: mean
-  F̄^b 0.678 → 0.714 (seeds 1 and 3 0.75 → 0.87 and 0.69 → 0.91; seed 4 worse, 0.60 → 0.50: an identity swap when
-  the lost hand comes back); automatic start F̄^b 0.80 → 0.84, missed hands 3.1 → 3.6 %, false boxes 0.034 → 0.043
-  per frame.
+  F̄^b 0.678 → 0.714, but not on every sequence (seeds 1 and 3 0.76 → 0.85 and 0.69 → 0.91; seeds 0 and 4 0.78 →
+  0.74 and 0.61 → 0.53: an identity swap that the owner map then keeps); automatic start F̄^b 0.80 → 0.84, missed
+  hands 3.1 → 3.6 %, false boxes 0.034 → 0.043 per frame. Off because the gain is not consistent: on the held-out
+  seeds 100, 101 it gave F̄^b 0.574 against 0.683 (benchmarks/results/hands_s13_ownership.md).
 * Two hands in one colour component (product addition, ``split_blobs``, off by default): when the two tracks'
   predicted boxes share their dominant colour component, too large for one hand (SPLIT_HAND_M) and clearly larger
   than either box, its pixels are split between the two tracks by nearness to their predicted centres before the
@@ -210,7 +211,7 @@ class HandTrackerConfig:
     merge_reacquire: bool = True
     collapse_reacquire: bool = False
     shared_split: bool = True
-    ownership: bool = True
+    ownership: bool = False
     ac_hat: float = 0.55
     am_hat: float = 0.45
 
