@@ -47,7 +47,7 @@ from tracker.filter.frame_context import FrameContext, PassResult, table_normal_
 from tracker.filter.hand_carry import HandCarry
 from tracker.filter.motion_model import mean_poses, propagate, sample_noise
 from tracker.filter.penalties import intersection_log_penalty
-from tracker.filter.resampling import normalize_log_weights, take_rows
+from tracker.filter.resampling import normalize_log_weights
 from tracker.filter.tracker_config import TrackerConfig
 from tracker.frame import Frame
 from tracker.geometry.box_renderer import pixel_rays
@@ -319,14 +319,6 @@ class MultiObjectTracker:
         out = store[:size].reshape(shape)
         if fill is not None:
             out.fill(fill)
-        return out
-
-    def _take(self, spare: dict, key: str, arr: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """``arr[idx]`` (rows) written into the spare buffer of ``key``; the old array becomes the spare."""
-        name = spare[key]
-        out = self._buffer(name, arr.shape, arr.dtype)
-        take_rows(arr, idx, out)
-        spare[key] = name[:-1] + ("0" if name.endswith("1") else "1")
         return out
 
     def _predict_only(self, frame, p_prev, R_prev, v_prev, u, t0, timings, message) -> TrackerState:
