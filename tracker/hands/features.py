@@ -66,8 +66,21 @@ def compute_features(prev_grey: np.ndarray, cur_grey: np.ndarray, mprev: np.ndar
     else:
         lb1 = lb2 = np.full(mcur.shape, -1, np.int32)
         cb1 = cb2 = np.full_like(cf1, np.nan)
-    n, cc, stats, _ = cv2.connectedComponentsWithStats(mcur, connectivity=4, ltype=cv2.CV_32S)
-    h, w = mcur.shape
+    cc, n_comp, area, boxes, cut = components(mcur, roi, image_size)
+    return HandFeatures(roi, mprev, mcur, (ff1, ff2), (fb1, fb2), (lf1, lf2), (cf1, cf2), (lb1, lb2), (cb1, cb2),
+                        cc, n_comp, area, boxes, cut)  # fmt: skip
+
+
+def components(mask: np.ndarray, roi: tuple[int, int, int, int],
+               image_size: tuple[int, int]) -> tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray]:
+    """Connected components (4-connectivity) of an ROI mask (uint8 0/1; ``roi`` = (x0, y0, x1, y1) in an image of
+    ``image_size`` (W, H) px): labels, component count (without the background, label 0), areas (px), inclusive
+    boxes [u0, v0, u1, v1] in ROI px and cut flags (the component touches an ROI side that is not the image's border,
+    so the hand may go on beyond it; the background flagged)."""
+    x0, y0, x1, y1 = roi
+    W, H = image_size
+    n, cc, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4, ltype=cv2.CV_32S)
+    h, w = mask.shape
     bx, by, bw, bh = stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3]
     cut = np.zeros(n, bool)
     if x0 > 0:
@@ -80,5 +93,4 @@ def compute_features(prev_grey: np.ndarray, cur_grey: np.ndarray, mprev: np.ndar
         cut |= by + bh == h
     cut[0] = True
     boxes = np.stack([bx, by, bx + bw - 1, by + bh - 1], axis=1).astype(np.int64)
-    return HandFeatures(roi, mprev, mcur, (ff1, ff2), (fb1, fb2), (lf1, lf2), (cf1, cf2), (lb1, lb2), (cb1, cb2),
-                        cc, int(n - 1), stats[:, cv2.CC_STAT_AREA].astype(np.int64), boxes, cut)  # fmt: skip
+    return cc, int(n - 1), stats[:, cv2.CC_STAT_AREA].astype(np.int64), boxes, cut

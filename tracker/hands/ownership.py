@@ -36,7 +36,7 @@ import cv2
 import numba as nb
 import numpy as np
 
-from tracker.hands.features import HandFeatures
+from tracker.hands.features import HandFeatures, components
 
 NEAR_GROW = 0.5
 """A track may own pixels within its box grown by this fraction of its size on every side."""
@@ -135,24 +135,8 @@ def track_features(feats: HandFeatures, own: np.ndarray, key: int, image_size: t
     tracks own (``own``), cut flags as in :func:`tracker.hands.features.compute_features`; everything else shared."""
     mcur = feats.mcur.copy()
     mcur[(own > 0) & (own != key)] = 0
-    n, cc, stats, _ = cv2.connectedComponentsWithStats(mcur, connectivity=4, ltype=cv2.CV_32S)
-    h, w = mcur.shape
-    x0, y0, x1, y1 = feats.roi
-    W, H = image_size
-    bx, by, bw, bh = stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3]
-    cut = np.zeros(n, bool)
-    if x0 > 0:
-        cut |= bx == 0
-    if y0 > 0:
-        cut |= by == 0
-    if x1 < W:
-        cut |= bx + bw == w
-    if y1 < H:
-        cut |= by + bh == h
-    cut[0] = True
-    boxes = np.stack([bx, by, bx + bw - 1, by + bh - 1], axis=1).astype(np.int64)
-    return dataclasses.replace(feats, cc=cc, n_comp=int(n - 1), cc_area=stats[:, cv2.CC_STAT_AREA].astype(np.int64),
-                               cc_box=boxes, cc_cut=cut)  # fmt: skip
+    cc, n_comp, area, boxes, cut = components(mcur, feats.roi, image_size)
+    return dataclasses.replace(feats, cc=cc, n_comp=n_comp, cc_area=area, cc_box=boxes, cc_cut=cut)
 
 
 def settle(shape: tuple[int, int], roi: tuple[int, int, int, int], mcur: np.ndarray, own: np.ndarray | None,
