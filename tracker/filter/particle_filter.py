@@ -139,6 +139,11 @@ class MultiObjectTracker:
             signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
             self.corners.append(self.center[i] + signs * self.half[i])
         self.pairs = np.array([(a, b) for a in range(k) for b in range(a + 1, k)], np.int64).reshape(-1, 2)
+        # the evaluated-pixel rectangles' part constants (tracker.filter.render): corners (K, 8, 3), body frame, and
+        # |half| + |centre| (K,), m
+        self._roi_corners = np.ascontiguousarray(np.stack(self.corners), np.float64)
+        self._roi_radii = np.array([float(np.linalg.norm(self.half[i]) + np.linalg.norm(self.center[i]))
+                                    for i in range(k)])
         # downsampled pixel grid (full-resolution coordinates of the sampled pixels)
         f = self.config.downsample
         self._off = (f - 1) // 2

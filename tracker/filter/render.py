@@ -74,15 +74,7 @@ def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
     k = len(trk.parts)
     f = cfg.wide_noise_fraction
     spread = np.sqrt((1.0 - f) + f * cfg.wide_noise_scale**2)
-    radii = trk.__dict__.get("_roi_radii")  # per part |half| + |centre| (m), fixed for the tracker's life
-    if radii is None or radii.shape[0] != k:
-        radii = np.array([float(np.linalg.norm(trk.half[i]) + np.linalg.norm(trk.center[i])) for i in range(k)])
-        trk._roi_radii = radii
-    corners = trk.__dict__.get("_roi_corners")
-    if corners is None or corners.shape[0] != k:
-        corners = np.ascontiguousarray(np.stack(trk.corners), np.float64)
-        trk._roi_corners = corners
-    bounds = _region_bounds(p_prev, R_prev, p_det, R_det, corners, radii,
+    bounds = _region_bounds(p_prev, R_prev, p_det, R_det, trk._roi_corners, trk._roi_radii,
                             np.asarray(trk._noise_scale, np.float64), float(spread),
                             float(cfg.roi_margin_px * cfg.downsample), float(cfg.sigma_v), float(cfg.sigma_w),
                             intr.fx, intr.fy, intr.cx, intr.cy)
