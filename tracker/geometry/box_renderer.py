@@ -76,8 +76,8 @@ def render_boxes_at_pixels(R, t, center, half, obj, particles, rays, pu, pv, sub
     hx, hy, hz = half[obj, 0], half[obj, 1], half[obj, 2]
     for jj in range(particles.shape[0]):
         j = particles[jj]
-        if jj > 0 and _same_pose(R, t, obj, particles[jj - 1], j):
-            _copy_row(particles[jj - 1], j, obj, subset, out, loc, dirty)
+        if jj > 0 and same_pose(R, t, obj, particles[jj - 1], j):
+            copy_depth_row(particles[jj - 1], j, obj, subset, out, loc, dirty)
             continue
         Rm = R[j, obj]
         # box centre in the camera frame
@@ -136,7 +136,7 @@ def render_boxes_at_pixels(R, t, center, half, obj, particles, rays, pu, pv, sub
 
 
 @nb.njit(cache=True, inline="always")
-def _same_pose(R, t, obj, a, b):
+def same_pose(R, t, obj, a, b):
     """Do particles ``a`` and ``b`` have exactly the same pose of part ``obj`` (``R`` (N, K, 3, 3), ``t`` (N, K, 3))?"""
     for r in range(3):
         if t[a, obj, r] != t[b, obj, r]:
@@ -148,7 +148,7 @@ def _same_pose(R, t, obj, a, b):
 
 
 @nb.njit(cache=True)
-def _copy_row(src, j, obj, subset, out, loc, dirty):
+def copy_depth_row(src, j, obj, subset, out, loc, dirty):
     """Particle ``j`` takes particle ``src``'s depths of part ``obj`` at the ``subset`` pixels (rendered just
     before in the same call), flagging in ``dirty`` the pixels whose depth changes (as a render would)."""
     for ii in range(subset.shape[0]):

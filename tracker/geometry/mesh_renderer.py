@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from tracker.geometry.box_renderer import _copy_row, _same_pose
+from tracker.geometry.box_renderer import copy_depth_row, same_pose
 from tracker.geometry.parts import PartSpec
 
 
@@ -95,8 +95,8 @@ def render_mesh_at_pixels(R, t, vertices, faces, obj, particles, gi, gj, subset,
     iz = np.empty(nv)
     for jj in range(particles.shape[0]):
         p = particles[jj]
-        if jj > 0 and _same_pose(R, t, obj, particles[jj - 1], p):  # a copy left by a resampling: same depths
-            _copy_row(particles[jj - 1], p, obj, subset, out, loc, dirty)
+        if jj > 0 and same_pose(R, t, obj, particles[jj - 1], p):  # a copy left by a resampling: same depths
+            copy_depth_row(particles[jj - 1], p, obj, subset, out, loc, dirty)
             continue
         Rm = R[p, obj]
         zbuf[:, :] = np.inf
