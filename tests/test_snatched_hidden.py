@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from carry_runs import SNATCH_FRAMES, snatch_under_arm
 
 from tracker.filter import hidden_parts
 from tracker.filter.hand_carry import Shadow
@@ -150,33 +151,14 @@ def test_a_visible_box_resting_on_the_table_is_turned_onto_a_face(lift, tilt_deg
         assert abs(tilt_after - tilt_deg) < 1e-6 and state.poses["red"] is pose
 
 
-def _snatch_under_arm_run(take_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Simulated guess-2 (tuning seed 0), frames 200-265, tracked from the true poses at frame 200: the yellow cube
-    rests hidden under a hand (2 % visible), which takes it at frame 247 and carries it 7 cm while the arm keeps its
-    place covered. Returns the frame numbers and yellow's translation errors (m), with ``carry_shadow_take_m``."""
-    from tracker.perception.color_detection import ColorDetector
-    from tracker.sources.simulator import SimulatedTable
-
-    src = SimulatedTable("guess-2", seed=0, realtime=False, n_frames=266)
-    det = ColorDetector.from_parts(src.parts)
-    cfg = TrackerConfig.preset("default").with_overrides(carry_shadow_take_m=take_m)
-    tr = MultiObjectTracker(src.parts, src.intrinsics, cfg, seed=5)
-    frames, errs = np.arange(200, 266), []
-    for i in frames:
-        f = src.render(int(i))
-        truth = f.meta["groundtruth"]["poses"]
-        if i == 200:
-            tr.initialize(truth)
-        errs.append(tr.step(f, det.detect(f.color), src.table_plane).poses["yellow"].translation_error(truth["yellow"]))
-    return frames, np.array(errs)
-
 
 def test_a_hand_that_moved_far_from_a_hidden_part_it_covered_has_taken_it():
     """carry_shadow_take_m: the hand's shadow carry over the hidden cube has followed the hand 3 cm while the cube's
     place stays under the arm (never seen through): the cube is taken to be in that hand and carried (within 2 cm
     from then on); without it the cube stays where it was while the hand carries it 6 cm away."""
-    frames, taken = _snatch_under_arm_run(0.03)
-    _, left = _snatch_under_arm_run(0.0)
+    taken, _ = snatch_under_arm(take_m=0.03)
+    left, _ = snatch_under_arm()
+    frames = SNATCH_FRAMES
     after = frames >= 252
     assert taken[frames < 247].max() < 0.005  # resting and hidden: the same either way
     assert taken[after].max() < 0.02, taken[after].max()

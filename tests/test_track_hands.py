@@ -3,39 +3,18 @@ the part tracker, as in the pipeline with hands on."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
+from carry_runs import SNATCH_FRAMES, snatch_under_arm
 
-from app.commands.track import TrackSession
 from benchmarks import bench_heldout
-from tracker.filter.tracker_config import TrackerConfig
-
-
-def _snatch_run(hands: bool) -> tuple[np.ndarray, set[str] | None]:
-    """Simulated guess-2 (tuning seed 0), frames 200-265, tracked from the true poses at frame 200: a hand over the
-    hidden yellow cube takes it at frame 247 and carries it 7 cm while the arm keeps its place covered (no depth
-    evidence that it left). Returns yellow's translation errors (m) per frame and the parts the hands touched last."""
-    from tracker.sources.simulator import SimulatedTable
-
-    src = SimulatedTable("guess-2", seed=0, realtime=False, n_frames=266)
-    session, errs = None, []
-    for i in range(200, 266):
-        frame = src.render(i)
-        truth = frame.meta["groundtruth"]["poses"]
-        if session is None:
-            session = TrackSession(src.parts, src.intrinsics, truth, TrackerConfig.preset("default"), seed=5,
-                                   hands=hands)
-        state, _ = session.step(frame)
-        errs.append(state.poses["yellow"].translation_error(truth["yellow"]))
-    return np.array(errs), session.hands.touched_parts() if session.hands is not None else None
 
 
 def test_a_part_a_tracked_hand_touches_is_carried_with_it():
     """With the hand tracker the hand holding the hidden cube is seen to touch it: the cube is carried (within 2 cm
     after the grasp); without, it stays where it was while the hand takes it 7 cm away."""
-    with_hands, touched = _snatch_run(True)
-    without, nothing = _snatch_run(False)
-    after = slice(52, None)  # frames 252-265
+    with_hands, touched = snatch_under_arm(hands=True)
+    without, nothing = snatch_under_arm()
+    after = SNATCH_FRAMES >= 252
     assert touched is not None and "yellow" in touched and nothing is None
     assert with_hands[after].max() < 0.02, with_hands[after].max()
     assert without[after].max() > 0.04, without[after].max()
