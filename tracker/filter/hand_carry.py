@@ -104,7 +104,7 @@ class HandCarry:
         self.intrinsics = intrinsics
         self.radii = np.asarray(radii, np.float64)  # bounding radius per part (m)
         self.patches: list[np.ndarray | None] = [None] * n_parts  # hand points near each carried part, last frame
-        self.keys: list[np.ndarray | None] = [None] * n_parts  # keyframe hand patch per carry, moved to now (m)
+        self.keys: list[np.ndarray | None] = [None] * n_parts  # carry_keyframe: keyframe hand patch, moved to now (m)
         self.last_step = np.zeros((n_parts, 3))  # last frame's hand translation per part (initial guess, m)
         self.last_turn = np.zeros((n_parts, 3))  # last frame's hand rotation vector per part (initial guess, rad)
         self.history: deque[tuple[float, np.ndarray]] = deque()  # (time s, positions (K, 3))
@@ -128,7 +128,7 @@ class HandCarry:
     def start(self, obj: int, patch: np.ndarray) -> None:
         """Carry part ``obj`` from now on with the hand points ``patch`` (M, 3) around it (camera frame, m)."""
         self.patches[obj] = np.asarray(patch, np.float64)
-        self.keys[obj] = self.patches[obj].copy()
+        self.keys[obj] = self.patches[obj].copy() if self.config.carry_keyframe else None
         self.last_step[obj] = 0.0
         self.last_turn[obj] = 0.0
         self.was_in_air[obj], self.set_down[obj] = False, 0
@@ -274,7 +274,7 @@ class HandCarry:
             new_pos = Rw @ positions[i] + delta[i]
             near = ((pts - new_pos) ** 2).sum(1) <= cfg.carry_radius**2
             self.patches[i] = pts[near] if near.sum() >= cfg.carry_min_points else None
-            if self.keys[i] is None and self.patches[i] is not None:
+            if cfg.carry_keyframe and self.keys[i] is None and self.patches[i] is not None:
                 self.keys[i] = self.patches[i].copy()
         self._prev_depth = depth  # kept by reference: a source that reuses its buffer gives the same object (unused)
         self._prev_motion = None
