@@ -243,11 +243,22 @@ class Storage:
             isolation_level=None,
         )
         if self._may_create:
-            try:
-                con.execute("PRAGMA journal_mode=WAL")  # kept by the file; outside a transaction, as SQLite needs
-            except sqlite3.Error:
-                con.close()
-                raise
+            # kept by the file; outside a transaction, as SQLite needs. Switching a new file to WAL takes an exclusive
+            # lock: a second server migrating the same new file at that moment makes SQLite report "locked" at once
+            # (a lock deadlock, which the busy timeout does not wait out), so it is tried again until the timeout.
+            deadline = time.monotonic() + self.timeout
+            while True:
+                try:
+                    con.execute("PRAGMA journal_mode=WAL")
+                    break
+                except sqlite3.OperationalError as exc:
+                    if "locked" not in str(exc) or time.monotonic() > deadline:
+                        con.close()
+                        raise
+                    time.sleep(0.05)
+                except sqlite3.Error:
+                    con.close()
+                    raise
         return con
 
     def _start_problem(self) -> str | None:
