@@ -308,3 +308,37 @@ def test_pyramid_halves_depth_and_mask_and_drops_blocks_with_a_hole_or_an_edge()
     assert pyr[1].mask[3, 3] and pyr[1].mask.sum() == 1
     assert pyr[2].mask[1, 1] and pyr[2].mask.sum() == 1 and np.isnan(pyr[2].depth[0, 0])
     assert pyr[2].intrinsics.width == 2
+
+
+def test_fused_odometry_with_its_dense_step_in_a_thread_equals_one_step_after_the_other(tmp_path, monkeypatch):
+    """The fused command runs the dense step in a second thread beside the tracker step; the trajectory is the same
+    to the last bit as with the two run one after the other (no shared state, no write to the frame)."""
+    from concurrent.futures import Future
+
+    from app.commands import odometry as odometry_command
+
+    rec = tmp_path / "rec"
+    _sway_recording(rec, 12, 6)
+    threaded = odometry_command.estimate_trajectory(str(rec), "fused")
+
+    class _Inline:
+        """An executor that runs each job at once in the calling thread."""
+
+        def __init__(self, *a, **k) -> None:
+            pass
+
+        def submit(self, fn, *args, **kwargs):
+            fut = Future()
+            fut.set_result(fn(*args, **kwargs))
+            return fut
+
+        def shutdown(self, wait=True) -> None:
+            pass
+
+    monkeypatch.setattr(odometry_command, "ThreadPoolExecutor", _Inline)
+    inline = odometry_command.estimate_trajectory(str(rec), "fused")
+    assert len(threaded.rows) == len(inline.rows) == 12 and threaded.flagged == inline.flagged == 1
+    for (ta, pa, ca), (tb, pb, cb) in zip(threaded.rows, inline.rows, strict=True):
+        assert ta == tb and ca == cb
+        assert np.array_equal(pa.t, pb.t) and np.array_equal(pa.q, pb.q)
+    assert threaded.errors()["ate_rmse_mm"] < 1.0

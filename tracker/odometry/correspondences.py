@@ -11,7 +11,7 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def photometric_terms(points, values, jac, T_ck, gray, mask, fx, fy, cx, cy, ref_out, cur_out, jac_out):
     """For every keyframe point seen in the current image on an unmasked pixel: its keyframe grey value
     (``ref_out``), the current image's bilinear grey value where it projects (``cur_out``) and its Jacobian row
@@ -43,7 +43,7 @@ def photometric_terms(points, values, jac, T_ck, gray, mask, fx, fy, cx, cy, ref
     return n
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def geometric_terms(points, normals, T_ck, T_kc, depth, mask, fx, fy, cx, cy, max_dist, r_out, jac_out):
     """Point-to-plane residuals ``n·(T_kc q − p)`` with projective association and their Jacobian rows
     ``[n, q × n]``. Returns ``(written, seen)``: correspondences kept (closer than ``max_dist``) and keyframe
@@ -92,7 +92,7 @@ def empty_buffers(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.empty(n), np.empty(n), np.empty((n, 6))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _robust_scale(r, n, max_samples, floor):
     """1.4826 × the median absolute deviation of ``r[:n]`` (at most ``max_samples`` of them, an even stride),
     not below ``floor``."""
@@ -106,7 +106,7 @@ def _robust_scale(r, n, max_samples, floor):
     return max(floor, 1.4826 * np.median(s))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _accumulate(r, jac, n, sigma, scale, tukey, threshold, huber, H, g):
     """Add the robustly weighted rows ``0..n-1`` (residuals ``r``, Jacobian rows ``jac``) to the normal equations
     ``H`` (6×6) and ``g`` (6): weight ``scale / sigma²`` times Huber's (``threshold`` = its k) or Tukey's
@@ -166,7 +166,7 @@ def _accumulate(r, jac, n, sigma, scale, tukey, threshold, huber, H, g):
     return inl
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def symmetrise(H):
     """Copy the upper triangle of a square matrix into its lower triangle (in place)."""
     for a in range(6):
@@ -174,7 +174,7 @@ def symmetrise(H):
             H[a, b] = H[b, a]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def photometric_system(points, values, jac, T_ck, gray, mask, fx, fy, cx, cy, min_sigma, max_samples, weight,
                        tukey, threshold, huber, ref, cur, jac_buf, H, g):
     """The photometric term of one Gauss-Newton iteration added to ``H``, ``g`` (see :mod:`.dense_alignment`):
@@ -207,7 +207,7 @@ def photometric_system(points, values, jac, T_ck, gray, mask, fx, fy, cx, cy, mi
     return inl
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def geometric_system(points, normals, T_ck, T_kc, depth, mask, fx, fy, cx, cy, max_dist, min_sigma, max_samples,
                      tukey, threshold, huber, r_buf, jac_buf, H, g):
     """The point-to-plane term of one Gauss-Newton iteration added to ``H``, ``g`` (:func:`geometric_terms`, robust

@@ -16,7 +16,7 @@ from tracker.odometry.correspondences import geometric_system, photometric_syste
 from tracker.odometry.se3 import exp_twist, invert_rigid, log_twist
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def gauss_newton_level(T_kc, n_it, photo_points, photo_values, photo_jacobian, geo_points, geo_normals, gray, depth,
                        mask, fx, fy, cx, cy, photo_weight, min_photo_sigma, min_geo_sigma, max_geo_distance,
                        sigma_samples, tukey, threshold, huber, prior, T_prior_inv, converged_m, converged_rad):

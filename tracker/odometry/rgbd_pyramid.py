@@ -38,7 +38,7 @@ def to_gray(rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _half_depth_mask(depth, mask, max_spread):
     """One pass of :func:`half_depth` and :func:`half_mask` (a depth pixel is invalid when not finite and > 0)."""
     h, w = depth.shape[0] // 2, depth.shape[1] // 2

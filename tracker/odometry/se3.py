@@ -8,13 +8,13 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def hat(w):
     """Skew-symmetric 3×3 matrix of ``w`` (``hat(w) @ p == cross(w, p)``)."""
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def exp_twist(xi):
     """4×4 rigid transform of the twist ``xi = [vx, vy, vz, wx, wy, wz]`` (float64 array; compiled, also called
     from the compiled Gauss-Newton loop of :mod:`.gauss_newton`)."""
@@ -37,7 +37,7 @@ def exp_twist(xi):
     return T
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def log_twist(T):
     """Twist ``[v, ω]`` of a 4×4 rigid transform with ``exp_twist(log_twist(T)) == T`` (rotation angle below π;
     compiled)."""
@@ -59,7 +59,7 @@ def log_twist(T):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def invert_rigid(T):
     """Inverse of a 4×4 rigid transform (compiled)."""
     out = np.eye(4)

@@ -36,6 +36,7 @@ from tracker.geometry.camera import Intrinsics
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
 from tracker.sources.base import FrameSource, SourceError
+from tracker.sources.prefetch import DecodePrefetcher
 
 log = logging.getLogger(__name__)
 
@@ -334,7 +335,8 @@ class RecordingSource(FrameSource):
 
     * ``RecordingSource(dir, loop=False, realtime=False)``: ``loop`` repeats the recording forever
       (frame indices and timestamps keep increasing; ``meta["recording_position"]`` gives the position);
-      ``realtime`` paces iteration by the recorded timestamps.
+      ``realtime`` paces iteration by the recorded timestamps; ``prefetch`` (default 2) frames after the one read
+      are decoded ahead in a background thread (:mod:`tracker.sources.prefetch`; 0: decode only on demand).
     * ``len(src)``, ``src.read(i)`` random access by position ``i`` in frames.jsonl.
     * ``src.parts`` / ``src.initial_poses`` from objects.json (empty when absent; a part without a pose
       is missing from ``initial_poses``), ``src.groundtruth(index)`` from groundtruth.jsonl (``None`` when
@@ -348,7 +350,7 @@ class RecordingSource(FrameSource):
     (see :meth:`check` to verify every image up front).
     """
 
-    def __init__(self, directory: str | Path, loop: bool = False, realtime: bool = False) -> None:
+    def __init__(self, directory: str | Path, loop: bool = False, realtime: bool = False, prefetch: int = 2) -> None:
         self.root = Path(directory)
         if not self.root.is_dir():
             raise SourceError(f"recording directory not found: {self.root}")
@@ -364,6 +366,7 @@ class RecordingSource(FrameSource):
             self._parts, self._initial_poses = parse_objects(_read_json(objects_path), self.root, str(objects_path))
         self._gt: dict[int, dict] = self._read_groundtruth(self.root / "groundtruth.jsonl")
         self._events = self._read_events(self.root / "events.jsonl")
+        self._prefetch = DecodePrefetcher(self._decode_images, len(self._entries), depth=prefetch, wrap=self.loop)
 
     # --- index files -----------------------------------------------------------------------------------
 
@@ -499,10 +502,7 @@ class RecordingSource(FrameSource):
         position %= n
         e = self._entries[position]
         idx = int(e["index"])
-        color = decode_color(self.root / e["color"], idx, self._intrinsics)
-        depth = None
-        if e.get("depth") is not None:
-            depth = decode_depth(self.root / e["depth"], idx, self._intrinsics, self.depth_scale)
+        color, depth = self._prefetch.get(position)
         meta: dict[str, Any] = {"recording_position": position, "recording_index": idx}
         gt = self._gt.get(idx)
         if gt is not None:
@@ -514,6 +514,21 @@ class RecordingSource(FrameSource):
             return Frame(idx, float(e["t"]), color, depth, self._intrinsics, meta)
         except FrameError as exc:
             raise SourceError(f"{self.root}: {exc}") from exc
+
+    def _decode_images(self, position: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """Colour (RGB uint8) and depth (float32 metres or ``None``) of ``position``; :class:`SourceError` if
+        unreadable. Called by :meth:`read` and, for the next positions, by the prefetch thread."""
+        e = self._entries[position]
+        idx = int(e["index"])
+        color = decode_color(self.root / e["color"], idx, self._intrinsics)
+        depth = None
+        if e.get("depth") is not None:
+            depth = decode_depth(self.root / e["depth"], idx, self._intrinsics, self.depth_scale)
+        return color, depth
+
+    def close(self) -> None:
+        """Stop decoding ahead (reads still work, decoding synchronously)."""
+        self._prefetch.close()
 
     def check(self) -> None:
         """Decode every image once; raise :class:`SourceError` for the first missing or corrupt one."""

@@ -1,0 +1,73 @@
+"""The recording source's background decoding of the next frames (tracker/sources/prefetch.py)."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from tracker.sources.base import SourceError
+from tracker.sources.prefetch import DecodePrefetcher
+from tracker.sources.recording import RecordingSource, RecordingWriter
+from tracker.sources.simulator import SimulatedTable
+
+
+def _recording(path, n: int = 6):
+    src = SimulatedTable("static", seed=1, n_frames=n)
+    with RecordingWriter(path, src.intrinsics, parts=src.parts, initial_poses=src.initial_poses) as w:
+        for i in range(n):
+            f = src.render(i)
+            w.write(f, f.meta["groundtruth"])
+    return path
+
+
+def test_prefetched_frames_equal_frames_decoded_on_demand(tmp_path):
+    rec = _recording(tmp_path / "rec")
+    ahead, plain = RecordingSource(rec), RecordingSource(rec, prefetch=0)
+    for i in range(len(plain)):
+        a, b = ahead.read(i), plain.read(i)
+        assert a.index == b.index and np.array_equal(a.color, b.color)
+        assert np.array_equal(a.depth, b.depth, equal_nan=True)
+        if i + 1 < len(plain):
+            assert i + 1 in ahead._prefetch.pending  # the next one is being decoded already
+    assert plain._prefetch.pending == []
+    ahead.close()
+    assert ahead.read(2).index == plain.read(2).index  # reads still work after close, decoding on demand
+
+
+def test_a_frame_corrupt_when_prefetched_gives_the_reader_its_own_error_or_its_repaired_image(tmp_path):
+    rec = _recording(tmp_path / "rec")
+    good = (rec / "color" / "000003.png").read_bytes()
+    (rec / "color" / "000003.png").write_bytes(b"not a png")
+    src = RecordingSource(rec)
+    src.read(2)  # prefetches 3 (corrupt) and 4
+    src._prefetch._pending[3].exception(timeout=10)  # the prefetch has failed
+    with pytest.raises(SourceError, match="000003.png"):
+        src.read(3)
+    src.read(1)  # prefetches 2 and 3 again, 3 still corrupt
+    src._prefetch._pending[3].exception(timeout=10)
+    (rec / "color" / "000003.png").write_bytes(good)  # repaired after the failed prefetch
+    assert src.read(3).index == 3
+    assert np.array_equal(src.read(3).color, RecordingSource(rec, prefetch=0).read(3).color)
+
+
+def test_prefetcher_wraps_when_looping_and_drops_what_a_jump_leaves_behind():
+    calls: list[int] = []
+    lock = threading.Lock()
+
+    def decode(i: int) -> int:
+        with lock:
+            calls.append(i)
+        return 10 * i
+
+    pre = DecodePrefetcher(decode, size=5, depth=2, wrap=True)
+    assert pre.get(4) == 40 and sorted(pre.pending) == [0, 1]
+    assert pre.get(0) == 0 and sorted(pre.pending) == [1, 2]
+    assert pre.get(3) == 30 and sorted(pre.pending) == [0, 4]  # 1 and 2 dropped
+    end = DecodePrefetcher(decode, size=5, depth=2, wrap=False)
+    assert end.get(4) == 40 and end.pending == []
+    with pytest.raises(ValueError, match="depth"):
+        DecodePrefetcher(decode, size=5, depth=-1)
+    pre.close()
+    end.close()
