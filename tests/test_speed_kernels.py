@@ -597,3 +597,53 @@ def test_box_depth_at_one_pixel_matches_the_renderer():
         assert got == want or (np.isnan(got) and np.isnan(want))
         hits += bool(np.isfinite(want))
     assert 50 < hits < 300
+
+
+def test_correction_rotation_kernel_matches_einsum():
+    """The refinement's correction turns the particles' rotations exactly as ``np.einsum("ij,njk->nik")`` did (a
+    contiguous stack and a part's strided column of the tracker's (N, K, 3, 3) array)."""
+    from tracker.refine.part_refiner import rotate_left
+
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        Rd = rotvec_to_matrix(rng.normal(0.0, 0.5, 3))[0]
+        R_all = rotvec_to_matrix(rng.normal(0.0, 1.0, (60 * 4, 3))).reshape(60, 4, 3, 3)
+        for R in (R_all[:, 2], np.ascontiguousarray(R_all[:, 1])):
+            assert np.array_equal(rotate_left(Rd, R), np.einsum("ij,njk->nik", Rd, R))
+
+
+def test_rotation_angle_matches_the_numpy_form():
+    """The refinement's rotation angle on Python floats equals ``arccos(clip((trace − 1) / 2))`` in numpy, also at
+    the clipped ends (identity, half turn, a matrix a little off orthonormal)."""
+    from tracker.refine.part_refiner import rotation_angle
+
+    rng = np.random.default_rng(8)
+    mats = list(rotvec_to_matrix(rng.normal(0.0, 1.5, (500, 3))))
+    mats += [np.eye(3), np.diag([1.0, -1.0, -1.0]), np.eye(3) * (1.0 + 1e-12), -np.eye(3) * (1.0 + 1e-12)]
+    for R in mats:
+        want = float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+        assert rotation_angle(R) == want
+
+
+def test_scene_motion_agreement_table_matches_agrees():
+    """The consensus's agreement table gives :func:`agrees`'s answer for every candidate and landmark (landmark
+    motions near one camera motion, some off by more than the tolerance in place or in turn)."""
+    from tracker.filter.scene_motion import agreement, agrees
+
+    rng = np.random.default_rng(9)
+    tol = 0.003
+    agreeing = sum_pairs = 0
+    for _ in range(40):
+        m = int(rng.integers(2, 8))
+        sum_pairs += m * (m - 1)
+        R0 = rotvec_to_matrix(rng.normal(0.0, 0.05, 3))[0]
+        t0 = rng.normal(0.0, 0.01, 3)
+        Rs = np.stack([rotvec_to_matrix(rng.normal(0.0, 0.003, 3))[0] @ R0 for _ in range(m)])
+        ts = t0 + rng.normal(0.0, 0.0015, (m, 3))
+        cs = rng.normal(0.0, 0.1, (m, 3)) + [0.0, 0.0, 0.6]
+        table = agreement(Rs, ts, cs, tol)
+        for a in range(m):
+            for j in range(m):
+                assert table[a, j] == agrees(Rs[a], ts[a], Rs[j], ts[j], cs[j], tol)
+                agreeing += bool(table[a, j]) and a != j
+    assert 20 < agreeing < sum_pairs

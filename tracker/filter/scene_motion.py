@@ -21,8 +21,10 @@ changes are already near zero and nothing moves here.
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
+import numba as nb
 import numpy as np
 
 from tracker.filter.camera_motion import move_part
@@ -67,8 +69,10 @@ def consensus_motion(pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], tol
     if len(pairs) < min_agree:
         return None
     best: list[int] = []
-    for Rc, tc, _ in pairs:
-        agree = [j for j, (Rj, tj, cj) in enumerate(pairs) if agrees(Rc, tc, Rj, tj, cj, tolerance)]
+    table = agreement(np.array([q[0] for q in pairs], np.float64), np.array([q[1] for q in pairs], np.float64),
+                      np.array([q[2] for q in pairs], np.float64), float(tolerance))
+    for a in range(len(pairs)):
+        agree = np.flatnonzero(table[a]).tolist()
         if len(agree) > len(best):
             best = agree
     if len(best) < min_agree or 2 * len(best) <= len(pairs):
@@ -122,6 +126,32 @@ def agrees(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray, c: np
     ``tolerance`` m of each other and differ by less than ``tolerance`` / 0.05 rad in rotation (about 3.4° at 3 mm)?"""
     return bool(np.linalg.norm((Ra @ c + ta) - (Rb @ c + tb)) < tolerance
                 and rotation_angle(Ra.T @ Rb) < tolerance / 0.05)
+
+
+@nb.njit(cache=True)
+def agreement(Rs: np.ndarray, ts: np.ndarray, cs: np.ndarray, tolerance: float) -> np.ndarray:
+    """:func:`agrees` of every candidate with every landmark: ``out[a, j]`` = do the motions ``(Rs[a], ts[a])`` and
+    ``(Rs[j], ts[j])`` agree at ``cs[j]`` (L × L bool, motions (L, 3, 3) and (L, 3), centres (L, 3), metres). The
+    same tests in plain loops (sums in index order, where numpy's BLAS calls may round the last bit differently:
+    the same answers but for a distance or angle within an ulp of its bound)."""
+    m = Rs.shape[0]
+    out = np.zeros((m, m), np.bool_)
+    max_angle = tolerance / 0.05
+    for a in range(m):
+        for j in range(m):
+            d2 = 0.0
+            for r in range(3):
+                xa = Rs[a, r, 0] * cs[j, 0] + Rs[a, r, 1] * cs[j, 1] + Rs[a, r, 2] * cs[j, 2] + ts[a, r]
+                xj = Rs[j, r, 0] * cs[j, 0] + Rs[j, r, 1] * cs[j, 1] + Rs[j, r, 2] * cs[j, 2] + ts[j, r]
+                d2 += (xa - xj) * (xa - xj)
+            if not math.sqrt(d2) < tolerance:
+                continue
+            tr = 0.0  # trace(Ra^T Rj)
+            for r in range(3):
+                tr += Rs[a, 0, r] * Rs[j, 0, r] + Rs[a, 1, r] * Rs[j, 1, r] + Rs[a, 2, r] * Rs[j, 2, r]
+            cos = min(max((tr - 1.0) / 2.0, -1.0), 1.0)
+            out[a, j] = math.acos(cos) < max_angle
+    return out
 
 
 def placed_by_depth(trk: MultiObjectTracker, obj: int) -> bool:
