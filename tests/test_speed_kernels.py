@@ -647,3 +647,41 @@ def test_scene_motion_agreement_table_matches_agrees():
                 assert table[a, j] == agrees(Rs[a], ts[a], Rs[j], ts[j], cs[j], tol)
                 agreeing += bool(table[a, j]) and a != j
     assert 20 < agreeing < sum_pairs
+
+
+def test_weighted_positions_match_numpy_sums():
+    """The state estimate's weighted mean positions of all parts in one kernel equal numpy's per-part sums."""
+    from tracker.filter.motion_model import weighted_positions
+
+    rng = np.random.default_rng(10)
+    for n, k in ((225, 7), (50, 1), (1, 3)):
+        p = rng.normal(0.0, 0.2, (n, k, 3)) + [0.0, 0.0, 0.7]
+        w = rng.random(n) ** 3
+        w /= w.sum()
+        want = np.stack([(w[:, None] * p[:, i]).sum(axis=0) for i in range(k)])
+        assert np.array_equal(weighted_positions(w, p), want)
+
+
+def test_intersects_others_matches_the_stacked_form():
+    """The refinement's interpenetration test of a corrected part against the others' estimates (arrays filled in
+    place) answers as the form that stacked every pose's matrices did, on touching and overlapping cubes."""
+    from tracker.filter.penalties import intersection_flags
+    from tracker.refine.refine_stage import intersects_others
+
+    parts = [PartSpec(f"c{i}", box=(0.03, 0.03, 0.03)) for i in range(4)]
+    trk = MultiObjectTracker(parts, INTR, TrackerConfig.preset("default").with_overrides(n_particles=8), seed=0)
+    rng = np.random.default_rng(11)
+    hits = 0
+    for _ in range(60):
+        poses = {p.name: Pose.from_rt(rotvec_to_matrix(rng.normal(0.0, 1.0, 3))[0],
+                                      [rng.uniform(-0.04, 0.04), rng.uniform(-0.04, 0.04), 0.6]) for p in parts}
+        obj = int(rng.integers(0, 4))
+        moved = poses[trk.names[obj]].t + rng.normal(0, 0.01, 3)
+        pose = Pose.from_rt(rotvec_to_matrix(rng.normal(0.0, 1.0, 3))[0], moved)
+        R = np.stack([pose.R if i == obj else poses[n].R for i, n in enumerate(trk.names)])[None]
+        t = np.stack([pose.t if i == obj else poses[n].t for i, n in enumerate(trk.names)])[None]
+        pairs = np.array([(obj, o) for o in range(4) if o != obj], np.int64)
+        want = bool(intersection_flags(R, t, trk.center, trk.half, pairs, trk.config.contact_tolerance)[0])
+        assert intersects_others(trk, obj, pose, poses) == want
+        hits += want
+    assert 5 < hits < 60

@@ -261,4 +261,22 @@ def mean_poses(p: np.ndarray, R: np.ndarray, weights: np.ndarray) -> list[Pose]:
         q = np.ascontiguousarray(q_all[:, i])
         M[i] = (q * w[:, None]).T @ q
     _, vecs = np.linalg.eigh(M)
-    return [Pose.from_rt(quat_to_matrix(vecs[i, :, -1]), (w[:, None] * p[:, i]).sum(axis=0)) for i in range(k)]
+    t = weighted_positions(w, np.asarray(p, np.float64))
+    return [Pose.from_rt(quat_to_matrix(vecs[i, :, -1]), t[i].copy()) for i in range(k)]
+
+
+@nb.njit(cache=True)
+def weighted_positions(w: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Per part, ``Σ_n w[n] p[n, i]`` (K, 3) of the particle positions ``p`` (N, K, 3): the sums of
+    ``(w[:, None] * p[:, i]).sum(axis=0)`` in its order (over the particles in turn; the same values)."""
+    n, k = p.shape[0], p.shape[1]
+    out = np.zeros((k, 3))
+    if n == 0:
+        return out
+    for i in range(k):
+        for a in range(3):
+            acc = w[0] * p[0, i, a]
+            for j in range(1, n):
+                acc += w[j] * p[j, i, a]
+            out[i, a] = acc
+    return out

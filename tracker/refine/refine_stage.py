@@ -216,7 +216,13 @@ def intersects_others(trk: MultiObjectTracker, obj: int, pose: Pose, poses: dict
     k = len(trk.parts)
     if k < 2:
         return False
-    R = np.stack([pose.R if i == obj else poses[n].R for i, n in enumerate(trk.names)])[None]
-    t = np.stack([pose.t if i == obj else poses[n].t for i, n in enumerate(trk.names)])[None]
-    pairs = np.array([(obj, o) for o in range(k) if o != obj], np.int64)
+    R = np.empty((1, k, 3, 3))
+    t = np.empty((1, k, 3))
+    for i, n in enumerate(trk.names):
+        p = pose if i == obj else poses[n]
+        R[0, i] = p.R
+        t[0, i] = p.t
+    pairs = np.empty((k - 1, 2), np.int64)
+    pairs[:, 0] = obj
+    pairs[:, 1] = [o for o in range(k) if o != obj]
     return bool(intersection_flags(R, t, trk.center, trk.half, pairs, trk.config.contact_tolerance)[0])
