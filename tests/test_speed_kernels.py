@@ -685,3 +685,27 @@ def test_intersects_others_matches_the_stacked_form():
         assert intersects_others(trk, obj, pose, poses) == want
         hits += want
     assert 5 < hits < 60
+
+
+def test_blob_area_counts_the_blob_mask():
+    """The blob area counted once when a blob's mask is made equals the mask's pixel count (blobs inside the image,
+    cut by its border, too thin to survive the erosion)."""
+    from types import SimpleNamespace
+
+    from tracker.filter.colour_input import blob_area, blob_mask
+
+    cfg = TrackerConfig.preset("default")
+    rng = np.random.default_rng(12)
+    shape = (480, 640)
+    counted = 0
+    for trial in range(40):
+        trk = SimpleNamespace(config=cfg, _blobs={})
+        c = rng.uniform([-20, -20], [660, 500])
+        r = rng.uniform(1.0, 40.0, 2) if trial % 10 else np.array([1.0, 30.0])
+        ang = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+        contour = np.stack([c[0] + r[0] * np.cos(ang), c[1] + r[1] * np.sin(ang)], 1).round().astype(np.int32)
+        det = SimpleNamespace(contour=contour[:, None, :], score=1.0)
+        mask = blob_mask(trk, det, shape)
+        assert blob_area(trk, det, shape) == int(np.count_nonzero(mask))
+        counted += int(np.count_nonzero(mask)) > 0
+    assert 10 < counted < 40

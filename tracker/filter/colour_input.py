@@ -145,17 +145,35 @@ def confident(trk, score: float, area) -> bool:
 def blob_mask(trk, det, shape) -> np.ndarray | None:
     """Full-resolution mask of a detection's blob, eroded by 2 px (edges mix part and background); computed
     once per detection object and frame (colour input, re-seeding and ICP all use it)."""
+    return _blob_entry(trk, det, shape)[1]
+
+
+def blob_area(trk, det, shape) -> int:
+    """Pixels of :func:`blob_mask` (0 without a mask), counted once when the mask is made."""
+    return _blob_entry(trk, det, shape)[2]
+
+
+def _blob_entry(trk, det, shape) -> tuple:
+    """``(det, mask, area)`` of a detection this frame, made on first use."""
     key = id(det)
-    if key not in trk._blobs:
-        trk._blobs[key] = (det, make_blob_mask(trk, det, shape))
-    return trk._blobs[key][1]
+    entry = trk._blobs.get(key)
+    if entry is None:
+        mask, area = _make_blob_mask(trk, det, shape)
+        entry = trk._blobs[key] = (det, mask, area)
+    return entry
 
 
 def make_blob_mask(trk, det, shape) -> np.ndarray | None:
+    """The mask of :func:`blob_mask`, made afresh."""
+    return _make_blob_mask(trk, det, shape)[0]
+
+
+def _make_blob_mask(trk, det, shape) -> tuple[np.ndarray | None, int]:
+    """:func:`make_blob_mask` and its pixel count (taken on the window the blob was drawn in)."""
     if det is None or getattr(det, "contour", None) is None:
-        return None
+        return None, 0
     if float(getattr(det, "score", 0.0) or 0.0) < trk.config.color_mask_min_score:
-        return None
+        return None, 0
     import cv2
 
     pts = np.asarray(det.contour, np.int32).reshape(-1, 2)
@@ -163,11 +181,12 @@ def make_blob_mask(trk, det, shape) -> np.ndarray | None:
     x1, y1 = min(int(pts[:, 0].max()) + 4, shape[1]), min(int(pts[:, 1].max()) + 4, shape[0])
     m = np.zeros(shape, bool)
     if x0 >= x1 or y0 >= y1:
-        return m
+        return m, 0
     win = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.fillPoly(win, [pts - np.array([x0, y0], np.int32)], 1)
-    m[y0:y1, x0:x1] = cv2.erode(win, np.ones((5, 5), np.uint8)).astype(bool)
-    return m
+    eroded = cv2.erode(win, np.ones((5, 5), np.uint8))
+    m[y0:y1, x0:x1] = eroded.astype(bool)
+    return m, int(cv2.countNonZero(eroded))
 
 
 def color_masks(trk, detections, gi, gj) -> tuple[np.ndarray, np.ndarray]:

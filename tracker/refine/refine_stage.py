@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tracker.filter import quiet_parts
-from tracker.filter.colour_input import blob_mask, blob_target
+from tracker.filter.colour_input import blob_area, blob_mask, blob_target
 from tracker.filter.frame_context import table_normal_offset
 from tracker.filter.penalties import intersection_flags
 from tracker.geometry.pose import Pose
@@ -127,7 +127,7 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         if trk.parts[i].color is not None and detections:
             det = detections.get(name)
             mask = blob_mask(trk, det, depth.shape) if det is not None else None
-            area = 0 if mask is None else int(np.count_nonzero(mask))
+            area = 0 if mask is None else blob_area(trk, det, depth.shape)
             seen = area >= trk.config.reseed_min_area_px
             ok = ok and area > 0  # no blob: the part shows nowhere, nothing to refine on
         active.append(ok)
