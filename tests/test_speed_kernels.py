@@ -709,3 +709,40 @@ def test_blob_area_counts_the_blob_mask():
         assert blob_area(trk, det, shape) == int(np.count_nonzero(mask))
         counted += int(np.count_nonzero(mask)) > 0
     assert 10 < counted < 40
+
+
+def test_prior_terms_kept_per_part_equal_the_priors_from_scratch():
+    """The rest and support priors kept per part during the coordinate passes (only the moved part recomputed,
+    rows following resamplings) equal :func:`log_rest_prior` + :func:`log_support_prior` computed from scratch."""
+    from tracker.filter import hidden_parts
+
+    parts = [PartSpec(f"c{i}", box=(0.03, 0.03, 0.04)) for i in range(4)]
+    n = 40
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=n, rest_prior_sigma=0.01,
+                                                         support_prior_sigma=0.004)
+    trk = MultiObjectTracker(parts, INTR, cfg, seed=0)
+    rng = np.random.default_rng(13)
+    trk.initialize({p.name: Pose.from_rt(rotvec_to_matrix(rng.normal(0, 0.3, 3))[0], [0.05 * i, 0.0, 0.6])
+                    for i, p in enumerate(parts)})
+    trk._rest_on = np.array([True, False, True, True])
+    trk._support_on = np.array([True, True, False, True])
+    plane = (np.array([0.0, -0.8, -0.6]), 0.45)
+    priors = hidden_parts.PriorTerms(trk, plane)
+    p, R = trk.p.copy(), trk.R.copy()
+    for step in range(12):
+        changed = None if step == 0 else {step % 4}
+        for i in (range(4) if changed is None else changed):
+            p[:, i] += rng.normal(0.0, 0.004, (n, 3))
+            R[:, i] = rotvec_to_matrix(rng.normal(0.0, 0.05, (n, 3))) @ R[:, i]
+        rest, support = priors.total(p, R, changed)
+        want = hidden_parts.log_rest_prior(trk, p) + hidden_parts.log_support_prior(trk, p, R, plane)
+        got = rest + support
+        assert np.array_equal(got, want)
+        if step % 3 == 2:  # a resampling
+            idx = np.sort(rng.integers(0, n, n))
+            p, R = p[idx], R[idx]
+            priors.take(idx)
+    off = hidden_parts.PriorTerms(trk, None)
+    trk._rest_on[:] = False
+    assert hidden_parts.PriorTerms(trk, None).total(p, R, None) == (0.0, 0.0)
+    assert isinstance(off.total(p, R, None)[0], np.ndarray)

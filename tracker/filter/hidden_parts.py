@@ -357,6 +357,66 @@ def log_support_prior(trk, p, R, plane) -> np.ndarray | float:
     return out
 
 
+class PriorTerms:
+    """:func:`log_rest_prior` and :func:`log_support_prior` during one frame's coordinate passes, kept per part so
+    that a pass recomputes only the parts it moved (each part's term computed as those functions compute it, the
+    sums formed as they form them: the same values); :meth:`take` follows a resampling. The parts under either
+    prior and their anchors do not change during the passes."""
+
+    def __init__(self, trk, plane) -> None:
+        self.trk = trk
+        self.plane = plane
+        k = len(trk.parts)
+        self.rest_parts = np.flatnonzero(trk._rest_on)
+        self.support_parts = np.flatnonzero(trk._support_on) if plane is not None else np.zeros(0, np.int64)
+        n = trk.config.n_particles
+        self.rest_cols = np.zeros((n, k))  # per part, its clipped squared distance to its anchor
+        self.support_cols = np.zeros((k, n))  # per part, its support term
+        self.done = np.zeros(k, bool)
+
+    def total(self, p: np.ndarray, R: np.ndarray, changed: set[int] | None = None) -> np.ndarray | float:
+        """``log_rest_prior(trk, p) + log_support_prior(trk, p, R, plane)`` summed as the passes sum them, where
+        only the parts in ``changed`` moved since the last call (``None``: all)."""
+        trk = self.trk
+        redo = [i for i in set(self.rest_parts.tolist()) | set(self.support_parts.tolist())
+                if changed is None or i in changed or not self.done[i]]
+        if self.rest_parts.size:
+            sig2 = trk.config.rest_prior_sigma ** 2
+            for i in redo:
+                if trk._rest_on[i]:
+                    d2 = ((p[:, i] - trk._rest_t[i]) ** 2).sum(-1)
+                    self.rest_cols[:, i] = np.minimum(d2, 9.0 * sig2)
+        if self.support_parts.size:
+            for i in redo:
+                if trk._support_on[i]:
+                    self.support_cols[i] = _support_term(trk, p, R, self.plane, i)
+        self.done[redo] = True
+        rest = 0.0
+        if self.rest_parts.size:
+            sig2 = trk.config.rest_prior_sigma ** 2
+            rest = -0.5 * self.rest_cols[:, self.rest_parts].sum(-1) / sig2
+        support = 0.0
+        if self.support_parts.size:
+            support = np.zeros(p.shape[0])
+            for i in self.support_parts:
+                support -= self.support_cols[i]
+        return rest, support
+
+    def take(self, idx: np.ndarray) -> None:
+        """Follow a resampling: the particles are now the rows ``idx`` of the previous ones."""
+        self.rest_cols = self.rest_cols[idx]
+        self.support_cols = self.support_cols[:, idx]
+
+
+def _support_term(trk, p, R, plane, i) -> np.ndarray:
+    """Part ``i``'s term of :func:`log_support_prior` (subtracted from it)."""
+    sig = trk.config.support_prior_sigma
+    n, d = plane
+    nb = np.einsum("nji,j->ni", R[:, i], n)  # Rᵀ n per particle
+    h = np.abs((nb @ trk.hulls[i].T).min(axis=1) + p[:, i] @ n + d) / sig
+    return np.where(h < 3.0, 0.5 * h * h, 3.0 * h - 4.5)
+
+
 def log_rest_prior(trk, p) -> np.ndarray | float:
     """Rest prior (TrackerConfig.rest_prior_sigma): Gaussian pull of resting hidden parts to their anchors."""
     if not trk._rest_on.any():

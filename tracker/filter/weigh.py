@@ -106,6 +106,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     if cfg.hint_min_visibility > 0 and cfg.use_color_input and detections:
         forceable &= detected  # and a reliable colour blob now: the hand may have covered the part this frame
     penalties = PenaltyTerms(trk, plane)
+    priors = hidden_parts.PriorTerms(trk, support_plane)
     skip = trk._quiet_now  # decided before the evaluated pixels (filter/quiet_parts.py)
     first = True
     # the rendered depths and cached pixel terms are not read after the frame's last pass: its resampling leaves them
@@ -127,9 +128,8 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
                 trk, i, p_prev, R_prev, v_prev, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu, pv, gi, gj,
                 D, loc, dirty, all_particles, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
                 alpha, cmask, cvalid, occ_cap)
-        ell_tot = (ell + penalties.total(p_cur, R_cur, None if first else changed_objs)
-                   + hidden_parts.log_rest_prior(trk, p_cur)
-                   + hidden_parts.log_support_prior(trk, p_cur, R_cur, support_plane))
+        rest, support = priors.total(p_cur, R_cur, None if first else changed_objs)
+        ell_tot = ell + penalties.total(p_cur, R_cur, None if first else changed_objs) + rest + support
         first = False
         td = time.perf_counter()
         log_w += ell_tot - ell_prev
@@ -145,6 +145,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
                 take_rows_inplace(D, idx)
                 take_rows_inplace(C, idx)
                 penalties.take(idx)
+                priors.take(idx)
             take_rows_inplace(Q, idx)
             take_rows_inplace(F, idx)
             ell, ell_prev, anc = ell[idx], ell_prev[idx], anc[idx]
