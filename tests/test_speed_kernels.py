@@ -602,7 +602,7 @@ def test_box_depth_at_one_pixel_matches_the_renderer():
 def test_correction_rotation_kernel_matches_einsum():
     """The refinement's correction turns the particles' rotations exactly as ``np.einsum("ij,njk->nik")`` did (a
     contiguous stack and a part's strided column of the tracker's (N, K, 3, 3) array)."""
-    from tracker.refine.part_refiner import rotate_left
+    from tracker.filter.motion_model import rotate_left
 
     rng = np.random.default_rng(7)
     for _ in range(20):

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tracker.filter.motion_model import rotate_left
 from tracker.geometry.pose import Pose
 
 
@@ -114,7 +115,7 @@ def move_part(trk, obj: int, R: np.ndarray, t: np.ndarray) -> None:
     and rest anchor; its velocities are zeroed. (A part carried by a hand, moved with its blob, or kept in place
     while the camera moves.)"""
     trk.p[:, obj] = trk.p[:, obj] @ R.T + t
-    trk.R[:, obj] = np.einsum("ij,njk->nik", R, trk.R[:, obj])
+    trk.R[:, obj] = rotate_left(np.ascontiguousarray(R, np.float64), trk.R[:, obj])  # np.einsum's values
     trk.v[:, obj] = 0.0
     trk._rest_t[obj] = R @ trk._rest_t[obj] + t
     trk._rest_R[obj] = R @ trk._rest_R[obj]

@@ -144,6 +144,7 @@ class MultiObjectTracker:
         self._roi_corners = np.ascontiguousarray(np.stack(self.corners), np.float64)
         self._roi_radii = np.array([float(np.linalg.norm(self.half[i]) + np.linalg.norm(self.center[i]))
                                     for i in range(k)])
+        self._penalty_shapes = weigh.penalty_shapes(self)  # the passes' penalty constants (filter/weigh.py)
         # downsampled pixel grid (full-resolution coordinates of the sampled pixels)
         f = self.config.downsample
         self._off = (f - 1) // 2

@@ -248,6 +248,18 @@ def log_penalties(trk, p, R, plane) -> np.ndarray:
     return out
 
 
+def penalty_shapes(trk: MultiObjectTracker) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The parts' constants of :class:`PenaltyTerms`: smallest half extent (K,), the hull vertices of all parts
+    stacked (V, 3, body frames) and each part's offset into them (K + 1,)."""
+    k = len(trk.parts)
+    half_min = np.array([float(h.min()) for h in trk.half], np.float64)
+    hulls = [np.ascontiguousarray(h, np.float64).reshape(-1, 3) for h in trk.hulls]
+    hull_off = np.zeros(k + 1, np.int64)
+    hull_off[1:] = np.cumsum([h.shape[0] for h in hulls])
+    hull_all = np.ascontiguousarray(np.concatenate(hulls)) if hulls else np.zeros((0, 3))
+    return half_min, hull_all, hull_off
+
+
 class PenaltyTerms:
     """:func:`log_penalties` of the particles during one frame's coordinate passes, kept per part (colour term,
     lowest height above the table) and per pair of parts (intersection), so that a pass recomputes only the terms
@@ -269,11 +281,7 @@ class PenaltyTerms:
         self.pair_flags = np.zeros((n, max(len(trk.pairs), 1)), np.bool_)  # (N, M) bool per pair of trk.pairs
         self.use_table = plane is not None and cfg.lambda_h > 0
         self.heights = np.zeros((n, k))  # (N, K) lowest height of each part above the table
-        self.half_min = np.array([float(h.min()) for h in trk.half], np.float64)
-        hulls = [np.ascontiguousarray(h, np.float64).reshape(-1, 3) for h in trk.hulls]
-        self.hull_off = np.zeros(k + 1, np.int64)
-        self.hull_off[1:] = np.cumsum([h.shape[0] for h in hulls])
-        self.hull_all = np.ascontiguousarray(np.concatenate(hulls)) if hulls else np.zeros((0, 3))
+        self.half_min, self.hull_all, self.hull_off = trk._penalty_shapes  # per part, fixed: made once
         self.normal = np.zeros(3) if plane is None else np.asarray(plane[0], np.float64).reshape(3)
         self.offset = 0.0 if plane is None else float(plane[1])
 

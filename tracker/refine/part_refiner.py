@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
+from tracker.filter.motion_model import rotate_left
 from tracker.geometry.camera import Intrinsics
 from tracker.refine.dense_depth import RefineResult, RefineSettings, refine_pose
 from tracker.refine.region_term import OutlineScene, RegionSettings, pack_shapes, region_term
@@ -35,19 +35,6 @@ class Correction:
         """Particles (positions (N, 3), rotations (N, 3, 3)) moved rigidly with the correction."""
         return p @ self.Rd.T + self.td, rotate_left(np.ascontiguousarray(self.Rd, np.float64),
                                                     np.asarray(R, np.float64))
-
-
-@nb.njit(cache=True)
-def rotate_left(Rd: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """``Rd @ R[n]`` for every rotation of ``R`` (N, 3, 3): a new (N, 3, 3) array, each entry summed in the order
-    ``np.einsum("ij,njk->nik", Rd, R)`` sums it (the same values), without its per-call overhead."""
-    n = R.shape[0]
-    out = np.empty((n, 3, 3))
-    for j in range(n):
-        for a in range(3):
-            for b in range(3):
-                out[j, a, b] = Rd[a, 0] * R[j, 0, b] + Rd[a, 1] * R[j, 1, b] + Rd[a, 2] * R[j, 2, b]
-    return out
 
 
 def rotation_angle(Rd: np.ndarray) -> float:

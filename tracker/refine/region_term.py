@@ -652,7 +652,7 @@ class SignedDistance:
 
     @classmethod
     def _of_crop(cls, crop: np.ndarray, u0: int, v0: int, band: int = 0) -> SignedDistance | None:
-        n_in = int(crop.sum())
+        n_in = int(cv2.countNonZero(crop))  # the crop holds 0 and 1: its sum
         if n_in == 0 or n_in == crop.size:
             return None
         if min(crop.shape) < 2:
