@@ -103,7 +103,8 @@ def run_session(session: int, seed: int, frames: int, pair: dict | None = None) 
             for i in range(src.n_frames):
                 frame = src.render(i)
                 writer.write(frame, frame.meta.get("groundtruth"))
-        rec = RecordingSource(rec_dir)
+        # decoded on demand in this thread (no prefetch thread): one core does the decoding, as the target counts
+        rec = RecordingSource(rec_dir, prefetch=0)
         ours = TrackSession(rec.parts, rec.intrinsics, rec.initial_poses, cfg, seed=0)
         other = None
         if pair:
