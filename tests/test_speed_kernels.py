@@ -712,8 +712,8 @@ def test_blob_area_counts_the_blob_mask():
 
 
 def test_prior_terms_kept_per_part_equal_the_priors_from_scratch():
-    """The rest and support priors kept per part during the coordinate passes (only the moved part recomputed,
-    rows following resamplings) equal :func:`log_rest_prior` + :func:`log_support_prior` computed from scratch."""
+    """The support prior kept per part during the coordinate passes (only the moved part recomputed, rows following
+    resamplings) and the rest prior's kernel equal their numpy forms computed from scratch."""
     from tracker.filter import hidden_parts
 
     parts = [PartSpec(f"c{i}", box=(0.03, 0.03, 0.04)) for i in range(4)]
@@ -735,14 +735,37 @@ def test_prior_terms_kept_per_part_equal_the_priors_from_scratch():
             p[:, i] += rng.normal(0.0, 0.004, (n, 3))
             R[:, i] = rotvec_to_matrix(rng.normal(0.0, 0.05, (n, 3))) @ R[:, i]
         rest, support = priors.total(p, R, changed)
-        want = hidden_parts.log_rest_prior(trk, p) + hidden_parts.log_support_prior(trk, p, R, plane)
-        got = rest + support
-        assert np.array_equal(got, want)
+        on = trk._rest_on
+        sig2 = cfg.rest_prior_sigma ** 2  # log_rest_prior's numpy form
+        want_rest = -0.5 * np.minimum(((p[:, on] - trk._rest_t[on]) ** 2).sum(-1), 9.0 * sig2).sum(-1) / sig2
+        assert np.array_equal(hidden_parts.log_rest_prior(trk, p), want_rest)
+        want = want_rest + hidden_parts.log_support_prior(trk, p, R, plane)
+        assert np.array_equal(rest + support, want)
         if step % 3 == 2:  # a resampling
             idx = np.sort(rng.integers(0, n, n))
             p, R = p[idx], R[idx]
             priors.take(idx)
-    off = hidden_parts.PriorTerms(trk, None)
+    rest, support = hidden_parts.PriorTerms(trk, None).total(p, R, None)  # no plane: no support prior
+    assert isinstance(rest, np.ndarray) and support == 0.0
     trk._rest_on[:] = False
     assert hidden_parts.PriorTerms(trk, None).total(p, R, None) == (0.0, 0.0)
-    assert isinstance(off.total(p, R, None)[0], np.ndarray)
+
+
+@pytest.mark.parametrize("k", [1, 3, 7, 9])
+def test_rest_prior_kernel_matches_numpy(k):
+    """The rest prior of up to 7 resting parts (the kernel) and of more (numpy's pairwise sums) equal the numpy
+    form."""
+    from types import SimpleNamespace
+
+    from tracker.filter.hidden_parts import log_rest_prior
+
+    rng = np.random.default_rng(14 + k)
+    cfg = TrackerConfig.preset("default").with_overrides(rest_prior_sigma=0.01)
+    for _ in range(20):
+        p = rng.normal(0.0, 0.02, (225, k, 3))
+        on = rng.random(k) < 0.8
+        on[0] = True
+        trk = SimpleNamespace(config=cfg, _rest_on=on, _rest_t=rng.normal(0.0, 0.02, (k, 3)))
+        sig2 = 0.01 ** 2
+        want = -0.5 * np.minimum(((p[:, on] - trk._rest_t[on]) ** 2).sum(-1), 9.0 * sig2).sum(-1) / sig2
+        assert np.array_equal(log_rest_prior(trk, p), want)

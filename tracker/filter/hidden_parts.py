@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numba as nb
 import numpy as np
 
 from tracker.filter.blob_follow import centre, recentre
@@ -370,33 +371,20 @@ class PriorTerms:
         self.rest_parts = np.flatnonzero(trk._rest_on)
         self.support_parts = np.flatnonzero(trk._support_on) if plane is not None else np.zeros(0, np.int64)
         n = trk.config.n_particles
-        self.rest_cols = np.zeros((n, k))  # per part, its clipped squared distance to its anchor
-        self.support_cols = np.zeros((k, n))  # per part, its support term
+        self.support_cols = np.zeros((k, n)) if self.support_parts.size else None  # per part, its support term
         self.done = np.zeros(k, bool)
 
     def total(self, p: np.ndarray, R: np.ndarray, changed: set[int] | None = None) -> np.ndarray | float:
         """``log_rest_prior(trk, p) + log_support_prior(trk, p, R, plane)`` summed as the passes sum them, where
         only the parts in ``changed`` moved since the last call (``None``: all)."""
         trk = self.trk
-        redo = [i for i in set(self.rest_parts.tolist()) | set(self.support_parts.tolist())
-                if changed is None or i in changed or not self.done[i]]
-        if self.rest_parts.size:
-            sig2 = trk.config.rest_prior_sigma ** 2
-            for i in redo:
-                if trk._rest_on[i]:
-                    d2 = ((p[:, i] - trk._rest_t[i]) ** 2).sum(-1)
-                    self.rest_cols[:, i] = np.minimum(d2, 9.0 * sig2)
-        if self.support_parts.size:
-            for i in redo:
-                if trk._support_on[i]:
-                    self.support_cols[i] = _support_term(trk, p, R, self.plane, i)
-        self.done[redo] = True
-        rest = 0.0
-        if self.rest_parts.size:
-            sig2 = trk.config.rest_prior_sigma ** 2
-            rest = -0.5 * self.rest_cols[:, self.rest_parts].sum(-1) / sig2
+        rest = log_rest_prior(trk, p) if self.rest_parts.size else 0.0  # one kernel: cheaper from scratch
         support = 0.0
         if self.support_parts.size:
+            for i in self.support_parts:
+                if changed is None or i in changed or not self.done[i]:
+                    self.support_cols[i] = _support_term(trk, p, R, self.plane, i)
+                    self.done[i] = True
             support = np.zeros(p.shape[0])
             for i in self.support_parts:
                 support -= self.support_cols[i]
@@ -404,8 +392,8 @@ class PriorTerms:
 
     def take(self, idx: np.ndarray) -> None:
         """Follow a resampling: the particles are now the rows ``idx`` of the previous ones."""
-        self.rest_cols = self.rest_cols[idx]
-        self.support_cols = self.support_cols[:, idx]
+        if self.support_cols is not None:
+            self.support_cols = self.support_cols[:, idx]
 
 
 def _support_term(trk, p, R, plane, i) -> np.ndarray:
@@ -422,8 +410,31 @@ def log_rest_prior(trk, p) -> np.ndarray | float:
     if not trk._rest_on.any():
         return 0.0
     sig2 = trk.config.rest_prior_sigma ** 2
+    parts = np.flatnonzero(trk._rest_on)
+    if parts.size < 8:  # numpy sums fewer than 8 terms in order (from 8 on, pairwise): the kernel's sums
+        return _rest_prior(np.asarray(p, np.float64), parts, np.asarray(trk._rest_t, np.float64), float(sig2))
     d2 = ((p[:, trk._rest_on] - trk._rest_t[trk._rest_on]) ** 2).sum(-1)
     return -0.5 * np.minimum(d2, 9.0 * sig2).sum(-1) / sig2
+
+
+@nb.njit(cache=True)
+def _rest_prior(p, parts, rest_t, sig2):
+    """:func:`log_rest_prior` of the particles ``p`` (N, K, 3) for the listed parts (fewer than 8) with anchors
+    ``rest_t`` (K, 3): numpy's operations in its order (the squares summed in order, then the parts' clipped
+    terms), the same values."""
+    n = p.shape[0]
+    out = np.empty(n)
+    for j in range(n):
+        acc = 0.0
+        for q in range(parts.shape[0]):
+            i = parts[q]
+            dx = p[j, i, 0] - rest_t[i, 0]
+            dy = p[j, i, 1] - rest_t[i, 1]
+            dz = p[j, i, 2] - rest_t[i, 2]
+            c = min((dx * dx + dy * dy) + dz * dz, 9.0 * sig2)
+            acc = c if q == 0 else acc + c
+        out[j] = -0.5 * acc / sig2
+    return out
 
 
 
