@@ -769,3 +769,19 @@ def test_rest_prior_kernel_matches_numpy(k):
         sig2 = 0.01 ** 2
         want = -0.5 * np.minimum(((p[:, on] - trk._rest_t[on]) ** 2).sum(-1), 9.0 * sig2).sum(-1) / sig2
         assert np.array_equal(log_rest_prior(trk, p), want)
+
+
+def test_projection_kernel_matches_numpy():
+    """:meth:`Intrinsics.project` in numba equals its numpy form, also for a point at Z = 0 and a NaN point."""
+    intr = Intrinsics(640, 480, 612.3, 611.7, 319.4, 241.2)
+    rng = np.random.default_rng(15)
+    for _ in range(50):
+        p = rng.normal(0.0, 0.3, (40, 3))
+        p[:, 2] = rng.normal(0.6, 0.5, 40)
+        p[0, 2] = 0.0
+        p[1] = np.nan
+        z = p[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            want = np.stack([intr.fx * p[:, 0] / z + intr.cx, intr.fy * p[:, 1] / z + intr.cy], axis=1)
+        assert np.array_equal(intr.project(p), want, equal_nan=True)
+    assert intr.project(np.array([0.1, -0.05, 0.5])).shape == (1, 2)

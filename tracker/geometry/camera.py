@@ -6,6 +6,7 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numba as nb
 import numpy as np
 
 
@@ -54,8 +55,7 @@ class Intrinsics:
     def project(self, pts: np.ndarray) -> np.ndarray:
         """Pixels ``[N, 2]`` (u, v) of camera-frame points ``[N, 3]``."""
         pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
-        z = pts[:, 2]
-        return np.stack([self.fx * pts[:, 0] / z + self.cx, self.fy * pts[:, 1] / z + self.cy], axis=1)
+        return _project(pts, float(self.fx), float(self.fy), float(self.cx), float(self.cy))
 
     def backproject(self, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Camera-frame points ``[..., 3]`` of pixels ``(u, v)`` at depth ``z`` metres."""
@@ -85,3 +85,15 @@ class Intrinsics:
     @staticmethod
     def load(path: str | Path) -> Intrinsics:
         return Intrinsics.from_dict(json.loads(Path(path).read_text()))
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _project(pts: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """:meth:`Intrinsics.project` per point, numpy's element-wise operations in its order (``fx · X / Z + cx``;
+    IEEE division: Z = 0 gives ±inf or NaN as numpy does)."""
+    out = np.empty((pts.shape[0], 2))
+    for i in range(pts.shape[0]):
+        z = pts[i, 2]
+        out[i, 0] = fx * pts[i, 0] / z + cx
+        out[i, 1] = fy * pts[i, 1] / z + cy
+    return out
