@@ -785,3 +785,35 @@ def test_projection_kernel_matches_numpy():
             want = np.stack([intr.fx * p[:, 0] / z + intr.cx, intr.fy * p[:, 1] / z + intr.cy], axis=1)
         assert np.array_equal(intr.project(p), want, equal_nan=True)
     assert intr.project(np.array([0.1, -0.05, 0.5])).shape == (1, 2)
+
+
+def test_blob_mask_matches_its_reference_form():
+    """A blob's mask (window from cv2.boundingRect, one erosion kernel for all) equals the form that took the
+    window from the contour's min and max, for blobs inside the image and cut by its border."""
+    import cv2
+
+    from tracker.filter.colour_input import make_blob_mask
+
+    def reference(contour, shape):
+        pts = np.asarray(contour, np.int32).reshape(-1, 2)
+        x0, y0 = max(int(pts[:, 0].min()) - 3, 0), max(int(pts[:, 1].min()) - 3, 0)
+        x1, y1 = min(int(pts[:, 0].max()) + 4, shape[1]), min(int(pts[:, 1].max()) + 4, shape[0])
+        m = np.zeros(shape, bool)
+        if x0 >= x1 or y0 >= y1:
+            return m
+        win = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.fillPoly(win, [pts - np.array([x0, y0], np.int32)], 1)
+        m[y0:y1, x0:x1] = cv2.erode(win, np.ones((5, 5), np.uint8)).astype(bool)
+        return m
+
+    from types import SimpleNamespace
+
+    trk = SimpleNamespace(config=TrackerConfig.preset("default"))
+    rng = np.random.default_rng(16)
+    for _ in range(60):
+        c = rng.uniform([-30, -30], [670, 510])
+        r = rng.uniform(2.0, 50.0, 2)
+        ang = np.sort(rng.uniform(0, 2 * np.pi, 10))
+        contour = np.stack([c[0] + r[0] * np.cos(ang), c[1] + r[1] * np.sin(ang)], 1).round().astype(np.int32)
+        det = SimpleNamespace(contour=contour[:, None, :], score=1.0)
+        assert np.array_equal(make_blob_mask(trk, det, (480, 640)), reference(contour, (480, 640)))

@@ -168,6 +168,10 @@ def make_blob_mask(trk, det, shape) -> np.ndarray | None:
     return _make_blob_mask(trk, det, shape)[0]
 
 
+_ERODE_5 = np.ones((5, 5), np.uint8)
+"""The blob masks' erosion kernel (2 px)."""
+
+
 def _make_blob_mask(trk, det, shape) -> tuple[np.ndarray | None, int]:
     """:func:`make_blob_mask` and its pixel count (taken on the window the blob was drawn in)."""
     if det is None or getattr(det, "contour", None) is None:
@@ -177,14 +181,15 @@ def _make_blob_mask(trk, det, shape) -> tuple[np.ndarray | None, int]:
     import cv2
 
     pts = np.asarray(det.contour, np.int32).reshape(-1, 2)
-    x0, y0 = max(int(pts[:, 0].min()) - 3, 0), max(int(pts[:, 1].min()) - 3, 0)
-    x1, y1 = min(int(pts[:, 0].max()) + 4, shape[1]), min(int(pts[:, 1].max()) + 4, shape[0])
+    bx, by, bw, bh = cv2.boundingRect(pts)  # the points' min and max: (bx, by), (bx + bw − 1, by + bh − 1)
+    x0, y0 = max(bx - 3, 0), max(by - 3, 0)
+    x1, y1 = min(bx + bw - 1 + 4, shape[1]), min(by + bh - 1 + 4, shape[0])
     m = np.zeros(shape, bool)
     if x0 >= x1 or y0 >= y1:
         return m, 0
     win = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.fillPoly(win, [pts - np.array([x0, y0], np.int32)], 1)
-    eroded = cv2.erode(win, np.ones((5, 5), np.uint8))
+    eroded = cv2.erode(win, _ERODE_5)
     m[y0:y1, x0:x1] = eroded.astype(bool)
     return m, int(cv2.countNonZero(eroded))
 
