@@ -103,14 +103,24 @@ def as_recorded(depth: np.ndarray) -> np.ndarray:
     return depth_units_to_metres(depth_metres_to_units(depth, 0.001), 0.001)
 
 
+BAD_MM, BAD_DEG = 8.0, 5.0
+"""A part-frame is *bad* when its translation error exceeds BAD_MM or its rotation error BAD_DEG (the targets' p95
+bounds): ``bad_part_frames`` counts them over every part, a finer measure for tuning than the worst part's p95."""
+
+
 def _worst(log) -> dict:
-    """Largest per-part median / p95 of translation (mm) and rotation (deg), and which part has it."""
+    """Largest per-part median / p95 of translation (mm) and rotation (deg), and which part has it; the bad
+    part-frames over all parts and the mean translation error over all part-frames (mm)."""
     per_part = {n: s for n, s in log.summary().items() if n != "all"}
     out = {}
     for k in METRICS:
         name = max(per_part, key=lambda n: per_part[n][k])
         out[k] = round(per_part[name][k], 2)
         out[k + "_part"] = name
+    t = np.concatenate([np.asarray(v) for v in log.translation.values()])
+    r = np.concatenate([np.asarray(v) for v in log.rotation.values()])
+    out["bad_part_frames"] = int(((1e3 * t > BAD_MM) | (np.degrees(r) > BAD_DEG)).sum())
+    out["t_mean_all_mm"] = round(float(1e3 * t.mean()), 2)
     return out
 
 
@@ -142,10 +152,16 @@ def run_session(job: dict) -> dict:
                                      odometry=odometry, hands=hands)}
     if odometry != "off" or hands:  # the same tracker without odometry / hand tracker, on the same frames
         sessions["off"] = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=rng_seed)
+    if job.get("pair"):  # tuning: the same tracker with changed settings on the same frames
+        sessions["pair"] = TrackSession(src.parts, src.intrinsics, src.initial_poses,
+                                        cfg.with_overrides(**job["pair"]), seed=rng_seed, odometry=odometry,
+                                        hands=hands)
     ours = sessions["ours"]
-    icp = ICPTracker(src.parts, src.intrinsics)
-    icp.initialize(src.initial_poses)
-    logs = {k: PoseErrorLog(src.parts) for k in (*sessions, "icp")}
+    icp = None
+    if not job.get("no_icp"):
+        icp = ICPTracker(src.parts, src.intrinsics)
+        icp.initialize(src.initial_poses)
+    logs = {k: PoseErrorLog(src.parts) for k in (*sessions, *(("icp",) if icp is not None else ()))}
     wall = {k: [] for k in logs}
     cpu = {k: [] for k in logs}
     odo_ok = 0
@@ -164,6 +180,8 @@ def run_session(job: dict) -> dict:
             logs[k].add(state.poses, g["poses"])
         odo_ok += ours.ego_step is not None and ours.ego_step.ok
         hands_cpu.append(1e3 * ours.last_hands_cpu)
+        if icp is None:
+            continue
         plane = (ours.table.normal, ours.table.offset) if ours.table is not None else None
         c0, w0 = time.thread_time(), time.perf_counter()
         poses = icp.step(frame.depth, plane)
@@ -172,7 +190,8 @@ def run_session(job: dict) -> dict:
         logs["icp"].add(poses, g["poses"])
     res = {k: job[k] for k in ("session", "scenario", "motion", "occlusion", "speed", "seed")}
     res.update({"frames": src.n_frames, "parts": len(src.parts), "hand_frames": int(hand_frames),
-                "n_particles": cfg.n_particles, "table": ours.table is not None, "icp_backend": icp.backend,
+                "n_particles": cfg.n_particles, "table": ours.table is not None,
+                "icp_backend": icp.backend if icp is not None else None, "pair": job.get("pair") or None,
                 "odometry": odometry, "odometry_measured": int(odo_ok), "hands": hands,
                 "hands_cpu_ms_median": round(float(np.median(hands_cpu)), 2) if hands else None,
                 "seconds": round(time.perf_counter() - t_start, 1)})
@@ -186,7 +205,7 @@ def run_session(job: dict) -> dict:
 def overall(sessions: list[dict]) -> dict:
     """Worst and median session per tracker, parts lost, sessions meeting issue 11's targets, ratios ours / ICP."""
     out: dict = {}
-    for k in [k for k in ("ours", "off", "icp") if sessions and k in sessions[0]]:
+    for k in [k for k in ("ours", "off", "pair", "icp") if sessions and k in sessions[0]]:
         rows = [s[k] for s in sessions]
         o = {}
         for m in (*METRICS, "cpu_ms_median", "wall_ms_median"):
@@ -194,12 +213,14 @@ def overall(sessions: list[dict]) -> dict:
             o[m + "_worst"] = round(float(v.max()), 2)
             o[m + "_median"] = round(float(np.median(v)), 2)
         o["lost"] = int(sum(r["lost"] for r in rows))
+        o["bad_part_frames"] = int(sum(r.get("bad_part_frames", 0) for r in rows))
         o["sessions_with_loss"] = int(sum(1 for r in rows if r["lost"]))
         o["sessions_meeting_targets"] = int(sum(
             1 for r in rows if r["lost"] == 0 and all(r[m] <= TARGETS[m] for m in METRICS)))
         out[k] = o
-    out["ratio"] = {key: round(out["ours"][key] / out["icp"][key], 2) if out["icp"][key] > 0 else None
-                    for key in out["ours"] if key.endswith(("_worst", "_median"))}
+    if "icp" in out:
+        out["ratio"] = {key: round(out["ours"][key] / out["icp"][key], 2) if out["icp"][key] > 0 else None
+                        for key in out["ours"] if key.endswith(("_worst", "_median"))}
     if "off" in out:
         out["ratio_off"] = {key: round(out["ours"][key] / out["off"][key], 2) if out["off"][key] > 0 else None
                             for key in out["ours"] if key.endswith(("_worst", "_median"))}
@@ -359,6 +380,10 @@ def main(argv=None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="with --dev only: a tracker setting of the default preset changed for this run (repeatable; "
                     "VALUE read as JSON, else as text), e.g. --set blob_follow_overlap=true")
+    ap.add_argument("--pair", action="append", default=[], metavar="KEY=VALUE",
+                    help="with --dev only: a second tracker with this setting changed (repeatable) runs beside ours on "
+                    "the same frames (results under 'pair' in each session's line; a paired comparison for tuning)")
+    ap.add_argument("--no-icp", action="store_true", help="with --dev only: skip the ICP baseline (faster tuning runs)")
     ap.add_argument("--note", default="", help="a sentence added to the figures' notes")
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite the .md from the .json and exit")
@@ -389,12 +414,16 @@ def main(argv=None) -> int:
         if args.frames < 1 or args.jobs < 1:
             raise ValueError("--frames and --jobs must be at least 1")
         overrides = parse_overrides(args.set)
+        pair = parse_overrides(args.pair)
+        if (pair or args.no_icp) and not args.dev:
+            raise ValueError("--pair and --no-icp are for development runs (--dev) only")
         if overrides and not args.dev:
             raise ValueError("--set changes the tracker's settings: only for development runs (--dev); reported "
                              "figures are the default preset's")
         from tracker.filter.tracker_config import TrackerConfig
 
-        TrackerConfig.preset("default").with_overrides(**overrides)  # an unknown or invalid setting stops here
+        # an unknown or invalid setting stops here
+        TrackerConfig.preset("default").with_overrides(**overrides).with_overrides(**pair)
         check_design()
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -411,7 +440,7 @@ def main(argv=None) -> int:
         jobs.append({"session": k, "scenario": scenario, "motion": motion, "occlusion": occlusion, "speed": speed,
                      "seed": seeds[(k - 1) % len(seeds)], "frames": args.frames, "particles": args.particles,
                      "odometry": args.odometry, "tracker_seed": args.tracker_seed, "overrides": overrides,
-                     "hands": args.hands})
+                     "hands": args.hands, "pair": pair, "no_icp": args.no_icp})
     sessions = []
     if args.jobs == 1:
         results = map(run_session, jobs)
@@ -430,6 +459,9 @@ def main(argv=None) -> int:
            "odometry": args.odometry, "hands": args.hands,
            "frames": args.frames, "jobs": args.jobs, "sessions": sessions, "overall": overall(sessions),
            "load_1min_at_end": round(os.getloadavg()[0], 2)}
+    if args.no_icp:  # a tuning run: no report, the overall figures of each tracker
+        print(json.dumps(res["overall"]))
+        return 0
     md = markdown(res)
     print(md)
     if not args.no_write:

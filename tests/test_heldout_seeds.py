@@ -3,6 +3,7 @@ the held-out benchmark's covering design."""
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 from pathlib import Path
@@ -84,3 +85,20 @@ def test_tracker_benchmarks_refuse_tuning_seeds_unless_dev(capsys):
     assert "tuning seeds" in capsys.readouterr().err
     assert bench_moving_camera.main(["--dev", "--seed", "100", "--no-write"]) == 2
     assert "development" in capsys.readouterr().err
+
+
+def test_bench_heldout_pairs_a_changed_setting_on_the_same_frames_only_in_development_runs(capsys):
+    """``--pair`` runs a second tracker with a changed setting beside ours on the same frames (tuning only); with a
+    setting that changes nothing the two give the same figures, and the bad part-frames are counted."""
+    assert bench_heldout.main(["--pair", "carry_keep_unseen=0.3", "--no-write"]) == 2
+    assert bench_heldout.main(["--no-icp", "--no-write"]) == 2
+    assert bench_heldout.main(["--dev", "--pair", "no_such_setting=1", "--no-write"]) == 2
+    capsys.readouterr()
+    # static scene, no hand: a hand-carry setting cannot change anything
+    assert bench_heldout.main(["--dev", "--no-icp", "--sessions", "1", "--frames", "6",
+                               "--pair", "carry_keep_unseen=0.3"]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    session, overall = lines[0], lines[-1]
+    assert session["pair"] and session["icp_backend"] is None and "icp" not in session
+    assert session["ours"]["t_mean_all_mm"] == session["pair"]["t_mean_all_mm"] < 3.0
+    assert overall["ours"]["bad_part_frames"] == overall["pair"]["bad_part_frames"] == 0

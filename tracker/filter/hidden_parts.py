@@ -77,6 +77,9 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
             elif cfg.carry_shadow_take_m > 0:
                 take_shadow(trk, i, pos, cfg.carry_shadow_take_m)
     held = hidden | (trk._carry.carried & (trk.visibility < cfg.carry_keep_visibility))  # carry_keep_visibility
+    if cfg.carry_keep_unseen > 0 and depth is not None:
+        for i in np.nonzero(trk._carry.carried & ~held & ~detected)[0]:
+            held[i] = seen_where_it_was(trk, i, depth) < cfg.carry_keep_unseen
     rot, delta = trk._carry.update(depth, pos, held, ~held, heights, plane,
                                    np.array([nm in touched for nm in trk.names], bool))
     # confident blobs (filter/blob_follow.py), however small: a sliver that stays put while the hand moves on is
@@ -165,6 +168,39 @@ def lifted_off(trk, obj: int, position: np.ndarray, new_position: np.ndarray, he
     if trk._carry.set_down[obj] < cfg.carry_release_on_lift:
         return False
     return float((new_position - position) @ plane[0]) > cfg.carry_lift_m
+
+
+SEEN_TOLERANCE_M = 0.01
+"""Metres: a silhouette pixel whose depth is this close to the estimate's surface shows the part (carry_keep_unseen)."""
+
+
+def seen_where_it_was(trk, obj: int, depth: np.ndarray, stride: int = 2) -> float:
+    """Fraction of box part ``obj``'s silhouette at its current estimate (every ``stride``-th pixel of its projected
+    rectangle) where ``depth`` (metres) lies within ``SEEN_TOLERANCE_M`` of the rendered surface: how much of the
+    part this frame's depth still shows where the estimate is. 1.0 (shown) for a mesh part or an estimate off the
+    image, so that nothing is kept in a hand on that account."""
+    if trk.meshes[obj] is not None:
+        return 1.0
+    est = trk.estimates[trk.names[obj]]
+    pts = trk.corners[obj] @ est.R.T + est.t
+    if np.any(pts[:, 2] < 0.05):
+        return 1.0
+    uv = trk.intrinsics.project(pts)
+    h, w = depth.shape
+    u0, v0 = np.maximum(np.floor(uv.min(axis=0)).astype(int), 0)
+    u1, v1 = np.minimum(np.ceil(uv.max(axis=0)).astype(int) + 1, [w, h])
+    if u1 <= u0 or v1 <= v0:
+        return 1.0
+    vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
+    uu, vv = uu.ravel(), vv.ravel()
+    surface = box_surface_depth(trk, obj, uu, vv)
+    on = np.isfinite(surface)
+    if not on.any():
+        return 1.0
+    z = depth[vv[on], uu[on]]
+    with np.errstate(invalid="ignore"):
+        shown = np.abs(z - surface[on]) < SEEN_TOLERANCE_M
+    return float(shown.mean())
 
 
 def revealed(trk, obj: int, depth: np.ndarray) -> bool:

@@ -182,6 +182,13 @@ class TrackerConfig(BaseModel):
         "off): a part coming out of the hand is moved with it, as a prediction its depth then corrects, instead "
         "of being dropped by a one-frame rise of the estimate while the hand still moves it.",
     )
+    carry_keep_unseen: float = Field(
+        0.0, ge=0.0, le=1.0, description="A carried part whose estimate was visible enough last frame to end its "
+        "carry stays in the hand this frame unless this frame's depth still shows it where it was: less than this "
+        "fraction of its silhouette's pixels (at the estimate before the hand's motion) within 1 cm of the depth "
+        "(0 = off). The test is on this frame's depth, not on last frame's visible fraction: a hand that whips a "
+        "part out of view in one frame took it along, a hand that lets go leaves it in view.",
+    )
     carry_blob_depth: bool = Field(
         False, description="A carried part whose reliable blob lies off its silhouette (the colour stage re-seeds it "
         "on the blob's ray, at its old depth when the blob has no depth) is turned by the hand's motion and put on "
