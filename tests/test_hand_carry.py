@@ -361,7 +361,7 @@ def test_a_carried_part_whipped_out_of_view_stays_in_the_hand_when_its_place_doe
 
 def test_seen_where_it_was_measures_how_much_of_the_estimate_the_depth_shows():
     """The fraction of the silhouette where the depth meets the estimate's surface: all of it for a cube resting in
-    view, next to none once it is estimated 8 cm above where it rests (the depth shows the table and the cube behind)."""
+    view, next to none once it is estimated 8 cm above where it rests (the depth shows what lies behind)."""
     from tracker.filter.hidden_parts import seen_where_it_was
     from tracker.filter.particle_filter import MultiObjectTracker
     from tracker.geometry.pose import Pose
