@@ -282,6 +282,7 @@ class PenaltyTerms:
         self.use_table = plane is not None and cfg.lambda_h > 0
         self.heights = np.zeros((n, k))  # (N, K) lowest height of each part above the table
         self.half_min, self.hull_all, self.hull_off = trk._penalty_shapes  # per part, fixed: made once
+        self.all_moved = np.ones(k, np.bool_)
         self.normal = np.zeros(3) if plane is None else np.asarray(plane[0], np.float64).reshape(3)
         self.offset = 0.0 if plane is None else float(plane[1])
 
@@ -290,9 +291,10 @@ class PenaltyTerms:
         ``changed`` moved since the last call (``None``: all, e.g. the first call of the frame)."""
         trk, cfg = self.trk, self.trk.config
         n, k = p.shape[0], p.shape[1]
-        moved = np.ones(k, np.bool_)
-        if changed is not None:
-            moved[:] = False
+        if changed is None:
+            moved = self.all_moved  # read only by the kernel
+        else:
+            moved = np.zeros(k, np.bool_)
             moved[list(changed)] = True
         intr = trk.intrinsics
         out = np.empty(n)
