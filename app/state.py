@@ -48,11 +48,13 @@ def open_source_spec(spec: str, realtime: bool = False, seed: int = 0) -> FrameS
     """Open ``sim:<scenario>``, ``recording:<dir>`` or ``camera:<n>`` through the sources registry.
 
     The server opens simulated and recorded sources unpaced (``realtime=False``): the worker paces them
-    itself at their frame rate and skips frames that became stale (see :class:`app.worker.PipelineWorker`).
+    itself at their frame rate and skips frames that became stale (see :class:`app.worker.PipelineWorker`). Its
+    frame reader produces each frame in a thread of its own just in time, so a recording does not decode ahead
+    (``prefetch=0``: it would decode frames the reader then skips).
     """
     from tracker.sources.registry import open_source
 
-    return open_source(spec, realtime=realtime, seed=seed, loop=False)
+    return open_source(spec, realtime=realtime, seed=seed, loop=False, prefetch=0)
 
 
 def available_sources() -> list[m.SourceInfo]:

@@ -71,3 +71,20 @@ def test_prefetcher_wraps_when_looping_and_drops_what_a_jump_leaves_behind():
         DecodePrefetcher(decode, size=5, depth=-1)
     pre.close()
     end.close()
+
+
+def test_the_server_opens_recordings_without_decoding_ahead(tmp_path):
+    """The server's frame reader produces each frame just in time in its own thread and skips stale ones; its
+    recordings are opened with prefetch 0 (decoding ahead would decode frames it then skips), the commands' with 2."""
+    from app.state import open_source_spec
+    from tracker.sources.registry import open_source
+
+    rec = _recording(tmp_path / "rec", n=3)
+    served = open_source_spec(f"recording:{rec}")
+    served.read(0)
+    assert served._prefetch.pending == []
+    plain = open_source(str(rec))
+    plain.read(0)
+    assert sorted(plain._prefetch.pending) == [1, 2]
+    assert open_source_spec("sim:static").n_frames > 0  # the option does not reach other sources
+    plain.close()

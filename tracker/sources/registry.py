@@ -6,7 +6,7 @@ The same source names are used by every command, the web app and the tests:
   ``realtime``, ``speed``, ``occlusion``, ``excursions``, ``n_frames``, ``camera_motion`` (``none``, ``sway``,
   ``handheld``).
 * ``recording:<dir>`` (or just ``<dir>``, an existing directory): a recording on disk
-  (:class:`tracker.sources.recording.RecordingSource`); options ``loop``, ``realtime``.
+  (:class:`tracker.sources.recording.RecordingSource`); options ``loop``, ``realtime``, ``prefetch``.
 * ``camera:<colour>[,<depth>]``: live capture through OpenCV (:class:`tracker.sources.camera.CameraSource`);
   options ``calibration`` (path of the calibration JSON), ``fps``, ``pair_tolerance``, ``read_timeout``.
 
@@ -31,7 +31,7 @@ SOURCE_FORMS = (
 SOURCE_HELP = "frame source: " + "; ".join(SOURCE_FORMS)
 
 SIM_OPTIONS = ("seed", "realtime", "speed", "occlusion", "excursions", "n_frames", "camera_motion")
-RECORDING_OPTIONS = ("loop", "realtime")
+RECORDING_OPTIONS = ("loop", "realtime", "prefetch")
 CAMERA_OPTIONS = ("calibration", "fps", "pair_tolerance", "read_timeout", "retry_delay", "max_retry_delay")
 _ALL_OPTIONS = set(SIM_OPTIONS) | set(RECORDING_OPTIONS) | set(CAMERA_OPTIONS)
 
