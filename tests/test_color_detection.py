@@ -246,3 +246,32 @@ def test_roi_detection_equals_full_image_detection():
         assert (fast[n].center is None) == (full.center is None)
         if full.center is not None:
             assert np.allclose(fast[n].center, full.center) and fast[n].bbox == full.bbox
+
+
+def test_one_pass_range_bits_equal_per_range_masks():
+    """range_bits' bit i equals HSVRange.mask of range i (wrapping, full-hue and narrow S/V ranges), its rectangles
+    equal cv2.boundingRect's, and more than 8 ranges fall back to one mask per range with the same detections."""
+    from tracker.perception.range_bits import range_bits, range_luts
+
+    rng = np.random.default_rng(3)
+    hsv = rng.integers(0, 256, (90, 130, 3), dtype=np.uint8)
+    hsv[..., 0] %= 180
+    ranges = [HSVRange(350.0, 10.0, 0.3, 1.0, 0.2, 1.0), HSVRange(0.0, 360.0, 0.9, 1.0, 0.0, 0.1),
+              HSVRange(100.0, 140.0, 0.5, 0.6, 0.5, 0.7), HSVRange(359.0, 360.0, 0.0, 1.0, 0.0, 1.0),
+              HSVRange(200.0, 201.0, 0.99, 1.0, 0.99, 1.0)]  # the last one: no pixel
+    bits, boxes = range_bits(hsv, range_luts(ranges), len(ranges))
+    for i, r in enumerate(ranges):
+        m = r.mask(hsv)
+        assert np.array_equal((bits >> i) & 1, (m > 0).astype(np.uint8))
+        x, y, w, h = cv2.boundingRect(m)
+        assert (tuple(boxes[i]) == (x, y, x + w - 1, y + h - 1)) if w else boxes[i, 2] == -1
+    assert not m.any() and range_luts(ranges * 2) is None
+    img = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
+    img[40:70, 50:90] = PRESET_COLORS["blue"]
+    names = [(n, k) for n in ("blue", "red", "yellow") for k in range(3)]
+    det = ColorDetector({f"{n}{k}": preset_range(PRESET_COLORS[n]) for n, k in names})
+    few = ColorDetector({n: r for n, r in list(det.ranges.items())[:8]})
+    many, eight = det.detect(img), few.detect(img)
+    for n, d in eight.items():
+        assert (d.center, d.score, d.area, d.bbox) == (many[n].center, many[n].score, many[n].area, many[n].bbox)
+    assert many["blue0"].detected and many["blue0"].bbox == many["blue2"].bbox

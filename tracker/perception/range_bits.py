@@ -1,0 +1,99 @@
+"""All parts' HSV range masks in one pass over the image (a speed-up of :meth:`ColorDetector.detect`).
+
+:meth:`HSVRange.mask <tracker.perception.hsv_range.HSVRange.mask>` runs ``cv2.inRange`` over the whole 8-bit HSV
+image once per range (twice for a wrapping hue), then the detector finds each mask's bounding rectangle. Here one
+pass computes, per pixel, a byte whose bit ``i`` is set when the pixel lies in range ``i`` (three 256-entry lookup
+tables, one per channel, ANDed), together with each range's bounding rectangle; a range's mask is then rebuilt only
+inside its (padded) rectangle. The bits are exactly ``cv2.inRange``'s: a pixel is in an OpenCV interval
+``[lower, upper]`` (inclusive, per channel) when each channel's value is, and a wrapping hue's two intervals share
+their S and V bounds (:meth:`HSVRange.opencv_bounds`), so their union is one hue table entry set with common S
+and V entries. Up to 8 ranges (one byte); more, or bounds whose intervals differ in S or V, return None and the
+caller uses the per-range masks.
+
+Units: 8-bit OpenCV HSV (H 0–179, S and V 0–255), pixel columns x and rows y.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numba as nb
+import numpy as np
+
+from tracker.perception.hsv_range import HSVRange
+
+MAX_RANGES = 8
+"""Ranges one bit image holds (uint8)."""
+
+
+def range_luts(ranges: Sequence[HSVRange]) -> np.ndarray | None:
+    """(3, 256) uint8 lookup tables (H, S, V): bit ``i`` of entry ``[c, value]`` is set when ``value`` lies in range
+    ``i``'s interval of channel ``c``; None when the ranges do not fit (see the module docstring)."""
+    if not 0 < len(ranges) <= MAX_RANGES:
+        return None
+    luts = np.zeros((3, 256), np.uint8)
+    for i, r in enumerate(ranges):
+        bounds = r.opencv_bounds()
+        sv = {(tuple(int(v) for v in lo[1:]), tuple(int(v) for v in hi[1:])) for lo, hi in bounds}
+        if len(sv) != 1:
+            return None
+        bit = np.uint8(1 << i)
+        for lo, hi in bounds:
+            luts[0, int(lo[0]) : int(hi[0]) + 1] |= bit
+        (s_lo, v_lo), (s_hi, v_hi) = next(iter(sv))
+        luts[1, s_lo : s_hi + 1] |= bit
+        luts[2, v_lo : v_hi + 1] |= bit
+    return luts
+
+
+@nb.njit(cache=True, nogil=True)
+def _bits_kernel(hsv, luts, n, bits, boxes):  # pragma: no cover - numba
+    H, W = bits.shape
+    rows = np.zeros(H, np.uint8)  # OR of each row's bits
+    cols = np.zeros(W, np.uint8)  # OR of each column's bits
+    for y in range(H):
+        acc = np.uint8(0)
+        for x in range(W):
+            b = luts[0, hsv[y, x, 0]] & luts[1, hsv[y, x, 1]] & luts[2, hsv[y, x, 2]]
+            bits[y, x] = b
+            cols[x] |= b
+            acc |= b
+        rows[y] = acc
+    for i in range(n):
+        boxes[i, 0] = W
+        boxes[i, 1] = H
+        boxes[i, 2] = -1
+        boxes[i, 3] = -1
+        for x in range(W):
+            if (cols[x] >> i) & 1:
+                if boxes[i, 0] == W:
+                    boxes[i, 0] = x
+                boxes[i, 2] = x
+        for y in range(H):
+            if (rows[y] >> i) & 1:
+                if boxes[i, 1] == H:
+                    boxes[i, 1] = y
+                boxes[i, 3] = y
+
+
+def range_bits(hsv_u8: np.ndarray, luts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The H×W uint8 bit image of an OpenCV 8-bit HSV image (bit ``i``: in range ``i``) and the ranges' bounding
+    rectangles as an (n, 4) int64 array of inclusive (x0, y0, x1, y1), x1 = -1 for a range with no pixel."""
+    H, W = hsv_u8.shape[:2]
+    bits = np.empty((H, W), np.uint8)
+    boxes = np.empty((n, 4), np.int64)
+    _bits_kernel(np.ascontiguousarray(hsv_u8), luts, n, bits, boxes)
+    return bits, boxes
+
+
+def mask_crop(bits: np.ndarray, i: int, box: np.ndarray, pad: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """Range ``i``'s uint8 mask (255 inside) in its bounding rectangle ``box`` (from :func:`range_bits`) padded by
+    ``pad`` pixels and clipped to the image, and the crop's top-left (x, y); an empty (0×0) crop at (0, 0) when the
+    range has no pixel."""
+    x0, y0, x1, y1 = (int(v) for v in box)
+    if x1 < 0:
+        return bits[0:0, 0:0], (0, 0)
+    H, W = bits.shape
+    x0, y0, x1, y1 = max(0, x0 - pad), max(0, y0 - pad), min(W, x1 + 1 + pad), min(H, y1 + 1 + pad)
+    crop = (bits[y0:y1, x0:x1] >> np.uint8(i)) & np.uint8(1)
+    return np.ascontiguousarray(crop * np.uint8(255)), (x0, y0)
