@@ -390,3 +390,22 @@ def test_far_apart_parts_skip_the_search_and_get_no_particles():
     # the cheap path agrees with the full score: 0.5 / N_max is not reached there
     full = connection_score(np.array([A, 0, 0]), np.eye(3), np.array([0.2, 0, 0]), np.eye(3), 0.01, 3)
     assert allocate_particles(full, 9) == 0
+
+
+def test_cross3_and_scalar_margins_equal_numpy_bit_for_bit():
+    """cross3 is np.cross's float64 result exactly (also for float32 inputs and lists), other shapes go to
+    np.cross; margins of a scalar equal the broadcast ones and refuse non-positive values."""
+    from tracker.assembly.relations import cross3, margins
+
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        u, v = rng.normal(size=3) * 10.0 ** rng.integers(-6, 6), rng.normal(size=3)
+        assert np.array_equal(cross3(u, v), np.cross(u, v))
+        assert np.array_equal(cross3(u.astype(np.float32), v), np.cross(u.astype(np.float32), v))
+    assert np.array_equal(cross3([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]), [0.0, 0.0, 1.0])
+    uv = rng.normal(size=(4, 3))
+    assert np.array_equal(cross3(uv, uv[::-1]), np.cross(uv, uv[::-1]))
+    assert np.array_equal(margins(0.004), np.broadcast_to(np.asarray(0.004, float), (3,)))
+    assert np.array_equal(margins(2), [2.0, 2.0, 2.0]) and margins(2).dtype == np.float64
+    with pytest.raises(ValueError):
+        margins(0.0)

@@ -371,10 +371,19 @@ class AdjacencyDetector:
         names = list(self.parts)
         all_pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1 :]]
         self.pairs = [pr for pr in all_pairs if frozenset(pr) not in self.exclude]
+        self._equal_sizes: dict[tuple, bool] = {}  # (extents of a, extents of b) -> equal cubes (touching)
         self.reset()
 
     def reset(self) -> None:
         self.status = {pair: ConnectionStatus(pair[0], pair[1], expected=False) for pair in self.pairs}
+
+    def _equal_cubes(self, size_a, size_b) -> bool:
+        """Both boxes the same cube (extents equal within ``np.allclose``), remembered per pair of sizes."""
+        key = (tuple(np.ravel(size_a).tolist()), tuple(np.ravel(size_b).tolist()))
+        same = self._equal_sizes.get(key)
+        if same is None:
+            same = self._equal_sizes[key] = bool(np.ptp(size_a) < 1e-9 and np.allclose(size_a, size_b))
+        return same
 
     def touching(self, pa: Pose, pb: Pose, size_a, size_b, factor: float = 1.0, R_ot: np.ndarray | None = None
                  ) -> bool:
@@ -382,7 +391,7 @@ class AdjacencyDetector:
         (side by side: height < m and horizontal distance = edge ± m; stacked: horizontal distance < m and
         height = edge ± m, with m = min(m_p, edge / 4)); other boxes in a's body frame."""
         m = factor * margins(self.params.m_p)
-        if R_ot is not None and np.ptp(size_a) < 1e-9 and np.allclose(size_a, size_b):
+        if R_ot is not None and self._equal_cubes(size_a, size_b):
             d = R_ot @ (pb.t - pa.t)
             h = float(np.hypot(d[0], d[2]))
             a = float(size_a[0])

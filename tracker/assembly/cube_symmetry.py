@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tracker.assembly.relations import cross3
 from tracker.geometry.symmetry import cube_group, nearest_in_group
 
 UP_TIE_TOL = 1e-3
@@ -73,12 +74,12 @@ def case1_first_rotations(p_ab: np.ndarray, p_des: np.ndarray, R_a: np.ndarray, 
 
 def _rotation_onto(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Smallest rotation taking unit vector ``u`` onto unit vector ``v``."""
-    axis = np.cross(u, v)
+    axis = cross3(u, v)
     s, c = float(np.linalg.norm(axis)), float(np.clip(u @ v, -1.0, 1.0))
     if s < 1e-12:
         if c > 0:
             return np.eye(3)
-        w = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+        w = cross3(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
         w /= np.linalg.norm(w)
         return 2.0 * np.outer(w, w) - np.eye(3)  # 180° about an axis perpendicular to u
     k = axis / s
@@ -105,7 +106,7 @@ def levelled_frames(F_a: np.ndarray, F_b: np.ndarray | None, normal: np.ndarray,
     v_h = d - (d @ n) * n
     Rz = np.eye(3)
     if np.linalg.norm(u_h) > 0.5 * np.linalg.norm(p_des) and np.linalg.norm(v_h) > 1e-6:
-        phi = float(np.arctan2(n @ np.cross(u_h, v_h), u_h @ v_h))
+        phi = float(np.arctan2(n @ cross3(u_h, v_h), u_h @ v_h))
         if abs(phi) <= yaw_tolerance:
             K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
             Rz = np.eye(3) + np.sin(phi) * K + (1 - np.cos(phi)) * K @ K
@@ -375,7 +376,7 @@ def _heading_turn(F_from: np.ndarray, F_to: np.ndarray, normal: np.ndarray, modu
     if F_from[:, 1] @ n < 0.99 or F_to[:, 1] @ n < 0.99:
         return None
     u, v = F_from[:, 0] - (F_from[:, 0] @ n) * n, F_to[:, 0] - (F_to[:, 0] @ n) * n
-    phi = float(np.arctan2(n @ np.cross(u, v), u @ v))
+    phi = float(np.arctan2(n @ cross3(u, v), u @ v))
     if modulo is not None:
         phi = (phi + modulo / 2.0) % modulo - modulo / 2.0
     K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])

@@ -28,7 +28,7 @@ def table_rotation_from_normal(normal: np.ndarray) -> np.ndarray:
     if np.linalg.norm(x) < 1e-6:  # camera x parallel to the normal: fall back to camera z
         x = np.array([0.0, 0.0, 1.0]) - y[2] * y
     x /= np.linalg.norm(x)
-    return np.stack([x, y, np.cross(x, y)])
+    return np.stack([x, y, cross3(x, y)])
 
 
 def table_to_camera_from_plane(normal: np.ndarray, offset: float) -> Pose:
@@ -48,6 +48,17 @@ def relative_position_table(p_a: np.ndarray, p_b: np.ndarray, R_ot: np.ndarray) 
     return R_ot @ (np.asarray(p_b, float) - np.asarray(p_a, float))
 
 
+def cross3(u, v) -> np.ndarray:
+    """``np.cross(u, v)`` of two 3-vectors, the same float64 bits, without np.cross's general-case overhead (about
+    20 us a call; the connection checks make a dozen a frame); other shapes or dtypes go to ``np.cross``."""
+    a, b = np.asarray(u), np.asarray(v)
+    if a.shape != (3,) or b.shape != (3,) or np.result_type(a, b) != np.float64:
+        return np.cross(a, b)
+    a0, a1, a2 = a.tolist()
+    b0, b1, b2 = b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
 def relative_pose(pose_a: Pose, pose_b: Pose) -> tuple[np.ndarray, np.ndarray]:
     """``(p_ab, R_ab)``: b's position and rotation in a's body frame (eqs 5.1–5.3)."""
     R_a = pose_a.R
@@ -56,6 +67,10 @@ def relative_pose(pose_a: Pose, pose_b: Pose) -> tuple[np.ndarray, np.ndarray]:
 
 def margins(m_p: float | tuple[float, float, float]) -> np.ndarray:
     """Per-axis position margins ``(m_p,x, m_p,y, m_p,z)`` in metres."""
+    if isinstance(m_p, float | int) and not isinstance(m_p, bool):  # the usual case, without broadcasting
+        if m_p <= 0:
+            raise ValueError(f"position margins must be positive, got {m_p}")
+        return np.full(3, float(m_p))
     m = np.broadcast_to(np.asarray(m_p, float), (3,)).copy()
     if np.any(m <= 0):
         raise ValueError(f"position margins must be positive, got {m_p}")
