@@ -131,7 +131,8 @@ class TrackIdentity:
         isolated = []
         for i in range(n):
             b = boxes[i]
-            mx, my = identity.MARGIN * (b[2] - b[0] + 1), identity.MARGIN * (b[3] - b[1] + 1)
+            gap = self.config.isolation_margin
+            mx, my = gap * (b[2] - b[0] + 1), gap * (b[3] - b[1] + 1)
             big = (b[0] - mx, b[1] - my, b[2] + mx, b[3] + my)
             isolated.append(obs[i] is not None and not any(
                 boxes_overlap(big, boxes[j]) for j in range(n) if j != i))  # fmt: skip
