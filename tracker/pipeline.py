@@ -42,6 +42,7 @@ and gets the usual table re-check at once. Poses stay camera-frame; ``Snapshot.c
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -76,6 +77,11 @@ def _pose_to_dict(pose: Pose) -> dict[str, list[float]]:
 
 def _json_safe(value: Any) -> Any:
     """Turn numpy scalars/arrays and Poses inside a mode-state dict into JSON-able values."""
+    kind = type(value)
+    if kind is float:  # the common leaves first (exact types: numpy scalars subclass float and int)
+        return value if math.isfinite(value) else None
+    if kind is str or kind is int or kind is bool or value is None:
+        return value
     if isinstance(value, dict):
         return {str(k): _json_safe(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
@@ -86,7 +92,7 @@ def _json_safe(value: Any) -> Any:
         return value.item()
     if isinstance(value, Pose):
         return _pose_to_dict(value)
-    if isinstance(value, float) and not np.isfinite(value):
+    if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
 

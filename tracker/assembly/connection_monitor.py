@@ -200,7 +200,7 @@ class ConnectionMonitor:
 
     # ------------------------------------------------------------------ per frame
     def _error(self, spec: ConnectionSpec, p: np.ndarray, R: np.ndarray) -> float:
-        ang = 2.0 * np.arccos(np.clip(rotation_dot(spec.R_des, R), 0.0, 1.0))
+        ang = 2.0 * np.arccos(min(max(rotation_dot(spec.R_des, R), 0.0), 1.0))
         return normalised_position_error(spec.p_des, p, self.params.m_p) + (ang / np.radians(self.params.m_q_deg)) ** 2
 
     def _passes(self, spec: ConnectionSpec, o: Option, factor: float = 1.0, dy: float | None = None) -> bool:

@@ -75,7 +75,7 @@ def case1_first_rotations(p_ab: np.ndarray, p_des: np.ndarray, R_a: np.ndarray, 
 def _rotation_onto(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Smallest rotation taking unit vector ``u`` onto unit vector ``v``."""
     axis = cross3(u, v)
-    s, c = float(np.linalg.norm(axis)), float(np.clip(u @ v, -1.0, 1.0))
+    s, c = float(np.linalg.norm(axis)), min(max(float(u @ v), -1.0), 1.0)  # = np.clip, NaN too
     if s < 1e-12:
         if c > 0:
             return np.eye(3)

@@ -7,6 +7,8 @@ z = x × y (pointing towards the user for a camera looking down at the table).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from tracker.geometry.pose import Pose, matrix_to_quat
@@ -101,4 +103,4 @@ def rotation_within(R_des: np.ndarray, R_real: np.ndarray, m_q: float) -> bool:
 def rotation_dot(R_des: np.ndarray, R_real: np.ndarray) -> float:
     """``|q_des · q_real|`` = cos(Δθ / 2)."""
     c = (np.trace(np.asarray(R_des).T @ np.asarray(R_real)) - 1.0) / 2.0
-    return float(np.sqrt(np.clip((1.0 + c) / 2.0, 0.0, 1.0)))
+    return math.sqrt(min(max(float((1.0 + c) / 2.0), 0.0), 1.0))  # = np.sqrt(np.clip(...)), NaN too
