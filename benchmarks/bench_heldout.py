@@ -191,7 +191,7 @@ def run_session(job: dict) -> dict:
     res = {k: job[k] for k in ("session", "scenario", "motion", "occlusion", "speed", "seed")}
     res.update({"frames": src.n_frames, "parts": len(src.parts), "hand_frames": int(hand_frames),
                 "n_particles": cfg.n_particles, "table": ours.table is not None,
-                "icp_backend": icp.backend if icp is not None else None, "pair": job.get("pair") or None,
+                "icp_backend": icp.backend if icp is not None else None, "pair_settings": job.get("pair") or None,
                 "odometry": odometry, "odometry_measured": int(odo_ok), "hands": hands,
                 "hands_cpu_ms_median": round(float(np.median(hands_cpu)), 2) if hands else None,
                 "seconds": round(time.perf_counter() - t_start, 1)})
