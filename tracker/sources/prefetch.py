@@ -69,10 +69,12 @@ class DecodePrefetcher(Generic[T]):
         return out
 
     def _schedule(self, position: int) -> None:
-        if self._depth == 0 or self._closed:
+        if self._depth == 0:
             return
         wanted = self._ahead(position)
         with self._lock:
+            if self._closed:  # checked under the lock: a close() from another thread cannot be undone here
+                return
             # a jump (random access) leaves earlier prefetches unused: drop them so memory stays bounded
             for q in [q for q in self._pending if q not in wanted]:
                 self._pending.pop(q).cancel()
