@@ -23,7 +23,6 @@ import argparse
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,7 +39,8 @@ SESSIONS = ("guess-1/handheld/100", "static/handheld/100")
 STEM = "odometry_fps"
 
 
-def _record(scenario: str, motion: str, seed: int, frames: int, out: Path) -> None:
+def _record(scenario: str, motion: str, seed: int, frames: int, out: Path):
+    """Render the session and write it to ``out`` as a recording; returns its camera intrinsics."""
     from tracker.sources.recording import RecordingWriter
     from tracker.sources.simulator import SimOptions, SimulatedTable
 
@@ -50,32 +50,7 @@ def _record(scenario: str, motion: str, seed: int, frames: int, out: Path) -> No
         for i in range(src.n_frames):
             frame = src.render(i)
             writer.write(frame, frame.meta.get("groundtruth"))
-
-
-def _opencv_run(rec: Path) -> dict:
-    """The baseline over the recording: decoding, the hand box mask, ``cv2.Odometry`` (photometric)."""
-    from app.commands.odometry import TrajectoryRun
-    from benchmarks.odometry_baseline import OpenCvOdometry
-    from tracker.geometry.pose import Pose
-    from tracker.odometry.exclusion_mask import exclusion_mask
-    from tracker.sources.recording import RecordingSource
-
-    src = RecordingSource(rec)
-    odo = OpenCvOdometry(src.intrinsics, "rgb")
-    run = TrajectoryRun([], [], 0.0, 0.0, 0)
-    t0, c0 = time.perf_counter(), time.thread_time()
-    for pos in range(len(src)):
-        frame = src.read(pos)
-        gt = frame.meta.get("groundtruth") or {}
-        run.truth.append(gt.get("camera_pose") if isinstance(gt.get("camera_pose"), Pose) else None)
-        box = gt.get("hand_box")
-        res = odo.step(frame, exclusion_mask(frame.color.shape[:2], box, ()) if box is not None else None)
-        run.flagged += not res.ok
-        run.rows.append((res.timestamp, res.pose_world_camera, ""))
-    run.wall_s = time.perf_counter() - t0
-    run.cpu_ms = 1e3 * (time.thread_time() - c0) / max(len(run.rows), 1)
-    src.close()
-    return _summary(run)
+    return src.intrinsics
 
 
 def _summary(run) -> dict:
@@ -87,16 +62,19 @@ def _summary(run) -> dict:
 
 def run_session(spec: str, frames: int, methods: list[str]) -> dict:
     from app.commands.odometry import estimate_trajectory
+    from benchmarks.odometry_baseline import OpenCvOdometry
 
     scenario, motion, seed = spec.split("/")
     out = {"session": spec, "frames": frames, "methods": {}}
     with tempfile.TemporaryDirectory() as tmp:
         rec = Path(tmp) / "rec"
-        _record(scenario, motion, int(seed), frames, rec)
+        intrinsics = _record(scenario, motion, int(seed), frames, rec)
         for method in methods:
             estimate_trajectory(str(rec), method, frames=5)  # compile and warm the caches, not timed
             out["methods"][method] = _summary(estimate_trajectory(str(rec), method))
-        out["methods"]["opencv-rgb"] = _opencv_run(rec)
+        # the baseline through the same loop: decoding, the hand box mask, then cv2.Odometry (photometric)
+        baseline = OpenCvOdometry(intrinsics, "rgb")
+        out["methods"]["opencv-rgb"] = _summary(estimate_trajectory(str(rec), odometry=baseline))
     return out
 
 

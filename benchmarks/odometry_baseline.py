@@ -35,6 +35,11 @@ class OpenCvOdometry:
         self._prev = None
         self._T = np.eye(4)
 
+    def skip(self, timestamp: float, reason: str) -> OdometryResult:
+        """A frame that could not be read: the last pose kept, flagged (the next frame is registered to the last
+        one read)."""
+        return OdometryResult(Pose.from_matrix(self._T), False, 0, 0.0, float(timestamp), message=reason)
+
     def step(self, frame: Frame, mask: np.ndarray | None = None) -> OdometryResult:
         t0 = time.perf_counter()
         depth = np.nan_to_num(frame.depth, nan=0.0).astype(np.float32)

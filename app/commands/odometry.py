@@ -169,12 +169,11 @@ class TrajectoryRun:
       decoding of the next frames and, with ``fused``, the dense step run in other threads beside it).
     """
 
-    rows: list[tuple[float, Any, str]]
-    truth: list[Any]
-    wall_s: float
-    cpu_ms: float
-    flagged: int
-    messages: list[str] = field(default_factory=list)
+    rows: list[tuple[float, Any, str]] = field(default_factory=list)
+    truth: list[Any] = field(default_factory=list)
+    wall_s: float = 0.0
+    cpu_ms: float = 0.0
+    flagged: int = 0
 
     @property
     def fps(self) -> float:
@@ -195,10 +194,13 @@ class TrajectoryRun:
 
 
 def estimate_trajectory(recording: str, method: str = "default", mask_mode: str = "hand", frames: int | None = None,
-                        seed: int = 0, particles: int | None = ODOMETRY_PARTICLES, report=None) -> TrajectoryRun:
+                        seed: int = 0, particles: int | None = ODOMETRY_PARTICLES, report=None,
+                        odometry=None) -> TrajectoryRun:
     """Run one odometry ``method`` over a recording as ``assembly-agent odometry`` does (decoding included).
 
-    ``report(message)`` gets each frame's problem (a skipped frame, an extrapolated pose); the run goes on."""
+    ``report(message)`` gets each frame's problem (a skipped frame, an extrapolated pose); the run goes on.
+    ``odometry``: a ready object with ``step(frame, mask)`` and ``skip(timestamp, reason)`` (e.g. a benchmark's
+    baseline) run instead of ``method``'s."""
     from tracker.geometry.pose import Pose
     from tracker.odometry import make_odometry
     from tracker.odometry.exclusion_mask import exclusion_mask
@@ -210,16 +212,19 @@ def estimate_trajectory(recording: str, method: str = "default", mask_mode: str 
     if particles is not None and particles < 1:
         raise ValueError("--particles must be at least 1")
     src = RecordingSource(recording)
+    odo = odometry
     try:
         detector = _part_detector(src, mask_mode)
-        if method == "parts":
+        if odo is not None:
+            pass
+        elif method == "parts":
             odo = _PartsOdometry(recording, seed, particles)
         elif method == "fused":
             odo = _FusedOdometry(recording, seed, src.intrinsics, particles)
         else:
             odo = make_odometry(method, src.intrinsics, seed=seed)
         n = len(src) if frames is None else min(len(src), frames)
-        run = TrajectoryRun([], [], 0.0, 0.0, 0)
+        run = TrajectoryRun()
         t_start, cpu_start = time.perf_counter(), time.thread_time()
         for pos in range(n):
             ts = src.timestamp(pos)
@@ -240,14 +245,13 @@ def estimate_trajectory(recording: str, method: str = "default", mask_mode: str 
                 res = odo.step(frame, mask)
             if not res.ok:
                 run.flagged += 1
-                run.messages.append(res.message)
                 if report is not None:
                     report(res.message)
             run.rows.append((res.timestamp, res.pose_world_camera, "" if res.ok else f"extrapolated: {res.message}"))
         run.wall_s = time.perf_counter() - t_start
         run.cpu_ms = 1e3 * (time.thread_time() - cpu_start) / max(len(run.rows), 1)
     finally:
-        if method == "fused" and "odo" in locals():
+        if isinstance(odo, _FusedOdometry):
             odo.close()
         src.close()
     return run

@@ -170,6 +170,20 @@ def lifted_off(trk, obj: int, position: np.ndarray, new_position: np.ndarray, he
     return float((new_position - position) @ plane[0]) > cfg.carry_lift_m
 
 
+def estimate_rect(trk, obj: int, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
+    """Pixel rectangle ``(u0, v0, u1, v1)`` (end-exclusive, clipped to an image of ``shape``; may be empty) of part
+    ``obj``'s bounding box at its estimate, or None when a corner lies closer than 5 cm to the camera."""
+    est = trk.estimates[trk.names[obj]]
+    pts = trk.corners[obj] @ est.R.T + est.t
+    if np.any(pts[:, 2] < 0.05):
+        return None
+    uv = trk.intrinsics.project(pts)
+    h, w = shape[:2]
+    u0, v0 = np.maximum(np.floor(uv.min(axis=0)).astype(int), 0)
+    u1, v1 = np.minimum(np.ceil(uv.max(axis=0)).astype(int) + 1, [w, h])
+    return int(u0), int(v0), int(u1), int(v1)
+
+
 SEEN_TOLERANCE_M = 0.01
 """Metres: a silhouette pixel whose depth is this close to the estimate's surface shows the part (carry_keep_unseen)."""
 
@@ -179,16 +193,10 @@ def seen_where_it_was(trk, obj: int, depth: np.ndarray, stride: int = 2) -> floa
     rectangle) where ``depth`` (metres) lies within ``SEEN_TOLERANCE_M`` of the rendered surface: how much of the
     part this frame's depth still shows where the estimate is. 1.0 (shown) for a mesh part or an estimate off the
     image, so that nothing is kept in a hand on that account."""
-    if trk.meshes[obj] is not None:
+    rect = None if trk.meshes[obj] is not None else estimate_rect(trk, obj, depth.shape)
+    if rect is None:
         return 1.0
-    est = trk.estimates[trk.names[obj]]
-    pts = trk.corners[obj] @ est.R.T + est.t
-    if np.any(pts[:, 2] < 0.05):
-        return 1.0
-    uv = trk.intrinsics.project(pts)
-    h, w = depth.shape
-    u0, v0 = np.maximum(np.floor(uv.min(axis=0)).astype(int), 0)
-    u1, v1 = np.minimum(np.ceil(uv.max(axis=0)).astype(int) + 1, [w, h])
+    u0, v0, u1, v1 = rect
     if u1 <= u0 or v1 <= v0:
         return 1.0
     vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
@@ -209,14 +217,10 @@ def revealed(trk, obj: int, depth: np.ndarray) -> bool:
     1.5 cm behind the part (behind its far side; with ``revealed_surface``, behind the estimate's rendered surface at
     each pixel, so that the table right under a resting box counts)? Then the part is not where it was (a hand
     snatched it while hiding it, or it was pushed away)."""
-    est = trk.estimates[trk.names[obj]]
-    pts = trk.corners[obj] @ est.R.T + est.t
-    if np.any(pts[:, 2] < 0.05):
+    rect = estimate_rect(trk, obj, depth.shape)
+    if rect is None:
         return False
-    uv = trk.intrinsics.project(pts)
-    h, w = depth.shape
-    u0, v0 = np.maximum(np.floor(uv.min(axis=0)).astype(int), 0)
-    u1, v1 = np.minimum(np.ceil(uv.max(axis=0)).astype(int) + 1, [w, h])
+    u0, v0, u1, v1 = rect
     # the middle half of the rectangle: the silhouette of a box, whatever its turn, covers it
     du, dv = (u1 - u0) // 4, (v1 - v0) // 4
     patch = depth[v0 + dv : v1 - dv, u0 + du : u1 - du]
@@ -233,7 +237,8 @@ def revealed(trk, obj: int, depth: np.ndarray) -> bool:
             return False
         behind = patch[valid][on] > surface[on] + 0.015
     else:
-        behind = patch[valid] > pts[:, 2].max() + 0.015
+        est = trk.estimates[trk.names[obj]]
+        behind = patch[valid] > (trk.corners[obj] @ est.R.T + est.t)[:, 2].max() + 0.015  # its far side
     return bool(behind.mean() > 0.9)
 
 
@@ -384,13 +389,9 @@ def log_support_prior(trk, p, R, plane) -> np.ndarray | float:
     on another part lies on the table; quadratic within 3σ, linear beyond (it still pulls a floating part)."""
     if plane is None or not trk._support_on.any():
         return 0.0
-    sig = trk.config.support_prior_sigma
     out = np.zeros(p.shape[0])
-    n, d = plane
     for i in np.nonzero(trk._support_on)[0]:
-        nb = np.einsum("nji,j->ni", R[:, i], n)  # Rᵀ n per particle
-        h = np.abs((nb @ trk.hulls[i].T).min(axis=1) + p[:, i] @ n + d) / sig
-        out -= np.where(h < 3.0, 0.5 * h * h, 3.0 * h - 4.5)
+        out -= _support_term(trk, p, R, plane, i)
     return out
 
 
@@ -404,17 +405,17 @@ class PriorTerms:
         self.trk = trk
         self.plane = plane
         k = len(trk.parts)
-        self.rest_parts = np.flatnonzero(trk._rest_on)
         self.support_parts = np.flatnonzero(trk._support_on) if plane is not None else np.zeros(0, np.int64)
         n = trk.config.n_particles
         self.support_cols = np.zeros((k, n)) if self.support_parts.size else None  # per part, its support term
         self.done = np.zeros(k, bool)
 
-    def total(self, p: np.ndarray, R: np.ndarray, changed: set[int] | None = None) -> np.ndarray | float:
-        """``log_rest_prior(trk, p) + log_support_prior(trk, p, R, plane)`` summed as the passes sum them, where
-        only the parts in ``changed`` moved since the last call (``None``: all)."""
+    def total(self, p: np.ndarray, R: np.ndarray,
+              changed: set[int] | None = None) -> tuple[np.ndarray | float, np.ndarray | float]:
+        """``(log_rest_prior(trk, p), log_support_prior(trk, p, R, plane))`` as the passes add them, where only the
+        parts in ``changed`` moved since the last call (``None``: all)."""
         trk = self.trk
-        rest = log_rest_prior(trk, p) if self.rest_parts.size else 0.0  # one kernel: cheaper from scratch
+        rest = log_rest_prior(trk, p)  # one kernel: cheaper from scratch
         support = 0.0
         if self.support_parts.size:
             for i in self.support_parts:
@@ -436,8 +437,8 @@ def _support_term(trk, p, R, plane, i) -> np.ndarray:
     """Part ``i``'s term of :func:`log_support_prior` (subtracted from it)."""
     sig = trk.config.support_prior_sigma
     n, d = plane
-    nb = np.einsum("nji,j->ni", R[:, i], n)  # Rᵀ n per particle
-    h = np.abs((nb @ trk.hulls[i].T).min(axis=1) + p[:, i] @ n + d) / sig
+    up = np.einsum("nji,j->ni", R[:, i], n)  # Rᵀ n per particle: the table's normal in the part's frame
+    h = np.abs((up @ trk.hulls[i].T).min(axis=1) + p[:, i] @ n + d) / sig
     return np.where(h < 3.0, 0.5 * h * h, 3.0 * h - 4.5)
 
 
