@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from app.storage import Storage, StorageError
+from tracker.os_names import name_os_thread
 
 log = logging.getLogger(__name__)
 
@@ -215,6 +216,7 @@ class ResultsRecorder:
         self._stop.clear()
 
         def loop() -> None:
+            name_os_thread()
             while not self._stop.wait(self.flush_interval_s):
                 self.flush()
 

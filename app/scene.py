@@ -28,6 +28,7 @@ import numpy as np
 from tracker.frame import Frame
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
+from tracker.os_names import name_os_thread
 from tracker.snapshot import Snapshot
 
 log = logging.getLogger(__name__)
@@ -390,6 +391,7 @@ class SceneUpdater:
         self._thread.join(timeout=2.0)
 
     def _run(self) -> None:
+        name_os_thread()
         last_version = -1
         while not self._stop.is_set():
             self._event.wait(timeout=1.0)

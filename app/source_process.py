@@ -28,6 +28,7 @@ import numpy as np
 
 from tracker.frame import Frame
 from tracker.geometry.camera import Intrinsics
+from tracker.os_names import name_os_thread
 from tracker.sources.base import FrameSource, SourceError
 
 
@@ -36,6 +37,7 @@ def _child(conn: Connection, factory: Callable[..., Any], args: tuple, kwargs: d
     # Ctrl-C in a terminal reaches the whole process group: the parent stops the server and then closes this
     # process (its pipe ends it in any case), so the child does not die under the running worker first.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    name_os_thread("frame-source")  # the process's name in top / ps (and bench_server's CPU per process)
     shm = None
     try:
         src = factory(*args, **kwargs)

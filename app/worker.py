@@ -28,6 +28,7 @@ from typing import Any
 import cv2
 
 from tracker.frame import Frame, FrameError
+from tracker.os_names import name_os_thread
 from tracker.pipeline import AssemblyPipeline
 from tracker.snapshot import Snapshot
 from tracker.sources.base import FrameSource
@@ -138,6 +139,7 @@ class _FramePrefetcher:
             self._stop.wait(delay)
 
     def _run(self) -> None:
+        name_os_thread()
         if self.access is not None:
             self._run_paced(self.access)
             return
@@ -529,6 +531,7 @@ class PipelineWorker:
                 log.warning("snapshot listener failed: %s", exc)
 
     def _run(self) -> None:
+        name_os_thread()
         delay = self.reopen_delay_s
         consecutive = 0
         while not self._stop.is_set():

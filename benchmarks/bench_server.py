@@ -71,6 +71,57 @@ def cpu_seconds(pid: int) -> float:
     return total + sum(cpu_seconds(c) for c in children)
 
 
+PROCESS_LABELS = {"frame-source": "simulator", "hand-step": "hands"}
+"""OS names of the server's child processes (``tracker/os_names.py``) → the labels of the report."""
+
+
+def _task_cpu(stat: Path) -> float:
+    fields = stat.read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def cpu_by_thread(pid: int) -> dict[str, float]:
+    """CPU seconds (user + system) of the server ``pid`` and its live child processes, by
+    ``"<process>/<thread>"``: the process ``server`` or its child's label (``simulator``, ``hands``, from the OS
+    names the children give themselves), the thread by its OS name (``pipeline-worker``, ``frame-reader``…;
+    unnamed threads, e.g. the event loop and the JPEG encoder's, are ``other``). Threads that ended are missing."""
+    out: dict[str, float] = {}
+
+    def add(p: int, label: str) -> None:
+        children: set[int] = set()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                comm = (task / "comm").read_text().strip()
+                cpu = _task_cpu(task / "stat")
+                children.update(int(c) for c in (task / "children").read_text().split())
+            except (OSError, ValueError, IndexError):
+                continue
+            thread = "main" if task.name == str(p) and label != "server" else comm
+            if thread.startswith("python") or thread in ("asyncio", "uvicorn"):
+                thread = "other"
+            key = f"{label}/{thread}"
+            out[key] = out.get(key, 0.0) + cpu
+        for c in sorted(children):
+            try:
+                name = Path(f"/proc/{c}/comm").read_text().strip()
+            except OSError:
+                continue
+            add(c, PROCESS_LABELS.get(name, name))
+
+    add(pid, "server")
+    return out
+
+
+def cpu_split(before: dict[str, float], after: dict[str, float], frames: int) -> tuple[dict, dict]:
+    """CPU ms per frame by process and by ``process/thread`` between two :func:`cpu_by_thread` readings."""
+    by_thread = {k: 1000.0 * (v - before.get(k, 0.0)) / max(frames, 1) for k, v in sorted(after.items())}
+    by_process: dict[str, float] = {}
+    for k, v in by_thread.items():
+        by_process[k.split("/", 1)[0]] = by_process.get(k.split("/", 1)[0], 0.0) + v
+    return ({k: round(v, 1) for k, v in by_process.items()},
+            {k: round(v, 1) for k, v in by_thread.items() if v >= 0.05})
+
+
 def machine() -> dict:
     return machine_info()
 
@@ -163,10 +214,10 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
     try:
         wait_until_processing(proc, base)
         load = os.getloadavg()[0]
-        cpu0, w0 = cpu_seconds(proc.pid), time.time()
+        cpu0, threads0, w0 = cpu_seconds(proc.pid), cpu_by_thread(proc.pid), time.time()
         st0 = httpx.get(f"{base}/api/status").json()["worker"]
         msgs, n_jpeg = asyncio.run(read_ws(f"ws://127.0.0.1:{port}/ws", seconds, jpeg))
-        cpu1, w1 = cpu_seconds(proc.pid), time.time()
+        cpu1, threads1, w1 = cpu_seconds(proc.pid), cpu_by_thread(proc.pid), time.time()
         st1 = httpx.get(f"{base}/api/status").json()["worker"]
         n0, n1 = st0["frames_processed"], st1["frames_processed"]
     finally:
@@ -183,6 +234,7 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
             stages.setdefault(k, []).append(v * 1000.0)
     tracker_ms = sorted(m["timings"]["tracker"] * 1000.0 for m in msgs if "tracker" in m["timings"])
     tracker_cpu = sorted(m["timings"]["tracker_cpu"] * 1000.0 for m in msgs if "tracker_cpu" in m["timings"])
+    by_process, by_thread = cpu_split(threads0, threads1, n1 - n0)
     return {
         "case": name,
         "realtime": realtime,
@@ -197,6 +249,8 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
         "processing_to_ws_ms_median": round(statistics.median(lat_proc), 1) if lat_proc else None,
         "cpu_percent": round(100.0 * (cpu1 - cpu0) / (w1 - w0), 1),
         "cpu_ms_per_frame": round(1000.0 * (cpu1 - cpu0) / max(n1 - n0, 1), 1),
+        "cpu_ms_per_frame_by_process": by_process,
+        "cpu_ms_per_frame_by_thread": by_thread,
         "load_avg_1min": round(load, 2),
         "tracker_ms_median": round(statistics.median(tracker_ms), 1) if tracker_ms else None,
         "tracker_ms_p95": round(tracker_ms[int(0.95 * (len(tracker_ms) - 1))], 1) if tracker_ms else None,
@@ -375,17 +429,21 @@ def main() -> int:
     ap.add_argument("--hands-thread", action="store_true",
                     help="with --hands: also the two hands-on runs with the hand step in a thread of the server "
                     "(serve --hands-worker thread) instead of its child process")
+    ap.add_argument("--hands-only", action="store_true",
+                    help="only the two websocket runs with hands on (a quick comparison; implies --no-browser)")
     ap.add_argument("--no-browser", action="store_true",
                     help="only the websocket runs (the browser runs' figures are kept from server.json)")
     ap.add_argument("--browser-only", action="store_true",
                     help="only the server + headless browser runs (the other runs' figures are kept from server.json)")
     args = ap.parse_args()
+    if args.hands_only:
+        args.hands = args.no_browser = True
     RESULTS.mkdir(parents=True, exist_ok=True)
     db = Path("/tmp") / f"bench-server-{os.getpid()}.sqlite3"
     mach = machine()
     earlier = RESULTS / "server.json"
     kept = json.loads(earlier.read_text()) if (args.browser_only or args.no_browser) and earlier.exists() else {}
-    cases = kept.get("cases", []) if args.browser_only else [
+    cases = kept.get("cases", []) if args.browser_only else [] if args.hands_only else [
         run_case("unpaced", False, args.seconds, args.particles, db, args.jpeg),
         run_case("realtime-30fps", True, args.seconds, args.particles, db, args.jpeg),
     ]
@@ -448,6 +506,11 @@ def main() -> int:
     lines += ["", "Server CPU = the server process, its simulator process and its hand process (with hands on, worker "
               "\"process\"); CPU ms per frame = that CPU time over the frames processed; load = the machine's 1-minute "
               "load average when the run's measurement started (above 1, other jobs shared the 2 cores)."]
+    for c in cases:
+        if "error" in c or "cpu_ms_per_frame_by_thread" not in c:
+            continue
+        lines += ["", f"CPU ms per frame by process and thread ({c['case']} run): " + "; ".join(
+            f"{k} {v}" for k, v in c["cpu_ms_per_frame_by_thread"].items())]
     for c in cases:
         if "error" in c:
             continue

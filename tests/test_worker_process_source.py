@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import os
 
 import numpy as np
 import pytest
@@ -78,3 +79,11 @@ def test_failing_factory_and_closed_source():
     assert not src.alive
     with pytest.raises(SourceError, match="closed"):
         src.render(0)
+
+
+def test_the_source_process_is_named_for_the_os(proc):
+    comm = f"/proc/{proc._proc.pid}/comm"
+    if not os.path.exists("/proc/thread-self/comm"):
+        pytest.skip("no /proc/thread-self (not Linux)")
+    with open(comm) as f:
+        assert f.read().strip() == "frame-source"

@@ -50,6 +50,7 @@ from tracker.geometry.pose import Pose
 from tracker.hands.contact import R_TOUCH, ContactMonitor
 from tracker.hands.process import HandProcess, HandProcessError, hand_masks_from, mask_from
 from tracker.hands.tracker import HandEstimate, HandTracker, HandTrackerConfig
+from tracker.os_names import name_os_thread
 
 OVERLAP_MODES = ("lagged", "wait", "off")
 WORKERS = ("process", "thread")
@@ -246,7 +247,8 @@ class HandLoop:
             self._process_pending = True
             return
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hands")
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hands",
+                                            initializer=name_os_thread)
         self._pending = self._pool.submit(self.step, color, depth, table_plane, dict(poses))
 
     def wait(self) -> None:

@@ -43,6 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from tracker.os_names import name_os_thread
+
 MAX_RESTARTS = 5
 """Deaths of the child in a row (no completed step between them) after which it is not started again."""
 
@@ -107,6 +109,7 @@ def _child(conn: Connection, shm_name: str, shape: tuple[int, int], parts: list,
            config: Any) -> None:  # fmt: skip
     """The child: a HandLoop running its steps in place on the frames in shared memory, until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the process group: the parent closes this process
+    name_os_thread("hand-step")  # the process's name in top / ps (and bench_server's CPU per process)
     shm = None
     try:
         import cv2
