@@ -310,9 +310,11 @@ def test_pyramid_halves_depth_and_mask_and_drops_blocks_with_a_hole_or_an_edge()
     assert pyr[2].intrinsics.width == 2
 
 
-def test_fused_odometry_with_its_dense_step_in_a_thread_equals_one_step_after_the_other(tmp_path, monkeypatch):
-    """The fused command runs the dense step in a second thread beside the tracker step; the trajectory is the same
-    to the last bit as with the two run one after the other (no shared state, no write to the frame)."""
+def test_fused_odometry_with_its_camera_path_in_a_thread_equals_one_step_after_the_other(tmp_path, monkeypatch):
+    """The fused command runs the camera's path (frame k's dense step beside frame k's tracker step, frame k's fusion
+    beside frame k + 1's) in a worker thread; the trajectory, its flagged frames (a skipped one included) and their
+    order are the same to the last bit as with every job run at once in the calling thread (no shared state, no
+    write to the frame)."""
     from concurrent.futures import Future
 
     from app.commands import odometry as odometry_command

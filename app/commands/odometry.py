@@ -23,7 +23,8 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -111,7 +112,14 @@ class _PartsOdometry:
 
 class _FusedOdometry(_PartsOdometry):
     """``--method fused``: the dense odometry and the tracker's resting parts checking each other
-    (:class:`tracker.odometry.fused_odometry.FusedOdometry`)."""
+    (:class:`tracker.odometry.fused_odometry.FusedOdometry`).
+
+    The part tracker runs in the calling thread; everything of the camera's path runs in one worker thread, in frame
+    order: frame k's dense alignment (beside frame k's tracker step) and, once that step has given its resting parts,
+    frame k's fusion (prediction, table plane, correction; beside frame k + 1's tracker step). The tracker needs
+    nothing of the path (its session has no odometry of its own), so each frame's pose is the same to the last bit as
+    with every job run at once in the calling thread; only its result comes later: :meth:`step` and :meth:`skip`
+    return a :class:`~concurrent.futures.Future` of the frame's OdometryResult."""
 
     def __init__(self, recording: str, seed: int, intrinsics, particles: int | None = None) -> None:
         from tracker.odometry import OdometryConfig, make_odometry
@@ -121,41 +129,47 @@ class _FusedOdometry(_PartsOdometry):
         self.dense = make_odometry("default", intrinsics, seed=seed, config=OdometryConfig.fast())
         self.fused = FusedOdometry()
         self.used = 0
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dense-odometry")
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="camera-path")
+
+    def _dense_step(self, frame, mask):
+        # the alignment starts from the fused path's prediction (not its own, which extrapolates a step the fused
+        # odometry rejected): taken here, in the worker, after the previous frame's fusion
+        return self.dense.step(frame, mask, prior=self.fused.dense_prior(float(frame.timestamp)))
+
+    def _fuse(self, dense, frame, mask, landmarks, table, t0: float):
+        r = dense.result()  # done: the worker runs its jobs in order
+        self.fused.predict(float(frame.timestamp), r.pose_world_camera if r.ok else None, landmarks, self.corners)
+        plane = self.fused.measure_table(frame.depth, frame.intrinsics, mask,
+                                         guess=None if table is None else (table.normal, table.offset))
+        s = self.fused.correct(landmarks, self.corners, plane)
+        ok = s.source != "hold"
+        return self._result(s.pose, ok, t0, frame.timestamp, "" if ok else
+                            f"frame {frame.index}: no dense pose accepted, no resting part agreed — pose predicted")
 
     def step(self, frame, mask=None):
         t0 = time.perf_counter()
         if frame.depth is None:
             return self.skip(frame.timestamp, f"frame {frame.index}: no depth image — pose extrapolated")
-        # the dense alignment starts from the fused path's prediction (not its own, which extrapolates a step the
-        # fused odometry rejected); it needs nothing of this frame's tracker step, so it runs in a second thread
-        # beside it (its compiled kernels release the GIL; each side has its own state and random generator, and
-        # neither writes to the frame, so the result is the same as one after the other)
-        dense = self._pool.submit(self.dense.step, frame, mask, prior=self.fused.dense_prior(float(frame.timestamp)))
-        try:
-            self.session.step(frame)
-        finally:
-            r = dense.result()
-        lm = self.session.tracker.landmark_poses
-        self.fused.predict(float(frame.timestamp), r.pose_world_camera if r.ok else None, lm, self.corners)
-        table = self.session.table
-        plane = self.fused.measure_table(frame.depth, frame.intrinsics, mask,
-                                         guess=None if table is None else (table.normal, table.offset))
-        s = self.fused.correct(lm, self.corners, plane)
-        ok = s.source != "hold"
-        return self._result(s.pose, ok, t0, frame.timestamp, "" if ok else
-                            f"frame {frame.index}: no dense pose accepted, no resting part agreed — pose predicted")
+        dense = self._pool.submit(self._dense_step, frame, mask)  # neither side writes to the frame
+        self.session.step(frame)
+        # this frame's resting parts (a new dict of new poses, whose arrays the tracker never writes to again) and
+        # table (replaced, not changed, by a re-detection): the next tracker step runs beside the fusion
+        landmarks = self.session.tracker.landmark_poses
+        return self._pool.submit(self._fuse, dense, frame, mask, landmarks, self.session.table, t0)
 
-    def close(self) -> None:
-        """Stop the dense step's thread."""
-        self._pool.shutdown(wait=True)
-
-    def skip(self, timestamp: float, reason: str):
+    def _skip(self, timestamp: float, reason: str, t0: float):
         from tracker.geometry.pose import Pose
 
         self.dense.skip(timestamp, reason)
         pose = self.fused.pose_world_camera or Pose()
-        return self._result(pose, False, time.perf_counter(), timestamp, reason)
+        return self._result(pose, False, t0, timestamp, reason)
+
+    def skip(self, timestamp: float, reason: str):
+        return self._pool.submit(self._skip, timestamp, reason, time.perf_counter())
+
+    def close(self) -> None:
+        """Finish the queued jobs and stop the worker thread."""
+        self._pool.shutdown(wait=True)
 
 
 @dataclass
@@ -166,7 +180,7 @@ class TrajectoryRun:
       a frame that was not measured (pose extrapolated or held).
     * ``truth``: the recording's ``camera_pose`` ground truth of each frame (simulated recordings) or ``None``.
     * ``wall_s``: seconds from the first read to the last pose; ``cpu_ms``: main-thread CPU per frame (ms; the
-      decoding of the next frames and, with ``fused``, the dense step run in other threads beside it).
+      decoding of the next frames and, with ``fused``, the camera path's jobs run in other threads beside it).
     """
 
     rows: list[tuple[float, Any, str]] = field(default_factory=list)
@@ -225,13 +239,27 @@ def estimate_trajectory(recording: str, method: str = "default", mask_mode: str 
             odo = make_odometry(method, src.intrinsics, seed=seed)
         n = len(src) if frames is None else min(len(src), frames)
         run = TrajectoryRun()
+        pending: deque = deque()  # results (or futures of them: fused) of frames not yet in run.rows, in order
+
+        def record(until_done: bool) -> None:
+            while pending and (not until_done or not isinstance(pending[0], Future) or pending[0].done()):
+                res = pending.popleft()
+                res = res.result() if isinstance(res, Future) else res
+                if not res.ok:
+                    run.flagged += 1
+                    if report is not None:
+                        report(res.message)
+                run.rows.append((res.timestamp, res.pose_world_camera,
+                                 "" if res.ok else f"extrapolated: {res.message}"))
+
         t_start, cpu_start = time.perf_counter(), time.thread_time()
         for pos in range(n):
             ts = src.timestamp(pos)
             try:
                 frame = src.read(pos)
             except SourceError as exc:
-                res = odo.skip(ts, f"frame at line {pos + 1} skipped: {exc} — pose extrapolated at constant velocity")
+                pending.append(odo.skip(ts, f"frame at line {pos + 1} skipped: {exc} — pose extrapolated at constant "
+                                            "velocity"))
                 run.truth.append(None)
             else:
                 gt = frame.meta.get("groundtruth") or {}
@@ -242,12 +270,9 @@ def estimate_trajectory(recording: str, method: str = "default", mask_mode: str 
                     parts = detector.masks(frame.color).values() if detector is not None else ()
                     if hand_box is not None or detector is not None:
                         mask = exclusion_mask(frame.color.shape[:2], hand_box, parts)
-                res = odo.step(frame, mask)
-            if not res.ok:
-                run.flagged += 1
-                if report is not None:
-                    report(res.message)
-            run.rows.append((res.timestamp, res.pose_world_camera, "" if res.ok else f"extrapolated: {res.message}"))
+                pending.append(odo.step(frame, mask))
+            record(until_done=True)
+        record(until_done=False)
         run.wall_s = time.perf_counter() - t_start
         run.cpu_ms = 1e3 * (time.thread_time() - cpu_start) / max(len(run.rows), 1)
     finally:

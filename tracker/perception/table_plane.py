@@ -292,6 +292,18 @@ def _region(depth: np.ndarray, valid: np.ndarray, s: TableSettings, width: int):
     return comp, filled.astype(bool) & measured
 
 
+def _plane_distance(depth: np.ndarray, intrinsics: Intrinsics, normal: np.ndarray, offset: float) -> np.ndarray:
+    """H×W signed distance (metres, float32) of each pixel's back-projected point to the plane ``normal · x + offset
+    = 0`` (camera frame): ``z · (normal · ray) + offset`` with the pixel's ray ``((u - cx) / fx, (v - cy) / fy, 1)``,
+    without building the point image; NaN where the depth is."""
+    h, w = depth.shape
+    n = np.asarray(normal, np.float64)
+    across = (n[0] * (np.arange(w) - intrinsics.cx) / intrinsics.fx).astype(np.float32)
+    down = (n[1] * (np.arange(h) - intrinsics.cy) / intrinsics.fy + n[2]).astype(np.float32)
+    dots = down[:, None] + across[None, :]
+    return np.asarray(depth, np.float32) * dots + np.float32(offset)
+
+
 def _subsample(mask: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray]:
     vs, us = np.nonzero(mask)
     step = max(1, int(math.ceil(len(us) / max_points)))
@@ -359,9 +371,7 @@ def detect_table(depth: np.ndarray, intrinsics: Intrinsics, settings: TableSetti
     if plane_d < 1e-4:
         raise TableNotFoundError("table detection: the fitted plane passes through the camera centre")
     # 7. outline of the table region in the image
-    pts_img = intrinsics.depth_to_points(np.where(valid, depth, np.nan))
-    with np.errstate(invalid="ignore"):
-        near = valid & (np.abs(pts_img @ plane_n + plane_d) < max(thr, 0.005))
+    near = valid & (np.abs(_plane_distance(depth, intrinsics, plane_n, plane_d)) < max(thr, 0.005))
     near_u8 = cv2.morphologyEx(near.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
     outline = np.zeros((0, 2), np.int32)
     contours, _ = cv2.findContours(near_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
