@@ -349,6 +349,11 @@ class PipelineWorker:
         if self._thread is not None:
             self._thread.join(timeout)
         self._close_source()
+        if self._thread is None or not self._thread.is_alive():
+            self._close_pipeline(keep_hand_process=False)
+            from tracker.hands.process import close_parked
+
+            close_parked()
         self.state = "stopped"
 
     @property
@@ -480,8 +485,19 @@ class PipelineWorker:
             except Exception as exc:  # noqa: BLE001
                 self.report("source", f"closing failed: {exc}")
 
+    def _close_pipeline(self, keep_hand_process: bool) -> None:
+        """End the pipeline's hand step (see :meth:`AssemblyPipeline.close`): before a new pipeline replaces it
+        (``keep_hand_process``: the new one of the same parts takes the hand process), or when the worker stops."""
+        close = getattr(self.pipeline, "close", None)
+        if callable(close):
+            try:
+                close(keep_hand_process=keep_hand_process)
+            except Exception as exc:  # noqa: BLE001 - reported; the next pipeline starts its own
+                self.report("pipeline", f"closing failed: {type(exc).__name__}: {exc}")
+
     def _open(self) -> bool:
         self._close_source()
+        self._close_pipeline(keep_hand_process=True)
         self.state = "starting"
         try:
             src = self._open_source()

@@ -11,7 +11,7 @@ import pytest
 
 from tracker.geometry.camera import Intrinsics
 from tracker.hands.loop import HandLoop, HandLoopConfig
-from tracker.hands.process import HandProcessError
+from tracker.hands.process import HandProcessError, close_parked
 from tracker.hands.tracker import HandTrackerConfig
 
 
@@ -126,6 +126,61 @@ def test_a_dying_hand_process_is_reported_and_restarted():
         assert loop.estimates
     finally:
         loop.close()
+
+
+def _same_hands(a: HandLoop, b: HandLoop) -> None:
+    assert [e.box for e in a.estimates] == [e.box for e in b.estimates]
+    assert [e.id for e in a.estimates] == [e.id for e in b.estimates]
+    for x, y in zip(a.estimates, b.estimates, strict=True):
+        assert np.array_equal(x.state, y.state) and x.score == y.score
+    assert a.masks.keys() == b.masks.keys()
+    for tid, m in a.masks.items():
+        assert np.array_equal(b.masks[tid], m)
+    assert (a.occluder is None) == (b.occluder is None)
+    assert a.occluder is None or np.array_equal(a.occluder, b.occluder)
+
+
+def test_a_kept_process_serves_the_next_loop_with_the_hands_of_a_new_one():
+    """``close(keep_process=True)`` (the server's pipeline replaced when its source loops) parks the child mid-session
+    (a hand tracked); the next loop of the same parts and configuration takes the same child, and its hands over a
+    new session equal those of a fresh in-thread loop; a loop with another configuration does not take it (the
+    parked child is ended) and starts its own."""
+    first = _loop("process")
+    second = other = None
+    try:
+        for k in range(10):
+            first.start(_entering_palm(k), None, None, {})
+            first.wait()
+        assert first.estimates
+        pid = first.worker_pid
+        first.close(keep_process=True)
+        assert first.worker_pid is None
+        second, fresh = _loop("process"), _loop("thread", "off")
+        with_hands = 0
+        for k in range(14):
+            frame = _entering_palm(k)
+            second.start(frame, None, None, {})
+            fresh.start(frame, None, None, {})
+            second.wait()
+            assert second.worker_pid == pid
+            _same_hands(fresh, second)
+            with_hands += bool(fresh.estimates)
+        assert with_hands >= 4
+        kept = second._process._res.proc
+        second.close(keep_process=True)
+        assert kept.is_alive()
+        other = HandLoop([], Intrinsics.default(), HandLoopConfig(tracker=HandTrackerConfig(seed=4),
+                                                                   step_timeout_s=STEP_TIMEOUT))  # fmt: skip
+        other.start(_entering_palm(0), None, None, {})
+        other.wait()
+        assert other.worker_pid not in (None, pid)
+        kept.join(15.0)
+        assert not kept.is_alive()
+    finally:
+        for loop in (first, second, other):
+            if loop is not None:
+                loop.close()
+        close_parked()
 
 
 def test_close_ends_the_child_and_frees_the_shared_memory():

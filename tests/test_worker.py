@@ -256,3 +256,33 @@ def test_live_source_busy_pipeline_gets_newest_frame():
         worker.stop()
     assert worker.frames_dropped > 0
     assert seen == sorted(seen) and seen[-1] - seen[0] > len(seen)  # gaps: stale frames were skipped
+
+
+def test_a_replaced_pipeline_is_closed_keeping_its_hand_process_and_the_last_one_at_stop():
+    """Each reopening (here: a source that ends, with ``loop``) replaces the pipeline: the old one is closed with
+    ``keep_hand_process=True`` (its hand process serves the next pipeline of the same parts); when the worker stops,
+    its pipeline is closed for good."""
+    closed: list[tuple[int, bool]] = []
+
+    class Closing:
+        def __init__(self, src) -> None:
+            self.inner = make_pipeline(src)
+            self.number = len(built)
+            built.append(self)
+
+        def process(self, frame, wall_time=None):
+            return self.inner.process(frame, wall_time=wall_time)
+
+        def close(self, keep_hand_process: bool = False) -> None:
+            closed.append((self.number, keep_hand_process))
+
+    built: list[Closing] = []
+    worker = PipelineWorker(lambda: SyntheticTable(n_frames=3), Closing, max_fps=None, loop=True)
+    worker.start()
+    try:
+        assert wait_for(lambda: worker.source_opens >= 3)
+    finally:
+        worker.stop()
+    assert not worker.errors
+    n = len(built)
+    assert closed == [(i, True) for i in range(n - 1)] + [(n - 1, False)]

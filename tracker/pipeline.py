@@ -394,6 +394,13 @@ class AssemblyPipeline:
                 return p
         raise ValueError(f"unknown part {name!r}; parts are {', '.join(p.name for p in self.parts)}")
 
+    def close(self, keep_hand_process: bool = False) -> None:
+        """End the hand step's thread or process (:meth:`HandLoop.close`; with ``keep_hand_process`` a healthy hand
+        process is kept for the next pipeline of the same parts). The pipeline still works: a later frame starts the
+        hand step again."""
+        if self.hands is not None:
+            self.hands.close(keep_process=keep_hand_process)
+
     def reset(self) -> None:
         """Back to the initial poses, a fresh mode and a table to be found again."""
         self.poses = dict(self._initial_poses)
@@ -401,7 +408,7 @@ class AssemblyPipeline:
         self._fps, self._last_wall = 0.0, None
         self._auto_place_time, self._auto_place_errors, self.carried = None, {}, []
         if self.hands is not None:
-            self.hands.close()
+            self.hands.close(keep_process=True)  # the same parts: the new loop takes the hand process
             self.hands = self._make_hands()
         self.tracker = None
         if self.ego is not None:

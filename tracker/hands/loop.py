@@ -48,7 +48,7 @@ from tracker.geometry.camera import Intrinsics
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
 from tracker.hands.contact import R_TOUCH, ContactMonitor
-from tracker.hands.process import HandProcess, HandProcessError, hand_masks_from, mask_from
+from tracker.hands.process import HandProcess, HandProcessError, hand_masks_from, mask_from, park, take_parked
 from tracker.hands.tracker import HandEstimate, HandTracker, HandTrackerConfig
 from tracker.os_names import name_os_thread
 
@@ -240,9 +240,9 @@ class HandLoop:
             self.step(color, depth, table_plane, poses)
             return
         if self.config.worker == "process":
-            if self._process is None:
-                self._process = HandProcess(self._all_parts, self.intrinsics, self.config,
-                                            step_timeout=self.config.step_timeout_s)  # fmt: skip
+            if self._process is None:  # a parked child of an earlier loop of these parts, or a new one
+                self._process = take_parked(self._all_parts, self.intrinsics, self.config) or HandProcess(
+                    self._all_parts, self.intrinsics, self.config, step_timeout=self.config.step_timeout_s)
             self._process.submit(color, depth, table_plane, poses)
             self._process_pending = True
             return
@@ -290,8 +290,10 @@ class HandLoop:
         """Process id of the hand process (``worker`` "process" after the first :meth:`start`), else None."""
         return None if self._process is None else self._process.pid
 
-    def close(self) -> None:
-        """Join a pending step (its error is dropped) and end the worker thread or process."""
+    def close(self, keep_process: bool = False) -> None:
+        """Join a pending step (its error is dropped) and end the worker thread or process; with ``keep_process`` a
+        healthy hand process is kept for the next loop of the same parts instead (:func:`tracker.hands.process.park`:
+        the server's next pipeline after its source loops then needs no new process)."""
         try:
             self.wait()
         except Exception:  # noqa: BLE001 - closing: the step's error was or will not be reported
@@ -300,7 +302,10 @@ class HandLoop:
             self._pool.shutdown(wait=False)
             self._pool = None
         if self._process is not None:
-            self._process.close()
+            if keep_process:
+                park(self._process)
+            else:
+                self._process.close()
             self._process = None
 
     def tracker_occluders(self) -> np.ndarray | None:

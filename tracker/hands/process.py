@@ -26,6 +26,12 @@ thread (``overlap`` "off") and runs :meth:`HandLoop.step` on the frames it is se
   same hands as the step run in place.
 * :meth:`HandProcess.close` asks the child to end, kills it if it does not within a few seconds, and frees the shared
   memory; it also runs when the object is garbage-collected.
+* Reuse: starting a child costs about 2 s of CPU (imports, compiled kernels) and its first step about 2 s more; the
+  server builds a new pipeline each time its source loops or is reset. :func:`park` (``HandLoop.close(keep_process=
+  True)``) keeps one idle child: it is told to start afresh (:meth:`HandProcess.recycle`: a new ``HandLoop``, the
+  state a new child has) and the next ``HandLoop`` with the same parts, intrinsics and configuration takes it
+  (:func:`take_parked`) instead of starting one; the hands are the same as with a new child. At most one child is
+  parked; it ends when another is parked, when a loop with other parts asks, on :func:`close_parked` or at exit.
 
 Units: pixels of the colour image, metres, camera frame (as :mod:`tracker.hands.loop`).
 """
@@ -34,7 +40,9 @@ from __future__ import annotations
 
 import builtins
 import multiprocessing as mp
+import pickle
 import signal
+import threading
 import weakref
 from dataclasses import replace
 from multiprocessing.connection import Connection
@@ -137,6 +145,13 @@ def _child(conn: Connection, shm_name: str, shape: tuple[int, int], parts: list,
                 return
             if msg is None:
                 return
+            if msg[0] == "reset":  # a new session (HandProcess.recycle): the state of a newly started child
+                try:
+                    loop = HandLoop(parts, intrinsics, replace(config, overlap="off", worker="thread"))
+                    conn.send(("ready",))
+                except Exception as exc:  # noqa: BLE001 - the parent starts a new child
+                    conn.send(("failed", f"{type(exc).__name__}: {exc}"))
+                continue
             _, slot, has_depth, table_plane, poses = msg
             color, depth = slots[slot]
             try:
@@ -374,8 +389,75 @@ class HandProcess:
             exc_type, text = RuntimeError, f"{kind}: {text}"
         raise exc_type(text)
 
+    def recycle(self) -> bool:
+        """Tell a healthy, idle child to start afresh for a new session (a new ``HandLoop`` in the child; its answer
+        is awaited by the next :meth:`submit`, as a new child's); this object then behaves as a new one whose child
+        has started. False (nothing sent) if the child is not ready, a step is pending, or it is closed or given up."""
+        conn = self._res.conn
+        if self._closed or self._given_up is not None or not self._ready or self._pending or conn is None:
+            return False
+        if self._res.proc is None or not self._res.proc.is_alive():
+            return False
+        try:
+            conn.send(("reset",))
+        except OSError:
+            return False
+        self._ready = False
+        self._refused = None
+        self._first, self._replay = None, False
+        self._slot = 0
+        self._deaths = 0
+        self.restarts = 0
+        return True
+
     def close(self) -> None:
         """End the child (politely, then by force) and free the shared memory."""
         self._closed = True
         self._pending = False
         self._finalizer()
+
+
+_parked: list[tuple[bytes, HandProcess]] = []  # at most one idle child, with its key (see park)
+_parked_lock = threading.Lock()
+
+
+def _reuse_key(parts: list, intrinsics: Any, config: Any) -> bytes | None:
+    """What a parked child must have been made for to be taken (parts, intrinsics, configuration), None if it cannot
+    be told (unpicklable: no reuse)."""
+    try:
+        return pickle.dumps((list(parts), intrinsics, config), protocol=4)
+    except Exception:  # noqa: BLE001 - then the child is not reused
+        return None
+
+
+def park(proc: HandProcess) -> None:
+    """Keep ``proc``'s child for the next loop of the same parts, intrinsics and configuration
+    (:meth:`HandProcess.recycle`); a child that cannot be recycled is closed, and so is the one parked before."""
+    key = _reuse_key(proc.parts, proc.intrinsics, proc.config)
+    if key is None or not proc.recycle():
+        proc.close()
+        return
+    with _parked_lock:
+        old = list(_parked)
+        _parked[:] = [(key, proc)]
+    for _, p in old:
+        p.close()
+
+
+def take_parked(parts: list, intrinsics: Any, config: Any) -> HandProcess | None:
+    """The parked child if it was made for these parts, intrinsics and configuration (it is no longer parked); None
+    otherwise (a parked child made for others is closed)."""
+    key = _reuse_key(parts, intrinsics, config)
+    with _parked_lock:
+        old = list(_parked)
+        _parked.clear()
+    for k, p in old:
+        if k == key:
+            return p
+        p.close()
+    return None
+
+
+def close_parked() -> None:
+    """End the parked child, if any."""
+    take_parked([], None, None)
