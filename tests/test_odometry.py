@@ -310,37 +310,52 @@ def test_pyramid_halves_depth_and_mask_and_drops_blocks_with_a_hole_or_an_edge()
     assert pyr[2].intrinsics.width == 2
 
 
-def test_fused_odometry_with_its_camera_path_in_a_thread_equals_one_step_after_the_other(tmp_path, monkeypatch):
+def test_fused_odometry_with_its_camera_path_in_a_process_equals_one_step_after_the_other(tmp_path, monkeypatch):
     """The fused command runs the camera's path (frame k's dense step beside frame k's tracker step, frame k's fusion
-    beside frame k + 1's) in a worker thread; the trajectory, its flagged frames (a skipped one included) and their
-    order are the same to the last bit as with every job run at once in the calling thread (no shared state, no
-    write to the frame)."""
-    from concurrent.futures import Future
-
+    beside frame k + 1's) in a child process that decodes the frames itself; the trajectory, its flagged frames (a
+    skipped one included) and their order are the same to the last bit as with every job run at once in the calling
+    thread (no shared state, no write to the frame)."""
     from app.commands import odometry as odometry_command
 
     rec = tmp_path / "rec"
     _sway_recording(rec, 12, 6)
+    assert odometry_command.FUSED_PATH_PROCESS
     threaded = odometry_command.estimate_trajectory(str(rec), "fused")
-
-    class _Inline:
-        """An executor that runs each job at once in the calling thread."""
-
-        def __init__(self, *a, **k) -> None:
-            pass
-
-        def submit(self, fn, *args, **kwargs):
-            fut = Future()
-            fut.set_result(fn(*args, **kwargs))
-            return fut
-
-        def shutdown(self, wait=True) -> None:
-            pass
-
-    monkeypatch.setattr(odometry_command, "ThreadPoolExecutor", _Inline)
+    monkeypatch.setattr(odometry_command, "FUSED_PATH_PROCESS", False)
     inline = odometry_command.estimate_trajectory(str(rec), "fused")
     assert len(threaded.rows) == len(inline.rows) == 12 and threaded.flagged == inline.flagged == 1
     for (ta, pa, ca), (tb, pb, cb) in zip(threaded.rows, inline.rows, strict=True):
         assert ta == tb and ca == cb
         assert np.array_equal(pa.t, pb.t) and np.array_equal(pa.q, pb.q)
     assert threaded.errors()["ate_rmse_mm"] < 1.0
+
+
+def test_camera_path_process_reports_a_recording_it_cannot_open_and_a_frame_it_cannot_read(tmp_path):
+    """The fused odometry's child process: a recording it cannot open fails at start with the child's reason; a
+    frame it cannot read fails that frame's future (the parent raises it), and the child keeps serving."""
+    from app.commands.camera_path import CameraPathProcess
+    from tracker.geometry.camera import Intrinsics
+    from tracker.sources.recording import RecordingSource
+
+    with pytest.raises(RuntimeError, match="cannot start the camera path process"):
+        CameraPathProcess(str(tmp_path / "missing"), Intrinsics.default(64, 48), 0, {})
+    rec = tmp_path / "rec"
+    _sway_recording(rec, 4, None)
+    src = RecordingSource(str(rec), prefetch=0)
+    frames = [src.read(i) for i in range(3)]
+    src.close()
+    path = CameraPathProcess(str(rec), src.intrinsics, 0, {})
+    try:
+        path.dense(frames[0], None)
+        first = path.fuse({}, None)
+        sorted((rec / "depth").iterdir())[1].write_bytes(b"not a png")  # the child decodes frame 1 itself
+        path.dense(frames[1], None)
+        second = path.fuse({}, None)
+        path.dense(frames[2], None)
+        third = path.fuse({}, None)
+        assert first.result(timeout=60).timestamp == pytest.approx(frames[0].timestamp)
+        with pytest.raises(RuntimeError, match="camera path, dense"):
+            second.result(timeout=60)
+        assert third.result(timeout=60).timestamp == pytest.approx(frames[2].timestamp)
+    finally:
+        path.close()

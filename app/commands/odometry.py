@@ -24,7 +24,7 @@ import argparse
 import sys
 import time
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -110,66 +110,43 @@ class _PartsOdometry:
         return self._result(pose, False, time.perf_counter(), timestamp, reason)
 
 
+FUSED_PATH_PROCESS = True
+"""``--method fused`` runs the camera's path in a child process (:class:`app.commands.camera_path.CameraPathProcess`);
+False: in the calling thread, one job after the other (the reference the tests compare it with)."""
+
+
 class _FusedOdometry(_PartsOdometry):
     """``--method fused``: the dense odometry and the tracker's resting parts checking each other
     (:class:`tracker.odometry.fused_odometry.FusedOdometry`).
 
-    The part tracker runs in the calling thread; everything of the camera's path runs in one worker thread, in frame
-    order: frame k's dense alignment (beside frame k's tracker step) and, once that step has given its resting parts,
-    frame k's fusion (prediction, table plane, correction; beside frame k + 1's tracker step). The tracker needs
-    nothing of the path (its session has no odometry of its own), so each frame's pose is the same to the last bit as
-    with every job run at once in the calling thread; only its result comes later: :meth:`step` and :meth:`skip`
-    return a :class:`~concurrent.futures.Future` of the frame's OdometryResult."""
+    The part tracker runs in the calling thread, the camera's path (:mod:`app.commands.camera_path`) in a child
+    process: frame k's dense alignment beside frame k's tracker step, frame k's fusion beside frame k + 1's. The
+    tracker needs nothing of the path, so each frame's pose is the same to the last bit as with the jobs run at once
+    in the calling thread; only it comes later: :meth:`step` and :meth:`skip` return a
+    :class:`~concurrent.futures.Future` of the frame's OdometryResult."""
 
     def __init__(self, recording: str, seed: int, intrinsics, particles: int | None = None) -> None:
-        from tracker.odometry import OdometryConfig, make_odometry
-        from tracker.odometry.fused_odometry import FusedOdometry
+        from app.commands.camera_path import CameraPathProcess, InlineCameraPath
 
         super().__init__(recording, seed, particles)
-        self.dense = make_odometry("default", intrinsics, seed=seed, config=OdometryConfig.fast())
-        self.fused = FusedOdometry()
-        self.used = 0
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="camera-path")
-
-    def _dense_step(self, frame, mask):
-        # the alignment starts from the fused path's prediction (not its own, which extrapolates a step the fused
-        # odometry rejected): taken here, in the worker, after the previous frame's fusion
-        return self.dense.step(frame, mask, prior=self.fused.dense_prior(float(frame.timestamp)))
-
-    def _fuse(self, dense, frame, mask, landmarks, table, t0: float):
-        r = dense.result()  # done: the worker runs its jobs in order
-        self.fused.predict(float(frame.timestamp), r.pose_world_camera if r.ok else None, landmarks, self.corners)
-        plane = self.fused.measure_table(frame.depth, frame.intrinsics, mask,
-                                         guess=None if table is None else (table.normal, table.offset))
-        s = self.fused.correct(landmarks, self.corners, plane)
-        ok = s.source != "hold"
-        return self._result(s.pose, ok, t0, frame.timestamp, "" if ok else
-                            f"frame {frame.index}: no dense pose accepted, no resting part agreed — pose predicted")
+        kind = CameraPathProcess if FUSED_PATH_PROCESS else InlineCameraPath
+        self.path = kind(recording, intrinsics, seed, self.corners)
 
     def step(self, frame, mask=None):
-        t0 = time.perf_counter()
         if frame.depth is None:
             return self.skip(frame.timestamp, f"frame {frame.index}: no depth image — pose extrapolated")
-        dense = self._pool.submit(self._dense_step, frame, mask)  # neither side writes to the frame
+        self.path.dense(frame, mask)  # neither side writes to the frame
         self.session.step(frame)
-        # this frame's resting parts (a new dict of new poses, whose arrays the tracker never writes to again) and
-        # table (replaced, not changed, by a re-detection): the next tracker step runs beside the fusion
-        landmarks = self.session.tracker.landmark_poses
-        return self._pool.submit(self._fuse, dense, frame, mask, landmarks, self.session.table, t0)
-
-    def _skip(self, timestamp: float, reason: str, t0: float):
-        from tracker.geometry.pose import Pose
-
-        self.dense.skip(timestamp, reason)
-        pose = self.fused.pose_world_camera or Pose()
-        return self._result(pose, False, t0, timestamp, reason)
+        table = self.session.table
+        return self.path.fuse(self.session.tracker.landmark_poses,
+                              None if table is None else (table.normal, table.offset))
 
     def skip(self, timestamp: float, reason: str):
-        return self._pool.submit(self._skip, timestamp, reason, time.perf_counter())
+        return self.path.skip(timestamp, reason)
 
     def close(self) -> None:
-        """Finish the queued jobs and stop the worker thread."""
-        self._pool.shutdown(wait=True)
+        """Finish the queued jobs and stop the camera path."""
+        self.path.close()
 
 
 @dataclass

@@ -1,0 +1,245 @@
+"""The camera's path of ``assembly-agent odometry --method fused``, apart from the part tracker.
+
+Per frame k the fused odometry needs two things besides the part tracker's step: frame k's dense alignment, which
+needs only the fused path's prediction (so it can run while the tracker steps on frame k), and frame k's fusion
+(prediction, table plane, correction), which needs the resting parts of that step (so it can run while the tracker
+steps on frame k + 1). :class:`CameraPath` is that state and those jobs; the tracker needs nothing of it.
+
+:class:`CameraPathProcess` runs a :class:`CameraPath` in a child process (``spawn``) that decodes the recording's
+frames itself, by position, so that the part tracker has the parent's interpreter to itself: in a thread of the
+same process the two would take turns holding Python's global lock (the tracker's compiled kernels keep it), and the
+tracker's step — the part of a frame nothing else can shorten — would wait for the fusion's Python. The child
+decodes each frame a second time; that costs the other core, not the tracker's. Jobs are sent over a pipe in frame
+order, each fusion's result comes back as a :class:`~concurrent.futures.Future`; a job that fails in the child fails
+its future with the child's message (and so does every waiting one if the child ends).
+
+:class:`InlineCameraPath` runs the same jobs at once in the calling thread (the reference a test compares the
+process with: the poses are the same to the last bit). Poses: camera → world, world = the first frame's camera frame,
+metres; timestamps in seconds.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import threading
+import time
+from collections import deque
+from concurrent.futures import Future
+from typing import Any
+
+import numpy as np
+
+
+class CameraPath:
+    """The dense odometry (the fast settings) and :class:`~tracker.odometry.fused_odometry.FusedOdometry` of one
+    recording. ``corners``: each part's corner points (M, 3) in its body frame (metres)."""
+
+    def __init__(self, intrinsics, seed: int, corners: dict[str, np.ndarray]) -> None:
+        from tracker.odometry import OdometryConfig, make_odometry
+        from tracker.odometry.fused_odometry import FusedOdometry
+
+        self.odometry = make_odometry("default", intrinsics, seed=seed, config=OdometryConfig.fast())
+        self.fused = FusedOdometry()
+        self.corners = corners
+        self._dense: tuple[Any, Any, Any, float] | None = None  # frame, mask, dense result, ms: awaiting fusion
+
+    def dense(self, frame, mask: np.ndarray | None) -> None:
+        """Frame k's dense alignment (``mask`` True = exclude), started from the fused path's prediction (not the
+        dense odometry's own, which extrapolates a step the fusion rejected); kept for :meth:`fuse`."""
+        t0 = time.perf_counter()
+        r = self.odometry.step(frame, mask, prior=self.fused.dense_prior(float(frame.timestamp)))
+        self._dense = (frame, mask, r, 1e3 * (time.perf_counter() - t0))
+
+    def fuse(self, landmarks: dict, table: tuple[np.ndarray, float] | None):
+        """Frame k's fusion, after :meth:`dense`: ``landmarks`` the tracker's resting parts of frame k (part →
+        camera-frame pose), ``table`` its table plane ``(normal, offset)`` (camera frame) or None. Returns the
+        frame's :class:`~tracker.odometry.odometry_result.OdometryResult` (``ms``: this path's time for the frame,
+        ``inliers``: resting parts used)."""
+        from tracker.odometry.odometry_result import OdometryResult
+
+        if self._dense is None:
+            raise RuntimeError("CameraPath.fuse() needs the frame's dense() first")
+        frame, mask, r, ms = self._dense
+        self._dense = None
+        t0 = time.perf_counter()
+        ts = float(frame.timestamp)
+        self.fused.predict(ts, r.pose_world_camera if r.ok else None, landmarks, self.corners)
+        plane = self.fused.measure_table(frame.depth, frame.intrinsics, mask, guess=table)
+        s = self.fused.correct(landmarks, self.corners, plane)
+        ok = s.source != "hold"
+        return OdometryResult(s.pose, ok, s.used, ms + 1e3 * (time.perf_counter() - t0), ts, message="" if ok else
+                              f"frame {frame.index}: no dense pose accepted, no resting part agreed — pose predicted")
+
+    def skip(self, timestamp: float, reason: str):
+        """A frame that cannot be measured (``reason``): the pose is extrapolated; its OdometryResult."""
+        from tracker.geometry.pose import Pose
+        from tracker.odometry.odometry_result import OdometryResult
+
+        self.odometry.skip(timestamp, reason)
+        return OdometryResult(self.fused.pose_world_camera or Pose(), False, 0, 0.0, float(timestamp), message=reason)
+
+
+def _done(value) -> Future:
+    fut: Future = Future()
+    fut.set_result(value)
+    return fut
+
+
+class InlineCameraPath:
+    """A :class:`CameraPath` run at once in the calling thread, with :class:`CameraPathProcess`'s interface."""
+
+    def __init__(self, recording: str, intrinsics, seed: int, corners: dict[str, np.ndarray]) -> None:
+        self.path = CameraPath(intrinsics, seed, corners)
+
+    def dense(self, frame, mask: np.ndarray | None) -> None:
+        self.path.dense(frame, mask)
+
+    def fuse(self, landmarks: dict, table) -> Future:
+        return _done(self.path.fuse(landmarks, table))
+
+    def skip(self, timestamp: float, reason: str) -> Future:
+        return _done(self.path.skip(timestamp, reason))
+
+    def close(self) -> None:
+        pass
+
+
+def _serve(conn, recording: str, seed: int, corners: dict[str, np.ndarray]) -> None:
+    """The child: a CameraPath on its own reading of ``recording``, serving the parent's jobs in order."""
+    src = None
+    try:
+        from tracker.sources.recording import RecordingSource
+
+        src = RecordingSource(recording)
+        path = CameraPath(src.intrinsics, seed, corners)
+        h, w = src.intrinsics.height, src.intrinsics.width
+        conn.send(("ready",))
+        failed: str | None = None  # a dense step's error, reported with that frame's fusion
+        while True:
+            msg = conn.recv()
+            kind = msg[0]
+            if kind == "close":
+                conn.send(("closed",))
+                return
+            try:
+                if kind == "dense":
+                    _, position, packed = msg
+                    mask = None if packed is None else np.unpackbits(packed, count=h * w).reshape(h, w).astype(bool)
+                    path.dense(src.read(position), mask)
+                    continue
+                if failed is not None:
+                    conn.send(("error", failed))
+                    failed = None
+                elif kind == "fuse":
+                    conn.send(("result", path.fuse(msg[1], msg[2])))
+                elif kind == "skip":
+                    conn.send(("result", path.skip(msg[1], msg[2])))
+            except Exception as exc:  # noqa: BLE001 - told to the parent, which raises it for that frame
+                text = f"camera path, {kind}: {type(exc).__name__}: {exc}"
+                if kind == "dense":
+                    failed = text
+                else:
+                    conn.send(("error", text))
+    except (EOFError, OSError):
+        return  # the parent went away
+    except Exception as exc:  # noqa: BLE001 - opening failed: tell the parent
+        try:
+            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        except OSError:
+            pass
+    finally:
+        if src is not None:
+            src.close()
+
+
+class CameraPathProcess:
+    """A :class:`CameraPath` in a child process reading ``recording`` itself (see the module docstring)."""
+
+    def __init__(self, recording: str, intrinsics, seed: int, corners: dict[str, np.ndarray],
+                 start_timeout: float = 120.0) -> None:
+        ctx = mp.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(child, str(recording), seed, corners), name="camera-path",
+                                 daemon=True)
+        self._proc.start()
+        child.close()
+        self._waiting: deque[Future] = deque()
+        self._lock = threading.Lock()
+        self._reader: threading.Thread | None = None
+        try:
+            if not self._conn.poll(start_timeout):
+                raise RuntimeError(f"the camera path process did not start within {start_timeout:.0f} s")
+            try:
+                msg = self._conn.recv()
+            except (EOFError, OSError):
+                self._proc.join(timeout=5)
+                raise RuntimeError("the camera path process ended as it started (exit code "
+                                   f"{self._proc.exitcode})") from None
+            if msg[0] != "ready":
+                raise RuntimeError(f"cannot start the camera path process: {msg[1]}")
+        except BaseException:
+            self.close()
+            raise
+        self._reader = threading.Thread(target=self._read, name="camera-path-results", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        """Resolve the waiting futures in order with the child's replies."""
+        while True:
+            try:
+                msg = self._conn.recv()
+            except (EOFError, OSError):
+                self._fail_all(f"the camera path process ended (exit code {self._proc.exitcode})")
+                return
+            if msg[0] == "closed":
+                self._fail_all("the camera path was closed")
+                return
+            with self._lock:
+                fut = self._waiting.popleft()
+            if msg[0] == "result":
+                fut.set_result(msg[1])
+            else:
+                fut.set_exception(RuntimeError(msg[1]))
+
+    def _fail_all(self, reason: str) -> None:
+        with self._lock:
+            while self._waiting:
+                self._waiting.popleft().set_exception(RuntimeError(reason))
+
+    def _ask(self, msg: tuple) -> Future:
+        fut: Future = Future()
+        with self._lock:
+            self._waiting.append(fut)
+        self._conn.send(msg)
+        return fut
+
+    def dense(self, frame, mask: np.ndarray | None) -> None:
+        """Frame ``frame``'s dense alignment in the child, which reads the frame at ``frame.meta
+        ["recording_position"]`` itself; ``mask`` (True = exclude) goes along bit-packed."""
+        position = frame.meta.get("recording_position")
+        if position is None:
+            raise ValueError("CameraPathProcess: the frame has no recording position (not read from a recording)")
+        self._conn.send(("dense", int(position), None if mask is None else np.packbits(mask, axis=None)))
+
+    def fuse(self, landmarks: dict, table) -> Future:
+        """Future of the frame's OdometryResult (:meth:`CameraPath.fuse`)."""
+        return self._ask(("fuse", landmarks, table))
+
+    def skip(self, timestamp: float, reason: str) -> Future:
+        """Future of a skipped frame's OdometryResult (:meth:`CameraPath.skip`)."""
+        return self._ask(("skip", float(timestamp), reason))
+
+    def close(self) -> None:
+        """Let the child finish its jobs and stop; waiting futures are resolved first (in order)."""
+        if self._proc.is_alive():
+            try:
+                self._conn.send(("close",))
+            except OSError:
+                pass
+        if self._reader is not None:
+            self._reader.join(timeout=60)
+        self._proc.join(timeout=10)
+        if self._proc.is_alive():
+            self._proc.kill()
+            self._proc.join()
+        self._conn.close()
