@@ -11,8 +11,9 @@ import pytest
 from tracker.hands import identity
 from tracker.hands.flow import forward_backward, four_flows
 from tracker.hands.metrics import dice
-from tracker.hands.palm_cut import holds_anchor, match_anchor, palm_anchors
+from tracker.hands.palm_cut import holds_anchor, match_anchor, palm_anchors, tube_cut
 from tracker.hands.particle_filter import mode_estimate
+from tracker.hands.track_boxes import box_f_score
 from tracker.hands.tracker import HandTracker, HandTrackerConfig
 from tracker.sources.simulator import SimulatedTable
 
@@ -61,6 +62,44 @@ def test_wrist_cut_anchors_the_far_end_of_an_arm():
     speck = np.zeros((240, 320), np.uint8)
     speck[::3, ::3] = 1  # isolated false skin pixels do not chain into an arm
     assert len(palm_anchors(speck, depth, 2, 525.0, 0.08, 50)) == 0
+
+
+def _diagonal_arm(thumb: bool = True) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """Working-resolution mask of a bare arm: a 12 px wide forearm from past the bottom-right corner up-left to the
+    wrist at (200, 120), a palm disk (radius 13) beyond it and a thumb (radius 4) beside the wrist below the arm;
+    and the inclusive box of palm and thumb (the ground truth's palm box: wrist outward)."""
+    yy, xx = np.mgrid[0:240, 0:320]
+    a, b = np.array([340.0, 260.0]), np.array([200.0, 120.0])
+    d = b - a
+    t = np.clip(((xx - a[0]) * d[0] + (yy - a[1]) * d[1]) / (d @ d), 0.0, 1.0)
+    arm = np.hypot(xx - a[0] - t * d[0], yy - a[1] - t * d[1]) <= 6
+    hand = np.hypot(xx - 188, yy - 108) <= 13
+    if thumb:
+        hand |= np.hypot(xx - 197, yy - 130) <= 4
+    ys, xs = np.nonzero(hand)
+    return (arm | hand).astype(np.uint8), (int(xs.min()), int(ys.min()), int(xs.max()), int(ys.max()))
+
+
+def test_tube_cut_keeps_the_thumb_and_leaves_the_forearm_out():
+    depth = np.full((480, 640), 0.7, np.float32)
+    mask, gt = _diagonal_arm()
+    straight = palm_anchors(mask, depth, 2, 525.0, 0.08, 50)
+    tube = palm_anchors(mask, depth, 2, 525.0, 0.08, 50, tube=(0.12, 0.05))
+    assert straight.shape == tube.shape == (1, 4)
+    # the straight cut across the diagonal arm reaches along the arm's upper edge (u1 204 > 201) and cuts the thumb
+    # off (v1 124 < 134); the tube cut drops the forearm's pixels and keeps the thumb beside it
+    assert straight[0, 2] >= gt[2] + 3 and straight[0, 3] <= gt[3] - 8
+    assert np.abs(tube[0] - np.asarray(gt)).max() <= 1
+    assert box_f_score(tuple(int(v) for v in tube[0]), gt) > box_f_score(tuple(int(v) for v in straight[0]), gt) + 0.1
+    # no forearm (a sleeved hand) or no depth: the tube changes nothing
+    short = np.zeros((240, 320), np.uint8)
+    short[200:240, 150:175] = 1
+    assert len(palm_anchors(short, depth, 2, 525.0, 0.08, 50, tube=(0.12, 0.05))) == 0
+    assert len(palm_anchors(mask, None, 2, 525.0, 0.08, 50, tube=(0.12, 0.05))) == 0
+    # an arm too short behind the reach for a tube fit falls back to the straight cut
+    ys, xs = np.nonzero(mask)
+    e = np.array([xs.mean(), ys.mean()])
+    assert tube_cut(xs.astype(float), ys.astype(float), e, np.hypot(xs - e[0], ys - e[1]), 1e4, 10.0, 30.0) is None
 
 
 def test_match_anchor_takes_the_best_overlap_above_the_threshold():

@@ -10,6 +10,11 @@ whose predicted box overlaps an anchor (box F-score ≥ :data:`ANCHOR_MIN_F`) ta
 that pass the section-6 test take their component's box (:mod:`tracker.hands.particle_filter`); the Kalman
 reference uses it as its section-6 observation.
 
+With ``tube`` (``HandTrackerConfig.palm_tube``, product addition) the cut of an arm is not a straight line across
+it: the forearm behind the hand is fitted as a tube (its axis and half width, :func:`tube_cut`) and the palm is the
+arm's far end without the tube's pixels, so that the box holds the thumb beside the wrist and not the forearm's edge
+past it (a straight cut across a diagonal arm does both wrong).
+
 Units: working-resolution pixels (the tracker's downscaled image), inclusive boxes (u0, v0, u1, v1), x right,
 y down; depth in metres at full resolution.
 """
@@ -26,6 +31,10 @@ MIN_ARM_M = 0.15
 far end's depth (an adult hand is about 0.19 m long)."""
 ANCHOR_MIN_F = 0.3
 """Box F-score a predicted box needs with an anchor to take it."""
+TUBE_BEHIND_M = 0.08
+"""Length (m) of the forearm piece, just behind the palm's reach, to which the tube of :func:`tube_cut` is fitted."""
+TUBE_MIN_PX = 20
+"""Fewest pixels of that forearm piece (else the whole arm behind the reach) for a tube fit."""
 ANCHOR_INSIDE = 0.8
 """Share of an anchor's area inside a larger predicted box with which that box takes the anchor (a box grown over the
 whole arm)."""
@@ -50,7 +59,8 @@ class PalmCut:
 
 def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: float, hand_length_m: float,
              far_frac: float = 0.25, origin: tuple[int, int] = (0, 0),
-             image_size: tuple[int, int] | None = None) -> PalmCut:  # fmt: skip
+             image_size: tuple[int, int] | None = None,
+             tube: tuple[float, float] | None = None) -> PalmCut:  # fmt: skip
     """Palm of a skin component ``comp`` (bool, working resolution): e = mean of the component's pixels within
     b = 2 full-resolution px of an image edge (its entry point; the centroid if none), d = each pixel's distance from
     e, and the palm is the pixels with d ≥ d_max − L_hand, L_hand = f_x · ``hand_length_m`` / Z̄ in working pixels
@@ -61,7 +71,10 @@ def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: floa
     towards the camera and its depth lengthened L_hand about twofold; without depth Z̄ = 0.75 m.
 
     ``comp`` may be a crop of the working image: ``origin`` (x, y) is its top-left pixel in the image and
-    ``image_size`` (w, h) the image's size (default: ``comp``'s own); the box is in image pixels."""
+    ``image_size`` (w, h) the image's size (default: ``comp``'s own); the box is in image pixels.
+
+    ``tube`` = (reach_m, tip_m): a component longer than a hand (:attr:`PalmCut.has_forearm`) is cut by
+    :func:`tube_cut` instead (``hand_length_m`` is then unused for it)."""
     h, w = comp.shape
     if image_size is not None:
         w, h = image_size
@@ -83,18 +96,73 @@ def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: floa
             z = float(np.median(dz))
     l_hand = focal / scale * hand_length_m / z
     dmax = float(d.max())
-    sel = d >= dmax - l_hand if dmax > l_hand else np.ones(len(d), bool)
+    ppm = focal / scale / z
+    sel = None
+    if tube is not None and dmax > MIN_ARM_M * ppm:
+        sel = tube_cut(xs, ys, e, d, tube[0] * ppm, tube[1] * ppm, TUBE_BEHIND_M * ppm)
+    if sel is None:
+        sel = d >= dmax - l_hand if dmax > l_hand else np.ones(len(d), bool)
     box = (int(xs[sel].min()), int(ys[sel].min()), int(xs[sel].max()), int(ys[sel].max()))
-    return PalmCut(box, dmax, float(l_hand), border, focal / scale / z)
+    return PalmCut(box, dmax, float(l_hand), border, ppm)
+
+
+def tube_cut(xs: np.ndarray, ys: np.ndarray, e: np.ndarray, d: np.ndarray, reach: float, tip: float,
+             behind: float) -> np.ndarray | None:  # fmt: skip
+    """The palm pixels (bool per pixel) of an arm's component: pixel coordinates ``xs``, ``ys``, entry point ``e``,
+    ``d`` each pixel's distance from e; lengths ``reach``, ``tip`` and ``behind`` in the same pixels. None if no tube
+    can be fitted.
+
+    The arm's axis a runs from e to the centroid of the 10 % of its pixels farthest from e; p = each pixel's
+    position along a, q across it, p_max the far end. The forearm piece behind the palm's reach (p in
+    [p_max − reach − behind, p_max − reach), at least TUBE_MIN_PX pixels; else every pixel behind the reach) gives
+    the tube: per 1-px slice of p its middle (q_min + q_max)/2 and half width (q_max − q_min + 1)/2, a least-squares
+    line q = α·p + β through the middles of the slices with two or more pixels, radius r = the median half width.
+    The palm is the pixels with p ≥ p_max − reach that lie outside the tube (distance to the line > r) or within
+    ``tip`` of the far end (p ≥ p_max − tip)."""
+    far = d >= np.quantile(d, 0.9)
+    a = np.array([xs[far].mean() - e[0], ys[far].mean() - e[1]])
+    norm = float(np.hypot(a[0], a[1]))
+    if norm < 1e-9:
+        return None
+    a /= norm
+    p = (xs - e[0]) * a[0] + (ys - e[1]) * a[1]
+    q = (ys - e[1]) * a[0] - (xs - e[0]) * a[1]
+    pmax = float(p.max())
+    start = pmax - reach
+    piece = (p < start) & (p >= start - behind)
+    if np.count_nonzero(piece) < TUBE_MIN_PX:
+        piece = p < start
+        if np.count_nonzero(piece) < TUBE_MIN_PX:
+            return None
+    pb = np.floor(p[piece]).astype(np.int64)
+    lo = int(pb.min())
+    pb -= lo
+    n = int(pb.max()) + 1
+    qp = q[piece]
+    cnt = np.bincount(pb, minlength=n)
+    qmin = np.full(n, np.inf)
+    qmax = np.full(n, -np.inf)
+    np.minimum.at(qmin, pb, qp)
+    np.maximum.at(qmax, pb, qp)
+    ok = cnt >= 2
+    if np.count_nonzero(ok) < 3:
+        return None
+    pc = lo + np.flatnonzero(ok) + 0.5
+    mid = 0.5 * (qmin[ok] + qmax[ok])
+    slope, icpt = np.polyfit(pc, mid, 1)
+    r = float(np.median(0.5 * (qmax[ok] - qmin[ok] + 1.0)))
+    dist = np.abs(q - (slope * p + icpt)) / np.sqrt(1.0 + slope * slope)
+    sel = (p >= start) & ((dist > r) | (p >= pmax - tip))
+    return sel if sel.any() else None
 
 
 def palm_anchors(mask: np.ndarray, depth: np.ndarray | None, scale: int, focal: float, hand_length_m: float,
-                 min_area: float) -> np.ndarray:  # fmt: skip
+                 min_area: float, tube: tuple[float, float] | None = None) -> np.ndarray:  # fmt: skip
     """Anchor boxes [K, 4] (float64, inclusive, working px) of the frame's colour mask ``mask`` (uint8 0/1, whole
     working frame): one per 4-connected component of area ≥ ``min_area`` that touches the image border and reaches
     farther than MIN_ARM_M from it. The mask is opened with a 5×5 disk first (isolated false skin pixels on a
     sleeve would otherwise chain into an "arm"). Without ``depth`` there are no anchors: the hand's length in pixels
-    would be a guess, and a wrong cut is worse than none."""
+    would be a guess, and a wrong cut is worse than none. ``tube``: as for :func:`palm_cut`."""
     if depth is None:
         return np.zeros((0, 4))
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)))
@@ -107,7 +175,7 @@ def palm_anchors(mask: np.ndarray, depth: np.ndarray | None, scale: int, focal: 
         if area < min_area or not (x < b or y < b or x + bw > w - b or y + bh > h - b):
             continue
         sub = lab[y - oy : y - oy + bh, x - ox : x - ox + bw] == i
-        cut = palm_cut(sub, depth, scale, focal, hand_length_m, origin=(x, y), image_size=(w, h))
+        cut = palm_cut(sub, depth, scale, focal, hand_length_m, origin=(x, y), image_size=(w, h), tube=tube)
         if cut.border and cut.has_forearm:
             out.append(cut.box)
     return np.asarray(out, np.float64).reshape(-1, 4)

@@ -192,7 +192,12 @@ class HandTrackerConfig:
     and 2 of S2, S3: the principal motion cluster covers at most the skin part of the box); ``hand_length_m``: the
     length of the palm box along the arm in L_hand (spec 0.19 m, a whole hand; 0.08 m tuned on seeds 0–2 of S3: the
     ground-truth palm box of a hand grasping from above is foreshortened and starts at the wrist); ``palm_cut``: the
-    wrist-cut anchors (:mod:`tracker.hands.palm_cut`, needs depth); ``reacquire`` / ``keep_lost``: lost tracks and
+    wrist-cut anchors (:mod:`tracker.hands.palm_cut`, needs depth); ``palm_tube``: an arm's palm is its far end
+    within ``palm_reach_m`` without the fitted forearm tube's pixels, except within ``palm_tip_m`` of the end
+    (:func:`tracker.hands.palm_cut.tube_cut`; ``hand_length_m`` then only cuts components where no tube fits; tuning
+    seeds 0–4 of S3, ground-truth start: F̄^b 0.830 → 0.882, ē^p 11.9 → 7.5 px with reach 0.10 m, 0.875 / 8.4 px
+    with 0.12 m, 0.871 / 8.8 px with 0.11 m; S1 bit-identical, S2 0.717 → 0.715 on one filter seed);
+    ``reacquire`` / ``keep_lost``: lost tracks and
     identity (see the module docstring); ``reseed``: offer a particle-filter track the box of its hand's own colour
     component (:meth:`HandTracker._reseed`); ``split_blobs`` / ``coast`` / ``merge_reacquire`` / ``shared_split``:
     the blob split, coasting, re-acquisition from a merged component and the split of two touching hands under one
@@ -222,6 +227,9 @@ class HandTrackerConfig:
     n_lost: int = 10
     hand_length_m: float = 0.08
     palm_cut: bool = True
+    palm_tube: bool = True
+    palm_reach_m: float = 0.10
+    palm_tip_m: float = 0.05
     reacquire: bool = True
     keep_lost: int = 300
     reseed: bool = True
@@ -628,7 +636,8 @@ class HandTracker(TrackIdentity):
                                  flow_cache=self._flows)  # fmt: skip
         if cfg.palm_cut:
             feats.anchors = palm_anchors(self._frame_mask(rgb), self._depth, self.s, self._focal_px(),
-                                         cfg.hand_length_m, cfg.min_area_frac * size[0] * size[1])  # fmt: skip
+                                         cfg.hand_length_m, cfg.min_area_frac * size[0] * size[1],
+                                         self._tube())  # fmt: skip
         if cfg.split_blobs:
             self._split_blobs(feats)
         self.last_features = feats
@@ -1121,12 +1130,17 @@ class HandTracker(TrackIdentity):
 
     def _initial_state(self, comp: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
         """Palm box (working resolution) of a border-entering component: its pixels within L_hand of its far end."""
-        cut = palm_cut(comp, depth, self.s, self._focal_px(), self.config.hand_length_m)
+        cut = palm_cut(comp, depth, self.s, self._focal_px(), self.config.hand_length_m, tube=self._tube())
         u0, v0, u1, v1 = cut.box
         if not cut.has_forearm:  # no forearm in the component (sleeve): the whole component
             ys, xs = np.nonzero(comp)
             u0, v0, u1, v1 = int(xs.min()), int(ys.min()), int(xs.max()), int(ys.max())
         return np.array([(u0 + u1) / 2.0, (v0 + v1) / 2.0, float(u1 - u0), float(v1 - v0), 0.0, 0.0])
+
+    def _tube(self) -> tuple[float, float] | None:
+        """(reach, tip) in metres of the tube cut of an arm (:func:`tracker.hands.palm_cut.tube_cut`), None if off."""
+        cfg = self.config
+        return (cfg.palm_reach_m, cfg.palm_tip_m) if cfg.palm_tube else None
 
     def _focal_px(self) -> float:
         """Focal length in full-resolution pixels (0.82·width without intrinsics)."""
