@@ -348,3 +348,20 @@ def test_projector_shadow_band_left_of_a_near_surface():
     assert np.isfinite(row[100:]).all()  # block and the background to its right are measured
     none = DepthSensorModel(projector_baseline=0.0, dropout=0.0, edge_missing=0.0, edge_flying=0.0, shift_u=0)
     assert np.isfinite(none.apply(clean, np.ones_like(clean), key=3)).all()
+
+
+@pytest.mark.parametrize("name, seed, start", [("guidance-demo", 0, 100), ("hands-s3", 101, 40)])
+def test_frames_in_sequence_equal_frames_rendered_afresh(name, seed, start):
+    """Rendering puts the background back only where the previous frame drew (its geometry, shadows, motion blur):
+    consecutive frames with a moving hand and its shadow equal the same frames rendered by a fresh table."""
+    seq = SimulatedTable(name, seed=seed)
+    seq.render(start - 1)
+    moved = 0
+    for k in range(start, start + 4):
+        a, b = seq.render(k), SimulatedTable(name, seed=seed).render(k)
+        assert np.array_equal(a.color, b.color)
+        assert np.array_equal(a.depth, b.depth, equal_nan=True)
+        assert a.meta["groundtruth"]["visible"] == b.meta["groundtruth"]["visible"]
+        assert a.meta["groundtruth"]["hand_box"] == b.meta["groundtruth"]["hand_box"]
+        moved += a.meta["groundtruth"]["hand_box"] is not None or bool(a.meta["groundtruth"].get("hand_boxes"))
+    assert moved == 4  # a hand was drawn on every frame

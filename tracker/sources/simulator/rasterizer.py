@@ -232,16 +232,35 @@ def render_triangles(depth, cosang, color, ids, hits, local, fx, fy, cx, cy, tri
 @nb.njit(cache=True, fastmath=_FM)
 def apply_shadow(color, ids, table, mask, step, u0, v0, u1, v1):
     """Multiply background table pixels (``ids == -1`` and ``table``) in the rectangle by ``1 - mask``, with
-    ``mask`` sampled bilinearly at ``1/step`` resolution (mask pixel (i, j) is image pixel (v0 + i·step,
-    u0 + j·step))."""
+    ``mask`` (≥ 0) sampled bilinearly at ``1/step`` resolution (mask pixel (i, j) is image pixel (v0 + i·step,
+    u0 + j·step)). Returns the rectangle ``(u0, v0, u1, v1)`` (end-exclusive) of the pixels it changed (empty:
+    ``u0 >= u1``). Pixels whose four mask samples are all 0 are skipped (their factor would be exactly 1)."""
     mh, mw = mask.shape
     inv = 1.0 / step
+    # per mask row: first and last column with a non-zero value (first > last: none)
+    first = np.full(mh, mw, np.int64)
+    last = np.full(mh, -1, np.int64)
+    for i in range(mh):
+        for j in range(mw):
+            if mask[i, j] != 0.0:
+                if j < first[i]:
+                    first[i] = j
+                last[i] = j
+    cu0, cv0, cu1, cv1 = u1, v1, u0, v0
     for v in range(v0, v1):
         fy = (v - v0) * inv
         i0 = min(int(fy), mh - 1)
         i1 = min(i0 + 1, mh - 1)
         ay = fy - i0
-        for u in range(u0, u1):
+        jlo = min(first[i0], first[i1])
+        jhi = max(last[i0], last[i1])
+        if jhi < 0:
+            continue
+        # mask columns j0 = int((u - u0) / step) and j0 + 1 must reach [jlo, jhi]:
+        # u - u0 in [step (jlo - 1), step (jhi + 1))
+        ua = max(u0, u0 + step * (jlo - 1))
+        ub = min(u1, u0 + step * (jhi + 1))
+        for u in range(ua, ub):
             if ids[v, u] != -1 or not table[v, u]:
                 continue
             fx = (u - u0) * inv
@@ -256,6 +275,52 @@ def apply_shadow(color, ids, table, mask, step, u0, v0, u1, v1):
                 color[v, u, 0] *= f
                 color[v, u, 1] *= f
                 color[v, u, 2] *= f
+                cu0 = min(cu0, u)
+                cu1 = max(cu1, u + 1)
+                cv0 = min(cv0, v)
+                cv1 = max(cv1, v + 1)
+    return cu0, cv0, cu1, cv1
+
+
+@nb.njit(cache=True)
+def restore_rects(rects, color_rects, depth, cosang, color, ids, bg_depth, bg_cos, bg_color):
+    """Put the background back where the last frame drew: in the rectangles ``rects`` (int64 [n, 4] of
+    ``u0, v0, u1, v1``, end-exclusive) every buffer (depth, cosang, colour from the background's, ids = -1), in
+    ``color_rects`` the colour alone (shadows, blur). Each pixel is copied once however many rectangles cover it."""
+    H, W = depth.shape
+    geo = np.zeros(W, np.bool_)
+    col = np.zeros(W, np.bool_)
+    v_lo, v_hi = H, 0
+    for r in (rects, color_rects):
+        for i in range(r.shape[0]):
+            v_lo = min(v_lo, max(r[i, 1], 0))
+            v_hi = max(v_hi, min(r[i, 3], H))
+    for v in range(v_lo, v_hi):
+        geo[:] = False
+        col[:] = False
+        for i in range(rects.shape[0]):
+            if rects[i, 1] <= v < rects[i, 3]:
+                geo[max(rects[i, 0], 0) : min(rects[i, 2], W)] = True
+        for i in range(color_rects.shape[0]):
+            if color_rects[i, 1] <= v < color_rects[i, 3]:
+                col[max(color_rects[i, 0], 0) : min(color_rects[i, 2], W)] = True
+        u = 0
+        while u < W:
+            if not (geo[u] or col[u]):
+                u += 1
+                continue
+            start, g = u, geo[u]
+            while u < W and (geo[u] or col[u]) and geo[u] == g:
+                u += 1
+            for x in range(start, u):
+                color[v, x, 0] = bg_color[v, x, 0]
+                color[v, x, 1] = bg_color[v, x, 1]
+                color[v, x, 2] = bg_color[v, x, 2]
+            if g:
+                for x in range(start, u):
+                    depth[v, x] = bg_depth[v, x]
+                    cosang[v, x] = bg_cos[v, x]
+                    ids[v, x] = -1
 
 
 def box_rect(R: np.ndarray, t: np.ndarray, half: np.ndarray, fx, fy, cx, cy, width, height, near=0.05):

@@ -201,7 +201,8 @@ class SimulatedTable(FrameSource):
                 self._bg.color[self._bg.table] = table_cloth(self._bg.color[self._bg.table])
                 self._color = self._bg.color.copy()
         self._plane = self.camera.table_plane()
-        self._dirty: list[tuple[int, int, int, int]] = []
+        self._dirty: list[tuple[int, int, int, int]] = []  # rectangles drawn into by the last frame (every buffer)
+        self._dirty_color: list[tuple[int, int, int, int]] = []  # … whose colour alone changed (shadows, blur)
         self._closed = False
 
     # ---------------------------------------------------------------- FrameSource / public properties
@@ -342,12 +343,11 @@ class SimulatedTable(FrameSource):
             self._ids.fill(-1)
         else:
             T = self._T
-            for u0, v0, u1, v1 in self._dirty:
-                self._depth[v0:v1, u0:u1] = bg.depth[v0:v1, u0:u1]
-                self._cos[v0:v1, u0:u1] = bg.cosang[v0:v1, u0:u1]
-                self._color[v0:v1, u0:u1] = bg.color[v0:v1, u0:u1]
-                self._ids[v0:v1, u0:u1] = -1
+            if self._dirty or self._dirty_color:  # the background again where the last frame changed it
+                rz.restore_rects(_rect_array(self._dirty), _rect_array(self._dirty_color), self._depth, self._cos,
+                                 self._color, self._ids, bg.depth, bg.cosang, bg.color)  # fmt: skip
         dirty: list[tuple[int, int, int, int]] = []
+        dirty_color: list[tuple[int, int, int, int]] = []
         light = self._light(t, T)
         n_parts = len(self._parts)
         hits = np.zeros(n_parts + 1 + 2 * len(self.timeline.hands), np.int64)
@@ -421,7 +421,7 @@ class SimulatedTable(FrameSource):
         if self.options.shadows and shapes:
             srect = self._shadow(shapes, light)
             if srect is not None:
-                dirty.append(srect)
+                dirty_color.append(srect)
 
         # ground truth: hand box and visible fractions
         hand_box = None
@@ -445,8 +445,8 @@ class SimulatedTable(FrameSource):
             denom = hits[pid] + outside
             visible[part.name] = float(min(1.0, front / denom)) if denom > 0 else 0.0
         if self.timeline.hands:
-            self._motion_blur(t, T, dirty)
-        self._dirty = dirty
+            self._motion_blur(t, T, dirty_color)
+        self._dirty, self._dirty_color = dirty, dirty_color
         return {
             "hand_boxes": palm_boxes,
             "hand_box_ids": palm_ids,
@@ -591,8 +591,8 @@ class SimulatedTable(FrameSource):
             hull = cv2.convexHull(np.round((uv - [u0, v0]) * (16.0 / step)).astype(np.int32))
             cv2.fillConvexPoly(mask, hull, float(strength), lineType=cv2.LINE_8, shift=4)
         mask = cv2.GaussianBlur(mask, (0, 0), 2.5 / step + 0.3)
-        rz.apply_shadow(self._color, self._ids, self._bg_table, mask, step, u0, v0, u1, v1)
-        return u0, v0, u1, v1
+        cu0, cv0, cu1, cv1 = rz.apply_shadow(self._color, self._ids, self._bg_table, mask, step, u0, v0, u1, v1)
+        return (cu0, cv0, cu1, cv1) if cu0 < cu1 else None
 
     def render(self, index: int) -> Frame:
         """Frame ``index`` (0-based) with sensor noise and ground truth in ``meta["groundtruth"]``."""
@@ -631,6 +631,11 @@ def table_cloth(color: np.ndarray) -> np.ndarray:
     cluster), which no chrominance skin model can separate from a hand; the cloth has Cr ≈ 121, Cb ≈ 137."""
     y = color[..., 0] * 0.299 + color[..., 1] * 0.587 + color[..., 2] * 0.114
     return np.clip(y[..., None] * CLOTH_TINT, 0.0, 255.0).astype(np.float32)
+
+
+def _rect_array(rects: list[tuple[int, int, int, int]]) -> np.ndarray:
+    """Rectangles ``(u0, v0, u1, v1)`` as an int64 array [n, 4] (for :func:`rasterizer.restore_rects`)."""
+    return np.array(rects, np.int64).reshape(-1, 4)
 
 
 def _stable(pose: Pose) -> Pose:
