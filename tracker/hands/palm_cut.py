@@ -149,7 +149,10 @@ def tube_cut(xs: np.ndarray, ys: np.ndarray, e: np.ndarray, d: np.ndarray, reach
         return None
     pc = lo + np.flatnonzero(ok) + 0.5
     mid = 0.5 * (qmin[ok] + qmax[ok])
-    slope, icpt = np.polyfit(pc, mid, 1)
+    pm, qm = pc.mean(), mid.mean()
+    var = float(((pc - pm) ** 2).sum())
+    slope = float(((pc - pm) * (mid - qm)).sum()) / var if var > 0 else 0.0
+    icpt = qm - slope * pm
     r = float(np.median(0.5 * (qmax[ok] - qmin[ok] + 1.0)))
     dist = np.abs(q - (slope * p + icpt)) / np.sqrt(1.0 + slope * slope)
     sel = (p >= start) & ((dist > r) | (p >= pmax - tip))
