@@ -1,0 +1,172 @@
+"""The simulator's sensor kernels, rewritten so that their loops vectorise, give the values of the one-loop kernels
+they replaced (kept here as references, compiled with the same fast-math flags) on rendered frames and on random
+inputs that reach every branch (clipping, missing depth, edges, grazing angles, both quantisations)."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+import pytest
+
+from tracker.sources.simulator import SimulatedTable
+from tracker.sources.simulator import sensor_model as sm
+from tracker.sources.simulator.sensor_model import _FM, _MASK8, _S48, _gauss12, _hash, _u16
+
+
+@nb.njit(cache=True, fastmath=_FM)
+def _color_reference(color, out, key, gain, ramp_u, ramp_v, vignetting, sigma):
+    h, w, _ = color.shape
+    scale = sigma / 104.51314746403095
+    for v in range(h):
+        dv = v / h - 0.5
+        gv = gain + ramp_v * dv
+        for u in range(w):
+            du = u / w - 0.5
+            g = (gv + ramp_u * du) * (1.0 - vignetting * 2.0 * (du * du + dv * dv))
+            hh = _hash(key, v * w + u, 2)
+            for c in range(3):
+                b1 = np.float64((hh >> np.uint64(16 * c)) & _MASK8)
+                b2 = np.float64((hh >> np.uint64(16 * c + 8)) & _MASK8)
+                val = color[v, u, c] * g + (b1 + b2 - 255.0) * scale + 0.5
+                if val < 0.0:
+                    val = 0.0
+                elif val > 255.0:
+                    val = 255.0
+                out[v, u, c] = np.uint8(val)
+
+
+@nb.njit(cache=True, fastmath=_FM)
+def _depth_reference(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dstep, jump, p_miss, p_fly, cos_start,
+                     cos_end, p_drop, zmin, zmax, su, sv, shadow):  # fmt: skip
+    h, w = clean.shape
+    nan = np.float32(np.nan)
+    for v in range(h):
+        vs = v + sv
+        for u in range(w):
+            us = u + su
+            if vs < 0 or vs >= h or us < 0 or us >= w:
+                out[v, u] = nan
+                continue
+            z = clean[vs, us]
+            if not (z >= zmin and z <= zmax) or shadow[vs, us]:
+                out[v, u] = nan
+                continue
+            i = v * w + u
+            h1 = _hash(key, i, 0)
+            r_drop = np.float64(h1 >> _S48) * (1.0 / 65536.0)
+            if r_drop < p_drop:
+                out[v, u] = nan
+                continue
+            c = cosang[vs, us]
+            if c < cos_start:
+                p = (cos_start - c) / (cos_start - cos_end)
+                if _u16(_hash(key, i, 2), 0) < p:
+                    out[v, u] = nan
+                    continue
+            znear = z
+            zfar = z
+            if vs > 0:
+                zn = clean[vs - 1, us]
+                znear = min(znear, zn)
+                zfar = max(zfar, zn if zn < zmax else zmax * 2.0)
+            if vs < h - 1:
+                zn = clean[vs + 1, us]
+                znear = min(znear, zn)
+                zfar = max(zfar, zn if zn < zmax else zmax * 2.0)
+            if us > 0:
+                zn = clean[vs, us - 1]
+                znear = min(znear, zn)
+                zfar = max(zfar, zn if zn < zmax else zmax * 2.0)
+            if us < w - 1:
+                zn = clean[vs, us + 1]
+                znear = min(znear, zn)
+                zfar = max(zfar, zn if zn < zmax else zmax * 2.0)
+            thr = jump * z
+            edge_fg = zfar - z > thr
+            edge_bg = z - znear > thr
+            if edge_fg or edge_bg:
+                h3 = _hash(key, i, 3)
+                r_edge = _u16(h3, 0)
+                if r_edge < p_miss:
+                    out[v, u] = nan
+                    continue
+                if r_edge < p_miss + p_fly:
+                    other = zfar if edge_fg else znear
+                    if other > zmax:
+                        out[v, u] = nan
+                        continue
+                    z = z + (other - z) * _u16(h3, 1)
+            n = _gauss12(h1)
+            sigma = coeff * z * z
+            if on_disp:
+                d = fb / z
+                d = d + n * sigma * fb / (z * z)
+                if quant == 2:
+                    d = np.floor(d / dstep + 0.5) * dstep
+                if d <= 0.0:
+                    out[v, u] = nan
+                    continue
+                z = fb / d
+            else:
+                z = z + n * sigma
+                if quant == 2:
+                    d = np.floor(fb / z / dstep + 0.5) * dstep
+                    z = fb / d
+            if quant == 1:
+                z = np.floor(z / qstep + 0.5) * qstep
+            if z < zmin or z > zmax:
+                out[v, u] = nan
+            else:
+                out[v, u] = np.float32(z)
+
+
+def _inputs() -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]:
+    """(clean depth, cosang, clean colour, frame key): two rendered frames (one with the hand) and random arrays."""
+    src = SimulatedTable("guidance-demo", seed=0)
+    out = []
+    for k in (0, 130):
+        c = src.render_clean(k)
+        out.append((c["depth"].copy(), c["cosang"].copy(), c["color"].copy(), src.frame_key(k)))
+    rng = np.random.default_rng(5)
+    z = rng.uniform(0.2, 4.5, (120, 160)).astype(np.float32)
+    z[rng.random(z.shape) < 0.05] = np.inf
+    out.append((z, rng.uniform(0, 1, z.shape).astype(np.float32),
+                (rng.random((120, 160, 3)) * 320 - 30).astype(np.float32), 987654321))  # fmt: skip
+    return out
+
+
+INPUTS = _inputs()
+
+
+@pytest.mark.parametrize("noise_sigma, vignetting", [(2.5, 0.15), (9.0, 0.4)])
+def test_colour_kernel_equals_the_one_loop_reference(noise_sigma, vignetting):
+    clipped = 0
+    for _, _, color, key in INPUTS:
+        for gain, ru, rv in ((1.0, 0.0, 0.0), (1.07, 0.05, -0.08)):
+            a, b = np.empty(color.shape, np.uint8), np.empty(color.shape, np.uint8)
+            sm._color_kernel(color, a, np.uint64(key), gain, ru, rv, vignetting, noise_sigma)
+            _color_reference(color, b, np.uint64(key), gain, ru, rv, vignetting, noise_sigma)
+            assert np.array_equal(a, b)
+            clipped += int(np.count_nonzero((a == 0) | (a == 255)))
+    assert clipped > 100  # the clipping was reached
+
+
+@pytest.mark.parametrize("model", [
+    sm.DepthSensorModel(),
+    sm.DepthSensorModel(noise_on="disparity", quantization="disparity"),
+    sm.DepthSensorModel(quantization="none", shift_u=-1, shift_v=1, projector_baseline=-0.05),
+])  # fmt: skip
+def test_depth_kernel_equals_the_one_loop_reference(model):
+    for clean, cosang, _, key in INPUTS:
+        shadow = np.zeros(clean.shape, np.bool_)
+        sm._projector_shadow(clean, 525.0 * abs(model.projector_baseline), model.projector_baseline > 0, shadow)
+        args = (np.uint64(key), model.noise_coeff, model.noise_on == "disparity",
+                {"none": 0, "mm": 1, "disparity": 2}[model.quantization], model.quant_step, model.focal_baseline,
+                model.disparity_step, model.edge_jump, model.edge_missing, model.edge_flying,
+                float(np.cos(np.radians(model.grazing_start_deg))), float(np.cos(np.radians(model.grazing_end_deg))),
+                model.dropout, model.min_range, model.max_range, model.shift_u, model.shift_v, shadow)  # fmt: skip
+        a, b = np.empty(clean.shape, np.float32), np.empty(clean.shape, np.float32)
+        sm._depth_kernel(clean, cosang, a, *args)
+        _depth_reference(clean, cosang, b, *args)
+        assert np.array_equal(a, b, equal_nan=True)
+        assert np.isnan(a).any() and np.isfinite(a).any()
