@@ -312,7 +312,7 @@ def test_pyramid_halves_depth_and_mask_and_drops_blocks_with_a_hole_or_an_edge()
 
 def test_fused_odometry_with_its_camera_path_in_a_process_equals_one_step_after_the_other(tmp_path, monkeypatch):
     """The fused command runs the camera's path (frame k's dense step beside frame k's tracker step, frame k's fusion
-    beside frame k + 1's) in a child process that decodes the frames itself; the trajectory, its flagged frames (a
+    beside frame k + 1's) in a child process (frames through shared memory); the trajectory, its flagged frames (a
     skipped one included) and their order are the same to the last bit as with every job run at once in the calling
     thread (no shared state, no write to the frame)."""
     from app.commands import odometry as odometry_command
@@ -330,32 +330,32 @@ def test_fused_odometry_with_its_camera_path_in_a_process_equals_one_step_after_
     assert threaded.errors()["ate_rmse_mm"] < 1.0
 
 
-def test_camera_path_process_reports_a_recording_it_cannot_open_and_a_frame_it_cannot_read(tmp_path):
-    """The fused odometry's child process: a recording it cannot open fails at start with the child's reason; a
-    frame it cannot read fails that frame's future (the parent raises it), and the child keeps serving."""
-    from app.commands.camera_path import CameraPathProcess
-    from tracker.geometry.camera import Intrinsics
+def test_camera_path_process_reports_a_child_that_cannot_start_and_a_job_that_fails(tmp_path):
+    """The fused odometry's child process: one that cannot start fails with the child's reason; a job that fails in
+    the child fails that frame's future (the parent raises it) and the child keeps serving; more frames than its
+    shared-memory slots go through (the parent waits for a slot's frame to be fused before writing it again)."""
+    from app.commands.camera_path import SLOTS, CameraPathProcess
     from tracker.sources.recording import RecordingSource
 
-    with pytest.raises(RuntimeError, match="cannot start the camera path process"):
-        CameraPathProcess(str(tmp_path / "missing"), Intrinsics.default(64, 48), 0, {})
     rec = tmp_path / "rec"
-    _sway_recording(rec, 4, None)
+    _sway_recording(rec, SLOTS + 3, None)
     src = RecordingSource(str(rec), prefetch=0)
-    frames = [src.read(i) for i in range(3)]
+    frames = [src.read(i) for i in range(len(src))]
     src.close()
-    path = CameraPathProcess(str(rec), src.intrinsics, 0, {})
+    with pytest.raises(RuntimeError, match="cannot start the camera path process: ValueError"):
+        CameraPathProcess(src.intrinsics, -1, {})  # a negative seed: the child's random generator refuses it
+    path = CameraPathProcess(src.intrinsics, 0, {})
     try:
-        path.dense(frames[0], None)
-        first = path.fuse({}, None)
-        sorted((rec / "depth").iterdir())[1].write_bytes(b"not a png")  # the child decodes frame 1 itself
-        path.dense(frames[1], None)
-        second = path.fuse({}, None)
-        path.dense(frames[2], None)
-        third = path.fuse({}, None)
-        assert first.result(timeout=60).timestamp == pytest.approx(frames[0].timestamp)
-        with pytest.raises(RuntimeError, match="camera path, dense"):
-            second.result(timeout=60)
-        assert third.result(timeout=60).timestamp == pytest.approx(frames[2].timestamp)
+        with pytest.raises(ValueError, match="a frame of"):
+            path.dense(frames[0], np.zeros((4, 4), bool))
+        results = []
+        for i, frame in enumerate(frames):
+            path.dense(frame, None)
+            # frame 1's fusion fails in the child: a landmark without corners, a landmark since frame 0
+            results.append(path.fuse({"ghost": "not a pose"} if i < 2 else {}, None))
+        with pytest.raises(RuntimeError, match="camera path, fuse: KeyError"):
+            results[1].result(timeout=60)
+        for i in (0, *range(2, len(frames))):
+            assert results[i].result(timeout=60).timestamp == pytest.approx(frames[i].timestamp)
     finally:
         path.close()

@@ -5,13 +5,14 @@ needs only the fused path's prediction (so it can run while the tracker steps on
 (prediction, table plane, correction), which needs the resting parts of that step (so it can run while the tracker
 steps on frame k + 1). :class:`CameraPath` is that state and those jobs; the tracker needs nothing of it.
 
-:class:`CameraPathProcess` runs a :class:`CameraPath` in a child process (``spawn``) that decodes the recording's
-frames itself, by position, so that the part tracker has the parent's interpreter to itself: in a thread of the
-same process the two would take turns holding Python's global lock (the tracker's compiled kernels keep it), and the
-tracker's step — the part of a frame nothing else can shorten — would wait for the fusion's Python. The child
-decodes each frame a second time; that costs the other core, not the tracker's. Jobs are sent over a pipe in frame
-order, each fusion's result comes back as a :class:`~concurrent.futures.Future`; a job that fails in the child fails
-its future with the child's message (and so does every waiting one if the child ends).
+:class:`CameraPathProcess` runs a :class:`CameraPath` in a child process (``spawn``), so that the part tracker has
+the parent's interpreter to itself: in a thread of the same process the two would take turns holding Python's
+global lock (the tracker's compiled kernels keep it), and the tracker's step — the part of a frame nothing else can
+shorten — would wait for the fusion's Python. Each frame's images go to the child through a ring of shared-memory
+slots (the child copies them out at once; a slot is written again only after the fusion of the frame it held),
+the rest of each job over a pipe, in frame order; each fusion's result comes back as a
+:class:`~concurrent.futures.Future`. A job that fails in the child fails its future with the child's message (and
+so does every waiting one if the child ends).
 
 :class:`InlineCameraPath` runs the same jobs at once in the calling thread (the reference a test compares the
 process with: the poses are the same to the last bit). Poses: camera → world, world = the first frame's camera frame,
@@ -24,7 +25,8 @@ import multiprocessing as mp
 import threading
 import time
 from collections import deque
-from concurrent.futures import Future
+from concurrent.futures import Future, wait
+from multiprocessing.shared_memory import SharedMemory
 from typing import Any
 
 import numpy as np
@@ -88,7 +90,7 @@ def _done(value) -> Future:
 class InlineCameraPath:
     """A :class:`CameraPath` run at once in the calling thread, with :class:`CameraPathProcess`'s interface."""
 
-    def __init__(self, recording: str, intrinsics, seed: int, corners: dict[str, np.ndarray]) -> None:
+    def __init__(self, intrinsics, seed: int, corners: dict[str, np.ndarray]) -> None:
         self.path = CameraPath(intrinsics, seed, corners)
 
     def dense(self, frame, mask: np.ndarray | None) -> None:
@@ -104,15 +106,28 @@ class InlineCameraPath:
         pass
 
 
-def _serve(conn, recording: str, seed: int, corners: dict[str, np.ndarray]) -> None:
-    """The child: a CameraPath on its own reading of ``recording``, serving the parent's jobs in order."""
-    src = None
-    try:
-        from tracker.sources.recording import RecordingSource
+SLOTS = 4
+"""Shared-memory frame slots of :class:`CameraPathProcess`: how many frames the child may lag behind before the
+parent waits for it."""
 
-        src = RecordingSource(recording)
-        path = CameraPath(src.intrinsics, seed, corners)
-        h, w = src.intrinsics.height, src.intrinsics.width
+
+def _slot_views(shm: SharedMemory, slot: int, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Colour (H×W×3 uint8) and depth (H×W float32) arrays of frame slot ``slot`` in ``shm``."""
+    size = h * w * 3 + h * w * 4
+    color = np.ndarray((h, w, 3), np.uint8, buffer=shm.buf, offset=slot * size)
+    depth = np.ndarray((h, w), np.float32, buffer=shm.buf, offset=slot * size + h * w * 3)
+    return color, depth
+
+
+def _serve(conn, shm_name: str, intrinsics, seed: int, corners: dict[str, np.ndarray]) -> None:
+    """The child: a CameraPath serving the parent's jobs in order, frames read from the shared-memory slots."""
+    shm = None
+    try:
+        from tracker.frame import Frame
+
+        shm = SharedMemory(name=shm_name)
+        path = CameraPath(intrinsics, seed, corners)
+        h, w = intrinsics.height, intrinsics.width
         conn.send(("ready",))
         failed: str | None = None  # a dense step's error, reported with that frame's fusion
         while True:
@@ -123,9 +138,10 @@ def _serve(conn, recording: str, seed: int, corners: dict[str, np.ndarray]) -> N
                 return
             try:
                 if kind == "dense":
-                    _, position, packed = msg
+                    _, slot, index, timestamp, packed = msg
+                    color, depth = (a.copy() for a in _slot_views(shm, slot, h, w))
                     mask = None if packed is None else np.unpackbits(packed, count=h * w).reshape(h, w).astype(bool)
-                    path.dense(src.read(position), mask)
+                    path.dense(Frame(index, timestamp, color, depth, intrinsics, {}), mask)
                     continue
                 if failed is not None:
                     conn.send(("error", failed))
@@ -142,25 +158,30 @@ def _serve(conn, recording: str, seed: int, corners: dict[str, np.ndarray]) -> N
                     conn.send(("error", text))
     except (EOFError, OSError):
         return  # the parent went away
-    except Exception as exc:  # noqa: BLE001 - opening failed: tell the parent
+    except Exception as exc:  # noqa: BLE001 - starting failed: tell the parent
         try:
             conn.send(("error", f"{type(exc).__name__}: {exc}"))
         except OSError:
             pass
     finally:
-        if src is not None:
-            src.close()
+        if shm is not None:
+            shm.close()
 
 
 class CameraPathProcess:
-    """A :class:`CameraPath` in a child process reading ``recording`` itself (see the module docstring)."""
+    """A :class:`CameraPath` in a child process (see the module docstring); frames of ``intrinsics``' size."""
 
-    def __init__(self, recording: str, intrinsics, seed: int, corners: dict[str, np.ndarray],
-                 start_timeout: float = 120.0) -> None:
+    def __init__(self, intrinsics, seed: int, corners: dict[str, np.ndarray], start_timeout: float = 120.0) -> None:
+        h, w = intrinsics.height, intrinsics.width
+        self._hw = (h, w)
+        self._shm = SharedMemory(create=True, size=SLOTS * (h * w * 3 + h * w * 4))
+        self._slots = [_slot_views(self._shm, k, h, w) for k in range(SLOTS)]
+        self._slot_job: list[Future | None] = [None] * SLOTS  # the fusion of the frame each slot holds
+        self._frames = 0
         ctx = mp.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(child, str(recording), seed, corners), name="camera-path",
-                                 daemon=True)
+        self._proc = ctx.Process(target=_serve, args=(child, self._shm.name, intrinsics, seed, corners),
+                                 name="camera-path", daemon=True)
         self._proc.start()
         child.close()
         self._waiting: deque[Future] = deque()
@@ -214,16 +235,26 @@ class CameraPathProcess:
         return fut
 
     def dense(self, frame, mask: np.ndarray | None) -> None:
-        """Frame ``frame``'s dense alignment in the child, which reads the frame at ``frame.meta
-        ["recording_position"]`` itself; ``mask`` (True = exclude) goes along bit-packed."""
-        position = frame.meta.get("recording_position")
-        if position is None:
-            raise ValueError("CameraPathProcess: the frame has no recording position (not read from a recording)")
-        self._conn.send(("dense", int(position), None if mask is None else np.packbits(mask, axis=None)))
+        """Frame ``frame``'s dense alignment in the child: its images into the next slot (once the child is done
+        with the frame that slot held), ``mask`` (True = exclude) bit-packed with the job."""
+        h, w = self._hw
+        if frame.depth is None or frame.color.shape[:2] != (h, w) or (mask is not None and mask.shape != (h, w)):
+            raise ValueError(f"CameraPathProcess: a frame of {w}x{h} with depth (and a mask of that size) is needed")
+        slot = self._frames % SLOTS
+        if self._slot_job[slot] is not None:
+            wait([self._slot_job[slot]])
+        color, depth = self._slots[slot]
+        color[...] = frame.color
+        depth[...] = frame.depth
+        self._conn.send(("dense", slot, frame.index, float(frame.timestamp),
+                         None if mask is None else np.packbits(mask, axis=None)))
 
     def fuse(self, landmarks: dict, table) -> Future:
         """Future of the frame's OdometryResult (:meth:`CameraPath.fuse`)."""
-        return self._ask(("fuse", landmarks, table))
+        fut = self._ask(("fuse", landmarks, table))
+        self._slot_job[self._frames % SLOTS] = fut
+        self._frames += 1
+        return fut
 
     def skip(self, timestamp: float, reason: str) -> Future:
         """Future of a skipped frame's OdometryResult (:meth:`CameraPath.skip`)."""
@@ -243,3 +274,6 @@ class CameraPathProcess:
             self._proc.kill()
             self._proc.join()
         self._conn.close()
+        self._slots = []
+        self._shm.close()
+        self._shm.unlink()

@@ -130,7 +130,7 @@ class _FusedOdometry(_PartsOdometry):
 
         super().__init__(recording, seed, particles)
         kind = CameraPathProcess if FUSED_PATH_PROCESS else InlineCameraPath
-        self.path = kind(recording, intrinsics, seed, self.corners)
+        self.path = kind(intrinsics, seed, self.corners)
 
     def step(self, frame, mask=None):
         if frame.depth is None:
