@@ -68,11 +68,15 @@ def _child(conn: Connection, factory: Callable[..., Any], args: tuple, kwargs: d
             if msg is None:
                 return
             try:
-                frame = src.render(int(msg))
-                color[...] = frame.color
+                if getattr(src, "renders_into", False):  # straight into the shared memory (no copies)
+                    frame = src.render(int(msg), out=(color, depth))
+                else:
+                    frame = src.render(int(msg))
+                if frame.color is not color:
+                    color[...] = frame.color
                 if frame.depth is None:
                     depth[...] = np.nan
-                else:
+                elif frame.depth is not depth:
                     depth[...] = frame.depth
                 conn.send(("frame", frame.index, frame.timestamp, frame.depth is not None, frame.meta))
             except Exception as exc:  # noqa: BLE001 - handed to the parent

@@ -365,3 +365,12 @@ def test_frames_in_sequence_equal_frames_rendered_afresh(name, seed, start):
         assert a.meta["groundtruth"]["hand_box"] == b.meta["groundtruth"]["hand_box"]
         moved += a.meta["groundtruth"]["hand_box"] is not None or bool(a.meta["groundtruth"].get("hand_boxes"))
     assert moved == 4  # a hand was drawn on every frame
+
+
+def test_render_into_given_buffers_gives_the_same_frame():
+    src = SimulatedTable("guidance-demo", seed=0, n_frames=200)
+    color, depth = np.zeros((480, 640, 3), np.uint8), np.zeros((480, 640), np.float32)
+    f = src.render(150, out=(color, depth))
+    assert f.color is color and f.depth is depth
+    g = SimulatedTable("guidance-demo", seed=0, n_frames=200).render(150)
+    assert np.array_equal(color, g.color) and np.array_equal(depth, g.depth, equal_nan=True)

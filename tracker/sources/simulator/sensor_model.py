@@ -105,11 +105,14 @@ class DepthSensorModel:
         """Standard deviation (metres) of the depth noise at depth ``z`` metres (before quantisation)."""
         return self.noise_coeff * np.asarray(z, dtype=float) ** 2
 
-    def apply(self, clean: np.ndarray, cosang: np.ndarray, key: int, fx: float = 525.0) -> np.ndarray:
+    def apply(self, clean: np.ndarray, cosang: np.ndarray, key: int, fx: float = 525.0,
+              out: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
         """Noisy float32 depth (NaN missing) from noise-free ``clean`` depth (inf where nothing) and
         ``cosang`` = |cos(incidence)|, with the randomness of per-frame ``key`` (uint64); ``fx`` is the focal
-        length in pixels (for the projector shadows)."""
-        out = np.empty(clean.shape, np.float32)
+        length in pixels (for the projector shadows). ``out``: a float32 array of ``clean``'s shape to write into
+        (returned), else a new one."""
+        if out is None:
+            out = np.empty(clean.shape, np.float32)
         shadow = np.zeros(clean.shape, np.bool_)
         if self.projector_baseline != 0.0:
             _projector_shadow(clean, float(fx) * abs(self.projector_baseline), self.projector_baseline > 0, shadow)
@@ -171,12 +174,14 @@ class ColorSensorModel:
         ang = 2 * np.pi * t / self.ramp_period + phase
         return float(g), float(self.ramp_amplitude * np.cos(ang)), float(self.ramp_amplitude * np.sin(ang))
 
-    def apply(self, color: np.ndarray, key: int, t: float, phase: float) -> np.ndarray:
-        """uint8 RGB from the float (0..255) rendered colour, with lighting variation and noise."""
+    def apply(self, color: np.ndarray, key: int, t: float, phase: float, out: np.ndarray | None = None) -> np.ndarray:
+        """uint8 RGB from the float (0..255) rendered colour, with lighting variation and noise; ``out``: a uint8
+        array of ``color``'s shape to write into (returned), else a new one."""
         g, ru, rv = self.lighting(t, phase)
         if self.blur_sigma > 0:
             color = cv2.GaussianBlur(color, (3, 3), float(self.blur_sigma))
-        out = np.empty(color.shape, np.uint8)
+        if out is None:
+            out = np.empty(color.shape, np.uint8)
         _color_kernel(color, out, np.uint64(key), g, ru, rv, float(self.vignetting), float(self.noise_sigma))
         return out
 

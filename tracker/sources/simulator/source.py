@@ -594,14 +594,20 @@ class SimulatedTable(FrameSource):
         cu0, cv0, cu1, cv1 = rz.apply_shadow(self._color, self._ids, self._bg_table, mask, step, u0, v0, u1, v1)
         return (cu0, cv0, cu1, cv1) if cu0 < cu1 else None
 
-    def render(self, index: int) -> Frame:
-        """Frame ``index`` (0-based) with sensor noise and ground truth in ``meta["groundtruth"]``."""
+    renders_into = True
+    """:meth:`render` takes ``out`` buffers (the server's source process renders into its shared memory)."""
+
+    def render(self, index: int, out: tuple[np.ndarray, np.ndarray] | None = None) -> Frame:
+        """Frame ``index`` (0-based) with sensor noise and ground truth in ``meta["groundtruth"]``. ``out``: (colour
+        uint8 H×W×3, depth float32 H×W) arrays the frame is written into (they become its ``color`` and ``depth``),
+        else new ones."""
         if index < 0:
             raise ValueError(f"simulator: frame index must be >= 0, got {index}")
+        color_out, depth_out = out if out is not None else (None, None)
         clean = self.render_clean(index)
         key = self.frame_key(index)
-        depth = self.options.depth_model.apply(clean["depth"], clean["cosang"], key, fx=self._intr.fx)
-        color = self.options.color_model.apply(clean["color"], key, clean["t"], self._phase)
+        depth = self.options.depth_model.apply(clean["depth"], clean["cosang"], key, fx=self._intr.fx, out=depth_out)
+        color = self.options.color_model.apply(clean["color"], key, clean["t"], self._phase, out=color_out)
         n, d = clean["table_plane"]
         meta = {
             "groundtruth": {
