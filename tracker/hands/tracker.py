@@ -18,7 +18,8 @@ initialisation of new tracks:
 * Initial box: the component's pixels farther than d_max − L_hand from its entry point e (mean of its border
   pixels), L_hand = f_x · ``hand_length_m`` / Z̄ (Z̄ the median depth of the component's far end; without depth
   Z̄ = 0.75 m), their tight box, velocity 0 (:func:`tracker.hands.palm_cut.palm_cut`); the whole component if it is
-  no longer than a hand (a sleeve: no forearm in it).
+  no longer than a hand (a sleeve: no forearm in it). With ``palm_tube`` (default) an arm's palm is cut by the
+  forearm tube instead (:func:`tracker.hands.palm_cut.tube_cut`), for the initial box and the anchors alike.
 * Termination: < 50 % of the estimate's box inside the image; a_{c,1} of the estimate < 0.2 for 10 consecutive
   frames; two tracks with box F-score ≥ 0.8 for 10 consecutive frames (product change: the one whose appearance
   fits the shared box worse ends, the younger on a tie); product addition: the box smaller than A_min for 10
