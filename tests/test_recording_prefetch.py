@@ -88,3 +88,48 @@ def test_the_server_opens_recordings_without_decoding_ahead(tmp_path):
     assert sorted(plain._prefetch.pending) == [1, 2]
     assert open_source_spec("sim:static").n_frames > 0  # the option does not reach other sources
     plain.close()
+
+
+def test_colour_analysis_runs_as_frames_are_decoded_ahead_and_equals_running_it_at_the_read(tmp_path):
+    """``analyse_colour(fn)``: each frame comes with ``(fn, fn(colour))``; for a frame decoded ahead it was computed
+    in the prefetch thread, for one decoded before the call (or with another fn) at the read; the track session
+    takes a colour detector's result from there, and its poses equal those of a session that detects itself."""
+    from app.commands.track import TrackSession
+    from tracker.filter.tracker_config import TrackerConfig
+    from tracker.perception.color_detection import ColorDetector
+
+    rec = _recording(tmp_path / "rec")
+    src = RecordingSource(rec)
+    first = src.read(0)  # decodes 1 and 2 ahead, before any analysis is set
+    assert "colour_analysis" not in first.meta
+    for q in (1, 2):
+        src._prefetch._pending[q].result(timeout=30)  # decoded without analysis
+    where: list[str] = []
+    detector = ColorDetector.from_parts([p for p in src.parts if p.color is not None])
+
+    def detect(rgb):
+        where.append(threading.current_thread().name)
+        return detector.detect(rgb)
+
+    src.analyse_colour(detect)
+    frames = [src.read(i) for i in range(1, len(src))]
+    assert all(f.meta["colour_analysis"][0] is detect for f in frames)
+    # frames 1 and 2: decoded before the call, analysed at the read; the others as they were decoded ahead
+    assert len(where) == len(frames) and where.count("MainThread") == 2
+    assert all(w == "MainThread" or w.startswith("recording-decode") for w in where)
+    for f in frames:
+        want = detector.detect(f.color)
+        got = f.meta["colour_analysis"][1]
+        assert set(got) == set(want) and all(np.array_equal(got[n].center, want[n].center) for n in want)
+    src.close()
+
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=50)
+    plain_src, ahead_src = RecordingSource(rec, prefetch=0), RecordingSource(rec)
+    plain = TrackSession(plain_src.parts, plain_src.intrinsics, plain_src.initial_poses, cfg, seed=0)
+    ahead = TrackSession(ahead_src.parts, ahead_src.intrinsics, ahead_src.initial_poses, cfg, seed=0)
+    ahead_src.analyse_colour(ahead.detector.detect)
+    for i in range(len(plain_src)):
+        a, b = plain.step(plain_src.read(i))[0], ahead.step(ahead_src.read(i))[0]
+        for name, pose in a.poses.items():
+            assert np.array_equal(pose.t, b.poses[name].t) and np.array_equal(pose.q, b.poses[name].q)
+    ahead_src.close()

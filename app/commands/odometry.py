@@ -214,6 +214,9 @@ def estimate_trajectory(recording: str, method: str = "default", mask_mode: str 
             odo = _FusedOdometry(recording, seed, src.intrinsics, particles)
         else:
             odo = make_odometry(method, src.intrinsics, seed=seed)
+        session = getattr(odo, "session", None)
+        if session is not None and session.detector is not None:  # parts / fused: the tracker's colour detection
+            src.analyse_colour(session.detector.detect)  # of the next frames, as they are decoded ahead
         n = len(src) if frames is None else min(len(src), frames)
         run = TrajectoryRun()
         pending: deque = deque()  # results (or futures of them: fused) of frames not yet in run.rows, in order

@@ -268,7 +268,11 @@ class TrackSession:
             self.last_ego_cpu = time.thread_time() - c0
         elif self.follower is not None:
             self.table = self.follower.update(frame, self.poses)
-        dets = self.detector.detect(frame.color) if self.detector is not None else None
+        dets = None
+        if self.detector is not None:
+            ahead = frame.meta.get("colour_analysis")  # detected as the frame was decoded (RecordingSource)
+            dets = ahead[1] if ahead is not None and ahead[0] == self.detector.detect else \
+                self.detector.detect(frame.color)
         fused = self.ego is not None and self.ego.fused is not None
         if fused:
             from tracker.filter.camera_motion import hand_hidden_parts_to_the_odometry
@@ -375,6 +379,8 @@ def run(args: argparse.Namespace) -> int:
     session = TrackSession(parts, src.intrinsics, poses, cfg, seed=args.seed, use_color=not args.no_color,
                            table=first_table, use_table=not args.no_table, odometry=args.odometry,
                            hands=args.hands)
+    if session.detector is not None:  # the colour detection of the next frames beside this one's tracking
+        src.analyse_colour(session.detector.detect)
     errors = PoseErrorLog(parts) if src.has_groundtruth else None
     out = open(args.out, "w") if args.out else None  # noqa: SIM115
     n = 0

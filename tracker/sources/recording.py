@@ -23,7 +23,7 @@ import logging
 import math
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -344,6 +344,9 @@ class RecordingSource(FrameSource):
     * Each frame's ``meta`` has ``recording_position``, ``recording_index``, ``groundtruth`` ({"poses":
       {name: Pose}, ...} when the recording has ground truth for it) and ``frame_extra`` (unknown keys of
       the frames.jsonl line).
+    * ``src.analyse_colour(fn)``: ``fn(rgb)`` runs on each frame's colour image right after it is decoded, in the
+      prefetch thread when the frame is decoded ahead (e.g. a colour detector, whose kernels release the GIL), and
+      its result comes with the frame as ``meta["colour_analysis"] = (fn, result)``.
 
     Opening checks camera.json, frames.jsonl, objects.json, groundtruth.jsonl and events.jsonl; images are
     decoded on demand, and a missing or corrupt image raises :class:`SourceError` naming the file and frame
@@ -366,7 +369,13 @@ class RecordingSource(FrameSource):
             self._parts, self._initial_poses = parse_objects(_read_json(objects_path), self.root, str(objects_path))
         self._gt: dict[int, dict] = self._read_groundtruth(self.root / "groundtruth.jsonl")
         self._events = self._read_events(self.root / "events.jsonl")
+        self._colour_analysis: Callable[[np.ndarray], Any] | None = None
         self._prefetch = DecodePrefetcher(self._decode_images, len(self._entries), depth=prefetch, wrap=self.loop)
+
+    def analyse_colour(self, fn: Callable[[np.ndarray], Any] | None) -> None:
+        """Run ``fn(rgb)`` on every frame's colour image as it is decoded (None: stop); see the class docstring.
+        A frame decoded before this call gets it run at its read."""
+        self._colour_analysis = fn
 
     # --- index files -----------------------------------------------------------------------------------
 
@@ -502,8 +511,11 @@ class RecordingSource(FrameSource):
         position %= n
         e = self._entries[position]
         idx = int(e["index"])
-        color, depth = self._prefetch.get(position)
+        color, depth, analysed = self._prefetch.get(position)
         meta: dict[str, Any] = {"recording_position": position, "recording_index": idx}
+        fn = self._colour_analysis
+        if fn is not None:
+            meta["colour_analysis"] = (fn, analysed[1] if analysed is not None and analysed[0] == fn else fn(color))
         gt = self._gt.get(idx)
         if gt is not None:
             meta["groundtruth"] = dict(gt)
@@ -515,16 +527,18 @@ class RecordingSource(FrameSource):
         except FrameError as exc:
             raise SourceError(f"{self.root}: {exc}") from exc
 
-    def _decode_images(self, position: int) -> tuple[np.ndarray, np.ndarray | None]:
-        """Colour (RGB uint8) and depth (float32 metres or ``None``) of ``position``; :class:`SourceError` if
-        unreadable. Called by :meth:`read` and, for the next positions, by the prefetch thread."""
+    def _decode_images(self, position: int) -> tuple[np.ndarray, np.ndarray | None, tuple | None]:
+        """Colour (RGB uint8), depth (float32 metres or ``None``) of ``position`` and ``(fn, fn(colour))`` of the
+        colour analysis set then (or None); :class:`SourceError` if unreadable. Called by :meth:`read` and, for the
+        next positions, by the prefetch thread."""
         e = self._entries[position]
         idx = int(e["index"])
         color = decode_color(self.root / e["color"], idx, self._intrinsics)
         depth = None
         if e.get("depth") is not None:
             depth = decode_depth(self.root / e["depth"], idx, self._intrinsics, self.depth_scale)
-        return color, depth
+        fn = self._colour_analysis
+        return color, depth, None if fn is None else (fn, fn(color))
 
     def close(self) -> None:
         """Stop decoding ahead (reads still work, decoding synchronously)."""
