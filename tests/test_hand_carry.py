@@ -165,9 +165,10 @@ def test_tracker_keeps_a_cube_carried_inside_the_hand(follow):
 def test_a_part_hidden_in_the_moving_hand_skips_its_pass_and_keeps_closer_to_it():
     """carry_hidden_skip: while the hand carries the cube out of sight, its coordinate pass (which can only spread it
     over the hand's surface) is skipped and it moves with the hand's registration; its worst error in the hand is
-    smaller, and it is found again once put down."""
-    with_pass, hidden, _, none_skipped = _carry_run(carry_hidden_skip=0.0)
-    skipping, _, _, skipped = _carry_run(carry_hidden_skip=0.1)
+    smaller, and it is found again once put down. (Run without carry_keep_unseen, on by default since session 15: with
+    it the default's worst error in this carry is 31.5 mm, and skipping the pass no longer lowers it.)"""
+    with_pass, hidden, _, none_skipped = _carry_run(carry_hidden_skip=0.0, carry_keep_unseen=0.0)
+    skipping, _, _, skipped = _carry_run(carry_hidden_skip=0.1, carry_keep_unseen=0.0)
     assert none_skipped == 0 and skipped > 30, (none_skipped, skipped)
     assert skipping[hidden].max() < 0.7 * with_pass[hidden].max(), (skipping[hidden].max(), with_pass[hidden].max())
     assert skipping[-10:].mean() < 0.005
@@ -264,9 +265,10 @@ def test_the_keyframe_keeps_a_long_hidden_carry_from_drifting():
     """carry_keyframe: in the carry of :func:`_carry_run` (about 60 frames completely hidden) each frame's hand motion
     is corrected against the carry's first hand patch; the frame-to-frame registration's errors (0.3-2 mm a frame)
     no longer add up: the worst error in the hand is well below the chained registration's, and the cube is found
-    again once put down."""
-    chained, hidden, _, _ = _carry_run(carry_keyframe=False)
-    keyed, _, carried, _ = _carry_run(carry_keyframe=True)
+    again once put down. (Run without carry_keep_unseen, on by default since session 15: with it the
+    default's worst error in this carry is 31.5 mm, and the keyframe no longer lowers it.)"""
+    chained, hidden, _, _ = _carry_run(carry_keyframe=False, carry_keep_unseen=0.0)
+    keyed, _, carried, _ = _carry_run(carry_keyframe=True, carry_keep_unseen=0.0)
     assert carried > 30
     assert keyed[hidden].max() < 0.6 * chained[hidden].max(), (keyed[hidden].max(), chained[hidden].max())
     assert keyed[hidden].mean() < chained[hidden].mean()
@@ -377,3 +379,47 @@ def test_seen_where_it_was_measures_how_much_of_the_estimate_the_depth_shows():
     up = np.asarray(src.table_plane[0], np.float64)  # the table's normal, toward the camera
     trk.initialize({**truth, "red": Pose(t=truth["red"].t + 0.08 * up, q=truth["red"].q)})
     assert seen_where_it_was(trk, i, frame.depth) < 0.1
+
+
+def _moved_before_its_carry_run(anchor_motion: bool) -> tuple[float, float, np.ndarray]:
+    """Simulated guess-1 with a hand-held camera, speed 1.5 (tuning seed 1), frames 170-200, tracked as ``track``
+    does (default preset, ``rest_anchor_motion`` = ``anchor_motion``, tracker seed 3) from the true poses at frame
+    170: the hand picks up the yellow cube and moves it 1-3 cm a frame while 40-60 % of it is seen (the refinement
+    places it, no carry yet), then it vanishes in the hand (frame 188) and is carried hidden. Returns the rest
+    anchor's translation error (m) and rotation error (deg) at the last frame before 187 that the refinement placed
+    it, and yellow's rotation error (deg) over frames 191-200 (hidden in the hand, the rest prior on)."""
+    from app.commands.track import TrackSession
+    from tracker.filter.scene_motion import placed_by_depth
+    from tracker.geometry.symmetry import symmetric_rotation_error, symmetry_group
+    from tracker.sources.simulator import SimOptions, SimulatedTable
+
+    src = SimulatedTable("guess-1", seed=1, realtime=False, n_frames=201,
+                         options=SimOptions(speed=1.5, occlusion=1.0, camera_motion="handheld"))
+    group = symmetry_group(next(p for p in src.parts if p.name == "yellow"))
+    cfg = TrackerConfig.preset("default").with_overrides(rest_anchor_motion=anchor_motion)
+    session, anchor, r_err = None, (np.inf, np.inf), []
+    for i in range(170, 201):
+        frame = src.render(i)
+        truth = frame.meta["groundtruth"]["poses"]
+        if session is None:
+            session = TrackSession(src.parts, src.intrinsics, truth, cfg, seed=3)
+        state, _ = session.step(frame)
+        trk, j = session.tracker, session.tracker.names.index("yellow")
+        if i < 187 and placed_by_depth(trk, j):
+            anchor = (float(np.linalg.norm(trk._rest_t[j] - truth["yellow"].t)),
+                      float(np.degrees(symmetric_rotation_error(trk._rest_R[j], truth["yellow"].R, group))))
+        if i > 190:
+            r_err.append(np.degrees(symmetric_rotation_error(state.poses["yellow"].R, truth["yellow"].R, group)))
+    return anchor[0], anchor[1], np.array(r_err)
+
+
+def test_a_part_moved_by_the_hand_before_its_carry_takes_its_placed_pose_as_rest_anchor():
+    """rest_anchor_motion: the cube the hand moves while partly seen has its rest anchor at its refined pose (within
+    5 mm) when it vanishes in the hand, so once hidden the rest prior holds the rotation it was last seen with; without
+    it the anchor stays where the cube was last fully seen, several centimetres and degrees behind, and the hidden
+    cube is turned back to that rotation (its rotation error in the hand larger)."""
+    t_on, rdeg_on, r_on = _moved_before_its_carry_run(True)
+    t_off, rdeg_off, r_off = _moved_before_its_carry_run(False)
+    assert t_on < 0.005 and rdeg_on < 4.0, (t_on, rdeg_on)
+    assert t_off > 0.03 and rdeg_off > 8.0, (t_off, rdeg_off)
+    assert r_on.mean() < r_off.mean() - 3.0, (r_on.mean(), r_off.mean())

@@ -96,10 +96,10 @@ def test_bench_heldout_pairs_a_changed_setting_on_the_same_frames_only_in_develo
     capsys.readouterr()
     # static scene, no hand: a hand-carry setting cannot change anything
     assert bench_heldout.main(["--dev", "--no-icp", "--sessions", "1", "--frames", "6",
-                               "--pair", "carry_keep_unseen=0.3"]) == 0
+                               "--pair", "carry_keep_unseen=0"]) == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
     session, overall = lines[0], lines[-1]
-    assert session["pair_settings"] == {"carry_keep_unseen": 0.3}
+    assert session["pair_settings"] == {"carry_keep_unseen": 0}
     assert session["icp_backend"] is None and "icp" not in session
     assert session["ours"]["t_mean_all_mm"] == session["pair"]["t_mean_all_mm"] < 3.0
     assert overall["ours"]["bad_part_frames"] == overall["pair"]["bad_part_frames"] == 0

@@ -485,13 +485,22 @@ def update_rest_anchors(trk: MultiObjectTracker, detected: np.ndarray) -> None:
             trk._rest_R[i] = trk.estimates[trk.names[i]].R
 
 
+def off_anchor(trk: MultiObjectTracker) -> np.ndarray:
+    """Per part, the distance (m, camera frame) from its rest-prior anchor to its current estimate."""
+    now = np.array([trk.estimates[nm].t for nm in trk.names])
+    return np.linalg.norm(now - trk._rest_t, axis=1)
+
+
 def update_moving_anchors(trk: MultiObjectTracker) -> None:
-    """Parts that move (carried, or moving with their blob) and that this frame's refinement placed take their
+    """Parts that move (carried, moving with their blob or, with ``rest_anchor_motion``, placed by the depth more than
+    ``carry_min_motion`` from their anchor) and that this frame's refinement placed take their
     refined estimate as rest anchor (``rest_anchor_moving``): the anchor of a part picked up half in the hand is
     its last seen pose, not its last fully seen one, which the hand has since moved and turned."""
     if trk.config.rest_prior_sigma <= 0 or not trk.config.rest_anchor_moving:
         return
     moving = np.asarray(trk._carry.carried, bool) | np.asarray(trk._blob_moved, bool)
+    if trk.config.rest_anchor_motion:
+        moving |= off_anchor(trk) > trk.config.carry_min_motion
     for i in np.nonzero(moving)[0]:
         if placed_by_depth(trk, i):
             trk._rest_t[i] = trk.estimates[trk.names[i]].t

@@ -86,6 +86,14 @@ class TrackerConfig(BaseModel):
         "carry_min_height of it, not carried, not moving with its blob) whose estimate is tilted from lying on a "
         "face by less than this is turned upright about its centre after the refinement.",
     )
+    rest_anchor_motion: bool = Field(
+        False, description="With rest_anchor_moving: a part that this frame's refinement places more than "
+        "carry_min_motion from its rest anchor counts as moving as well (it has left the place where it rested), so a "
+        "part a hand moves while it is still partly seen, before its carry starts, takes its refined pose as rest "
+        "anchor; "
+        "without, the anchor stayed where it was last fully seen (a hand whipping a part 7 cm and 13 degrees "
+        "before it vanished in the hand: once hidden, the rest prior turned it back to that stale rotation).",
+    )
     carry_hidden_skip: float = Field(
         0.0, ge=0.0, le=1.0, description="A part the hand carry moved this frame, without a reliable colour blob and "
         "with an estimated visible fraction below this, skips its coordinate pass (0 = never): it moves with the "
@@ -666,5 +674,6 @@ PRESETS["default"] = {
     "table_upright": True,
     "carry_release_on_lift": 3,
     "carry_above_table": True,
+    "carry_keep_unseen": 0.3,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
