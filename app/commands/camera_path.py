@@ -22,6 +22,7 @@ metres; timestamps in seconds.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import threading
 import time
 from collections import deque
@@ -106,6 +107,9 @@ class InlineCameraPath:
         pass
 
 
+CHILD_NICENESS = 5
+"""The child runs at this lower priority: it has time to spare (its jobs take about half a tracker step), so where
+the two cores are full the part tracker's thread — the frame rate — gets the core first."""
 SLOTS = 4
 """Shared-memory frame slots of :class:`CameraPathProcess`: how many frames the child may lag behind before the
 parent waits for it."""
@@ -119,6 +123,26 @@ def _slot_views(shm: SharedMemory, slot: int, h: int, w: int) -> tuple[np.ndarra
     return color, depth
 
 
+def _warm_up(intrinsics) -> None:
+    """Run a throwaway CameraPath over three synthetic frames (a textured tilted plane moving 2 mm a frame), so that
+    the compiled kernels are loaded before the child says it is ready: otherwise the first real frames wait for
+    them (about 2 s) and the parent, out of free slots, with them. Nothing of it is kept."""
+    from tracker.frame import Frame
+    from tracker.geometry.pose import Pose
+
+    h, w = intrinsics.height, intrinsics.width
+    v, u = np.mgrid[0:h, 0:w]
+    rng = np.random.default_rng(0)
+    color = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    path = CameraPath(intrinsics, 0, {"warm-up": np.zeros((8, 3))})
+    for k in range(3):
+        depth = (0.7 + 0.2 * (v / h) + 0.002 * k).astype(np.float32)
+        frame = Frame(k, k / 30.0, color, depth, intrinsics, {})
+        path.dense(frame, (u < 8) & (v < 8))
+        path.fuse({"warm-up": Pose(np.array([0.0, 0.0, 0.7]), np.array([0.0, 0.0, 0.0, 1.0]))},
+                  (np.array([0.0, -0.7071, -0.7071]), 0.6))
+
+
 def _serve(conn, shm_name: str, intrinsics, seed: int, corners: dict[str, np.ndarray]) -> None:
     """The child: a CameraPath serving the parent's jobs in order, frames read from the shared-memory slots."""
     shm = None
@@ -126,6 +150,8 @@ def _serve(conn, shm_name: str, intrinsics, seed: int, corners: dict[str, np.nda
         from tracker.frame import Frame
 
         shm = SharedMemory(name=shm_name)
+        os.nice(CHILD_NICENESS)
+        _warm_up(intrinsics)
         path = CameraPath(intrinsics, seed, corners)
         h, w = intrinsics.height, intrinsics.width
         conn.send(("ready",))
