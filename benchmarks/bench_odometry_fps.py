@@ -2,8 +2,9 @@
 
 Held-out hand-held sessions (seeds >= 100, never tuned on) are rendered, written as recordings (PNG colour, 16-bit
 PNG depth) and run through :func:`app.commands.odometry.estimate_trajectory` exactly as the command runs them:
-decoding, the hand mask, the method (default ``fused``: the dense odometry in its own thread beside the tracker at
-N = 100, the next frames decoded in a third). Reported per session: wall frames per second from the first read to
+decoding, the hand mask, the method (default ``fused``: the tracker at N = 100 in the main thread, the camera's path
+— dense odometry and fusion — in a child process, the next frames decoded and colour-detected in a background
+thread). Reported per session: wall frames per second from the first read to
 the last pose, main-thread CPU ms per frame, flagged frames, ATE / rotation / RPE against the simulator's camera
 poses. Beside it, on the same recording in the same run, the well-known baseline: OpenCV's ``cv2.Odometry``
 (photometric, frame to frame; :mod:`benchmarks.odometry_baseline`) with the same decoding and mask.
@@ -89,8 +90,9 @@ def markdown(res: dict) -> str:
                                                                                else ""),
         "",
         "Held-out sessions (seeds >= 100, never tuned on), written as recordings and run as the command runs them "
-        "(`estimate_trajectory`: decoding, the hand box mask, the method). `fused` = dense odometry in its own thread "
-        "beside the tracker (N = 100) with the resting parts checking it, the next frames decoded in a third thread; "
+        "(`estimate_trajectory`: decoding, the hand box mask, the method). `fused` = the tracker (N = 100) in the "
+        "main thread, the camera's path (dense odometry, checked by the resting parts) in a child process, the next "
+        "frames decoded and colour-detected in a background thread; "
         "`opencv-rgb` = the baseline, OpenCV's `cv2.Odometry` (photometric, frame to frame) on the same recording. "
         "fps = frames / wall seconds from the first read to the last pose; CPU = main-thread ms per frame; ATE = "
         "RMSE of the camera position, no alignment; RPE over 1 s.",
