@@ -82,13 +82,19 @@ def _child(conn: Connection, factory: Callable[..., Any], args: tuple, kwargs: d
             except Exception as exc:  # noqa: BLE001 - handed to the parent
                 conn.send(("error", f"{type(exc).__name__}: {exc}"))
     except Exception as exc:  # noqa: BLE001 - opening failed: tell the parent
-        try:
-            conn.send(("error", f"{type(exc).__name__}: {exc}"))
-        except OSError:
-            pass
+        tell_parent(conn, exc)
     finally:
         if shm is not None:
             shm.close()
+
+
+def tell_parent(conn, exc: BaseException) -> None:
+    """A child process's last word: ``("error", "Type: message")`` to its parent over ``conn`` (nothing when the parent
+    has gone)."""
+    try:
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    except OSError:
+        pass
 
 
 class ProcessSource(FrameSource):

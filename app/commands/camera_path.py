@@ -185,10 +185,9 @@ def _serve(conn, shm_name: str, intrinsics, seed: int, corners: dict[str, np.nda
     except (EOFError, OSError):
         return  # the parent went away
     except Exception as exc:  # noqa: BLE001 - starting failed: tell the parent
-        try:
-            conn.send(("error", f"{type(exc).__name__}: {exc}"))
-        except OSError:
-            pass
+        from app.source_process import tell_parent
+
+        tell_parent(conn, exc)
     finally:
         if shm is not None:
             shm.close()
