@@ -157,7 +157,8 @@ class TrajectoryRun:
       a frame that was not measured (pose extrapolated or held).
     * ``truth``: the recording's ``camera_pose`` ground truth of each frame (simulated recordings) or ``None``.
     * ``wall_s``: seconds from the first read to the last pose; ``cpu_ms``: main-thread CPU per frame (ms; the
-      decoding of the next frames and, with ``fused``, the camera path's jobs run in other threads beside it).
+      decoding of the next frames runs in another thread beside it, and with ``fused`` the camera's path in a child
+      process).
     """
 
     rows: list[tuple[float, Any, str]] = field(default_factory=list)
@@ -221,8 +222,9 @@ def estimate_trajectory(recording: str, method: str = "default", mask_mode: str 
         run = TrajectoryRun()
         pending: deque = deque()  # results (or futures of them: fused) of frames not yet in run.rows, in order
 
-        def record(until_done: bool) -> None:
-            while pending and (not until_done or not isinstance(pending[0], Future) or pending[0].done()):
+        def record(wait: bool) -> None:
+            """Move the pending results to run.rows in frame order: all (``wait``) or those ready now."""
+            while pending and (wait or not isinstance(pending[0], Future) or pending[0].done()):
                 res = pending.popleft()
                 res = res.result() if isinstance(res, Future) else res
                 if not res.ok:
@@ -251,8 +253,8 @@ def estimate_trajectory(recording: str, method: str = "default", mask_mode: str 
                     if hand_box is not None or detector is not None:
                         mask = exclusion_mask(frame.color.shape[:2], hand_box, parts)
                 pending.append(odo.step(frame, mask))
-            record(until_done=True)
-        record(until_done=False)
+            record(wait=False)
+        record(wait=True)
         run.wall_s = time.perf_counter() - t_start
         run.cpu_ms = 1e3 * (time.thread_time() - cpu_start) / max(len(run.rows), 1)
     finally:
