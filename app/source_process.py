@@ -30,6 +30,7 @@ from tracker.frame import Frame
 from tracker.geometry.camera import Intrinsics
 from tracker.os_names import name_os_thread
 from tracker.sources.base import FrameSource, SourceError
+from tracker.sources.frame_slots import frame_bytes, frame_slots
 
 
 def _child(conn: Connection, factory: Callable[..., Any], args: tuple, kwargs: dict) -> None:
@@ -58,8 +59,7 @@ def _child(conn: Connection, factory: Callable[..., Any], args: tuple, kwargs: d
         shm_name = conn.recv()
         shm = SharedMemory(name=shm_name)
         w, h = intr.width, intr.height
-        color = np.ndarray((h, w, 3), np.uint8, buffer=shm.buf)
-        depth = np.ndarray((h, w), np.float32, buffer=shm.buf, offset=h * w * 3)
+        ((color, depth),) = frame_slots(shm, 1, h, w)
         while True:
             try:
                 msg = conn.recv()
@@ -126,9 +126,8 @@ class ProcessSource(FrameSource):
             self._metadata = info["metadata"]
             self.name = info["name"]
             w, h = self._intr.width, self._intr.height
-            self._shm = SharedMemory(create=True, size=h * w * 3 + h * w * 4)
-            self._color = np.ndarray((h, w, 3), np.uint8, buffer=self._shm.buf)
-            self._depth = np.ndarray((h, w), np.float32, buffer=self._shm.buf, offset=h * w * 3)
+            self._shm = SharedMemory(create=True, size=frame_bytes(h, w))
+            ((self._color, self._depth),) = frame_slots(self._shm, 1, h, w)
             self._conn.send(self._shm.name)
         except BaseException:
             self.close()

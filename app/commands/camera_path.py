@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from tracker.sources.frame_slots import frame_bytes, frame_slots
+
 
 class CameraPath:
     """The dense odometry (the fast settings) and :class:`~tracker.odometry.fused_odometry.FusedOdometry` of one
@@ -115,14 +117,6 @@ SLOTS = 4
 parent waits for it."""
 
 
-def _slot_views(shm: SharedMemory, slot: int, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    """Colour (H×W×3 uint8) and depth (H×W float32) arrays of frame slot ``slot`` in ``shm``."""
-    size = h * w * 3 + h * w * 4
-    color = np.ndarray((h, w, 3), np.uint8, buffer=shm.buf, offset=slot * size)
-    depth = np.ndarray((h, w), np.float32, buffer=shm.buf, offset=slot * size + h * w * 3)
-    return color, depth
-
-
 def _warm_up(intrinsics) -> None:
     """Run a throwaway CameraPath over three synthetic frames (a textured tilted plane moving 2 mm a frame), so that
     the compiled kernels are loaded before the child says it is ready: otherwise the first real frames wait for
@@ -153,6 +147,7 @@ def _serve(conn, shm_name: str, intrinsics, seed: int, corners: dict[str, np.nda
         os.nice(CHILD_NICENESS)
         _warm_up(intrinsics)
         path = CameraPath(intrinsics, seed, corners)
+        slots = frame_slots(shm, SLOTS, intrinsics.height, intrinsics.width)
         h, w = intrinsics.height, intrinsics.width
         conn.send(("ready",))
         failed: str | None = None  # a dense step's error, reported with that frame's fusion
@@ -165,7 +160,7 @@ def _serve(conn, shm_name: str, intrinsics, seed: int, corners: dict[str, np.nda
             try:
                 if kind == "dense":
                     _, slot, index, timestamp, packed = msg
-                    color, depth = (a.copy() for a in _slot_views(shm, slot, h, w))
+                    color, depth = (a.copy() for a in slots[slot])
                     mask = None if packed is None else np.unpackbits(packed, count=h * w).reshape(h, w).astype(bool)
                     path.dense(Frame(index, timestamp, color, depth, intrinsics, {}), mask)
                     continue
@@ -199,8 +194,8 @@ class CameraPathProcess:
     def __init__(self, intrinsics, seed: int, corners: dict[str, np.ndarray], start_timeout: float = 120.0) -> None:
         h, w = intrinsics.height, intrinsics.width
         self._hw = (h, w)
-        self._shm = SharedMemory(create=True, size=SLOTS * (h * w * 3 + h * w * 4))
-        self._slots = [_slot_views(self._shm, k, h, w) for k in range(SLOTS)]
+        self._shm = SharedMemory(create=True, size=SLOTS * frame_bytes(h, w))
+        self._slots = frame_slots(self._shm, SLOTS, h, w)
         self._slot_job: list[Future | None] = [None] * SLOTS  # the fusion of the frame each slot holds
         self._frames = 0
         ctx = mp.get_context("spawn")

@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from tracker.os_names import name_os_thread
+from tracker.sources.frame_slots import frame_bytes, frame_slots
 
 MAX_RESTARTS = 5
 """Deaths of the child in a row (no completed step between them) after which it is not started again."""
@@ -127,7 +128,7 @@ def _child(conn: Connection, shm_name: str, shape: tuple[int, int], parts: list,
         cv2.setNumThreads(1)  # one core for the hand step; the other is the pipeline's (same results, see tests)
         loop = HandLoop(parts, intrinsics, replace(config, overlap="off", worker="thread"))
         shm = SharedMemory(name=shm_name)
-        slots = _slots(shm, shape)
+        slots = frame_slots(shm, 2, *shape)
         conn.send(("ready",))
     except BaseException as exc:  # noqa: BLE001 - opening failed: tell the parent
         try:
@@ -163,15 +164,6 @@ def _child(conn: Connection, shm_name: str, shape: tuple[int, int], parts: list,
     finally:
         del slots
         shm.close()
-
-
-def _slots(shm: SharedMemory, shape: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The two (colour, depth) frame slots laid out in ``shm``."""
-    H, W = shape
-    n_color, n_depth = H * W * 3, H * W * 4
-    return [(np.ndarray((H, W, 3), np.uint8, buffer=shm.buf, offset=i * (n_color + n_depth)),
-             np.ndarray((H, W), np.float32, buffer=shm.buf, offset=i * (n_color + n_depth) + n_color))
-            for i in range(2)]  # fmt: skip
 
 
 class _Resources:
@@ -245,8 +237,8 @@ class HandProcess:
         ctx = mp.get_context("spawn")
         H, W = self.shape
         if self._res.shm is None:
-            self._res.shm = SharedMemory(create=True, size=2 * (H * W * 3 + H * W * 4))
-            self._slots = _slots(self._res.shm, self.shape)
+            self._res.shm = SharedMemory(create=True, size=2 * frame_bytes(H, W))
+            self._slots = frame_slots(self._res.shm, 2, H, W)
         conn, child_conn = ctx.Pipe()
         proc = ctx.Process(target=_child, name="hand-step", daemon=True,
                            args=(child_conn, self._res.shm.name, self.shape, self.parts, self.intrinsics, self.config))
