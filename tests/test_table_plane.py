@@ -250,13 +250,13 @@ def test_simulated_table_against_truth(scenario, seed, index):
 def test_plane_distance_image_equals_the_back_projected_points_distance():
     """The outline's per-pixel plane distance (ray · normal form, float32) agrees with back-projecting every pixel
     and taking ``n · p + d`` (float64) to float32 precision, NaN where the depth is missing."""
-    from tracker.perception.table_plane import _plane_distance
+    from tracker.perception.table_plane import plane_distance
 
     intr = Intrinsics.default(160, 120)
     rng = np.random.default_rng(4)
     n, d = plane_from_camera_tilt(50.0, 0.6, 7.0)
     depth = render_plane_depth(intr, n, d, rng, boxes=[(40, 30, 20, 20, 0.05)])
-    got = _plane_distance(depth, intr, n, d)
+    got = plane_distance(depth, intr, n, d)
     want = intr.depth_to_points(depth.astype(np.float64)) @ n + d
     assert got.dtype == np.float32 and got.shape == depth.shape
     assert np.array_equal(np.isnan(got), np.isnan(depth))

@@ -292,16 +292,17 @@ def _region(depth: np.ndarray, valid: np.ndarray, s: TableSettings, width: int):
     return comp, filled.astype(bool) & measured
 
 
-def _plane_distance(depth: np.ndarray, intrinsics: Intrinsics, normal: np.ndarray, offset: float) -> np.ndarray:
-    """H×W signed distance (metres, float32) of each pixel's back-projected point to the plane ``normal · x + offset
-    = 0`` (camera frame): ``z · (normal · ray) + offset`` with the pixel's ray ``((u - cx) / fx, (v - cy) / fy, 1)``,
-    without building the point image; NaN where the depth is."""
-    h, w = depth.shape
-    n = np.asarray(normal, np.float64)
-    across = (n[0] * (np.arange(w) - intrinsics.cx) / intrinsics.fx).astype(np.float32)
-    down = (n[1] * (np.arange(h) - intrinsics.cy) / intrinsics.fy + n[2]).astype(np.float32)
-    dots = down[:, None] + across[None, :]
-    return np.asarray(depth, np.float32) * dots + np.float32(offset)
+def plane_distance(depth: np.ndarray, intrinsics: Intrinsics, normal: np.ndarray, offset: float,
+                   step: int = 1) -> np.ndarray:
+    """Signed distance (metres, float32) of every ``step``-th pixel's back-projected point (rows and columns) to the
+    plane ``normal · x + offset = 0`` (camera frame): ``z · (normal · ray) + offset`` with the pixel's ray
+    ``((u - cx) / fx, (v - cy) / fy, 1)``, without building the point image; NaN where the depth is."""
+    z = np.asarray(depth, np.float32)[::step, ::step]
+    u = np.arange(0, depth.shape[1], step, dtype=np.float32)[None, :]
+    v = np.arange(0, depth.shape[0], step, dtype=np.float32)[:, None]
+    n = np.asarray(normal, np.float32)
+    dots = n[0] * (u - intrinsics.cx) / intrinsics.fx + n[1] * (v - intrinsics.cy) / intrinsics.fy + n[2]
+    return z * dots + np.float32(offset)
 
 
 def _subsample(mask: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -371,7 +372,7 @@ def detect_table(depth: np.ndarray, intrinsics: Intrinsics, settings: TableSetti
     if plane_d < 1e-4:
         raise TableNotFoundError("table detection: the fitted plane passes through the camera centre")
     # 7. outline of the table region in the image
-    near = valid & (np.abs(_plane_distance(depth, intrinsics, plane_n, plane_d)) < max(thr, 0.005))
+    near = valid & (np.abs(plane_distance(depth, intrinsics, plane_n, plane_d)) < max(thr, 0.005))
     near_u8 = cv2.morphologyEx(near.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
     outline = np.zeros((0, 2), np.int32)
     contours, _ = cv2.findContours(near_u8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
@@ -397,10 +398,6 @@ def plane_share(
     Compare it with the share right after detection: when the camera (or the table) moves, it drops (a 1 cm
     shift along the normal takes almost every pixel off the plane), and the plane should be detected again.
     """
-    z = np.asarray(depth, np.float32)[::step, ::step]
-    v, u = np.mgrid[0 : depth.shape[0] : step, 0 : depth.shape[1] : step].astype(np.float32)
-    n = np.asarray(plane.normal, np.float32)
-    dots = n[0] * (u - intrinsics.cx) / intrinsics.fx + n[1] * (v - intrinsics.cy) / intrinsics.fy + n[2]
     with np.errstate(invalid="ignore"):
-        on = np.abs(z * dots + np.float32(plane.offset)) < tolerance
+        on = np.abs(plane_distance(depth, intrinsics, plane.normal, plane.offset, step)) < tolerance
     return float(np.count_nonzero(on)) / max(1, on.size)
