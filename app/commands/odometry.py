@@ -62,29 +62,36 @@ def _part_detector(src, mode: str):
     return ColorDetector.from_parts(coloured) if coloured else None
 
 
+def _part_tracker(recording: str, seed: int, particles: int | None):
+    """The tracker of ``track`` on the recording's parts (parts without a first-frame pose found as ``track`` finds
+    them), at ``particles`` N; returns the TrackSession and each part's corner points (M, 3) in its body frame."""
+    from app.commands.track import TrackSession, _auto_poses, load_recording_parts
+    from tracker.filter.tracker_config import TrackerConfig
+
+    src, parts, poses = load_recording_parts(recording)
+    try:
+        missing = [p for p in parts if p.name not in poses]
+        table = None
+        if missing:
+            poses, table = _auto_poses(src, parts, missing, dict(poses), True)
+    finally:
+        src.close()
+    cfg = TrackerConfig.preset("default")
+    if particles is not None:
+        cfg = cfg.with_overrides(n_particles=particles)
+    session = TrackSession(parts, src.intrinsics, poses, cfg, seed=seed, table=table)
+    trk = session.tracker
+    return session, {name: trk.corners[i] for i, name in enumerate(trk.names)}
+
+
 class _PartsOdometry:
     """``--method parts``: the tracker of ``track`` on the recording's parts, the camera pose from its resting ones
     (the odometry interface: ``step(frame, mask)`` and ``skip(timestamp, reason)`` give an OdometryResult)."""
 
     def __init__(self, recording: str, seed: int, particles: int | None = None) -> None:
-        from app.commands.track import TrackSession, _auto_poses, load_recording_parts
-        from tracker.filter.tracker_config import TrackerConfig
         from tracker.odometry.part_landmarks import PartLandmarkOdometry
 
-        src, parts, poses = load_recording_parts(recording)
-        try:
-            missing = [p for p in parts if p.name not in poses]
-            table = None
-            if missing:
-                poses, table = _auto_poses(src, parts, missing, dict(poses), True)
-        finally:
-            src.close()
-        cfg = TrackerConfig.preset("default")
-        if particles is not None:
-            cfg = cfg.with_overrides(n_particles=particles)
-        self.session = TrackSession(parts, src.intrinsics, poses, cfg, seed=seed, table=table)
-        trk = self.session.tracker
-        self.corners = {name: trk.corners[i] for i, name in enumerate(trk.names)}
+        self.session, self.corners = _part_tracker(recording, seed, particles)
         self.landmarks = PartLandmarkOdometry()
 
     def _result(self, pose, ok: bool, t0: float, timestamp: float, message: str):
@@ -115,7 +122,7 @@ FUSED_PATH_PROCESS = True
 False: in the calling thread, one job after the other (the reference the tests compare it with)."""
 
 
-class _FusedOdometry(_PartsOdometry):
+class _FusedOdometry:
     """``--method fused``: the dense odometry and the tracker's resting parts checking each other
     (:class:`tracker.odometry.fused_odometry.FusedOdometry`).
 
@@ -128,7 +135,7 @@ class _FusedOdometry(_PartsOdometry):
     def __init__(self, recording: str, seed: int, intrinsics, particles: int | None = None) -> None:
         from app.commands.camera_path import CameraPathProcess, InlineCameraPath
 
-        super().__init__(recording, seed, particles)
+        self.session, self.corners = _part_tracker(recording, seed, particles)
         kind = CameraPathProcess if FUSED_PATH_PROCESS else InlineCameraPath
         self.path = kind(intrinsics, seed, self.corners)
 
