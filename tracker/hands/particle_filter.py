@@ -21,6 +21,9 @@ import numpy as np
 
 from tracker.hands.box_stats import box_of, observe_states, transition_stats_of_states
 from tracker.hands.certainty import TAU_D, certain_state
+from tracker.hands.exclusion import F0 as EXCL_F0
+from tracker.hands.exclusion import KAPPA as EXCL_KAPPA
+from tracker.hands.exclusion import exclusion_factors
 from tracker.hands.features import HandFeatures
 from tracker.hands.palm_cut import ANCHOR_INSIDE, match_anchor
 
@@ -268,8 +271,10 @@ class HandParticleFilter:
         self.particles[:, :2] += self.particles[:, 4:6]
         self.estimate = mode_estimate(self.particles, self.weights)
 
-    def step(self, feats: HandFeatures, image_size: tuple[int, int]) -> np.ndarray:
-        """One step of Algorithm 10 on the frame's features; returns the MMSE estimate (6,)."""
+    def step(self, feats: HandFeatures, image_size: tuple[int, int], avoid: np.ndarray | None = None) -> np.ndarray:
+        """One step of Algorithm 10 on the frame's features; returns the MMSE estimate (6,). ``avoid``: inclusive
+        boxes [M, 4] (working px) of the other tracks' predicted boxes; each particle's likelihood is multiplied by
+        the exclusion factor of :mod:`tracker.hands.exclusion` (None: no factor, the thesis's step)."""
         prm = self.params
         n = len(self.particles)
         W, H = image_size
@@ -292,6 +297,8 @@ class HandParticleFilter:
                 _take_anchor(new, det, self.particles, np.ascontiguousarray(feats.anchors[k], np.float64),
                              ANCHOR_INSIDE)  # fmt: skip
         lik, _ = observe(new, feats, self.n_clusters, prm)
+        if avoid is not None and len(avoid):
+            lik = lik * exclusion_factors(new, np.ascontiguousarray(avoid, np.float64), EXCL_F0, EXCL_KAPPA)
         w = self.weights * lik
         s = w.sum()
         if not np.isfinite(s) or s <= 0:
