@@ -434,7 +434,7 @@ def test_fused_odometry_runs_the_fast_dense_settings_and_the_dense_method_keeps_
     fast = OdometryConfig.fast()
     assert fast.n_photo < OdometryConfig().n_photo and sum(fast.iterations) < sum(OdometryConfig().iterations)
     assert EgoMotion("fused", intr, []).odometry.config == fast
-    assert EgoMotion("default", intr, []).odometry.config == OdometryConfig()
+    assert EgoMotion("default", intr, []).odometry.config == OdometryConfig.half_resolution()
 
 
 def test_a_fixed_camera_gives_the_same_poses_with_the_fused_odometry_as_without():

@@ -78,16 +78,21 @@ class CameraOdometry(OdometryBase):
         pred = self._motion.predict(ts) if prior is None else np.asarray(prior, np.float64)
         k = self._nearest_keyframe(pred)
         kf = self.keyframes[k]
-        res = align(kf, pyr, invert(kf.pose) @ pred, self.config)
-        T = kf.pose @ res.T_kc
-        dt, dr = motion_size(invert(pred) @ T)
         cfg = self.config
-        msg = ""
-        if res.inliers < cfg.min_inliers:
-            msg = f"frame {frame.index}: only {res.inliers} inliers (< {cfg.min_inliers})"
-        elif dt > cfg.max_step_m or np.degrees(dr) > cfg.max_step_deg:
-            msg = (f"frame {frame.index}: implausible jump {1e3 * dt:.0f} mm / {np.degrees(dr):.1f}° from the "
-                   "prediction")
+        res, T, msg = self._checked(kf, pyr, pred, pred, cfg, frame.index)
+        last = self._motion.last
+        if last is not None and self._far(last[1], pred):  # a fast predicted motion: also from the last pose
+            other = self._checked(kf, pyr, last[1], last[1], cfg, frame.index)
+            if not other[2] and (msg or other[0].inliers > res.inliers):
+                res, T, msg = other
+        retry = cfg.retry
+        if msg and retry is not None:  # again with a coarser start, from the prediction and from the last pose
+            tries = [self._checked(kf, pyr, pred, pred, retry, frame.index)]
+            if last is not None:
+                tries.append(self._checked(kf, pyr, last[1], last[1], retry, frame.index))
+            good = [t for t in tries if not t[2]]
+            if good:  # the plausible result that explains the most of the frame
+                res, T, msg = max(good, key=lambda t: t[0].inliers)
         if msg:
             self._motion.update(ts, pred, measured=False)
             return OdometryResult(Pose.from_matrix(pred), False, res.inliers, 1e3 * (time.perf_counter() - t0), ts,
@@ -103,6 +108,31 @@ class CameraOdometry(OdometryBase):
         self._motion.update(ts, T, measured=True)
         return OdometryResult(Pose.from_matrix(T), True, res.inliers, 1e3 * (time.perf_counter() - t0), ts,
                               keyframe=new_kf)
+
+    def _far(self, A: np.ndarray, B: np.ndarray) -> bool:
+        """Whether poses ``A`` and ``B`` (4×4) differ by more than ``second_start_m`` or ``second_start_deg``."""
+        cfg = self.config
+        if cfg.second_start_m <= 0 and cfg.second_start_deg <= 0:
+            return False
+        d, r = motion_size(invert(A) @ B)
+        return (cfg.second_start_m > 0 and d > cfg.second_start_m) or \
+            (cfg.second_start_deg > 0 and np.degrees(r) > cfg.second_start_deg)
+
+    def _checked(self, kf: Keyframe, pyr, start: np.ndarray, reference: np.ndarray, cfg: OdometryConfig,
+                 index: int) -> tuple:
+        """Align to ``kf`` from ``start`` (4×4 camera → world) with ``cfg``'s levels; returns ``(alignment, pose
+        4×4 camera → world, message)``, the message non-empty when the result is rejected: too few inliers, or
+        farther than ``max_step_m`` / ``max_step_deg`` from ``reference`` (the prediction, or the last measured
+        pose for a retry from it)."""
+        res = align(kf, pyr, invert(kf.pose) @ start, cfg)
+        T = kf.pose @ res.T_kc
+        dt, dr = motion_size(invert(reference) @ T)
+        msg = ""
+        if res.inliers < cfg.min_inliers:
+            msg = f"frame {index}: only {res.inliers} inliers (< {cfg.min_inliers})"
+        elif dt > cfg.max_step_m or np.degrees(dr) > cfg.max_step_deg:
+            msg = f"frame {index}: implausible jump {1e3 * dt:.0f} mm / {np.degrees(dr):.1f}° from the prediction"
+        return res, T, msg
 
     # ------------------------------------------------------------------------------------------------------
     def _distance(self, A: np.ndarray, B: np.ndarray) -> float:
@@ -122,7 +152,7 @@ class CameraOdometry(OdometryBase):
         cfg = self.config
         levels = []
         for lv in range(cfg.n_levels):
-            if lv in cfg.levels:
+            if lv in cfg.levels or lv in cfg.retry_levels:
                 levels.append(make_keyframe_level(pyr[lv], cfg.n_photo, cfg.n_geo, cfg.min_gradient, self._rng))
             else:
                 levels.append(None)

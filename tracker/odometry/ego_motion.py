@@ -225,7 +225,8 @@ class EgoMotion:
         self.intrinsics = intrinsics
         self.parts = list(parts)
         self.odometry = make_odometry("default" if method == "fused" else method, intrinsics, seed=seed,
-                                      config=OdometryConfig.fast() if method == "fused" else None)
+                                      config=OdometryConfig.fast() if method == "fused" else
+                                      OdometryConfig.half_resolution() if method == "default" else None)
         self.fused = None
         self.reset()
 

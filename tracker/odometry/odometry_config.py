@@ -12,8 +12,16 @@ class OdometryConfig:
 
     Dense alignment (method ``"dense"``):
 
-    * ``levels``: pyramid levels used, coarse to fine (level l = image halved l times; 3 = 80×60 for VGA).
+    * ``levels``: pyramid levels used, coarse to fine (level l = image halved l times; 0 = full resolution, 3 =
+      80×60 for VGA).
     * ``iterations``: Gauss-Newton iterations per used level (same order as ``levels``).
+    * ``second_start_m`` / ``second_start_deg``: when the constant-velocity prediction is farther than this from the
+      last pose, the frame is also aligned from the last pose and the plausible result with more inliers is taken (a
+      wrong registration's velocity otherwise puts the next start near a wrong minimum, which the alignment then
+      takes: a runaway); 0 = off.
+    * ``retry_levels`` / ``retry_iterations``: when a frame's result is rejected (too few inliers or an implausible
+      jump), it is aligned once more with these levels (a coarser start widens the basin of convergence), first from
+      the prediction, then from the last measured pose; empty = no retry.
     * ``n_photo`` / ``n_geo``: photometric / geometric points sampled per keyframe level.
     * ``min_gradient``: smallest image gradient (grey levels per pixel) of a photometric point.
     * ``photo_weight``: weight of the photometric term relative to the point-to-plane term (both residuals are
@@ -41,8 +49,12 @@ class OdometryConfig:
     :class:`~tracker.odometry.fastslam.FastSlamConfig`.
     """
 
-    levels: tuple[int, ...] = (3, 2, 1)
+    levels: tuple[int, ...] = (2, 1, 0)
     iterations: tuple[int, ...] = (10, 8, 6)
+    second_start_m: float = 0.01
+    second_start_deg: float = 1.0
+    retry_levels: tuple[int, ...] = (3, 2, 1, 0)
+    retry_iterations: tuple[int, ...] = (10, 8, 6, 4)
     n_photo: int = 3000
     n_geo: int = 3000
     min_gradient: float = 3.0
@@ -70,6 +82,10 @@ class OdometryConfig:
             raise ValueError("OdometryConfig: levels and iterations must be non-empty and of equal length")
         if any(lv < 0 for lv in self.levels) or any(n < 1 for n in self.iterations):
             raise ValueError("OdometryConfig: levels must be >= 0 and iterations >= 1")
+        if len(self.retry_levels) != len(self.retry_iterations) or any(lv < 0 for lv in self.retry_levels) or \
+                any(n < 1 for n in self.retry_iterations):
+            raise ValueError("OdometryConfig: retry_levels and retry_iterations must be of equal length, levels >= 0, "
+                             "iterations >= 1")
         if self.n_photo < 0 or self.n_geo < 0 or self.n_photo + self.n_geo == 0:
             raise ValueError("OdometryConfig: n_photo + n_geo must be positive")
         if self.robust not in ("tukey", "huber"):
@@ -79,8 +95,22 @@ class OdometryConfig:
 
     @property
     def n_levels(self) -> int:
-        """Pyramid depth needed (deepest used level + 1)."""
-        return max(self.levels) + 1
+        """Pyramid depth needed (deepest used level + 1, the retry's included)."""
+        return max(self.levels + self.retry_levels) + 1
+
+    @property
+    def retry(self) -> OdometryConfig | None:
+        """These settings with the retry's levels and iterations (None when there is no retry)."""
+        if not self.retry_levels:
+            return None
+        return replace(self, levels=self.retry_levels, iterations=self.retry_iterations, retry_levels=(),
+                       retry_iterations=(), second_start_m=0.0, second_start_deg=0.0)
+
+    @classmethod
+    def half_resolution(cls) -> OdometryConfig:
+        """The settings before the full-resolution level was added (:data:`HALF_RESOLUTION`): the tracker's own
+        ``--odometry default`` keeps them (its exclusion mask is made at half resolution)."""
+        return cls(**HALF_RESOLUTION)
 
     @classmethod
     def fast(cls) -> OdometryConfig:
@@ -96,7 +126,20 @@ class OdometryConfig:
         return replace(self, **kw)
 
 
-FAST = {"n_photo": 1500, "n_geo": 1500, "iterations": (8, 6, 4), "converged_m": 1e-4, "converged_rad": 1e-4}
+HALF_RESOLUTION = {"levels": (3, 2, 1), "iterations": (10, 8, 6), "retry_levels": (), "retry_iterations": (),
+                   "second_start_m": 0.0, "second_start_deg": 0.0}
+"""Overrides of :meth:`OdometryConfig.half_resolution`: levels 80×60 to 320×240, no retry (the defaults up to
+session 15). The defaults since: levels 160×120 to 640×480, and the 80×60 level only in a retry of a rejected frame.
+Tuning sessions (seeds 0–4, 300 frames, ground-truth hand boxes masked, ATE mm
+half-resolution → defaults): static hand-held 0 0.42 → 0.28, guess-1 hand-held 1 7.03 → 2.52, guess-1 hand-held 2
+1.74 → 0.88, guess-3 sway 3 2.51 → 1.00, learning-4 hand-held 4 0.40 → 0.24; on castle-simu (external development
+set) 4.94 → 2.45. The 80×60 level moved good starts 10–20 mm off on a plank-textured table (its grain vanishes there
+and the planks' lines leave a direction undetermined); the full-resolution level with it (no retry) accepted two
+wrong steps on guess-3 sway 3 whose velocity then ran away (16.6 mm)."""
+
+FAST = {"n_photo": 1500, "n_geo": 1500, "levels": (3, 2, 1), "iterations": (8, 6, 4), "converged_m": 1e-4,
+        "converged_rad": 1e-4, "retry_levels": (), "retry_iterations": (), "second_start_m": 0.0,
+        "second_start_deg": 0.0}
 """Overrides of :meth:`OdometryConfig.fast`. Tuning-seed replay of the in-tracker odometry's inputs (guess-1
 hand-held seed 1, 120 frames): alignment 10.8 → 1.8 ms thread CPU per frame, chain error against the truth 2.35 →
 1.76 mm RMS. Alone (no fused prediction to start from) they failed with a hand moving parts on a held-out session
