@@ -50,7 +50,8 @@ def hold_hidden_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, de
         if trk._rest_on.any():
             trk.v[:, trk._rest_on] = 0.0
             if cfg.rest_prior_rotation:  # the depth cannot turn it; the last good view's rotation holds
-                trk.R[:, trk._rest_on] = trk._rest_R[trk._rest_on][None]
+                snap = trk._rest_on & ~trk._carry.carried if cfg.carry_free_rotation else trk._rest_on
+                trk.R[:, snap] = trk._rest_R[snap][None]
     if cfg.detected_full_noise:
         noise_scale[detected] = 1.0
     return noise_scale
@@ -80,8 +81,11 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     if cfg.carry_keep_unseen > 0 and depth is not None:
         for i in np.nonzero(trk._carry.carried & ~held & ~detected)[0]:
             held[i] = seen_where_it_was(trk, i, depth) < cfg.carry_keep_unseen
+    was_carried = trk._carry.carried
     rot, delta = trk._carry.update(depth, pos, held, ~held, heights, plane,
                                    np.array([nm in touched for nm in trk.names], bool))
+    if cfg.carry_anchor_start:
+        anchor_at_start(trk, trk._carry.carried & ~was_carried)
     # confident blobs (filter/blob_follow.py), however small: a sliver that stays put while the hand moves on is
     # the part left behind
     centers = {i: b[0] for i, b in enumerate(trk._follow_blobs or []) if b is not None}
@@ -125,6 +129,14 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     trk._last_centers = centers
     trk._carry.note_heights(heights, cfg.carry_min_height)
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
+
+
+def anchor_at_start(trk, started: np.ndarray) -> None:
+    """``carry_anchor_start``: the parts whose carry ``started`` (K,) this frame take their estimate (camera frame,
+    before this frame's hand motion, which then moves the anchor with them) as rest anchor."""
+    for i in np.nonzero(started)[0]:
+        est = trk.estimates[trk.names[i]]
+        trk._rest_t[i], trk._rest_R[i] = est.t.copy(), est.R.copy()
 
 
 def carry_onto_blob(trk, obj: int, R: np.ndarray, t: np.ndarray, det) -> bool:

@@ -214,6 +214,17 @@ class TrackerConfig(BaseModel):
         "rest_prior_sigma): its coordinate pass, which has only the hand's surface to go by, cannot walk it away "
         "from the hand.",
     )
+    carry_anchor_start: bool = Field(
+        False, description="When a carry starts, the part's rest anchor (position and rotation) is set to its "
+        "estimate, and moves with the hand from there: the rest prior of the hidden carried part holds the pose it "
+        "had as it vanished in the hand, not a stale one from where it was last fully seen (a hand that moved and "
+        "turned a half-seen cube before its carry started left the anchor 7 cm and 13 degrees back; once hidden, "
+        "the rest prior's rotation turned the cube to it).",
+    )
+    carry_free_rotation: bool = Field(
+        False, description="A carried part gets the rest prior's position pull but not its rotation "
+        "(rest_prior_rotation): its particles keep the rotation the hand's motion gave them.",
+    )
     carry_keyframe: bool = Field(
         False, description="Each frame's hand motion is corrected by registering the carry's first hand patch, moved "
         "by every motion since, to the current hand points (at most 5 mm and 0.05 rad): the frame-to-frame errors of "
