@@ -350,6 +350,32 @@ class HandCarry:
         return pts[::step] if step > 1 else pts
 
 
+def carry_over_sliver(trk, obj: int, R: np.ndarray, t: np.ndarray, centroid: np.ndarray | None) -> bool:
+    """``carry_over_sliver``: hidden carried part ``obj``, which the colour stage has just re-seeded on the ray of its
+    blob's centroid (``centroid``, pixels; its estimate before that in ``trk._pre_reseed``), is put where this
+    frame's hand motion (x ↦ ``R`` x + ``t``, camera frame, m) takes its pre-re-seed pose, unless the centroid lies
+    farther than ``carry_blob_radii`` projected bounding radii from the centre there (then the blob is right: the
+    part is not where the hand took it). A sliver's centroid lies off the part's centre; the hand's motion does not.
+    Returns whether it moved the part."""
+    from tracker.filter.camera_motion import move_part
+
+    pre = trk._pre_reseed.get(obj)
+    if pre is None or centroid is None:
+        return False
+    R_new, t_new = R @ pre.R, R @ pre.t + t
+    c = R_new @ trk.center[obj] + t_new
+    if c[2] <= 0.05:
+        return False
+    uv = trk.intrinsics.project(c[None])[0]
+    radius_px = trk._radius[obj] * trk.intrinsics.fx / float(c[2])
+    if trk.config.carry_blob_radii > 0 and np.hypot(*(uv - centroid)) > trk.config.carry_blob_radii * radius_px:
+        return False
+    est = trk.estimates[trk.names[obj]]
+    Q = R_new @ est.R.T
+    move_part(trk, obj, Q, t_new - Q @ est.t)
+    return True
+
+
 def point_normals(pts: np.ndarray, k: int = 8, tree=None) -> np.ndarray:
     """Unit normals (M, 3) of a point set from the covariance of each point's ``k`` nearest neighbours; ``tree``: a
     ``scipy.spatial.cKDTree`` of ``pts`` already built (else one is built)."""

@@ -13,7 +13,7 @@ import numpy as np
 from tracker.filter.blob_follow import centre, recentre
 from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import box_surface_depth, reseed
-from tracker.filter.hand_carry import supported_by_other
+from tracker.filter.hand_carry import carry_over_sliver, supported_by_other
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.filter.predict import adaptive_noise
 from tracker.filter.scene_motion import placed_by_depth
@@ -65,6 +65,9 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     cfg = trk.config
     k = len(trk.parts)
     pos = np.array([trk.estimates[nm].t for nm in trk.names])
+    if cfg.carry_over_sliver:  # the hand is registered around where the part was before a re-seed on its sliver
+        for i, pre in trk._pre_reseed.items():
+            pos[i] = pre.t
     heights = np.full(k, np.inf)
     if plane is not None:
         for i, nm in enumerate(trk.names):
@@ -104,8 +107,11 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
             continue
         if trk._blob_off[i]:
             # the colour stage has just put it on its blob, which shows this frame's motion across the image; with
-            # carry_blob_depth the hand's motion gives its depth and turn
-            if not (cfg.carry_blob_depth and carry_onto_blob(trk, i, rot[i], delta[i], detections.get(nm))):
+            # carry_blob_depth the hand's motion gives its depth and turn, with carry_over_sliver the hand's motion
+            # takes it unless the blob lies away from where the hand takes it
+            det = detections.get(nm)
+            if not (cfg.carry_over_sliver and carry_over_sliver(trk, i, rot[i], delta[i], blob_centre(det))) and not (
+                    cfg.carry_blob_depth and carry_onto_blob(trk, i, rot[i], delta[i], det)):
                 continue
         else:
             if lifted_off(trk, i, pos[i], new_pos, heights[i], plane):
@@ -129,6 +135,12 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     trk._last_centers = centers
     trk._carry.note_heights(heights, cfg.carry_min_height)
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
+
+
+def blob_centre(det) -> np.ndarray | None:
+    """Pixel centroid (u, v) of a detection's blob, or None."""
+    center = getattr(det, "center", None) if det is not None else None
+    return None if center is None else np.asarray(center, np.float64)
 
 
 def anchor_at_start(trk, started: np.ndarray) -> None:

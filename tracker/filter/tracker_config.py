@@ -221,6 +221,14 @@ class TrackerConfig(BaseModel):
         "turned a half-seen cube before its carry started left the anchor 7 cm and 13 degrees back; once hidden, "
         "the rest prior's rotation turned the cube to it).",
     )
+    carry_over_sliver: bool = Field(
+        False, description="A hidden part in a moving hand whose sliver of colour blob lies off its silhouette (the "
+        "colour stage re-seeds it on the blob's ray) moves with the hand's motion from where it was before that "
+        "re-seed, unless the blob's centroid lies farther than carry_blob_radii projected bounding radii from "
+        "where the hand takes its centre: a sliver's centroid is not the part's centre, and a re-seed on it left a "
+        "cube carried 3 cm a frame 2 cm off for the rest of its hidden carry. The hand's registration also starts "
+        "from the hand points around the part's place before the re-seed.",
+    )
     carry_free_rotation: bool = Field(
         False, description="A carried part gets the rest prior's position pull but not its rotation "
         "(rest_prior_rotation): its particles keep the rotation the hand's motion gave them.",
@@ -686,5 +694,6 @@ PRESETS["default"] = {
     "carry_release_on_lift": 3,
     "carry_above_table": True,
     "carry_keep_unseen": 0.3,
+    "carry_anchor_start": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
