@@ -50,8 +50,7 @@ def hold_hidden_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, de
         if trk._rest_on.any():
             trk.v[:, trk._rest_on] = 0.0
             if cfg.rest_prior_rotation:  # the depth cannot turn it; the last good view's rotation holds
-                snap = trk._rest_on & ~trk._carry.carried if cfg.carry_free_rotation else trk._rest_on
-                trk.R[:, snap] = trk._rest_R[snap][None]
+                trk.R[:, trk._rest_on] = trk._rest_R[trk._rest_on][None]
     if cfg.detected_full_noise:
         noise_scale[detected] = 1.0
     return noise_scale

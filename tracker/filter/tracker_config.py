@@ -229,10 +229,6 @@ class TrackerConfig(BaseModel):
         "cube carried 3 cm a frame 2 cm off for the rest of its hidden carry. The hand's registration also starts "
         "from the hand points around the part's place before the re-seed.",
     )
-    carry_free_rotation: bool = Field(
-        False, description="A carried part gets the rest prior's position pull but not its rotation "
-        "(rest_prior_rotation): its particles keep the rotation the hand's motion gave them.",
-    )
     carry_keyframe: bool = Field(
         False, description="Each frame's hand motion is corrected by registering the carry's first hand patch, moved "
         "by every motion since, to the current hand points (at most 5 mm and 0.05 rad): the frame-to-frame errors of "
