@@ -13,9 +13,10 @@ mask does not apply). A frame on which no resting part agrees keeps the last pos
 both, the dense odometry (with ``--mask``) and the tracker, and lets them check each other
 (:mod:`tracker.odometry.fused_odometry`); frames held on the constant-velocity prediction are flagged.
 ``--mask`` chooses what is excluded from the static scene: ``hand`` (default) the hand's box when the recording's
-ground truth has one (simulated recordings), ``parts`` also the colour-detected parts of objects.json, ``none``
-nothing (the robust weights alone then deal with hands and moving parts). When the recording has the simulator's
-``camera_pose`` ground truth, ATE / rotation / RPE errors are printed.
+ground truth has one (simulated recordings), else the hands the hand tracker finds in the colour images
+(:mod:`tracker.odometry.hand_exclusion`, run in the decoding thread), ``parts`` also the colour-detected parts of
+objects.json, ``none`` nothing (the robust weights alone then deal with hands and moving parts). When the recording
+has the simulator's ``camera_pose`` ground truth, ATE / rotation / RPE errors are printed.
 """
 
 from __future__ import annotations
@@ -44,8 +45,8 @@ def register(subparsers) -> None:
                         "from the tracked parts that stay put (objects.json); fused: dense and parts checking each "
                         "other")
     p.add_argument("--mask", default="hand", choices=("hand", "parts", "none"),
-                   help="what to exclude: hand (ground-truth hand box when recorded), parts (also colour-detected "
-                        "parts), none")
+                   help="what to exclude: hand (the ground-truth hand box when recorded, else the hands the hand "
+                        "tracker finds), parts (also colour-detected parts), none")
     p.add_argument("--frames", type=int, default=None, help="stop after this many frames")
     p.add_argument("--seed", type=int, default=0, help="random seed (point sampling, particles)")
     p.add_argument("--particles", type=int, default=ODOMETRY_PARTICLES,
@@ -192,6 +193,26 @@ class TrajectoryRun:
         return errs.to_dict()
 
 
+def _hand_finder(src, mask_mode: str, method: str, seed: int):
+    """The hand tracker's exclusion (:class:`tracker.odometry.hand_exclusion.HandExclusion`) when hands are to be
+    masked (``--mask hand`` or ``parts``), the method uses the mask (not ``parts``) and the recording has no
+    ground-truth hand boxes (a real camera's); else None."""
+    if mask_mode == "none" or method not in ("default", "fastslam", "fused") or len(src) == 0:
+        return None
+    first = src.groundtruth_record(src.index_at(0))
+    if first is not None and "hand_box" in first:  # simulated: the recorded boxes are used
+        return None
+    from tracker.odometry.hand_exclusion import HandExclusion
+
+    return HandExclusion(src.intrinsics.fx, seed=seed)
+
+
+def _analysed(frame, hands):
+    """``hands(frame.color)``, taken from the frame's colour analysis when the decoding thread already ran it."""
+    done = frame.meta.get("colour_analysis")
+    return done[1] if done is not None and done[0] is hands else hands(frame.color)
+
+
 def estimate_trajectory(recording: str, method: str = "default", mask_mode: str = "hand", frames: int | None = None,
                         seed: int = 0, particles: int | None = ODOMETRY_PARTICLES, report=None,
                         odometry=None) -> TrajectoryRun:
@@ -225,6 +246,9 @@ def estimate_trajectory(recording: str, method: str = "default", mask_mode: str 
         session = getattr(odo, "session", None)
         if session is not None and session.detector is not None:  # parts / fused: the tracker's colour detection
             src.analyse_colour(session.detector.detect)  # of the next frames, as they are decoded ahead
+        hands = _hand_finder(src, mask_mode, method if odometry is None else "", seed)
+        if hands is not None and src.analyse_colour_fn is None:  # the hand tracker on the next frames as they are
+            src.analyse_colour(hands)  # decoded ahead (in order: it keeps its tracks from frame to frame)
         n = len(src) if frames is None else min(len(src), frames)
         run = TrajectoryRun()
         pending: deque = deque()  # results (or futures of them: fused) of frames not yet in run.rows, in order
@@ -254,11 +278,14 @@ def estimate_trajectory(recording: str, method: str = "default", mask_mode: str 
                 gt = frame.meta.get("groundtruth") or {}
                 run.truth.append(gt.get("camera_pose") if isinstance(gt.get("camera_pose"), Pose) else None)
                 mask = None
+                found = None if hands is None else _analysed(frame, hands)
                 if mask_mode != "none" and frame.depth is not None:
                     hand_box = gt.get("hand_box")
                     parts = detector.masks(frame.color).values() if detector is not None else ()
                     if hand_box is not None or detector is not None:
                         mask = exclusion_mask(frame.color.shape[:2], hand_box, parts)
+                    if found is not None:
+                        mask = found if mask is None else mask | found
                 pending.append(odo.step(frame, mask))
             record(wait=False)
         record(wait=True)

@@ -372,6 +372,11 @@ class RecordingSource(FrameSource):
         self._colour_analysis: Callable[[np.ndarray], Any] | None = None
         self._prefetch = DecodePrefetcher(self._decode_images, len(self._entries), depth=prefetch, wrap=self.loop)
 
+    @property
+    def analyse_colour_fn(self) -> Callable[[np.ndarray], Any] | None:
+        """The function set by :meth:`analyse_colour` (None: none)."""
+        return self._colour_analysis
+
     def analyse_colour(self, fn: Callable[[np.ndarray], Any] | None) -> None:
         """Run ``fn(rgb)`` on every frame's colour image as it is decoded (None: stop); see the class docstring.
         A frame decoded before this call gets it run at its read."""
@@ -475,6 +480,10 @@ class RecordingSource(FrameSource):
 
     def timestamp(self, position: int) -> float:
         return float(self._entries[position]["t"])
+
+    def index_at(self, position: int) -> int:
+        """The frame index (frames.jsonl's ``index``) of the frame at ``position``."""
+        return int(self._entries[position]["index"])
 
     @property
     def duration(self) -> float:
