@@ -10,7 +10,11 @@ tracks' estimates did in 10 % (321, 195 of them where the true boxes score below
 
 So each particle's weight is multiplied by ψ = exp(−:data:`KAPPA` · max(0, F − :data:`F0`)), F the box F-score of
 the particle's box with the other track's predicted box (its last estimate moved by its velocity); particles of the
-other hand's box lose weight against those that stayed on their own hand's visible part. Units: working pixels.
+other hand's box lose weight against those that stayed on their own hand's visible part.
+
+Off by default (``HandTrackerConfig.exclusion``): on tuning seeds 0–4 of ``hands-s2`` (with the group box of
+:mod:`tracker.hands.group_box`) it helped on filter seeds 0–3 (F̄^b 0.714 → 0.744) and hurt on 4–7 (0.744 → 0.719):
+once two tracks are on each other's hands it keeps them there. Units: working pixels.
 """
 
 from __future__ import annotations

@@ -78,16 +78,21 @@ initialisation of new tracks:
   coasts only while at least ``depth_order.OCCLUDER_SHARE`` of its predicted box lies nearer than its hand's last
   depth by ``depth_order.OCCLUDER_GAP`` (the other hand's arm in front of it). Tuning seeds 0–4 of ``hands-s2``,
   eight filter seeds: 0.691 against 0.694 with neither (``coast`` alone 0.646 on four filter seeds). Off.
-* Mutual exclusion (product addition, ``exclusion``, on): each particle of a track loses weight by
-  exp(−10 · max(0, F − 0.5)), F its box F-score with the other track's predicted box (:mod:`tracker.hands.exclusion`),
-  so that the lower hand's track does not follow the top hand onto its box (two real palm boxes score above 0.6 in
-  2 % of the frames of tuning seeds 0–4 of ``hands-s2``, the two tracks' estimates did in 10 %). Tuning seeds 0–4
-  of ``hands-s2``, ground-truth start, four filter seeds: F̄^b 0.681 → 0.694, ē^p 23.3 → 20.6 px; frames with both
-  tracks on one hand 411 → 12 (filter seeds 0, 1), frames of an ended track 237 → 35. S1 and S3 have one hand.
 * Group box (product addition, ``group_box``, on): while the two tracks' boxes share one colour component whose box
   is at most ``group_box.GROUP_AREA`` (2.4) times a one-hand box, one hand lies on the other and both tracks report
   the component's box; the filters go on unchanged (:mod:`tracker.hands.group_box`). Tuning seeds 0–4 of
-  ``hands-s2``, filter seeds 0, 1, with the exclusion: F̄^b 0.708 → 0.749 (GROUP_AREA 1.8: 0.724, 3.0: 0.752).
+  ``hands-s2``, ground-truth start, eight filter seeds (40 runs): F̄^b 0.697 → 0.729, ē^p 22.2 → 21.7 px (filter
+  seeds 0–3: 0.681 → 0.714, 23.3 → 22.7 px; 4–7: 0.713 → 0.744, 21.1 → 20.6 px). GROUP_AREA 1.8 / 2.4 / 3.0 with the
+  exclusion, filter seeds 0, 1: 0.724 / 0.749 / 0.752 (without the group box 0.708).
+* Mutual exclusion (product addition, ``exclusion``, off): each particle of a track loses weight by
+  exp(−10 · max(0, F − 0.5)), F its box F-score with the other track's predicted box (:mod:`tracker.hands.exclusion`),
+  so that the lower hand's track does not follow the top hand onto its box (two real palm boxes score above 0.6 in
+  2 % of the frames of tuning seeds 0–4 of ``hands-s2``, the two tracks' estimates did in 10 %). It ends that
+  (frames with both tracks on one hand 411 → 12, filter seeds 0, 1) but keeps a swap once the tracks are on each
+  other's hands. With the group box, tuning seeds 0–4: filter seeds 0–3 F̄^b 0.714 → 0.744, ē^p 22.7 → 19.8 px,
+  filter seeds 4–7 0.744 → 0.719, 20.6 → 23.7 px (one run 0.30: a swap kept for 250 frames); only between tracks
+  whose predicted boxes are apart (F < APART_F) 0.738 / 0.719, the same. Not consistent: off. Held-out seeds 100,
+  101 with both on (commit f5ef2c4, run before this was decided): PF F̄^b 0.453, ē^p 73.3 px.
 * Re-seeding (product addition, particle filter, ``reseed``): a track whose box holds part of a hand-sized colour
   component that no other track touches is offered the component's tight box; the likelihood decides
   (:meth:`HandTracker._reseed`).
@@ -256,7 +261,7 @@ class HandTrackerConfig:
     isolation_margin: float = identity.MARGIN
     ownership: bool = False
     depth_identity: bool = False
-    exclusion: bool = True
+    exclusion: bool = False
     group_box: bool = True
     ac_hat: float = 0.55
     am_hat: float = 0.45
