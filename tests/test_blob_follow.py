@@ -12,7 +12,15 @@ PLANE = (np.array([0.0, 0.0, -1.0]), 0.7)  # a fronto-parallel table 0.7 m away:
 HALF = 0.018  # the default cube's half side (m)
 
 
-def _run(follow: bool, area_jump: bool = False, overlap: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def _bbox(box: np.ndarray) -> tuple[int, int, int, int]:
+    """``(x, y, w, h)`` of a polygon (pixels), as the colour detector reports it."""
+    x0, y0 = box.min(axis=0)
+    x1, y1 = box.max(axis=0)
+    return int(x0), int(y0), int(x1 - x0 + 1), int(y1 - y0 + 1)
+
+
+def _run(follow: bool, area_jump: bool = False, overlap: bool = False,
+         inside_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """A red cube slides 4 mm per frame to the right, 20 frames, at 0.682 m, with no depth anywhere near it (as
     in a hand's projector shadow); only its colour blob is seen, the same size every frame (or, with
     ``area_jump``, alternately full and a third, as a changing occlusion would make it). Returns the estimated and
@@ -25,7 +33,7 @@ def _run(follow: bool, area_jump: bool = False, overlap: bool = False) -> tuple[
 
     intr = Intrinsics.default(640, 480)
     cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, blob_follow=follow,
-                                                       blob_follow_overlap=overlap)
+                                                       blob_follow_overlap=overlap, blob_follow_inside_px=inside_px)
     tr = MultiObjectTracker([PartSpec.cube("red", "red")], intr, cfg, seed=0)
     start = Pose([-0.02, 0.0, 0.682], [0, 0, 0, 1])
     tr.initialize({"red": start})
@@ -40,7 +48,8 @@ def _run(follow: bool, area_jump: bool = False, overlap: bool = False) -> tuple[
         if area_jump and i % 2:
             u1 = u0 + (u1 - u0) / 3.0  # only the left third shows
         box = np.round([[u0, v0], [u1, v0], [u1, v1], [u0, v1]]).astype(np.int32)
-        blob = ColorDetection("red", ((u0 + u1) / 2, (v0 + v1) / 2), 1.0, float((u1 - u0) * (v1 - v0)), None, box)
+        blob = ColorDetection("red", ((u0 + u1) / 2, (v0 + v1) / 2), 1.0, float((u1 - u0) * (v1 - v0)), _bbox(box),
+                              box)
         st = tr.step(Frame(i, i / 30, np.zeros((480, 640, 3), np.uint8), depth, intr), {"red": blob}, PLANE)
         est_u.append(intr.project(st.poses["red"].t[None])[0, 0])
         true_u.append(intr.project(truth.t[None])[0, 0])
@@ -67,7 +76,7 @@ def test_blob_follow_ignores_a_blob_whose_area_jumps():
     np.testing.assert_array_equal(with_follow, without)
 
 
-def _shrinking(overlap: bool) -> tuple[np.ndarray, int]:
+def _shrinking(overlap: bool, inside_px: float = 0.0) -> tuple[np.ndarray, int]:
     """A red cube rests at 0.682 m with no depth near it while something comes over it from the right: its blob
     loses 2 px of its right side per frame (at most a sixth of its area per frame, so the area test lets it through)
     for 12 frames. Returns the image position (u) of the estimate's centre minus the truth's, per frame, and the
@@ -79,7 +88,8 @@ def _shrinking(overlap: bool) -> tuple[np.ndarray, int]:
     from tracker.perception.color_detection import ColorDetection
 
     intr = Intrinsics.default(640, 480)
-    cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, blob_follow_overlap=overlap)
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, blob_follow_overlap=overlap,
+                                                       blob_follow_inside_px=inside_px)
     tr = MultiObjectTracker([PartSpec.cube("red", "red")], intr, cfg, seed=0)
     truth = Pose([-0.02, 0.0, 0.682], [0, 0, 0, 1])
     tr.initialize({"red": truth})
@@ -92,8 +102,8 @@ def _shrinking(overlap: bool) -> tuple[np.ndarray, int]:
     for i in range(12):
         right = u1 - 2 * i
         box = np.array([[u0, v0], [right, v0], [right, v1], [u0, v1]], np.int32)
-        blob = ColorDetection("red", ((u0 + right) / 2, (v0 + v1) / 2), 1.0, float((right - u0) * (v1 - v0)), None,
-                              box)
+        blob = ColorDetection("red", ((u0 + right) / 2, (v0 + v1) / 2), 1.0, float((right - u0) * (v1 - v0)),
+                              _bbox(box), box)
         st = tr.step(Frame(i, i / 30, np.zeros((480, 640, 3), np.uint8), depth, intr), {"red": blob}, PLANE)
         off.append(intr.project(st.poses["red"].t[None])[0, 0] - true_u)
         followed += int(tr._blob_moved[0])
@@ -113,3 +123,19 @@ def test_a_blob_that_only_shrinks_is_not_followed_with_the_outline_test():
 def test_the_outline_test_still_follows_a_moving_blob():
     est, truth = _run(True, overlap=True)
     assert np.abs(est - truth)[5:].max() < 2.5
+
+
+def test_a_blob_that_shrinks_inside_the_parts_footprint_is_not_followed():
+    """``blob_follow_inside_px``: a blob that shrinks within the resting part's projected rectangle (a hand coming
+    over it) does not move the part; without the setting blob follow drags it 10 px along."""
+    dragged, n_dragged = _shrinking(False)
+    held, n_held = _shrinking(False, inside_px=3.0)
+    assert n_dragged >= 8 and n_held == 0, (n_dragged, n_held)
+    assert dragged[-1] < -10.0, dragged
+    assert np.abs(held).max() < 0.7 * np.abs(dragged).max(), (held, dragged)
+
+
+def test_a_blob_that_leaves_the_parts_footprint_is_still_followed():
+    """``blob_follow_inside_px``: a part sliding 4 mm a frame leaves its footprint, and blob follow keeps up."""
+    est, truth = _run(True, inside_px=3.0)
+    assert np.abs(est - truth)[5:].max() < 3.5

@@ -86,6 +86,9 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
             continue
         if cfg.blob_follow_overlap and not moved_outline(outline_of(now), outline_of(before), shift):
             continue  # the outline only shrank where something came over it: an occlusion, not a motion
+        if (cfg.blob_follow_inside_px > 0 and not carried[i]
+                and inside_footprint(trk, i, detections.get(name), cfg.blob_follow_inside_px)):
+            continue  # the blob changed within the part's own footprint: something came over it
         last = trk._refiner.last[i] if trk._refiner is not None else None
         unsupported = last is None or not last.healthy  # the depth could not place it in the last frame
         if not (unsupported or depth_poor(trk, detections.get(name), depth)):
@@ -151,6 +154,29 @@ def moved_outline(now: BlobWindow | None, before: BlobWindow | None, shift: np.n
     if dx == 0 and dy == 0:
         return False
     return overlap(now, before, dx, dy) > overlap(now, before, 0, 0)
+
+
+def footprint(trk: MultiObjectTracker, obj: int) -> tuple[float, float, float, float] | None:
+    """Image bounds ``(u_min, v_min, u_max, v_max)`` (full-resolution pixels) of part ``obj``'s bounding-box corners
+    at its estimate, or None when a corner lies closer than 5 cm to the camera."""
+    est = trk.estimates[trk.names[obj]]
+    pts = trk.corners[obj] @ est.R.T + est.t
+    if np.any(pts[:, 2] < 0.05):
+        return None
+    uv = trk.intrinsics.project(pts)
+    return float(uv[:, 0].min()), float(uv[:, 1].min()), float(uv[:, 0].max()), float(uv[:, 1].max())
+
+
+def inside_footprint(trk: MultiObjectTracker, obj: int, det, margin_px: float) -> bool:
+    """Does the bounding box ``(x, y, w, h)`` of part ``obj``'s blob lie inside the part's :func:`footprint` grown by
+    ``margin_px`` pixels on every side (``blob_follow_inside_px``)? False without a box or a footprint."""
+    bbox = getattr(det, "bbox", None) if det is not None else None
+    fp = footprint(trk, obj) if bbox is not None else None
+    if fp is None:
+        return False
+    x, y, w, h = (float(v) for v in bbox)
+    u0, v0, u1, v1 = fp
+    return bool(x >= u0 - margin_px and y >= v0 - margin_px and x + w <= u1 + margin_px and y + h <= v1 + margin_px)
 
 
 def centre(trk: MultiObjectTracker, obj: int) -> np.ndarray:

@@ -55,7 +55,7 @@ from tracker.geometry.camera import Intrinsics
 from tracker.geometry.mesh_renderer import MeshModel
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
-from tracker.refine import refine_stage
+from tracker.refine import contact_align, refine_stage
 from tracker.refine.icp_refinement import PartSurfaceModel
 from tracker.refine.recovery import LossMonitor
 
@@ -272,6 +272,7 @@ class MultiObjectTracker:
         tg = time.perf_counter()
         refine_stage.refine(self, state, ctx.refine_depth, detections, ctx.table, ctx.depth)
         hidden_parts.upright_resting(self, state, ctx.table_plane)
+        contact_align.align_contacts(self, state)
         hidden_parts.update_moving_anchors(self)
         scene_motion.follow_scene(self, state)
         ctx.timings["refine"] = (time.perf_counter() - tg) * 1e3

@@ -86,6 +86,13 @@ class TrackerConfig(BaseModel):
         "carry_min_height of it, not carried, not moving with its blob) whose estimate is tilted from lying on a "
         "face by less than this is turned upright about its centre after the refinement.",
     )
+    contact_align_deg: float = Field(
+        0.0, ge=0.0, le=45.0, description="Degrees (0 = off; tracker/refine/contact_align.py): a resting box part "
+        "refined this frame that touches a resting box part face to face, whose refinement matched at least 1.5 "
+        "times as many depth points, is turned about its centre onto the nearest rotation with its faces parallel to "
+        "that neighbour's when the turn is smaller than this (connected parts touch with parallel faces; a half "
+        "hidden one is placed by one or two faces only).",
+    )
     rest_anchor_motion: bool = Field(
         False, description="With rest_anchor_moving: a part that this frame's refinement places more than "
         "carry_min_motion from its rest anchor counts as moving as well (it has left the place where it rested), so a "
@@ -325,6 +332,13 @@ class TrackerConfig(BaseModel):
         False, description="Blob follow moves a part only when the blob's outline shows the motion: last frame's "
         "outline moved by the centroid's shift covers more of this frame's blob than unmoved. A blob that only "
         "shrank (a hand coming over a resting part) is not followed.",
+    )
+    blob_follow_inside_px: float = Field(
+        0.0, ge=0.0, description="Pixels (0 = off): blob follow does not move a part that is not carried while its "
+        "blob's bounding box lies inside the part's projected bounding rectangle at its estimate grown by this "
+        "margin: a blob that shrinks or shifts within the part's own footprint is a hand or part coming over a "
+        "resting part (its centroid moves away from the occluder), not the part moving; a part that moves leaves "
+        "its footprint.",
     )
     scene_motion: bool = Field(
         False, description="Scene motion (not in the spec; filter/scene_motion.py): parts that the depth did not place "
