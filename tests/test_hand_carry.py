@@ -168,7 +168,7 @@ def test_a_part_hidden_in_the_moving_hand_skips_its_pass_and_keeps_closer_to_it(
     smaller, and it is found again once put down. (Run without carry_keep_unseen, on by default since session 15: with
     it the default's worst error in this carry is 31.5 mm, and skipping the pass no longer lowers it; nor with
     carry_anchor_start, on by default since session 16, with which the pass's worst error here is 18 mm.)"""
-    old = {"carry_keep_unseen": 0.0, "carry_anchor_start": False}
+    old = {"carry_keep_unseen": 0.0, "carry_anchor_start": False, "blob_follow_inside_px": 0.0}
     with_pass, hidden, _, none_skipped = _carry_run(carry_hidden_skip=0.0, **old)
     skipping, _, _, skipped = _carry_run(carry_hidden_skip=0.1, **old)
     assert none_skipped == 0 and skipped > 30, (none_skipped, skipped)
@@ -270,8 +270,9 @@ def test_the_keyframe_keeps_a_long_hidden_carry_from_drifting():
     again once put down. (Run without carry_keep_unseen, on by default since session 15: with it the
     default's worst error in this carry is 31.5 mm, and the keyframe no longer lowers it; nor with carry_anchor_start,
     on by default since session 16: 18 mm.)"""
-    chained, hidden, _, _ = _carry_run(carry_keyframe=False, carry_keep_unseen=0.0, carry_anchor_start=False)
-    keyed, _, carried, _ = _carry_run(carry_keyframe=True, carry_keep_unseen=0.0, carry_anchor_start=False)
+    old = {"carry_keep_unseen": 0.0, "carry_anchor_start": False, "blob_follow_inside_px": 0.0}
+    chained, hidden, _, _ = _carry_run(carry_keyframe=False, **old)
+    keyed, _, carried, _ = _carry_run(carry_keyframe=True, **old)
     assert carried > 30
     assert keyed[hidden].max() < 0.6 * chained[hidden].max(), (keyed[hidden].max(), chained[hidden].max())
     assert keyed[hidden].mean() < chained[hidden].mean()
@@ -279,8 +280,10 @@ def test_the_keyframe_keeps_a_long_hidden_carry_from_drifting():
 
 
 FAST_CARRY = dict(carry_blob_depth=True, carry_keep_visibility=0.5, carry_reacquire_keep_turn=True,
-                  carry_rest_prior=True, carry_keyframe=True)
-"""The settings for a part carried fast and partly seen (:func:`_fast_carry_run`)."""
+                  carry_rest_prior=True, carry_keyframe=True, blob_follow_inside_px=0.0)
+"""The settings for a part carried fast and partly seen (:func:`_fast_carry_run`), measured (session 13) without
+blob_follow_inside_px (on by default since session 16; with it this run's worst error is 17 mm: the sliver the hand
+takes stays inside the cube's footprint and is not followed in the frame it is picked up)."""
 
 
 def _fast_carry_run(**overrides) -> tuple[np.ndarray, np.ndarray]:
@@ -337,13 +340,15 @@ def _whipped_out_of_view_run(keep_unseen: float) -> np.ndarray:
     """Simulated learning-5 with a swaying camera, speed 2, occlusion 1.5 (tuning seed 0), frames 160-200, tracked as
     ``track`` does (default preset, ``carry_keep_unseen`` = ``keep_unseen``, tracker seed 0) from the true poses at
     frame 160: the hand carries the blue cube, 31 % of it in view at frame 172, then whips it 2 cm in one frame
-    (173) out of view and carries it hidden to frame 223. Returns blue's translation error (m) per frame."""
+    (173) out of view and carries it hidden to frame 223. Returns blue's translation error (m) per frame. Run without
+    blob_follow_inside_px (on by default since session 16): with it the cube's sliver, inside its footprint when the
+    hand picks it up at frame 164, is not followed, the carry starts late and stays about 20 mm off."""
     from app.commands.track import TrackSession
     from tracker.sources.simulator import SimOptions, SimulatedTable
 
     src = SimulatedTable("learning-5", seed=0, realtime=False, n_frames=201,
                          options=SimOptions(speed=2.0, occlusion=1.5, camera_motion="sway"))
-    cfg = TrackerConfig.preset("default").with_overrides(carry_keep_unseen=keep_unseen)
+    cfg = TrackerConfig.preset("default").with_overrides(carry_keep_unseen=keep_unseen, blob_follow_inside_px=0.0)
     session, errs = None, []
     for i in range(160, 201):
         frame = src.render(i)

@@ -8,7 +8,9 @@ hand lifts it away. Between two frames in which the blob is confident and of abo
 image motion is the part's own image motion (a changing occlusion would change the area too), so the part's
 centre is moved by that motion, parallel to the image plane at its current depth, with its particles and rest
 anchor; the rest and support priors are off for it in this frame (it is seen to move), and the motion counts for
-the hand carry's motion test, so a part that then disappears in the hand is carried.
+the hand carry's motion test, so a part that then disappears in the hand is carried. With ``blob_follow_inside_px``
+a part that is not carried is not followed while its blob stays inside the part's own projected footprint: a hand
+coming over a resting part shrinks its blob and moves the centroid away from the hand without the part moving.
 
 Pixels are full-resolution image coordinates; positions camera frame, metres.
 """
