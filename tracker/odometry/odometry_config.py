@@ -43,6 +43,9 @@ class OdometryConfig:
     * ``keyframe_distance_m`` / ``keyframe_angle_deg``: a new keyframe is taken when the camera is this far from
       the nearest keyframe (and no stored keyframe is closer); ``keyframe_min_overlap``: or when fewer than this
       share of the keyframe's geometric points are seen in the current frame.
+    * ``keyframe_max_masked``: a frame with more than this share of its pixels masked (hands) does not become a
+      keyframe while it still sees ``keyframe_last_overlap`` of the keyframe's geometric points: its pose is the
+      least certain (the hands hide what fixes it) and a keyframe would keep that error for every later frame.
     * ``max_keyframes``: keyframes kept (the oldest except the first is dropped beyond it).
 
     FastSLAM (method ``"fastslam"``, see :mod:`tracker.odometry.fastslam`) has its own
@@ -75,6 +78,8 @@ class OdometryConfig:
     keyframe_distance_m: float = 0.03
     keyframe_angle_deg: float = 3.0
     keyframe_min_overlap: float = 0.6
+    keyframe_max_masked: float = 0.25
+    keyframe_last_overlap: float = 0.3
     max_keyframes: int = 50
 
     def __post_init__(self) -> None:
@@ -127,7 +132,7 @@ class OdometryConfig:
 
 
 HALF_RESOLUTION = {"levels": (3, 2, 1), "iterations": (10, 8, 6), "retry_levels": (), "retry_iterations": (),
-                   "second_start_m": 0.0, "second_start_deg": 0.0}
+                   "second_start_m": 0.0, "second_start_deg": 0.0, "keyframe_max_masked": 1.0}
 """Overrides of :meth:`OdometryConfig.half_resolution`: levels 80×60 to 320×240, no retry (the defaults up to
 session 15). The defaults since: levels 160×120 to 640×480, and the 80×60 level only in a retry of a rejected frame.
 Tuning sessions (seeds 0–4, 300 frames, ground-truth hand boxes masked, ATE mm
@@ -135,11 +140,17 @@ half-resolution → defaults): static hand-held 0 0.42 → 0.28, guess-1 hand-he
 1.74 → 0.88, guess-3 sway 3 2.51 → 1.00, learning-4 hand-held 4 0.40 → 0.24; on castle-simu (external development
 set) 4.94 → 2.45. The 80×60 level moved good starts 10–20 mm off on a plank-textured table (its grain vanishes there
 and the planks' lines leave a direction undetermined); the full-resolution level with it (no retry) accepted two
-wrong steps on guess-3 sway 3 whose velocity then ran away (16.6 mm)."""
+wrong steps on guess-3 sway 3 whose velocity then ran away (16.6 mm).
+
+``keyframe_max_masked`` 0.25 (was: no limit): a frame whose hand mask covered 43–49 % of the image became a keyframe
+(the mask cut its overlap with the old one) 34 mm off, and every later frame kept that error (guess-1 hand-held 2,
+every 5th frame). The five tuning sessions at 1×, 3× and 5× the camera speed (every frame, every 3rd, every 5th):
+mean ATE 2.79 → 0.93 mm, worst 23.9 → 2.7 mm (5×: 6.6 → 2.1, 23.9 → 0.36 mm), but slightly worse at 1× (sum of the
+five 4.17 → 4.68 mm; learning-4 0.22 → 0.66 mm), where the old keyframe is kept over a hand-covered stretch."""
 
 FAST = {"n_photo": 1500, "n_geo": 1500, "levels": (3, 2, 1), "iterations": (8, 6, 4), "converged_m": 1e-4,
         "converged_rad": 1e-4, "retry_levels": (), "retry_iterations": (), "second_start_m": 0.0,
-        "second_start_deg": 0.0}
+        "second_start_deg": 0.0, "keyframe_max_masked": 1.0}
 """Overrides of :meth:`OdometryConfig.fast`. Tuning-seed replay of the in-tracker odometry's inputs (guess-1
 hand-held seed 1, 120 frames): alignment 10.8 → 1.8 ms thread CPU per frame, chain error against the truth 2.35 →
 1.76 mm RMS. Alone (no fused prediction to start from) they failed with a hand moving parts on a held-out session
