@@ -1,5 +1,5 @@
-"""Contact alignment (not in the seed; ``contact_align_deg``, off by default): a resting box part in face contact
-with a better-seen resting box part has its faces parallel to that part's.
+"""Contact alignment (not in the seed; ``contact_align_deg``, 20° in the default preset): a resting box part in face
+contact with a better-seen resting box part has its faces parallel to that part's.
 
 Parts connected in an assembly touch face to face with parallel faces. When one of them is half hidden by the
 other (a cube with another stacked on it or set against it), the dense refinement sees only one or two of its faces
