@@ -282,7 +282,7 @@ def test_the_keyframe_keeps_a_long_hidden_carry_from_drifting():
 FAST_CARRY = dict(carry_blob_depth=True, carry_keep_visibility=0.5, carry_reacquire_keep_turn=True,
                   carry_rest_prior=True, carry_keyframe=True, blob_follow_inside_px=0.0)
 """The settings for a part carried fast and partly seen (:func:`_fast_carry_run`), measured (session 13) without
-blob_follow_inside_px (on by default since session 16; with it this run's worst error is 17 mm: the sliver the hand
+blob_follow_inside_px (off; on for part of session 16; with it this run's worst error is 17 mm: the sliver the hand
 takes stays inside the cube's footprint and is not followed in the frame it is picked up)."""
 
 
@@ -341,7 +341,7 @@ def _whipped_out_of_view_run(keep_unseen: float) -> np.ndarray:
     ``track`` does (default preset, ``carry_keep_unseen`` = ``keep_unseen``, tracker seed 0) from the true poses at
     frame 160: the hand carries the blue cube, 31 % of it in view at frame 172, then whips it 2 cm in one frame
     (173) out of view and carries it hidden to frame 223. Returns blue's translation error (m) per frame. Run without
-    blob_follow_inside_px (on by default since session 16): with it the cube's sliver, inside its footprint when the
+    blob_follow_inside_px (off; on for part of session 16): with it the cube's sliver, inside its footprint when the
     hand picks it up at frame 164, is not followed, the carry starts late and stays about 20 mm off."""
     from app.commands.track import TrackSession
     from tracker.sources.simulator import SimOptions, SimulatedTable

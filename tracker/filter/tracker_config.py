@@ -695,7 +695,6 @@ PRESETS["default"] = {
     "carry_follow": True,
     "support_prior_sigma": 0.003,
     "blob_follow": True,
-    "blob_follow_inside_px": 3.0,
     "contact_align_deg": 20.0,
     "scene_motion": True,
     "carry_revealed_fraction": 0.5,
