@@ -343,21 +343,28 @@ def _whipped_out_of_view_run(keep_unseen: float) -> np.ndarray:
     (173) out of view and carries it hidden to frame 223. Returns blue's translation error (m) per frame. Run without
     blob_follow_inside_px (off; on for part of session 16): with it the cube's sliver, inside its footprint when the
     hand picks it up at frame 164, is not followed, the carry starts late and stays about 20 mm off."""
-    from app.commands.track import TrackSession
     from tracker.sources.simulator import SimOptions, SimulatedTable
 
     src = SimulatedTable("learning-5", seed=0, realtime=False, n_frames=201,
                          options=SimOptions(speed=2.0, occlusion=1.5, camera_motion="sway"))
     cfg = TrackerConfig.preset("default").with_overrides(carry_keep_unseen=keep_unseen, blob_follow_inside_px=0.0)
-    session, errs = None, []
-    for i in range(160, 201):
+    return np.array([state.poses["blue"].translation_error(truth["blue"])
+                     for _, state, truth in _session_window(src, cfg, range(160, 201), seed=0)])
+
+
+def _session_window(src, cfg, frames, seed: int):
+    """``(frame index, tracked state, ground-truth poses)`` of each of ``frames`` of the simulator ``src``, tracked as
+    ``track`` tracks a recording (a TrackSession started from the truth at the first of them, tracker ``seed``)."""
+    from app.commands.track import TrackSession
+
+    session = None
+    for i in frames:
         frame = src.render(i)
         truth = frame.meta["groundtruth"]["poses"]
         if session is None:
-            session = TrackSession(src.parts, src.intrinsics, truth, cfg, seed=0)
+            session = TrackSession(src.parts, src.intrinsics, truth, cfg, seed=seed)
         state, _ = session.step(frame)
-        errs.append(state.poses["blue"].translation_error(truth["blue"]))
-    return np.array(errs)
+        yield i, state, truth
 
 
 def test_a_carried_part_whipped_out_of_view_stays_in_the_hand_when_its_place_does_not_show_it():
@@ -444,7 +451,6 @@ def _carry_start_run(**overrides) -> tuple[np.ndarray, np.ndarray]:
     it, 14 % and 6 % of it in view in frames 188-189 (the colour stage re-seeds it on that sliver), hidden from frame
     190. Returns yellow's translation error (m) over frames 188-200 and its rotation error (deg, cube symmetry) over
     frames 191-200 (hidden in the hand, the rest prior on)."""
-    from app.commands.track import TrackSession
     from tracker.geometry.symmetry import symmetric_rotation_error, symmetry_group
     from tracker.sources.simulator import SimOptions, SimulatedTable
 
@@ -452,13 +458,8 @@ def _carry_start_run(**overrides) -> tuple[np.ndarray, np.ndarray]:
                          options=SimOptions(speed=1.5, occlusion=1.0, camera_motion="handheld"))
     group = symmetry_group(next(p for p in src.parts if p.name == "yellow"))
     cfg = TrackerConfig.preset("default").with_overrides(**overrides)
-    session, t_err, r_err = None, [], []
-    for i in range(170, 201):
-        frame = src.render(i)
-        truth = frame.meta["groundtruth"]["poses"]
-        if session is None:
-            session = TrackSession(src.parts, src.intrinsics, truth, cfg, seed=3)
-        state, _ = session.step(frame)
+    t_err, r_err = [], []
+    for i, state, truth in _session_window(src, cfg, range(170, 201), seed=3):
         if i >= 188:
             t_err.append(state.poses["yellow"].translation_error(truth["yellow"]))
         if i > 190:
