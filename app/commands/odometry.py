@@ -204,7 +204,7 @@ def _hand_finder(src, mask_mode: str, method: str, seed: int):
         return None
     from tracker.odometry.hand_exclusion import HandExclusion
 
-    return HandExclusion(src.intrinsics.fx, seed=seed)
+    return HandExclusion(src.intrinsics, seed=seed)
 
 
 def _analysed(frame, hands):

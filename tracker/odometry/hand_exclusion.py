@@ -13,38 +13,36 @@ unchanged (no track starts). Pixels: full-resolution colour-image pixels; True =
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
+from tracker.geometry.camera import Intrinsics
 from tracker.odometry.exclusion_mask import PART_MARGIN_PX
 
 
 class HandExclusion:
     """Call with each frame's RGB image (uint8 H×W×3), in order: returns the H×W bool mask of the hands seen in it
     (True = exclude), or None while no hand is tracked. One instance per recording (the hand tracker keeps tracks
-    from frame to frame)."""
+    from frame to frame). The hand and forearm pixels are the hand loop's occluder mask H_k
+    (:meth:`tracker.hands.loop.HandLoop.occluder_mask`, dilated by ``margin``), the boxes are added grown by it."""
 
-    def __init__(self, focal: float | None = None, margin: int = PART_MARGIN_PX, seed: int = 0) -> None:
-        from tracker.hands.tracker import HandTracker, HandTrackerConfig
+    def __init__(self, intrinsics: Intrinsics, margin: int = PART_MARGIN_PX, seed: int = 0) -> None:
+        from tracker.hands.loop import HandLoop, HandLoopConfig
+        from tracker.hands.tracker import HandTrackerConfig
 
-        self.tracker = HandTracker(HandTrackerConfig(seed=seed), focal=focal)
         self.margin = int(margin)
-        self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * self.margin + 1, 2 * self.margin + 1))
+        self.loop = HandLoop([], intrinsics, HandLoopConfig(tracker=HandTrackerConfig(seed=seed), overlap="off",
+                                                            occluder_radius_px=self.margin))
 
     def __call__(self, rgb: np.ndarray) -> np.ndarray | None:
-        hands = self.tracker.process(rgb)
+        hands = self.loop.perceive(rgb, None, None, {})
         if not hands:
             return None
         h, w = rgb.shape[:2]
-        m = np.zeros((h, w), np.uint8)
-        for hm in self.tracker.hand_masks().values():
-            m |= hm.view(np.uint8)
-        arm = self.tracker.arm_mask()
-        if arm is not None:
-            m |= arm.view(np.uint8)
+        m = self.loop.occluder_mask()
+        if m is None:
+            m = np.zeros((h, w), bool)
+        g = self.margin
         for hand in hands:
             u0, v0, u1, v1 = hand.box
-            m[max(v0, 0):max(v1, 0), max(u0, 0):max(u1, 0)] = 1
-        if self.margin > 0:
-            m = cv2.dilate(m, self._kernel)
-        return m.astype(bool)
+            m[max(v0 - g, 0):max(v1 + g, 0), max(u0 - g, 0):max(u1 + g, 0)] = True
+        return m
