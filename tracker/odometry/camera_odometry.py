@@ -79,17 +79,17 @@ class CameraOdometry(OdometryBase):
         k = self._nearest_keyframe(pred)
         kf = self.keyframes[k]
         cfg = self.config
-        res, T, msg = self._checked(kf, pyr, pred, pred, cfg, frame.index)
+        res, T, msg = self._checked(kf, pyr, pred, cfg, frame.index)
         last = self._motion.last
         if last is not None and self._far(last[1], pred):  # a fast predicted motion: also from the last pose
-            other = self._checked(kf, pyr, last[1], last[1], cfg, frame.index)
+            other = self._checked(kf, pyr, last[1], cfg, frame.index)
             if not other[2] and (msg or other[0].inliers > res.inliers):
                 res, T, msg = other
         retry = cfg.retry
         if msg and retry is not None:  # again with a coarser start, from the prediction and from the last pose
-            tries = [self._checked(kf, pyr, pred, pred, retry, frame.index)]
+            tries = [self._checked(kf, pyr, pred, retry, frame.index)]
             if last is not None:
-                tries.append(self._checked(kf, pyr, last[1], last[1], retry, frame.index))
+                tries.append(self._checked(kf, pyr, last[1], retry, frame.index))
             good = [t for t in tries if not t[2]]
             if good:  # the plausible result that explains the most of the frame
                 res, T, msg = max(good, key=lambda t: t[0].inliers)
@@ -122,20 +122,18 @@ class CameraOdometry(OdometryBase):
         return (cfg.second_start_m > 0 and d > cfg.second_start_m) or \
             (cfg.second_start_deg > 0 and np.degrees(r) > cfg.second_start_deg)
 
-    def _checked(self, kf: Keyframe, pyr, start: np.ndarray, reference: np.ndarray, cfg: OdometryConfig,
-                 index: int) -> tuple:
-        """Align to ``kf`` from ``start`` (4×4 camera → world) with ``cfg``'s levels; returns ``(alignment, pose
-        4×4 camera → world, message)``, the message non-empty when the result is rejected: too few inliers, or
-        farther than ``max_step_m`` / ``max_step_deg`` from ``reference`` (the prediction, or the last measured
-        pose for a retry from it)."""
+    def _checked(self, kf: Keyframe, pyr, start: np.ndarray, cfg: OdometryConfig, index: int) -> tuple:
+        """Align to ``kf`` from ``start`` (4×4 camera → world: the prediction, or the last measured pose) with
+        ``cfg``'s levels; returns ``(alignment, pose 4×4 camera → world, message)``, the message non-empty when the
+        result is rejected: too few inliers, or farther than ``max_step_m`` / ``max_step_deg`` from ``start``."""
         res = align(kf, pyr, invert(kf.pose) @ start, cfg)
         T = kf.pose @ res.T_kc
-        dt, dr = motion_size(invert(reference) @ T)
+        dt, dr = motion_size(invert(start) @ T)
         msg = ""
         if res.inliers < cfg.min_inliers:
             msg = f"frame {index}: only {res.inliers} inliers (< {cfg.min_inliers})"
         elif dt > cfg.max_step_m or np.degrees(dr) > cfg.max_step_deg:
-            msg = f"frame {index}: implausible jump {1e3 * dt:.0f} mm / {np.degrees(dr):.1f}° from the prediction"
+            msg = f"frame {index}: implausible jump {1e3 * dt:.0f} mm / {np.degrees(dr):.1f}° from its start"
         return res, T, msg
 
     # ------------------------------------------------------------------------------------------------------
