@@ -76,11 +76,13 @@ def test_blob_follow_ignores_a_blob_whose_area_jumps():
     np.testing.assert_array_equal(with_follow, without)
 
 
-def _shrinking(overlap: bool, inside_px: float = 0.0) -> tuple[np.ndarray, int]:
+def _shrinking(overlap: bool, inside_px: float = 0.0, keep_anchor: bool = False,
+               anchors: list | None = None) -> tuple[np.ndarray, int]:
     """A red cube rests at 0.682 m with no depth near it while something comes over it from the right: its blob
     loses 2 px of its right side per frame (at most a sixth of its area per frame, so the area test lets it through)
     for 12 frames. Returns the image position (u) of the estimate's centre minus the truth's, per frame, and the
-    number of frames in which blob follow moved the part."""
+    number of frames in which blob follow moved the part; ``anchors``, if given, gets the rest anchor's distance
+    from the truth (m) after each frame."""
     from tracker.filter.particle_filter import MultiObjectTracker
     from tracker.frame import Frame
     from tracker.geometry.parts import PartSpec
@@ -89,7 +91,8 @@ def _shrinking(overlap: bool, inside_px: float = 0.0) -> tuple[np.ndarray, int]:
 
     intr = Intrinsics.default(640, 480)
     cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, blob_follow_overlap=overlap,
-                                                       blob_follow_inside_px=inside_px)
+                                                       blob_follow_inside_px=inside_px,
+                                                       blob_follow_keep_anchor=keep_anchor)
     tr = MultiObjectTracker([PartSpec.cube("red", "red")], intr, cfg, seed=0)
     truth = Pose([-0.02, 0.0, 0.682], [0, 0, 0, 1])
     tr.initialize({"red": truth})
@@ -107,6 +110,8 @@ def _shrinking(overlap: bool, inside_px: float = 0.0) -> tuple[np.ndarray, int]:
         st = tr.step(Frame(i, i / 30, np.zeros((480, 640, 3), np.uint8), depth, intr), {"red": blob}, PLANE)
         off.append(intr.project(st.poses["red"].t[None])[0, 0] - true_u)
         followed += int(tr._blob_moved[0])
+        if anchors is not None:
+            anchors.append(float(np.linalg.norm(tr._rest_t[0] - truth.t)))
     return np.array(off), followed
 
 
@@ -139,3 +144,16 @@ def test_a_blob_that_leaves_the_parts_footprint_is_still_followed():
     """``blob_follow_inside_px``: a part sliding 4 mm a frame leaves its footprint, and blob follow keeps up."""
     est, truth = _run(True, inside_px=3.0)
     assert np.abs(est - truth)[5:].max() < 3.5
+
+
+def test_a_dragged_resting_part_keeps_its_rest_anchor():
+    """``blob_follow_keep_anchor``: blob follow still moves a resting part with its shrinking blob (a hand coming
+    over it), but its rest anchor stays where the part was seen, so the rest prior can hold the hidden part there;
+    without the setting the anchor is dragged along with it."""
+    dragged_anchor: list[float] = []
+    kept_anchor: list[float] = []
+    _, n_dragged = _shrinking(False, anchors=dragged_anchor)
+    _, n_kept = _shrinking(False, keep_anchor=True, anchors=kept_anchor)
+    assert n_dragged >= 8 and n_kept >= 8, (n_dragged, n_kept)  # blob follow fires in both
+    assert max(dragged_anchor) > 0.005, dragged_anchor  # metres: the anchor went with the drag
+    assert max(kept_anchor) < 0.002, kept_anchor

@@ -101,6 +101,10 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
         uv = trk.intrinsics.project(c[None])[0] + shift
         if carried[i]:
             trk._blob_uv_target[i] = uv  # applied after the hand carry has moved it (in depth too): recentre()
+        elif cfg.blob_follow_keep_anchor:
+            anchor = trk._rest_t[i].copy(), trk._rest_R[i].copy()
+            put_centre_on(trk, i, uv)
+            trk._rest_t[i], trk._rest_R[i] = anchor
         else:
             put_centre_on(trk, i, uv)
         moved[i] = True

@@ -340,6 +340,12 @@ class TrackerConfig(BaseModel):
         "resting part (its centroid moves away from the occluder), not the part moving; a part that moves leaves "
         "its footprint.",
     )
+    blob_follow_keep_anchor: bool = Field(
+        False, description="Blob follow moves a part that is not carried without its rest anchor: a hand coming over "
+        "a resting part drags its shrinking blob's centroid, and a moved anchor would then hold the hidden part where "
+        "the drag left it; a part that truly leaves is carried (and a carry sets the anchor, carry_anchor_start) or "
+        "placed by the depth again.",
+    )
     scene_motion: bool = Field(
         False, description="Scene motion (not in the spec; filter/scene_motion.py): parts that the depth did not place "
         "this frame (hidden, or seen in colour without depth) and that are neither carried nor moving with their blob "
