@@ -115,3 +115,36 @@ def test_a_quiet_part_is_evaluated_on_fewer_pixels():
     assert quiet[0] < full[0] / 3  # the quiet part: about its own budget (plus the other part's pixels it overlaps)
     assert quiet[1] == full[1]  # the other part: unchanged
     assert quiet[2][0] > full[2][0] and quiet[2][1] == full[2][1]
+
+
+def test_depth_explained_sees_a_hand_over_the_part_and_a_moved_part():
+    """The depth test of ``quiet_max_residual_m``: a cube's depth at its pose is explained; a hand-like slab in front of
+    half of it, or the cube pushed 1 cm, is not; nor is a frame without depth there."""
+    from tracker.filter.quiet_parts import depth_explained, face_points
+    from tracker.geometry.box_renderer import render_box_depth
+    from tracker.geometry.camera import Intrinsics
+    from tracker.geometry.pose import Pose
+
+    intr = Intrinsics(640, 480, 600.0, 600.0, 320.0, 240.0)
+    ang = np.radians(35.0)  # turned about x and y: three faces to the camera
+    rx = np.array([[1, 0, 0], [0, np.cos(ang), -np.sin(ang)], [0, np.sin(ang), np.cos(ang)]])
+    ry = np.array([[np.cos(ang), 0, np.sin(ang)], [0, 1, 0], [-np.sin(ang), 0, np.cos(ang)]])
+    rot = ry @ rx
+    t = np.array([0.02, -0.01, 0.6])
+    size = 0.036
+    depth = render_box_depth(intr, [Pose.from_rt(rot, t)], [(size, size, size)]).astype(np.float32)
+    depth[~np.isfinite(depth)] = 0.9  # a table far behind
+    rng = np.random.default_rng(0)
+    depth += rng.normal(0.0, 0.001, depth.shape).astype(np.float32)
+    faces = face_points(np.full(3, size / 2), np.zeros(3))
+    assert faces.shape == (96, 6)
+    assert depth_explained(depth, intr, faces, rot, t, 0.005, 0.85)
+    u = int(round(600.0 * t[0] / t[2] + 320.0))
+    hand = depth.copy()
+    hand[:, u:] = np.minimum(hand[:, u:], 0.55)  # a hand 5 cm in front of the cube's right half
+    assert not depth_explained(hand, intr, faces, rot, t, 0.005, 0.85)
+    assert not depth_explained(depth, intr, faces, rot, t + np.array([0.0, 0.0, 0.01]), 0.005, 0.85)
+    holes = depth.copy()
+    holes[:, :] = np.nan
+    assert not depth_explained(holes, intr, faces, rot, t, 0.005, 0.85)
+    assert not depth_explained(None, intr, faces, rot, t, 0.005, 0.85)

@@ -13,6 +13,10 @@ depth. A part is *quiet* in a frame when all of these hold:
 * it is well visible (``visible_fraction_full``), not carried, not touched by a tracked hand, not just released, not
   followed by its blob (:mod:`tracker.filter.blob_follow`) and its blob lies on its estimate;
 * it has skipped fewer than ``quiet_max_skips`` passes in a row (a full pass then re-spreads its particles).
+* with ``quiet_max_residual_m`` > 0, this frame's depth is explained at its prediction (:func:`depth_explained`:
+  sample points on its camera-facing box faces, at its last estimate moved by the prediction, lie on the measured
+  depth): a hand reaching over it or a push shows in the depth of the frame it happens in, before the blob or the
+  refinement says so. Mesh parts are then never quiet.
 
 A quiet part keeps its noise-free prediction (its particles as they are, moved by the motion model) and the
 likelihood of that prediction, which the first full render of the frame has already evaluated; its pass is skipped.
@@ -25,6 +29,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numba as nb
 import numpy as np
 
 from tracker.filter.blob_follow import confident_blob
@@ -41,6 +46,87 @@ def _centre_px(trk: MultiObjectTracker, i: int, R: np.ndarray, t: np.ndarray) ->
     intr = trk.intrinsics
     z = max(float(c[2]), 1e-3)
     return np.array([intr.fx * c[0] / z + intr.cx, intr.fy * c[1] / z + intr.cy])
+
+
+def face_points(half: np.ndarray, center: np.ndarray, per_side: int = 4, extent: float = 0.8) -> np.ndarray:
+    """Sample points of a box's six faces (body frame, metres): a ``per_side`` × ``per_side`` grid over the inner
+    ``extent`` of each face (away from its edges, where a small pose error meets a depth discontinuity), as rows
+    ``(x, y, z, nx, ny, nz)`` with the face's outward normal; (6 · per_side², 6)."""
+    half = np.asarray(half, np.float64)
+    g = (np.arange(per_side) + 0.5) / per_side * 2.0 - 1.0
+    a, b = (x.ravel() * extent for x in np.meshgrid(g, g, indexing="ij"))
+    rows = []
+    for axis in range(3):
+        o1, o2 = (axis + 1) % 3, (axis + 2) % 3
+        for sign in (-1.0, 1.0):
+            pts = np.zeros((a.size, 6))
+            pts[:, axis] = sign * half[axis]
+            pts[:, o1] = a * half[o1]
+            pts[:, o2] = b * half[o2]
+            pts[:, 3 + axis] = sign
+            rows.append(pts)
+    out = np.concatenate(rows)
+    out[:, :3] += np.asarray(center, np.float64)
+    return out
+
+
+def _faces_of(trk: MultiObjectTracker, i: int) -> np.ndarray:
+    """:func:`face_points` of box part ``i``, made once per tracker."""
+    cache = trk.__dict__.setdefault("_quiet_faces", {})
+    if i not in cache:
+        cache[i] = np.ascontiguousarray(face_points(trk.half[i], trk.center[i]))
+    return cache[i]
+
+
+def depth_explained(depth: np.ndarray | None, intr, faces: np.ndarray, R: np.ndarray, t: np.ndarray, tol: float,
+                    min_inliers: float) -> bool:
+    """Does ``depth`` (H×W float32 metres, NaN = none) show a box at pose ``(R, t)`` (camera frame)? Its face points
+    ``faces`` (:func:`face_points`) on faces turned to the camera are projected to their nearest pixels; at least
+    half of them must fall on the image with depth and at least ``min_inliers`` of those must lie within ``tol``
+    metres of the predicted depth (a hand or another part in front counts against it, as does a part that has moved
+    away)."""
+    if depth is None:
+        return False
+    n_facing, n_valid, n_good = _face_residuals(depth, faces, np.ascontiguousarray(R, np.float64),
+                                                np.ascontiguousarray(t, np.float64), intr.fx, intr.fy, intr.cx,
+                                                intr.cy, float(tol))
+    if n_facing == 0 or n_valid < 0.5 * n_facing:
+        return False
+    return n_good >= min_inliers * n_valid
+
+
+@nb.njit(cache=True)
+def _face_residuals(depth, faces, R, t, fx, fy, cx, cy, tol):
+    """For :func:`depth_explained`: how many face points face the camera, how many of them land on the image with
+    a depth, and how many of those lie within ``tol`` of it; (0, 0, 0) when a facing point lies within 5 cm of the
+    camera plane."""
+    h, w = depth.shape
+    n_facing = 0
+    n_valid = 0
+    n_good = 0
+    for r in range(faces.shape[0]):
+        x = R[0, 0] * faces[r, 0] + R[0, 1] * faces[r, 1] + R[0, 2] * faces[r, 2] + t[0]
+        y = R[1, 0] * faces[r, 0] + R[1, 1] * faces[r, 1] + R[1, 2] * faces[r, 2] + t[1]
+        z = R[2, 0] * faces[r, 0] + R[2, 1] * faces[r, 1] + R[2, 2] * faces[r, 2] + t[2]
+        nx = R[0, 0] * faces[r, 3] + R[0, 1] * faces[r, 4] + R[0, 2] * faces[r, 5]
+        ny = R[1, 0] * faces[r, 3] + R[1, 1] * faces[r, 4] + R[1, 2] * faces[r, 5]
+        nz = R[2, 0] * faces[r, 3] + R[2, 1] * faces[r, 4] + R[2, 2] * faces[r, 5]
+        if nx * x + ny * y + nz * z >= 0.0:
+            continue
+        if z < 0.05:
+            return 0, 0, 0
+        n_facing += 1
+        u = int(np.rint(fx * x / z + cx))
+        v = int(np.rint(fy * y / z + cy))
+        if u < 0 or u >= w or v < 0 or v >= h:
+            continue
+        zd = depth[v, u]
+        if not (zd > 0.0):  # NaN or no measurement
+            continue
+        n_valid += 1
+        if abs(zd - z) <= tol:
+            n_good += 1
+    return n_facing, n_valid, n_good
 
 
 def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected: np.ndarray,
@@ -80,6 +166,13 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
         px_pred = np.array([intr.fx * c_pred[0] / z + intr.cx, intr.fy * c_pred[1] / z + intr.cy])
         if np.linalg.norm((blob[0] - last_blob[i][0]) - (px_pred - last_px[i])) > cfg.quiet_max_px:
             continue
+        if cfg.quiet_max_residual_m > 0:
+            est = trk.estimates[name]
+            shift = w @ pred[0][:, i] - w @ trk.p[:, i]  # the prediction's motion of the part (weighted mean)
+            if trk.parts[i].box is None or not depth_explained(
+                    ctx.depth, intr, _faces_of(trk, i), est.R, est.t + shift,
+                    cfg.quiet_max_residual_m, cfg.quiet_min_inliers):
+                continue
         quiet[i] = True
     trk._quiet_skips = np.where(quiet, trk._quiet_skips + 1, 0)
     trk._quiet_now = quiet

@@ -483,6 +483,16 @@ class TrackerConfig(BaseModel):
     quiet_max_skips: int = Field(
         3, ge=0, description="Passes a quiet part may skip in a row; the next one runs (its particles re-spread).",
     )
+    quiet_max_residual_m: float = Field(
+        0.0, ge=0.0, description="With quiet_skip: a quiet part's depth must also be explained at its prediction "
+        "this frame: of the sample points on its camera-facing box faces (last estimate moved by the prediction) at "
+        "least quiet_min_inliers of those with depth lie within this distance (m) of the measured depth, a hand or "
+        "a part in front counting against it (filter/quiet_parts.py: depth_explained). 0 = no depth test.",
+    )
+    quiet_min_inliers: float = Field(
+        0.85, ge=0.0, le=1.0, description="Share of a quiet part's face points with depth that must lie within "
+        "quiet_max_residual_m of the measured depth (and at least half of them must have depth).",
+    )
     reacquire: bool = Field(
         True, description="Re-acquire a part (several refinements from rotations around its estimate, the best "
         "supported by the depth wins) when it is lost, right after a hand releases it and when it reappears; needs "
