@@ -455,8 +455,9 @@ class TrackerConfig(BaseModel):
         False, description="Skip the coordinate pass of a quiet part: well visible, not carried or touched, its colour "
         "blob of about the same area and moved as its prediction says, and last frame's refinement correction small "
         "(filter/quiet_parts.py). It keeps its noise-free prediction; the refinement holds it to the depth. Off by "
-        "default: 2-6 ms less per 7-cube frame, but more carried parts lost on the tuning seeds "
-        "(benchmarks/summary.md).",
+        "default: 2-6 ms less per 7-cube frame, but more carried parts lost on the tuning seeds; with "
+        "quiet_max_residual_m 0.005 not worse on the tuning seeds (session 17) but five hand-carry tests fail "
+        "(benchmarks/history/issue-11-speed.md).",
     )
     quiet_max_px: float = Field(
         1.5, ge=0.0, description="Largest difference (pixels) between the blob centroid's image motion and the "
