@@ -84,6 +84,20 @@ initialisation of new tracks:
   ``hands-s2``, ground-truth start, eight filter seeds (40 runs): F̄^b 0.697 → 0.729, ē^p 22.2 → 21.7 px (filter
   seeds 0–3: 0.681 → 0.714, 23.3 → 22.7 px; 4–7: 0.713 → 0.744, 21.1 → 20.6 px). GROUP_AREA 1.8 / 2.4 / 3.0 with the
   exclusion, filter seeds 0, 1: 0.724 / 0.749 / 0.752 (without the group box 0.708).
+* Each hand at the end of its own arm (product addition, ``arm_anchor``, on): while two tracks are live, the hands at
+  the far ends of the sleeved arms that enter from the image border are found in every frame without tracking (the
+  foreground against the first, hand-free depth frame; the sleeve's far end next to skin as the wrist; the skin split
+  between the wrists by a geodesic distance that pays for crossing a depth step, the upper hand's edge;
+  :mod:`tracker.hands.arm_anchor`); each track id remembers where its arm enters the image and reports its arm's
+  hand box when that arm is found (after the group box), and with ``arm_reset`` (on) a filter whose box scores below
+  ARM_RESET_F against that box restarts on it (a filter on the other hand, or both on one hand, is put back on its
+  own). Tuning seeds 0–4 of ``hands-s2``, ground-truth start, eight filter seeds (40 runs): reporting only, F̄^b
+  0.714 → 0.791, ē^p 22.7 → 13.2 px (filter seeds 0–3), 0.744 → 0.815, 20.6 → 11.7 px (4–7), 39 of 40 runs better,
+  none worse; with ``arm_reset`` 0.823 / 11.9 px (0–3) and 0.819 / 11.7 px (4–7), against reporting only 12 runs
+  better, 4 worse (seed 4 0.750 → 0.745). Not kept: seeding a hand only with skin at its wrist's depth (0.8033 →
+  0.8034, seed 1 −0.016, seed 4 +0.013). Tuning seeds never hold a foreground over 37 % of the frame
+  (``arm_anchor.MAX_FG_FRAC`` 0.5). About 4.5 ms CPU more per two-hand frame. One hand (S1, S3, ground-truth start)
+  unchanged: it runs only with two live tracks.
 * Mutual exclusion (product addition, ``exclusion``, off): each particle of a track loses weight by
   exp(−10 · max(0, F − 0.5)), F its box F-score with the other track's predicted box (:mod:`tracker.hands.exclusion`),
   so that the lower hand's track does not follow the top hand onto its box (two real palm boxes score above 0.6 in
@@ -125,7 +139,7 @@ import cv2
 import numba as nb
 import numpy as np
 
-from tracker.hands import depth_order, exclusion, group_box, identity, ownership
+from tracker.hands import arm_anchor, depth_order, exclusion, group_box, identity, ownership
 from tracker.hands.blob_split import split_shared_components, two_means
 from tracker.hands.box_stats import box_area, box_observation, box_of, dominant_component, mask_count
 from tracker.hands.features import HandFeatures, compute_features
@@ -191,6 +205,12 @@ COLLAPSE_FRAC = 0.25
 gone out of sight (collapsed onto a speck, e.g. the hand went under the other arm)."""
 COLLAPSE_WINDOW = 15
 """Frames of colour-pixel counts a track remembers for the collapse test."""
+ARM_MATCH_F = 0.5
+"""Box F-score with an arm's hand box from which a track without a remembered arm takes that arm (_report_arms)."""
+ARM_ENTRY_NEAR = 40.0
+"""Working px an arm's entry may lie from a track's remembered entry to be that track's arm (_report_arms)."""
+ARM_RESET_F = 0.3
+"""Box F-score with its arm's hand box below which a filter restarts there (``arm_reset``)."""
 CLAIM_CERTAIN = 0.5
 """Share of its particles in the section-6 mode from which a track claims the unowned skin pixels of its box in the
 owner map (:mod:`tracker.hands.ownership`)."""
@@ -221,7 +241,9 @@ class HandTrackerConfig:
     (:mod:`tracker.hands.ownership`); ``depth_identity``: the depth order decides a 2-means split the image cannot;
     ``coast_depth``: coasting only behind something nearer (module docstring); ``exclusion``: two tracks'
     particles are penalised for taking the other track's box (:mod:`tracker.hands.exclusion`); ``group_box``: two
-    stacked hands both report their shared colour component's box (:mod:`tracker.hands.group_box`);
+    stacked hands both report their shared colour component's box (:mod:`tracker.hands.group_box`); ``arm_anchor``:
+    each of two tracks reports the hand at the far end of its own arm (:mod:`tracker.hands.arm_anchor`), ``arm_reset``
+    also restarts a filter that is far from it there;
     ``isolation_margin``: a track's
     appearance is learnt and compared for id swaps only while its box grown by this many box sizes on every side meets
     no other track's box (default identity.MARGIN, the appearance region; 0 gave F̄^b 0.702 against 0.694 on tuning
@@ -263,6 +285,8 @@ class HandTrackerConfig:
     depth_identity: bool = False
     exclusion: bool = False
     group_box: bool = True
+    arm_anchor: bool = True
+    arm_reset: bool = True
     ac_hat: float = 0.55
     am_hat: float = 0.45
 
@@ -389,6 +413,8 @@ class HandTracker(TrackIdentity):
         self._owner: np.ndarray | None = None  # owner map of the last processed frame (tracker.hands.ownership)
         self._own_step: tuple | None = None  # (roi, mcur, propagated owners) of this frame's step
         self._fresh: list[int] = []  # keys of the tracks started since the owner map was last settled
+        self._arm_bg: np.ndarray | None = None  # the first frame's depth at the working resolution (arm_anchor)
+        self._entries: dict[int, tuple[float, float]] = {}  # track id -> where its arm enters the image (arm_anchor)
 
     # ------------------------------------------------------------------ resolution
     def to_full(self, state: np.ndarray) -> np.ndarray:
@@ -541,6 +567,8 @@ class HandTracker(TrackIdentity):
             if self.config.session_background:
                 self.skin = self.skin.with_background(small, step=2, keep=None if self._excl is None else ~self._excl)
             self._skin_base = self.skin
+            if self.config.arm_anchor and depth is not None:
+                self._arm_bg = arm_anchor.working_depth(depth, s, small.shape[:2])
         self._mask_cur = None
         if self._prev_rgb is not None and self.tracks:
             out = self._step_tracks(small, grey, size)
@@ -693,6 +721,8 @@ class HandTracker(TrackIdentity):
                 e.id = tr.id
         if cfg.group_box:
             self._report_group(ests, feats, size)
+        if cfg.arm_anchor and self._arm_bg is not None and self._depth is not None:
+            self._report_arms(ests, rgb)
         if cfg.adapt:
             self._collect_adapt_pixels(rgb, mcur, roi)
             if self.frame_index % cfg.adapt_every == 0 and self._adapt_pixels:
@@ -717,6 +747,52 @@ class HandTracker(TrackIdentity):
                                             0.0, 0.0]))[:4]  # fmt: skip
             e.state = st
             e.box = clipped_box(st, self.full_size)
+
+    def _report_arms(self, ests: list[HandEstimate], rgb: np.ndarray) -> None:
+        """Each hand at the far end of its own arm (``arm_anchor``, :mod:`tracker.hands.arm_anchor`). Every track id
+        remembers where its arm enters the image: first the entry of the arm whose hand box matches the track's box
+        (F-score ≥ ARM_MATCH_F), then the nearest entry within ARM_ENTRY_NEAR working px of the remembered one (the
+        entry follows the arm); only while two tracks are live. Each reports its arm's hand box; with ``arm_reset`` a
+        filter whose box scores below ARM_RESET_F against it restarts there (velocity 0)."""
+        if len(self.tracks) != 2:
+            return
+        assert self._depth is not None and self._arm_bg is not None and self.full_size is not None
+        z = arm_anchor.working_depth(self._depth, self.s, rgb.shape[:2])
+        hands = arm_anchor.arm_hands(self._frame_mask(rgb), z, self._arm_bg)
+        if not hands:
+            return
+        boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
+        pairs = []
+        for i, tr in enumerate(self.tracks):
+            for j, hd in enumerate(hands):
+                e = self._entries.get(tr.id)
+                if e is None:
+                    f = box_f_score(hd.box, boxes[i])
+                    if f >= ARM_MATCH_F:
+                        pairs.append((1.0 - f, i, j))
+                else:
+                    dd = float(np.hypot(hd.entry[0] - e[0], hd.entry[1] - e[1]))
+                    if dd <= ARM_ENTRY_NEAR:
+                        pairs.append((dd, i, j))
+        used_t: set[int] = set()
+        used_h: set[int] = set()
+        for _, i, j in sorted(pairs):
+            if i in used_t or j in used_h:
+                continue
+            used_t.add(i)
+            used_h.add(j)
+            tr, hd = self.tracks[i], hands[j]
+            self._entries[tr.id] = hd.entry
+            b = hd.box
+            st = np.array([(b[0] + b[2]) / 2.0, (b[1] + b[3]) / 2.0, b[2] - b[0], b[3] - b[1], 0.0, 0.0])
+            if self.config.arm_reset and box_f_score(b, boxes[i]) < ARM_RESET_F:
+                tr.filt.set_state(st)
+            for e in ests:
+                if e.id == tr.id:
+                    full = e.state.copy()
+                    full[:4] = self.to_full(st)[:4]
+                    e.state = full
+                    e.box = clipped_box(full, self.full_size)
 
     def _exclusion_boxes(self) -> np.ndarray:
         """Predicted inclusive boxes [n_tracks, 4] (working px) of the live tracks for the mutual exclusion

@@ -1,0 +1,117 @@
+"""Each hand at the far end of its own arm (:mod:`tracker.hands.arm_anchor`, ``HandTrackerConfig.arm_anchor``).
+Synthetic frames at scale 1 (working px = image px): a table 0.8 m away, two sleeved arms entering from the bottom
+border, their hands touching or lying on each other in one skin region."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker.hands.arm_anchor import arm_hands, geodesic_labels, working_depth
+from tracker.hands.metrics import dice
+from tracker.hands.skin_model import SkinModel
+from tracker.hands.tracker import HandTracker, HandTrackerConfig
+
+SKIN = (215, 160, 130)  # RGB of a light skin tone (inside the shipped skin model's region)
+TABLE = (120, 130, 140)
+SLEEVES = ((20, 120, 40), (40, 40, 160))
+H, W = 240, 320
+
+
+def _scene(hands: list[tuple[list[int], list[int], float]]) -> tuple[np.ndarray, np.ndarray]:
+    """RGB and depth (m) of the table with arms drawn in order (later ones on top): each (hand box, sleeve box, depth),
+    end-exclusive [u0, v0, u1, v1]; every sleeve reaches the bottom border."""
+    rgb = np.zeros((H, W, 3), np.uint8) + np.uint8(TABLE)
+    depth = np.full((H, W), 0.8, np.float32)
+    for k, (hand, sleeve, z) in enumerate(hands):
+        rgb[sleeve[1] : sleeve[3], sleeve[0] : sleeve[2]] = SLEEVES[k]
+        depth[sleeve[1] : sleeve[3], sleeve[0] : sleeve[2]] = z
+        rgb[hand[1] : hand[3], hand[0] : hand[2]] = SKIN
+        depth[hand[1] : hand[3], hand[0] : hand[2]] = z
+    return rgb, depth
+
+
+TOUCHING = [([60, 110, 100, 150], [64, 150, 86, 240], 0.72), ([100, 110, 140, 150], [114, 150, 136, 240], 0.72)]
+"""Two hands side by side in one skin region (each 40 × 40 px), each on its sleeve."""
+STACKED = [([50, 110, 100, 150], [55, 150, 77, 240], 0.72), ([80, 100, 130, 150], [100, 150, 122, 240], 0.66)]
+"""Hand B (6 cm nearer the camera) lying over the right part of hand A: A shows only its left 30 px."""
+
+
+def _inclusive_to_excl(b) -> list[int]:
+    return [b[0], b[1], b[2] + 1, b[3] + 1]
+
+
+def _hands(scene) -> list:
+    rgb, depth = scene
+    skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
+    bg = working_depth(np.full((H, W), 0.8), 1, (H, W))
+    return sorted(arm_hands(skin, working_depth(depth, 1, (H, W)), bg), key=lambda h: h.entry[0])
+
+
+def test_geodesic_labels_do_not_cross_a_depth_step_when_a_flat_way_round_exists():
+    mask = np.ones((5, 9), np.uint8)
+    z = np.full((5, 9), 0.7)
+    z[:4, 4] = 0.6  # a ridge 10 cm nearer, open at the bottom row
+    seeds = np.zeros((5, 9), np.int32)
+    seeds[0, 0] = 1
+    lab, dist = geodesic_labels(mask, z, seeds, 0.012, 20.0)
+    assert np.all(lab == 1)
+    assert dist[0, 8] == 16.0  # round the ridge through the bottom row: 4 down, 8 across, 4 up
+    assert dist[0, 4] == 24.0  # 3 flat steps, then one onto the ridge of cost 1 + 20
+    lab2, _ = geodesic_labels(mask, z, np.zeros((5, 9), np.int32), 0.012, 20.0)
+    assert not lab2.any()
+
+
+def test_two_touching_hands_are_split_at_the_ends_of_their_arms():
+    hands = _hands(_scene(TOUCHING))
+    assert len(hands) == 2
+    for hd, (hand, sleeve, _) in zip(hands, TOUCHING, strict=True):
+        assert sleeve[0] <= hd.entry[0] <= sleeve[2] and hd.entry[1] > H - 3  # entered through the bottom border
+        assert dice(_inclusive_to_excl(hd.box), hand) > 0.9
+    union = [60, 110, 140, 150]
+    assert dice(_inclusive_to_excl(hands[0].box), union) < 0.7
+
+
+def test_the_upper_hand_is_split_from_the_lower_one_by_the_depth_step():
+    hands = _hands(_scene(STACKED))
+    assert len(hands) == 2
+    visible_a = [50, 110, 80, 150]
+    assert dice(_inclusive_to_excl(hands[0].box), visible_a) > 0.9
+    assert dice(_inclusive_to_excl(hands[1].box), STACKED[1][0]) > 0.9
+
+
+def test_no_depth_change_no_arms():
+    rgb, depth = _scene(TOUCHING)
+    skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
+    z = working_depth(depth, 1, (H, W))
+    assert arm_hands(skin, z, z.copy()) == []  # the background is this frame: nothing in front of it
+    assert arm_hands(np.zeros((H, W), np.uint8), z, np.full((H, W), 0.8)) == []
+
+
+def _tracker(arm: bool) -> HandTracker:
+    tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0, arm_anchor=arm))
+    table = _scene([])
+    tr.process(*table)
+    return tr
+
+
+def test_each_track_reports_the_hand_at_the_end_of_its_own_arm():
+    """Two tracks started on the two touching hands keep reporting each hand's own box, also after their filters
+    are put on each other's hands (the arm, not the filter, says which hand is whose)."""
+    scene = _scene(TOUCHING)
+    boxes = {}
+    for arm in (True, False):
+        tr = _tracker(arm)
+        tr.process(*scene)
+        a = tr.start_track(TOUCHING[0][0])
+        b = tr.start_track(TOUCHING[1][0])
+        ests = {e.id: e.box for e in tr.process(*scene)}
+        if arm:
+            assert set(tr._entries) == {a, b}
+            assert tr._entries[a][0] < tr._entries[b][0]  # a's arm enters left of b's
+            assert dice(ests[a], TOUCHING[0][0]) > 0.9 and dice(ests[b], TOUCHING[1][0]) > 0.9
+        sa, sb = tr.tracks[0].filt.estimate.copy(), tr.tracks[1].filt.estimate.copy()
+        tr.tracks[0].filt.set_state(sb)  # the filters swap hands
+        tr.tracks[1].filt.set_state(sa)
+        boxes[arm] = {e.id: e.box for e in tr.process(*scene)}
+    assert dice(boxes[True][a], TOUCHING[0][0]) > 0.9 and dice(boxes[True][b], TOUCHING[1][0]) > 0.9
+    assert dice(boxes[False][a], TOUCHING[0][0]) < 0.8  # without the arms the filters' boxes (grown over both)
