@@ -14,8 +14,11 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 import tempfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's code, not the editable install's
 
 from tracker.evaluation.hands import SCENARIOS, experiment_1, experiment_1_table, experiment_2, experiment_2_table
 from tracker.evaluation.machine_info import machine_info

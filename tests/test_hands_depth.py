@@ -86,7 +86,8 @@ def _merged_run(depth_identity: bool) -> tuple[dict[int, list[int]], list[int], 
     A's box grows over both; A's remembered one-hand centre lies a little nearer B's part than its own (the hands
     moved while merged), so the image-only rule would give A's track B's hand. Returns the last estimates, the
     boxes, the ids and the two tracks' remembered depths."""
-    tr = HandTracker(HandTrackerConfig(auto_init=True, scale=1, seed=0, depth_identity=depth_identity))
+    tr = HandTracker(HandTrackerConfig(auto_init=True, scale=1, seed=0, depth_identity=depth_identity,
+                                       arm_anchor=False))  # the splits alone (the arms would place both hands)
     table = np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE)
     tr.process(table, np.full((240, 320), Z_TABLE))
     img, depth, box_a, box_b = _stacking(0)
