@@ -156,3 +156,56 @@ def test_a_part_hidden_for_long_follows_the_motion_since_its_keyframe():
     chained, keyframe = _drift_run(False), _drift_run(True)
     assert keyframe < 0.5, keyframe
     assert chained > 1.0 and chained > 4.0 * keyframe, (chained, keyframe)
+
+
+def _carry_test_travel(on: bool) -> tuple[float, float]:
+    """A hand-held camera moves 1.5 mm and 0.05° per frame for 12 frames (0.4 s at 30 fps, the carry test's window);
+    three resting landmarks are refined where the camera's motion puts them, a fourth cube stays hidden and follows
+    the scene. Returns the travel (m) the hand-carry motion test (``HandCarry.moved``) sees for the hidden cube and for
+    a landmark, with ``carry_motion_scene`` ``on`` or off."""
+    from tracker.filter.particle_filter import MultiObjectTracker, TrackerState
+    from tracker.filter.scene_motion import follow_scene
+    from tracker.filter.tracker_config import TrackerConfig
+    from tracker.geometry.camera import Intrinsics
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+
+    names = ["a", "b", "c", "hidden"]
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=20, carry_motion_scene=on)
+    tr = MultiObjectTracker([PartSpec.cube(n, "red") for n in names], Intrinsics.default(640, 480), cfg, seed=0)
+    start = {n: Pose([x, 0.02, 0.65], [0, 0, 0, 1]) for n, x in zip(names, [-0.12, -0.04, 0.04, 0.12], strict=True)}
+    tr.initialize(start)
+    tr.visibility = np.array([1.0, 1.0, 1.0, 0.0])
+    tr._refiner.last = [_healthy(n != "hidden") for n in names]
+    state = TrackerState(0, 0.0, dict(tr.estimates), {}, np.ones(20) / 20)
+    rng = np.random.default_rng(5)
+
+    def record(f: int) -> None:
+        tr._carry.record(f / 30.0, np.array([tr.estimates[n].t for n in names]))
+
+    follow_scene(tr, state)
+    record(0)
+    for f in range(1, 13):
+        cam_R = Rotation.from_euler("x", 0.05 * f, degrees=True).as_matrix()
+        cam_t = np.array([0.0015, 0.0, 0.0]) * f
+        for n in ("a", "b", "c"):
+            s = start[n]
+            tr.estimates[n] = Pose.from_rt(cam_R @ s.R, cam_R @ s.t + cam_t + rng.normal(0, 2e-4, 3))
+        follow_scene(tr, state)
+        record(f)
+    moved = tr._carry.moved()
+    return float(moved[3]), float(moved[0])
+
+
+def test_the_carry_motion_test_measures_a_hidden_resting_part_against_the_scene_not_the_camera():
+    """Without ``carry_motion_scene`` the camera's own motion (18 mm in the window) makes the hidden resting cube count
+    as moving (more than ``carry_min_motion``, 15 mm), so a hand passing over it would take it along (traced on the
+    tuning seeds: free, hand-held camera, seed 4, yellow carried 40 mm away by a hand that only covered it); with it,
+    neither the hidden cube nor a landmark has travelled against the scene."""
+    from tracker.filter.tracker_config import TrackerConfig
+
+    bound = TrackerConfig.preset("default").carry_min_motion
+    hidden_off, landmark_off = _carry_test_travel(False)
+    hidden_on, landmark_on = _carry_test_travel(True)
+    assert hidden_off > bound and landmark_off > bound, (hidden_off, landmark_off)
+    assert hidden_on < 0.002 and landmark_on < 0.002, (hidden_on, landmark_on)

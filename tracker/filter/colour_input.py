@@ -312,9 +312,10 @@ def _box_depth_at(R, t, center, half, u, v, fx, fy, cx, cy):
     return float(out[0, 0])
 
 
-def box_surface_depth(trk, obj: int, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
-    """Depth (m) of box part ``obj``'s estimate at full-resolution pixels ``(pu, pv)`` (P,), inf off its silhouette."""
-    est = trk.estimates[trk.names[obj]]
+def box_surface_depth(trk, obj: int, pu: np.ndarray, pv: np.ndarray, pose: Pose | None = None) -> np.ndarray:
+    """Depth (m) of box part ``obj``'s estimate (or ``pose``, camera frame) at full-resolution pixels ``(pu, pv)``
+    (P,), inf off its silhouette."""
+    est = trk.estimates[trk.names[obj]] if pose is None else pose
     p = len(pu)
     out = np.full((1, p), np.inf, np.float32)
     render_boxes_at_pixels(est.R[None, None], est.t[None, None], trk.center[obj:obj + 1], trk.half[obj:obj + 1], 0,

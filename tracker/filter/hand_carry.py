@@ -160,6 +160,12 @@ class HandCarry:
             T[:3, :3], T[:3, 3] = Rd, td
             self._prev_motion = T if self._prev_motion is None else T @ self._prev_motion
 
+    def move_history(self, Rd: np.ndarray, td: np.ndarray) -> None:
+        """The scene moved by ``x ↦ Rd x + td`` (camera frame, m) since the last frame, as the resting parts show it
+        (``carry_motion_scene``): the remembered positions of the motion test are moved by it, so that the test
+        measures each part's travel against the scene, not the camera's own motion."""
+        self.history = deque((t, pos @ Rd.T + td) for t, pos in self.history)
+
     def _previous_points(self, center: np.ndarray, radius: float, plane, exclude) -> np.ndarray:
         """Hand points around ``center`` in the last frame's depth image, in the current camera frame (the camera's
         motion since that image, :meth:`move_with_camera`, applied: unmoved, a carry's first registration would

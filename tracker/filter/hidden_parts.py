@@ -18,6 +18,7 @@ from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.filter.predict import adaptive_noise
 from tracker.filter.scene_motion import placed_by_depth
 from tracker.geometry.box_renderer import pixel_rays
+from tracker.geometry.pose import Pose
 
 if TYPE_CHECKING:
     from tracker.filter.frame_context import FrameContext
@@ -84,8 +85,16 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
         for i in np.nonzero(trk._carry.carried & ~held & ~detected)[0]:
             held[i] = seen_where_it_was(trk, i, depth) < cfg.carry_keep_unseen
     was_carried = trk._carry.carried
+    tentative = np.zeros(k, bool)
+    if cfg.carry_keep_moving > 0 and depth is not None:
+        tentative = was_carried & ~held  # registered with the hand, then kept only if it moved with it (below)
+        held = held | tentative
     rot, delta = trk._carry.update(depth, pos, held, ~held, heights, plane,
                                    np.array([nm in touched for nm in trk.names], bool))
+    for i in np.nonzero(tentative)[0]:
+        if not moved_with_hand(trk, i, depth, rot[i], delta[i]):
+            trk._carry.release(i)
+            rot[i], delta[i] = np.eye(3), np.zeros(3)
     if cfg.carry_anchor_start:
         anchor_at_start(trk, trk._carry.carried & ~was_carried)
     # confident blobs (filter/blob_follow.py), however small: a sliver that stays put while the hand moves on is
@@ -134,6 +143,20 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     trk._last_centers = centers
     trk._carry.note_heights(heights, cfg.carry_min_height)
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
+
+
+def moved_with_hand(trk, obj: int, depth: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:
+    """``carry_keep_moving``: carried part ``obj``, visible enough by last frame's estimate to end its carry, stays in
+    the hand when this frame's hand motion (x ↦ ``R`` x + ``t``, camera frame, m) moves its centre by at least
+    ``carry_keep_moving`` m and this frame's depth shows it better where that motion takes it than where it was
+    (:func:`seen_where_it_was` at both poses): a cube 35 % seen in a hand moving it 1 cm a frame is still in the hand;
+    a cube the hand has let go stays where the depth shows it."""
+    est = trk.estimates[trk.names[obj]]
+    moved = Pose.from_rt(R @ est.R, R @ est.t + t)
+    c = est.R @ trk.center[obj] + est.t
+    if np.linalg.norm(R @ c + t - c) < trk.config.carry_keep_moving:
+        return False
+    return seen_where_it_was(trk, obj, depth, pose=moved) > seen_where_it_was(trk, obj, depth)
 
 
 def blob_centre(det) -> np.ndarray | None:
@@ -193,10 +216,10 @@ def lifted_off(trk, obj: int, position: np.ndarray, new_position: np.ndarray, he
     return float((new_position - position) @ plane[0]) > cfg.carry_lift_m
 
 
-def estimate_rect(trk, obj: int, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
+def estimate_rect(trk, obj: int, shape: tuple[int, ...], pose: Pose | None = None) -> tuple[int, int, int, int] | None:
     """Pixel rectangle ``(u0, v0, u1, v1)`` (end-exclusive, clipped to an image of ``shape``; may be empty) of part
-    ``obj``'s bounding box at its estimate, or None when a corner lies closer than 5 cm to the camera."""
-    est = trk.estimates[trk.names[obj]]
+    ``obj``'s bounding box at its estimate (or ``pose``), or None when a corner lies closer than 5 cm to the camera."""
+    est = trk.estimates[trk.names[obj]] if pose is None else pose
     pts = trk.corners[obj] @ est.R.T + est.t
     if np.any(pts[:, 2] < 0.05):
         return None
@@ -211,12 +234,12 @@ SEEN_TOLERANCE_M = 0.01
 """Metres: a silhouette pixel whose depth is this close to the estimate's surface shows the part (carry_keep_unseen)."""
 
 
-def seen_where_it_was(trk, obj: int, depth: np.ndarray, stride: int = 2) -> float:
-    """Fraction of box part ``obj``'s silhouette at its current estimate (every ``stride``-th pixel of its projected
-    rectangle) where ``depth`` (metres) lies within ``SEEN_TOLERANCE_M`` of the rendered surface: how much of the
-    part this frame's depth still shows where the estimate is. 1.0 (shown) for a mesh part or an estimate off the
-    image, so that nothing is kept in a hand on that account."""
-    rect = None if trk.meshes[obj] is not None else estimate_rect(trk, obj, depth.shape)
+def seen_where_it_was(trk, obj: int, depth: np.ndarray, stride: int = 2, pose: Pose | None = None) -> float:
+    """Fraction of box part ``obj``'s silhouette at its current estimate (or at ``pose``, camera frame; every
+    ``stride``-th pixel of its projected rectangle) where ``depth`` (metres) lies within ``SEEN_TOLERANCE_M`` of the
+    rendered surface: how much of the part this frame's depth still shows where the estimate is. 1.0 (shown) for a
+    mesh part or an estimate off the image, so that nothing is kept in a hand on that account."""
+    rect = None if trk.meshes[obj] is not None else estimate_rect(trk, obj, depth.shape, pose)
     if rect is None:
         return 1.0
     u0, v0, u1, v1 = rect
@@ -224,7 +247,7 @@ def seen_where_it_was(trk, obj: int, depth: np.ndarray, stride: int = 2) -> floa
         return 1.0
     vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
     uu, vv = uu.ravel(), vv.ravel()
-    surface = box_surface_depth(trk, obj, uu, vv)
+    surface = box_surface_depth(trk, obj, uu, vv, pose)
     on = np.isfinite(surface)
     if not on.any():
         return 1.0

@@ -188,6 +188,8 @@ def follow_scene(trk: MultiObjectTracker, state: TrackerState) -> None:
         unplaced = follow_from_keyframes(trk, state, now, unplaced)
     motion = consensus_motion(landmark_motions(trk, prev, now), cfg.scene_motion_tolerance,
                               cfg.scene_motion_min_anchors, cfg.scene_motion_spread)
+    if cfg.carry_motion_scene and motion is not None:
+        trk._carry.move_history(*motion)
     for i in unplaced:
         if motion is not None:
             move_by(trk, state, i, *motion)

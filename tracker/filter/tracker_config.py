@@ -204,6 +204,13 @@ class TrackerConfig(BaseModel):
         "(0 = off). The test is on this frame's depth, not on last frame's visible fraction: a hand that whips a "
         "part out of view in one frame took it along, a hand that lets go leaves it in view.",
     )
+    carry_keep_moving: float = Field(
+        0.0, ge=0.0, description="Metres (0 = off): a carried part whose last estimate was visible enough to end its "
+        "carry is registered with the hand all the same and stays in it when this frame's hand motion moves its "
+        "centre by at least this much and this frame's depth shows it better where the hand takes it than where it "
+        "was (a cube 35 % seen in a hand moving it 1 cm a frame was dropped for one frame by its visible fraction "
+        "crossing rest_prior_max_visibility, re-checked on its sliver 21 degrees off and carried on so).",
+    )
     carry_blob_depth: bool = Field(
         False, description="A carried part whose reliable blob lies off its silhouette (the colour stage re-seeds it "
         "on the blob's ray, at its old depth when the blob has no depth) is turned by the hand's motion and put on "
@@ -350,6 +357,13 @@ class TrackerConfig(BaseModel):
         False, description="Scene motion (not in the spec; filter/scene_motion.py): parts that the depth did not place "
         "this frame (hidden, or seen in colour without depth) and that are neither carried nor moving with their blob "
         "follow the camera motion that the well-seen resting parts agree on.",
+    )
+    carry_motion_scene: bool = Field(
+        False, description="Scene motion: the hand-carry motion test (carry_min_motion in carry_window_s) measures a "
+        "part's travel against the scene: when the well-seen resting parts agree on a camera motion, the remembered "
+        "positions of every part are moved by it, so that a hand-held or swaying camera's own motion (1-2 mm a "
+        "frame, 15 mm in the test's window) does not make a hidden resting part count as moving and be taken along "
+        "by a hand passing over it.",
     )
     scene_motion_keyframe: bool = Field(
         False, description="Scene motion: a part unplaced for several frames is moved by the landmarks' motion since "
@@ -723,5 +737,6 @@ PRESETS["default"] = {
     "carry_above_table": True,
     "carry_keep_unseen": 0.3,
     "carry_anchor_start": True,
+    "carry_keep_moving": 0.005,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
