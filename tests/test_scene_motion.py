@@ -115,26 +115,35 @@ def test_a_part_seen_in_colour_without_depth_follows_the_scene_and_a_part_the_de
     assert np.allclose(tr.estimates["placed"].t, before["placed"].t)
 
 
-def _drift_run(keyframe: bool) -> float:
-    """A hand-held camera drifts slowly (0.2 mm and 0.01° per frame, under the scene motion's dead band) for 60
-    frames; three resting landmarks are refined each frame with independent 0.2 mm / 0.02° noise; a fourth cube stays
-    hidden, and the filter jitters its estimate by 0.2 mm per frame. Returns the hidden cube's final error (mm)."""
-    from tracker.filter.camera_motion import move_part
+def _three_landmarks_and_a_hidden_cube(names: list[str], **overrides):
+    """Four red cubes ``names`` in a row 8 cm apart at 0.65 m (N = 20, the default preset with ``overrides``): the
+    first three seen and healthily refined (landmarks), the last hidden. Returns the tracker, the start poses and a
+    tracker state for :func:`~tracker.filter.scene_motion.follow_scene`."""
     from tracker.filter.particle_filter import MultiObjectTracker, TrackerState
-    from tracker.filter.scene_motion import follow_scene
     from tracker.filter.tracker_config import TrackerConfig
     from tracker.geometry.camera import Intrinsics
     from tracker.geometry.parts import PartSpec
     from tracker.geometry.pose import Pose
 
-    names = ["a", "b", "c", "hidden"]
-    cfg = TrackerConfig.preset("default").with_overrides(n_particles=20, scene_motion_keyframe=keyframe)
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=20, **overrides)
     tr = MultiObjectTracker([PartSpec.cube(n, "red") for n in names], Intrinsics.default(640, 480), cfg, seed=0)
     start = {n: Pose([x, 0.02, 0.65], [0, 0, 0, 1]) for n, x in zip(names, [-0.12, -0.04, 0.04, 0.12], strict=True)}
     tr.initialize(start)
     tr.visibility = np.array([1.0, 1.0, 1.0, 0.0])
     tr._refiner.last = [_healthy(n != "hidden") for n in names]
-    state = TrackerState(0, 0.0, dict(tr.estimates), {}, np.ones(20) / 20)
+    return tr, start, TrackerState(0, 0.0, dict(tr.estimates), {}, np.ones(20) / 20)
+
+
+def _drift_run(keyframe: bool) -> float:
+    """A hand-held camera drifts slowly (0.2 mm and 0.01° per frame, under the scene motion's dead band) for 60
+    frames; three resting landmarks are refined each frame with independent 0.2 mm / 0.02° noise; a fourth cube stays
+    hidden, and the filter jitters its estimate by 0.2 mm per frame. Returns the hidden cube's final error (mm)."""
+    from tracker.filter.camera_motion import move_part
+    from tracker.filter.scene_motion import follow_scene
+    from tracker.geometry.pose import Pose
+
+    names = ["a", "b", "c", "hidden"]
+    tr, start, state = _three_landmarks_and_a_hidden_cube(names, scene_motion_keyframe=keyframe)
     rng = np.random.default_rng(11)
     follow_scene(tr, state)
     for f in range(1, 61):
@@ -163,21 +172,11 @@ def _carry_test_travel(on: bool) -> tuple[float, float]:
     three resting landmarks are refined where the camera's motion puts them, a fourth cube stays hidden and follows
     the scene. Returns the travel (m) the hand-carry motion test (``HandCarry.moved``) sees for the hidden cube and for
     a landmark, with ``carry_motion_scene`` ``on`` or off."""
-    from tracker.filter.particle_filter import MultiObjectTracker, TrackerState
     from tracker.filter.scene_motion import follow_scene
-    from tracker.filter.tracker_config import TrackerConfig
-    from tracker.geometry.camera import Intrinsics
-    from tracker.geometry.parts import PartSpec
     from tracker.geometry.pose import Pose
 
     names = ["a", "b", "c", "hidden"]
-    cfg = TrackerConfig.preset("default").with_overrides(n_particles=20, carry_motion_scene=on)
-    tr = MultiObjectTracker([PartSpec.cube(n, "red") for n in names], Intrinsics.default(640, 480), cfg, seed=0)
-    start = {n: Pose([x, 0.02, 0.65], [0, 0, 0, 1]) for n, x in zip(names, [-0.12, -0.04, 0.04, 0.12], strict=True)}
-    tr.initialize(start)
-    tr.visibility = np.array([1.0, 1.0, 1.0, 0.0])
-    tr._refiner.last = [_healthy(n != "hidden") for n in names]
-    state = TrackerState(0, 0.0, dict(tr.estimates), {}, np.ones(20) / 20)
+    tr, start, state = _three_landmarks_and_a_hidden_cube(names, carry_motion_scene=on)
     rng = np.random.default_rng(5)
 
     def record(f: int) -> None:
