@@ -24,6 +24,7 @@ import numpy as np
 from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import blob_mask, confident
 from tracker.geometry.box_renderer import pixel_rays
+from tracker.geometry.pose import Pose
 
 if TYPE_CHECKING:
     from tracker.filter.frame_context import FrameContext
@@ -101,12 +102,8 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
         uv = trk.intrinsics.project(c[None])[0] + shift
         if carried[i]:
             trk._blob_uv_target[i] = uv  # applied after the hand carry has moved it (in depth too): recentre()
-        elif cfg.blob_follow_keep_anchor:
-            anchor = trk._rest_t[i].copy(), trk._rest_R[i].copy()
-            put_centre_on(trk, i, uv)
-            trk._rest_t[i], trk._rest_R[i] = anchor
         else:
-            put_centre_on(trk, i, uv)
+            put_centre_on(trk, i, uv, anchor=not cfg.blob_follow_keep_anchor)
         moved[i] = True
     return moved
 
@@ -162,10 +159,10 @@ def moved_outline(now: BlobWindow | None, before: BlobWindow | None, shift: np.n
     return overlap(now, before, dx, dy) > overlap(now, before, 0, 0)
 
 
-def footprint(trk: MultiObjectTracker, obj: int) -> tuple[float, float, float, float] | None:
+def footprint(trk: MultiObjectTracker, obj: int, pose: Pose | None = None) -> tuple[float, float, float, float] | None:
     """Image bounds ``(u_min, v_min, u_max, v_max)`` (full-resolution pixels) of part ``obj``'s bounding-box corners
-    at its estimate, or None when a corner lies closer than 5 cm to the camera."""
-    est = trk.estimates[trk.names[obj]]
+    at its estimate (or ``pose``, camera frame), or None when a corner lies closer than 5 cm to the camera."""
+    est = trk.estimates[trk.names[obj]] if pose is None else pose
     pts = trk.corners[obj] @ est.R.T + est.t
     if np.any(pts[:, 2] < 0.05):
         return None
@@ -191,14 +188,14 @@ def centre(trk: MultiObjectTracker, obj: int) -> np.ndarray:
     return est.R @ trk.center[obj] + est.t
 
 
-def put_centre_on(trk: MultiObjectTracker, obj: int, uv: np.ndarray) -> None:
+def put_centre_on(trk: MultiObjectTracker, obj: int, uv: np.ndarray, anchor: bool = True) -> None:
     """Translate part ``obj`` parallel to the image plane so that its centre, at its current depth, projects to
-    the pixel ``uv``."""
+    the pixel ``uv`` (its rest anchor with it unless ``anchor`` is False)."""
     c = centre(trk, obj)
     if c[2] <= 0.05:
         return
     d = pixel_rays(trk.intrinsics, np.array([uv[0]]), np.array([uv[1]]))[0] * c[2] - c
-    move_part(trk, obj, np.eye(3), d)
+    move_part(trk, obj, np.eye(3), d, anchor)
 
 
 def recentre(trk: MultiObjectTracker, obj: int) -> None:

@@ -110,15 +110,16 @@ def _shifted(blobs, shifts: dict[int, np.ndarray]):
     return out
 
 
-def move_part(trk, obj: int, R: np.ndarray, t: np.ndarray) -> None:
+def move_part(trk, obj: int, R: np.ndarray, t: np.ndarray, anchor: bool = True) -> None:
     """Move part ``obj`` of ``trk`` rigidly in the camera frame, x ↦ ``R`` x + ``t`` (metres): its particles, estimate
-    and rest anchor; its velocities are zeroed. (A part carried by a hand, moved with its blob, or kept in place
-    while the camera moves.)"""
+    and (with ``anchor``) rest anchor; its velocities are zeroed. (A part carried by a hand, moved with its blob, or
+    kept in place while the camera moves.)"""
     trk.p[:, obj] = trk.p[:, obj] @ R.T + t
     trk.R[:, obj] = rotate_left(np.ascontiguousarray(R, np.float64), trk.R[:, obj])  # np.einsum's values
     trk.v[:, obj] = 0.0
-    trk._rest_t[obj] = R @ trk._rest_t[obj] + t
-    trk._rest_R[obj] = R @ trk._rest_R[obj]
+    if anchor:
+        trk._rest_t[obj] = R @ trk._rest_t[obj] + t
+        trk._rest_R[obj] = R @ trk._rest_R[obj]
     est = trk.estimates[trk.names[obj]]
     trk.estimates[trk.names[obj]] = Pose.from_rt(R @ est.R, R @ est.t + t)
 

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numba as nb
 import numpy as np
 
-from tracker.filter.blob_follow import centre, recentre
+from tracker.filter.blob_follow import centre, footprint, recentre
 from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import box_surface_depth, reseed
 from tracker.filter.hand_carry import carry_over_sliver, supported_by_other
@@ -219,15 +219,12 @@ def lifted_off(trk, obj: int, position: np.ndarray, new_position: np.ndarray, he
 def estimate_rect(trk, obj: int, shape: tuple[int, ...], pose: Pose | None = None) -> tuple[int, int, int, int] | None:
     """Pixel rectangle ``(u0, v0, u1, v1)`` (end-exclusive, clipped to an image of ``shape``; may be empty) of part
     ``obj``'s bounding box at its estimate (or ``pose``), or None when a corner lies closer than 5 cm to the camera."""
-    est = trk.estimates[trk.names[obj]] if pose is None else pose
-    pts = trk.corners[obj] @ est.R.T + est.t
-    if np.any(pts[:, 2] < 0.05):
+    fp = footprint(trk, obj, pose)
+    if fp is None:
         return None
-    uv = trk.intrinsics.project(pts)
     h, w = shape[:2]
-    u0, v0 = np.maximum(np.floor(uv.min(axis=0)).astype(int), 0)
-    u1, v1 = np.minimum(np.ceil(uv.max(axis=0)).astype(int) + 1, [w, h])
-    return int(u0), int(v0), int(u1), int(v1)
+    return (max(int(np.floor(fp[0])), 0), max(int(np.floor(fp[1])), 0), min(int(np.ceil(fp[2])) + 1, w),
+            min(int(np.ceil(fp[3])) + 1, h))
 
 
 SEEN_TOLERANCE_M = 0.01

@@ -220,6 +220,7 @@ class MultiObjectTracker:
         self._quiet_memory = None  # quiet parts: last frame's blobs, estimate centres, small corrections
         self._quiet_skips = np.zeros(k, np.int64)  # passes skipped in a row per part
         self._quiet_now = np.zeros(k, bool)  # parts whose pass this frame skips
+        self._quiet_faces: dict[int, np.ndarray] = {}  # box face sample points per part (quiet_max_residual_m)
         self.n_quiet_skipped = 0  # coordinate passes skipped since initialize (diagnostics, tests)
         self._initialized = True
 

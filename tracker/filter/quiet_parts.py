@@ -71,11 +71,10 @@ def face_points(half: np.ndarray, center: np.ndarray, per_side: int = 4, extent:
 
 
 def _faces_of(trk: MultiObjectTracker, i: int) -> np.ndarray:
-    """:func:`face_points` of box part ``i``, made once per tracker."""
-    cache = trk.__dict__.setdefault("_quiet_faces", {})
-    if i not in cache:
-        cache[i] = np.ascontiguousarray(face_points(trk.half[i], trk.center[i]))
-    return cache[i]
+    """:func:`face_points` of box part ``i``, made once per tracker (``trk._quiet_faces``)."""
+    if i not in trk._quiet_faces:
+        trk._quiet_faces[i] = np.ascontiguousarray(face_points(trk.half[i], trk.center[i]))
+    return trk._quiet_faces[i]
 
 
 def depth_explained(depth: np.ndarray | None, intr, faces: np.ndarray, R: np.ndarray, t: np.ndarray, tol: float,

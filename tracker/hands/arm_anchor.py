@@ -12,8 +12,8 @@ frame and without tracking, each arm and the skin pixels at its end:
 2. Arms: the 8-connected components of the foreground without the (dilated) skin mask — the sleeves — of at least
    :data:`MIN_ARM_FRAC` of the image that touch the image border in one run (two runs: two arms crossing in one
    component; no answer there). The entry point is the mean of its border pixels.
-3. Wrist: the sleeve pixels whose geodesic distance from the border (within the sleeve) is at least
-   :data:`WRIST_FAR` of the farthest and that lie next to skin; the skin pixels next to them seed the hand.
+3. Wrist: the sleeve pixels whose straight-line distance from the arm's entry point is at least :data:`WRIST_FAR`
+   of the farthest and that lie next to skin; the skin pixels next to them seed the hand.
 4. Hands: one multi-source geodesic distance over the skin mask from all arms' seeds at once (Dijkstra, 4-neighbour
    steps of cost 1, plus :data:`DEPTH_STEP_COST` across a depth step larger than :data:`DEPTH_STEP` m: the edge of
    the upper hand over the lower one); each skin pixel belongs to the arm whose wrist reaches it first. A hand's box
@@ -52,7 +52,7 @@ RUN_GAP = 8.0
 MIN_RUN = 6
 """Fewest border pixels of a run."""
 WRIST_FAR = 0.7
-"""Share of the farthest geodesic distance from the border beyond which a sleeve pixel next to skin is wrist."""
+"""Share of the farthest distance from the arm's entry point beyond which a sleeve pixel next to skin is wrist."""
 DEPTH_STEP = 0.012
 """Depth difference (m) between 4-neighbours that counts as a step (the edge of the upper hand)."""
 DEPTH_STEP_COST = 20.0

@@ -100,10 +100,10 @@ class CameraOdometry(OdometryBase):
         self._active = k
         new_kf = False
         kd, kr = motion_size(invert(kf.pose) @ T)
-        masked = 0.0 if mask is None else float(np.count_nonzero(mask)) / mask.size
         wanted = kd > cfg.keyframe_distance_m or np.degrees(kr) > cfg.keyframe_angle_deg or \
             res.overlap < cfg.keyframe_min_overlap
-        if wanted and masked > cfg.keyframe_max_masked and res.overlap >= cfg.keyframe_last_overlap:
+        if wanted and mask is not None and res.overlap >= cfg.keyframe_last_overlap and \
+                np.count_nonzero(mask) > cfg.keyframe_max_masked * mask.size:
             wanted = False  # a frame mostly hidden by hands is a poor reference: keep the old one while it is seen
         if wanted:
             if self._nearest_keyframe(T) == k:  # no stored keyframe is closer: take this frame

@@ -79,9 +79,9 @@ def align_contacts(trk: MultiObjectTracker, state: TrackerState) -> list[str]:
     """``contact_align_deg``: turn every resting box part refined this frame that is in face contact with a resting,
     healthily refined box part with ``SUPPORT_RATIO`` times its matched depth points onto the nearest rotation
     parallel to that neighbour's, about its centre, when the turn is smaller than ``contact_align_deg`` (the best
-    supported such neighbour is used; parts are taken one by one, from the best supported, so that an aligned part
-    is not itself turned later). ``state.poses`` / ``state.particles`` get the new estimates. Returns the names of the
-    parts turned."""
+    supported such neighbour is used; parts are taken one by one, from the least supported, each once, and an aligned
+    part is compared at its new pose by the parts after it). ``state.poses`` / ``state.particles`` get the new
+    estimates. Returns the names of the parts turned."""
     max_turn = np.radians(trk.config.contact_align_deg)
     if max_turn <= 0 or trk._refiner is None:
         return []
