@@ -13,6 +13,7 @@ import numpy as np
 from tracker.filter.blob_follow import centre, footprint, recentre
 from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import box_surface_depth, reseed
+from tracker.filter.footprint_depth import classify_footprint, left_place
 from tracker.filter.hand_carry import carry_over_sliver, supported_by_other
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.filter.predict import adaptive_noise
@@ -73,11 +74,17 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
         for i, nm in enumerate(trk.names):
             heights[i] = lowest_height(trk, i, trk.estimates[nm].R, pos[i], plane)
     hidden = trk.visibility < cfg.rest_prior_max_visibility  # little depth evidence (previous frame)
+    grasped = np.array([nm in touched for nm in trk.names], bool)
     if cfg.carry_revealed_fraction > 0 and depth is not None:
         for i in np.nonzero(hidden & ~trk._carry.carried & ~detected)[0]:
             if revealed(trk, i, depth):
                 if not take_shadow(trk, i, pos):
                     grab(trk, i, depth, pos, plane)
+            elif cfg.carry_left_table > 0 and left_place(classify_footprint(trk, i, depth, plane),
+                                                         cfg.carry_left_table):
+                # the table shows where it was (footprint_depth.py): picked up; carried from now on, moved by the
+                # hand's motion since it hid the part (its shadow) or, without one, by this frame's
+                grasped[i] = not take_shadow(trk, i, pos, 0.0)
             elif cfg.carry_shadow_take_m > 0:
                 take_shadow(trk, i, pos, cfg.carry_shadow_take_m)
     held = hidden | (trk._carry.carried & (trk.visibility < cfg.carry_keep_visibility))  # carry_keep_visibility
@@ -89,8 +96,7 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     if cfg.carry_keep_moving > 0 and depth is not None:
         tentative = was_carried & ~held  # registered with the hand, then kept only if it moved with it (below)
         held = held | tentative
-    rot, delta = trk._carry.update(depth, pos, held, ~held, heights, plane,
-                                   np.array([nm in touched for nm in trk.names], bool))
+    rot, delta = trk._carry.update(depth, pos, held, ~held, heights, plane, grasped)
     for i in np.nonzero(tentative)[0]:
         if not moved_with_hand(trk, i, depth, rot[i], delta[i]):
             trk._carry.release(i)

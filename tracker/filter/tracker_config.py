@@ -185,6 +185,13 @@ class TrackerConfig(BaseModel):
         "carried on, without waiting for its place to be seen through (0 = off; an arm can cover the place the whole "
         "time).",
     )
+    carry_left_table: float = Field(
+        0.0, ge=0.0, le=1.0, description="A hidden resting part over whose silhouette the depth shows the table top on "
+        "at least this fraction of the pixels with depth (more than show its surface) has been picked up: its carry "
+        "starts at once, moved by the hand's motion since it hid the part (its carry_shadow) or by this frame's "
+        "(filter/footprint_depth.py; the motion test waits for the estimate to move, which the rest prior "
+        "prevents; 0 = off).",
+    )
     revealed_surface: bool = Field(
         False, description="The see-through test of carry_revealed_fraction compares the depth with the estimate's "
         "rendered surface at each pixel (1.5 cm behind it) instead of with its far side: a box resting on the table "
