@@ -6,7 +6,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker.hands.arm_anchor import arm_hands, geodesic_labels, working_depth
+from tracker.hands.arm_anchor import (
+    BORDER_PX,
+    MIN_RUN,
+    RUN_GAP,
+    _one_border_run,
+    arm_hands,
+    geodesic_labels,
+    working_depth,
+)
 from tracker.hands.metrics import dice
 from tracker.hands.skin_model import SkinModel
 from tracker.hands.tracker import HandTracker, HandTrackerConfig
@@ -59,6 +67,44 @@ def test_geodesic_labels_do_not_cross_a_depth_step_when_a_flat_way_round_exists(
     assert dist[0, 4] == 24.0  # 3 flat steps, then one onto the ridge of cost 1 + 20
     lab2, _ = geodesic_labels(mask, z, np.zeros((5, 9), np.int32), 0.012, 20.0)
     assert not lab2.any()
+
+
+def _border_runs(ys: np.ndarray, xs: np.ndarray, h: int, w: int) -> list[np.ndarray]:
+    """Reference: indices of border pixels grouped into runs along the image border (NumPy, as the detector did
+    before its compiled version)."""
+    b = BORDER_PX
+    bottom_left = np.where(ys >= h - b, w + h + (w - xs), 2 * w + h + (h - ys))
+    p = np.where(ys < b, xs, np.where(xs >= w - b, w + ys, bottom_left)).astype(np.float64)
+    order = np.argsort(p)
+    runs = np.split(order, np.nonzero(np.diff(p[order]) > RUN_GAP)[0] + 1)
+    if len(runs) > 1 and p[order[0]] + 2 * (w + h) - p[order[-1]] <= RUN_GAP:
+        runs = [np.concatenate([runs[-1], runs[0]])] + runs[1:-1]
+    return [r for r in runs if len(r) >= MIN_RUN]
+
+
+def test_one_border_run_agrees_with_the_runs_of_the_border_pixels():
+    """The compiled run test (used per arm) says "one run" exactly when the NumPy grouping finds one run, on random
+    border pixel sets: runs along each edge, through corners and through the top-left corner where the perimeter
+    coordinate wraps."""
+    rng = np.random.default_rng(0)
+    h, w = 24, 32
+    band = [(y, x) for y in range(h) for x in range(w) if y < BORDER_PX or y >= h - BORDER_PX or x < BORDER_PX
+            or x >= w - BORDER_PX]  # fmt: skip
+    counts = {0: 0, 1: 0, 2: 0}
+    for _ in range(300):
+        pick = rng.random(len(band)) < rng.choice([0.05, 0.2, 0.6])
+        if rng.random() < 0.3:  # one contiguous stretch of the perimeter, maybe through the top-left corner
+            start = int(rng.integers(len(band)))
+            pick[:] = False
+            pick[[(start + k) % len(band) for k in range(int(rng.integers(3, 30)))]] = True
+        if not pick.any():
+            continue
+        ys = np.array([band[i][0] for i in np.nonzero(pick)[0]])
+        xs = np.array([band[i][1] for i in np.nonzero(pick)[0]])
+        n_runs = len(_border_runs(ys, xs, h, w))
+        counts[min(n_runs, 2)] += 1
+        assert _one_border_run(ys, xs, h, w, BORDER_PX, RUN_GAP, MIN_RUN) == (n_runs == 1)
+    assert min(counts.values()) > 10  # every case occurred
 
 
 def test_two_touching_hands_are_split_at_the_ends_of_their_arms():

@@ -33,6 +33,7 @@ Images are at the tracker's working resolution; boxes inclusive working px [u0, 
 from __future__ import annotations
 
 import heapq
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -115,7 +116,7 @@ def geodesic_labels(mask, z, seeds, step, step_cost):
 
 def working_depth(depth: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarray:
     """Full-resolution depth (m) subsampled every ``scale``-th px to the working ``shape`` (H, W); unknown → 0."""
-    z = np.asarray(depth, np.float64)[::scale, ::scale][: shape[0], : shape[1]]
+    z = np.asarray(depth)[::scale, ::scale][: shape[0], : shape[1]].astype(np.float64)
     z = np.where(np.isfinite(z) & (z > 0), z, 0.0)
     if z.shape != shape:
         out = np.zeros(shape)
@@ -124,23 +125,186 @@ def working_depth(depth: np.ndarray, scale: int, shape: tuple[int, int]) -> np.n
     return z
 
 
+@nb.njit(cache=True, nogil=True)
+def _foreground_raw(z, background, gap):
+    """uint8 mask of the pixels with background depth that are nearer by ``gap`` or have no depth (not opened)."""
+    h, w = z.shape
+    fg = np.zeros((h, w), np.uint8)
+    for y in range(h):
+        for x in range(w):
+            b = background[y, x]
+            if b > 0:
+                zz = z[y, x]
+                if zz <= 0 or zz < b - gap:
+                    fg[y, x] = 1
+    return fg
+
+
 def foreground(z: np.ndarray, background: np.ndarray) -> np.ndarray:
     """Bool mask of the pixels nearer than ``background`` by FG_GAP, or without depth where the background has it."""
-    bg_ok = background > 0
-    fg = bg_ok & (((z > 0) & (z < background - FG_GAP)) | (z <= 0))
-    return cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
+    fg = _foreground_raw(np.ascontiguousarray(z, np.float64), np.ascontiguousarray(background, np.float64), FG_GAP)
+    return cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
 
 
-def _border_runs(ys: np.ndarray, xs: np.ndarray, h: int, w: int) -> list[np.ndarray]:
-    """Indices of border pixels grouped into runs along the image border (clockwise perimeter coordinate)."""
-    b = BORDER_PX
-    bottom_left = np.where(ys >= h - b, w + h + (w - xs), 2 * w + h + (h - ys))
-    p = np.where(ys < b, xs, np.where(xs >= w - b, w + ys, bottom_left)).astype(np.float64)
-    order = np.argsort(p)
-    runs = np.split(order, np.nonzero(np.diff(p[order]) > RUN_GAP)[0] + 1)
-    if len(runs) > 1 and p[order[0]] + 2 * (w + h) - p[order[-1]] <= RUN_GAP:  # a run through the top-left corner
-        runs = [np.concatenate([runs[-1], runs[0]])] + runs[1:-1]
-    return [r for r in runs if len(r) >= MIN_RUN]
+@nb.njit(cache=True, nogil=True)
+def _one_border_run(ys, xs, h, w, b, gap, min_run):
+    """Whether the border pixels (``ys``, ``xs``, image rows and columns within ``b`` px of the border) form exactly
+    one run of at least ``min_run`` pixels along the image border: sorted by their clockwise perimeter coordinate
+    (from the top-left corner), split where consecutive ones lie more than ``gap`` apart, the last and first run
+    joined when they meet through the top-left corner."""
+    n = len(ys)
+    p = np.empty(n)
+    for i in range(n):
+        y, x = ys[i], xs[i]
+        if y < b:
+            p[i] = x
+        elif x >= w - b:
+            p[i] = w + y
+        elif y >= h - b:
+            p[i] = w + h + (w - x)
+        else:
+            p[i] = 2 * w + h + (h - y)
+    p = np.sort(p)
+    lens = []
+    cur = 1
+    for i in range(1, n):
+        if p[i] - p[i - 1] > gap:
+            lens.append(cur)
+            cur = 1
+        else:
+            cur += 1
+    lens.append(cur)
+    if len(lens) > 1 and p[0] + 2 * (w + h) - p[n - 1] <= gap:  # a run through the top-left corner
+        lens[0] += lens[-1]
+        lens.pop()
+    k = 0
+    for ln in lens:
+        if ln >= min_run:
+            k += 1
+    return k == 1
+
+
+@nb.njit(cache=True, nogil=True)
+def _arm_seeds(sk, near, sleeve, b, min_area, gap, min_run, wrist_far):
+    """The arms of one frame and their hands' seed pixels (steps 2–3 of the module docstring): the 8-connected
+    components of ``sleeve`` (uint8) that reach within ``b`` px of the image border, of at least ``min_area`` px,
+    whose border pixels form one run; each one's wrist (its pixels at least ``wrist_far`` of the farthest
+    straight-line distance from the entry point where ``near``, the skin ``sk`` dilated by 2 px, is set) and the skin
+    pixels within 2 px of the wrist as seeds. Components in the order of their first 2 × 2 block in raster order (as
+    OpenCV's block-based labelling numbers them). Returns
+    (seeds int32 H×W, 0 = none, k + 1 = the k-th arm; entries float64 [n, 2] (x, y))."""
+    h, w = sleeve.shape
+    w2 = w + 2
+    pad = np.zeros((h + 2) * w2, np.uint8)  # the sleeve with a 1 px frame of zeros, flat; 255 = visited
+    for y in range(h):
+        for x in range(w):
+            pad[(y + 1) * w2 + x + 1] = sleeve[y, x]
+    offs = np.array([-w2 - 1, -w2, -w2 + 1, -1, 1, w2 - 1, w2, w2 + 1])
+    oy = np.empty(h * w, np.int32)  # the components' pixels, one after the other
+    ox = np.empty(h * w, np.int32)
+    queue = np.empty(h * w, np.int64)
+    starts = [0]
+    firsts = []
+    top = 0
+    for y in range(h):
+        for x in range(w):
+            p0 = (y + 1) * w2 + x + 1
+            if not (y < b or y >= h - b or x < b or x >= w - b) or pad[p0] != 1:
+                continue
+            first = h * w
+            pad[p0] = 255
+            queue[top] = p0
+            head = top
+            top += 1
+            while head < top:
+                q = queue[head]
+                head += 1
+                for o in offs:
+                    if pad[q + o] == 1:
+                        pad[q + o] = 255
+                        queue[top] = q + o
+                        top += 1
+            for i in range(starts[-1], top):
+                qy = queue[i] // w2
+                oy[i] = qy - 1
+                ox[i] = queue[i] - qy * w2 - 1
+                first = min(first, (oy[i] // 2) * w + ox[i] // 2)
+            starts.append(top)
+            firsts.append(first)
+    seeds = np.zeros((h, w), np.int32)
+    entries = np.zeros((len(firsts), 2))
+    n_arms = 0
+    dist = np.empty(h * w)
+    for c in np.argsort(np.array(firsts)):
+        s0 = starts[c]
+        s1 = starts[c + 1]
+        if s1 - s0 < min_area:
+            continue
+        x0 = w
+        y0 = h
+        nb_ = 0
+        for i in range(s0, s1):
+            x0 = min(x0, ox[i])
+            y0 = min(y0, oy[i])
+            if oy[i] < b or oy[i] >= h - b or ox[i] < b or ox[i] >= w - b:
+                nb_ += 1
+        ys = np.empty(nb_, np.int64)
+        xs = np.empty(nb_, np.int64)
+        k = 0
+        for i in range(s0, s1):
+            if oy[i] < b or oy[i] >= h - b or ox[i] < b or ox[i] >= w - b:
+                ys[k] = oy[i]
+                xs[k] = ox[i]
+                k += 1
+        if not _one_border_run(ys, xs, h, w, b, gap, min_run):
+            continue
+        ex = float(np.sum(xs - x0)) / nb_
+        ey = float(np.sum(ys - y0)) / nb_
+        dmax = 0.0
+        for i in range(s0, s1):
+            dist[i] = math.hypot((ox[i] - x0) - ex, (oy[i] - y0) - ey)
+            dmax = max(dmax, dist[i])
+        thr = wrist_far * dmax
+        label = n_arms + 1
+        has_wrist = False  # a wrist pixel has skin within 2 px: that skin seeds the hand
+        for i in range(s0, s1):
+            if dist[i] < thr or near[oy[i], ox[i]] == 0:
+                continue
+            has_wrist = True
+            qy = oy[i]
+            qx = ox[i]
+            for yy in range(max(qy - 2, 0), min(qy + 3, h)):
+                for xx in range(max(qx - 2, 0), min(qx + 3, w)):
+                    if sk[yy, xx] != 0 and seeds[yy, xx] == 0:
+                        seeds[yy, xx] = label
+        if not has_wrist:
+            continue
+        entries[n_arms, 0] = ex + x0
+        entries[n_arms, 1] = ey + y0
+        n_arms += 1
+    return seeds, entries[:n_arms]
+
+
+@nb.njit(cache=True, nogil=True)
+def _label_boxes(labels, n):
+    """Inclusive boxes [n, 4] (u0, v0, u1, v1) and pixel counts [n] of labels 1..n in ``labels``."""
+    h, w = labels.shape
+    boxes = np.empty((n, 4), np.int64)
+    boxes[:, 0] = w
+    boxes[:, 1] = h
+    boxes[:, 2] = -1
+    boxes[:, 3] = -1
+    counts = np.zeros(n, np.int64)
+    for y in range(h):
+        for x in range(w):
+            k = labels[y, x] - 1
+            if 0 <= k < n:
+                counts[k] += 1
+                boxes[k, 0] = min(boxes[k, 0], x)
+                boxes[k, 1] = min(boxes[k, 1], y)
+                boxes[k, 2] = max(boxes[k, 2], x)
+                boxes[k, 3] = max(boxes[k, 3], y)
+    return boxes, counts
 
 
 def arm_hands(skin: np.ndarray, z: np.ndarray, background: np.ndarray) -> list[ArmHand]:
@@ -152,54 +316,18 @@ def arm_hands(skin: np.ndarray, z: np.ndarray, background: np.ndarray) -> list[A
                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3)))  # fmt: skip
     if not sk.any():
         return []
-    fg = foreground(z, background)
-    if np.count_nonzero(fg) > MAX_FG_FRAC * max(np.count_nonzero(background > 0), 1):
+    z = np.ascontiguousarray(z, np.float64)
+    background = np.ascontiguousarray(background, np.float64)
+    fg = cv2.morphologyEx(_foreground_raw(z, background, FG_GAP), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    if cv2.countNonZero(fg) > MAX_FG_FRAC * max(np.count_nonzero(background > 0), 1):
         return []  # the background frame no longer fits (the camera moved, or a hand was in the first frame)
-    sleeve = (fg & ~cv2.dilate(sk, np.ones((3, 3), np.uint8)).astype(bool)).astype(np.uint8)
+    sleeve = cv2.bitwise_and(fg, 1 - cv2.dilate(sk, np.ones((3, 3), np.uint8)))
     sleeve = cv2.morphologyEx(sleeve, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(sleeve, connectivity=8)
-    b = BORDER_PX
-    near_skin = cv2.dilate(sk, np.ones((5, 5), np.uint8)).astype(bool)
-    seeds = np.zeros((h, w), np.int32)
-    entries: list[tuple[float, float]] = []
-    for i in range(1, n):
-        if stats[i, cv2.CC_STAT_AREA] < MIN_ARM_FRAC * h * w:
-            continue
-        x0, y0, bw, bh = (int(v) for v in stats[i, :4])
-        if not (x0 < b or y0 < b or x0 + bw > w - b or y0 + bh > h - b):
-            continue
-        m = lab[y0 : y0 + bh, x0 : x0 + bw] == i
-        border = np.zeros_like(m)
-        border[: max(b - y0, 0)] = True
-        border[max(h - b - y0, 0) :] = True
-        border[:, : max(b - x0, 0)] = True
-        border[:, max(w - b - x0, 0) :] = True
-        bys, bxs = np.nonzero(m & border)
-        if len(bys) == 0:
-            continue
-        runs = _border_runs(bys + y0, bxs + x0, h, w)
-        if len(runs) != 1:
-            continue  # no border run long enough, or two arms crossing in one component
-        ex, ey = float(bxs.mean()), float(bys.mean())
-        gy, gx = np.mgrid[0:bh, 0:bw]
-        dist = np.hypot(gx - ex, gy - ey)
-        dmax = float(dist[m].max())
-        wrist = m & (dist >= WRIST_FAR * dmax) & near_skin[y0 : y0 + bh, x0 : x0 + bw]
-        if not wrist.any():
-            continue
-        full = np.zeros((h, w), np.uint8)
-        full[y0 : y0 + bh, x0 : x0 + bw] = wrist
-        seed_px = sk.astype(bool) & cv2.dilate(full, np.ones((5, 5), np.uint8)).astype(bool)
-        if not seed_px.any():
-            continue
-        entries.append((ex + x0, ey + y0))
-        seeds[seed_px & (seeds == 0)] = len(entries)
-    if not entries:
+    near = cv2.dilate(sk, np.ones((5, 5), np.uint8))
+    seeds, entries = _arm_seeds(sk, near, sleeve, BORDER_PX, MIN_ARM_FRAC * h * w, RUN_GAP, MIN_RUN, WRIST_FAR)
+    if not len(entries):
         return []
     labels, _ = geodesic_labels(sk, z, seeds, DEPTH_STEP, DEPTH_STEP_COST)
-    out = []
-    for k, e in enumerate(entries):
-        ys, xs = np.nonzero(labels == k + 1)
-        if len(xs) >= MIN_HAND_PX:
-            out.append(ArmHand(e, (int(xs.min()), int(ys.min()), int(xs.max()), int(ys.max())), len(xs)))
-    return out
+    boxes, counts = _label_boxes(labels, len(entries))
+    return [ArmHand((float(e[0]), float(e[1])), (int(b[0]), int(b[1]), int(b[2]), int(b[3])), int(c))
+            for e, b, c in zip(entries, boxes, counts, strict=True) if c >= MIN_HAND_PX]  # fmt: skip
