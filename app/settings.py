@@ -94,7 +94,8 @@ class Settings(BaseSettings):
     )
     table_recheck_s: float = Field(3.0, gt=0)
     odometry: Literal["default", "fastslam", "fused", "off"] = Field(
-        "off", description="camera ego-motion: parts kept in the world frame while the camera moves (issue 15)"
+        "fused", description="camera ego-motion: parts kept in the world frame while the camera moves (issue 15; "
+        "tracker.odometry.ego_motion.DEFAULT_MODE: idle on a fixed camera, the same poses as off)"
     )
     max_fps: float = Field(30.0, gt=0, description="upper bound on processed frames per second")
     jpeg_quality: int = Field(75, ge=10, le=100)

@@ -2,16 +2,18 @@
 
 Runs the tracker exactly as ``assembly-agent track RECORDING`` does (:class:`app.commands.track.TrackSession`: the
 poses of objects.json for frame 0, default preset, colour and table plane as the command decides — the recording
-is grey with depth of the object only, so neither is used) on every frame, and beside it, on the same frames in
-the same run, the baseline a user would try first: frame-to-frame point-to-plane ICP of the same mesh against the
-same depth (:class:`benchmarks.icp_baseline.ICPTracker`, Open3D when installed — ``pip install -e .[bench]`` —
-else its numpy/scipy fallback, which the report names), started from the same frame-0 pose.
+is grey with depth of the object only, so neither is used — and the command's camera odometry,
+:data:`tracker.odometry.ego_motion.DEFAULT_MODE` unless ``--odometry`` says otherwise) on every frame, and beside
+it, on the same frames in the same run, the baseline a user would try first: frame-to-frame point-to-plane ICP of
+the same mesh against the same depth (:class:`benchmarks.icp_baseline.ICPTracker`, Open3D when installed —
+``pip install -e .[bench]`` — else its numpy/scipy fallback, which the report names), started from the same
+frame-0 pose.
 
 Per frame and as median / max: translation error ‖t_est − t_true‖ (mm), rotation error (degrees; the geodesic
 angle of R_estᵀ R_true, and ViSP's own measure ‖θu_true − θu_est‖, which its CI bounds), the share of frames
-within ViSP's CI bound (t ≤ 2 mm and r ≤ 0.4°, ViSP's measure), tracker time per frame (wall and thread CPU, ms)
-and frames per second (from the mean wall time of the steps, and from their CPU time: what one free core would
-give); the ratios ours / ICP.
+within ViSP's CI bound (t ≤ 2 mm and r ≤ 0.4°, ViSP's measure), time per frame of the whole step (odometry
+stage, table, tracker; wall and thread CPU, ms) and frames per second (from the mean wall time of the steps, and
+from their CPU time: what one free core would give); the ratios ours / ICP.
 
 Writes benchmarks/results/castle.json and castle.md (a BENCHMARKS.md section). Usage::
 
@@ -44,6 +46,7 @@ from benchmarks.result_files import git_commit, rewrite_markdown, write_results 
 from tracker.evaluation.machine_info import machine_info  # noqa: E402
 from tracker.filter.tracker_config import TrackerConfig  # noqa: E402
 from tracker.geometry.pose import Pose  # noqa: E402
+from tracker.odometry.ego_motion import DEFAULT_MODE  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "external" / "castle-simu"
 VISP_T_MM = 2.0
@@ -92,28 +95,32 @@ def summarize(rows: list[dict]) -> dict:
     }
 
 
-def run_ours(data: Path, n_frames: int | None, particles: int | None, seed: int) -> tuple[list[dict], dict]:
+def run_ours(data: Path, n_frames: int | None, particles: int | None, seed: int,
+             odometry: str = DEFAULT_MODE) -> tuple[list[dict], dict]:
     """The ``track`` command's tracker on the recording; per-frame rows and what the session decided."""
     src, parts, poses = load_recording_parts(data)
     cfg = TrackerConfig.preset("default")
     if particles is not None:
         cfg = cfg.with_overrides(n_particles=particles)
-    session = TrackSession(parts, src.intrinsics, poses, cfg, seed=seed)
+    session = TrackSession(parts, src.intrinsics, poses, cfg, seed=seed, odometry=odometry)
     name = parts[0].name
     rows = []
     try:
         for frame in src:
             if n_frames is not None and len(rows) >= n_frames:
                 break
-            state, dt = session.step(frame)
-            cpu = session.last_cpu
+            t0 = time.perf_counter()
+            state, _ = session.step(frame)
+            dt = time.perf_counter() - t0
+            cpu = session.last_cpu + session.last_ego_cpu
             row = {"index": frame.index, **frame_errors(state.poses[name], src.groundtruth(frame.index)[name]),
                    "wall_ms": 1000 * dt, "cpu_ms": 1000 * cpu}
             rows.append(row)
     finally:
         src.close()
     info = {"n_particles": cfg.n_particles, "table": session.table is not None,
-            "colour": session.detector is not None, "skipped": session.skipped}
+            "colour": session.detector is not None, "skipped": session.skipped, "odometry": odometry,
+            "odometry_measured": None if session.ego is None else session.frames - session.ego.failures}
     return rows, info
 
 
@@ -145,6 +152,14 @@ def ratios(ours: dict, base: dict) -> dict:
     return {k: float(ours[k] / base[k]) if base[k] > 0 else float("inf") for k in keys}
 
 
+def _odometry_note(info: dict) -> str:
+    """``, odometry …`` for the markdown (older results without the field ran with odometry off)."""
+    mode = info.get("odometry", "off")
+    if mode == "off" or info.get("odometry_measured") is None:
+        return f", odometry {mode}"
+    return f", odometry {mode}: {info['odometry_measured']} camera poses measured, the others extrapolated"
+
+
 def markdown(res: dict) -> str:
     m = res["machine"]
     o, b, q = res["ours"], res["icp"], res["ratio"]
@@ -163,7 +178,8 @@ def markdown(res: dict) -> str:
         f"Data: `../shared/data/external/castle-simu` (ViSP's synthetic castle, 640×480, grey, depth of the object "
         f"only, exact ground truth), {o['frames']} frames. **Ours** = the tracker of `assembly-agent track` "
         f"(default preset, N = {res['ours_info']['n_particles']}, table plane: "
-        f"{'used' if res['ours_info']['table'] else 'none'}, colour: {'on' if res['ours_info']['colour'] else 'off'}), "
+        f"{'used' if res['ours_info']['table'] else 'none'}, colour: {'on' if res['ours_info']['colour'] else 'off'}"
+        + _odometry_note(res["ours_info"]) + "), "
         f"started from objects.json's pose (= ground truth of frame 0). **Baseline** = {icp_name} of the same mesh "
         "(1500 surface points with normals) against the same depth (every 2nd pixel), frame to frame from the "
         "previous estimate, started from the same pose; `benchmarks/icp_baseline.py`. Rotation error: geodesic "
@@ -207,6 +223,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=None, help="only the first N frames (default: all 40)")
     ap.add_argument("--particles", type=int, default=None, help="N of our tracker (default: the preset's)")
     ap.add_argument("--seed", type=int, default=0, help="random seed of our tracker (as `track --seed`)")
+    ap.add_argument("--odometry", default=DEFAULT_MODE, choices=("default", "fastslam", "fused", "off"),
+                    help=f"camera odometry of our tracker (default {DEFAULT_MODE}, as `track`)")
     ap.add_argument("--note", default="", help="a sentence added to the figures' notes (e.g. which tracker)")
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite castle.md from castle.json and exit")
@@ -227,7 +245,7 @@ def main(argv=None) -> int:
     commit = git_commit()  # before the run: the code that ran, even if the tree changes meanwhile
     info = machine_info()
     info["load_1min_at_start"] = info.pop("load_avg_1min")
-    ours_rows, ours_info = run_ours(data, args.frames, args.particles, args.seed)
+    ours_rows, ours_info = run_ours(data, args.frames, args.particles, args.seed, args.odometry)
     icp_rows, backend = run_icp(data, args.frames)
     for a, c in zip(ours_rows, icp_rows, strict=True):
         print(f"frame {a['index']:3d}: ours {a['t_mm']:7.2f} mm {a['r_deg']:7.3f}° {a['wall_ms']:7.1f} ms | "

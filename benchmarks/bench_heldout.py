@@ -53,6 +53,7 @@ from benchmarks.icp_baseline import HAVE_OPEN3D  # noqa: E402
 from benchmarks.result_files import git_commit, rewrite_markdown, write_results  # noqa: E402
 from tracker.evaluation.machine_info import machine_info  # noqa: E402
 from tracker.evaluation.seeds import TUNING_SEEDS, check_seeds, parse_seeds  # noqa: E402
+from tracker.odometry.ego_motion import DEFAULT_MODE  # noqa: E402
 
 FRAMES = 300
 DEFAULT_SEEDS = "100-115"
@@ -145,13 +146,15 @@ def run_session(job: dict) -> dict:
     cfg = TrackerConfig.preset("default").with_overrides(**job.get("overrides", {}))
     if job.get("particles"):
         cfg = cfg.with_overrides(n_particles=job["particles"])
-    odometry = job.get("odometry") or "off"
+    odometry = job.get("odometry") or DEFAULT_MODE
     rng_seed = int(job.get("tracker_seed", 0))
     hands = bool(job.get("hands"))
     sessions = {"ours": TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=rng_seed,
                                      odometry=odometry, hands=hands)}
-    if odometry != "off" or hands:  # the same tracker without odometry / hand tracker, on the same frames
-        sessions["off"] = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=rng_seed)
+    if (odometry != "off" and not job.get("pair")) or hands:
+        # the same tracker without odometry / hand tracker, on the same frames (not in a paired tuning run)
+        sessions["off"] = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=rng_seed,
+                                       odometry="off" if not hands else odometry)
     if job.get("pair"):  # tuning: the same tracker with changed settings on the same frames
         sessions["pair"] = TrackSession(src.parts, src.intrinsics, src.initial_poses,
                                         cfg.with_overrides(**job["pair"]), seed=rng_seed, odometry=odometry,
@@ -332,7 +335,7 @@ def markdown(res: dict) -> str:
         "",
         "Reproduce: `.venv/bin/python benchmarks/bench_heldout.py --jobs 2"
         + (" --dev" if dev else "")
-        + (f" --odometry {res['odometry']}" if res.get("odometry", "off") != "off" else "")
+        + (f" --odometry {res.get('odometry', 'off')}" if res.get("odometry", "off") != DEFAULT_MODE else "")
         + (" --hands" if res.get("hands") else "")
         + "` (≈ 1 min of CPU per session"
         + ("; three trackers per session)." if res.get("odometry", "off") != "off" or res.get("hands") else ")."),
@@ -367,10 +370,11 @@ def main(argv=None) -> int:
     ap.add_argument("--sessions", default=None, help="run only these sessions of the design (1-based, e.g. 2,4-6)")
     ap.add_argument("--jobs", type=int, default=1, help="sessions run in parallel (processes)")
     ap.add_argument("--particles", type=int, default=None, help="N of our tracker (default: the preset's)")
-    ap.add_argument("--odometry", default="off", choices=("default", "fastslam", "fused", "off"),
-                    help="camera odometry of our tracker (issue 15); when on, the same tracker with odometry off "
-                    "runs beside it on the same frames and the results go to results/heldout_odometry[_MODE][_dev].* "
-                    "(MODE: fastslam, fused)")
+    ap.add_argument("--odometry", default=DEFAULT_MODE, choices=("default", "fastslam", "fused", "off"),
+                    help=f"camera odometry of our tracker (issue 15; default {DEFAULT_MODE}, the product's); when on, "
+                    "the same tracker with odometry off runs beside it on the same frames (not with --pair, whose "
+                    f"arms both have it); results go to results/heldout[_dev].* for {DEFAULT_MODE}, else "
+                    "results/heldout_odometry_MODE[_dev].*")
     ap.add_argument("--hands", action="store_true", help="our tracker with the hand tracker's touched parts (as the "
                     "pipeline with hands on); the same tracker without runs beside it on the same frames and the "
                     "results go to results/heldout_hands[_dev].*")
@@ -388,8 +392,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite the .md from the .json and exit")
     args = ap.parse_args(argv)
-    stem = ("heldout_dev" if args.dev else "heldout") if args.odometry == "off" else (
-        "heldout_odometry" + ("" if args.odometry == "default" else f"_{args.odometry}") + ("_dev" if args.dev else ""))
+    stem = ("heldout" if args.odometry == DEFAULT_MODE else f"heldout_odometry_{args.odometry}") + (
+        "_dev" if args.dev else "")
     if args.hands:
         stem = "heldout_hands" + ("_dev" if args.dev else "")
     if args.markdown_only:
@@ -408,9 +412,6 @@ def main(argv=None) -> int:
         bad = [k for k in picked if not 1 <= k <= len(DESIGN)]
         if bad:
             raise ValueError(f"--sessions {bad}: the design has sessions 1–{len(DESIGN)}")
-        if args.hands and args.odometry != "off":
-            raise ValueError("--hands compares the tracker with and without the hand tracker: give it without "
-                             "--odometry")
         if args.frames < 1 or args.jobs < 1:
             raise ValueError("--frames and --jobs must be at least 1")
         overrides = parse_overrides(args.set)

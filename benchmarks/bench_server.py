@@ -21,7 +21,8 @@ Writes benchmarks/results/server.json and server.md.
 
     .venv/bin/python benchmarks/bench_server.py [--seconds 20] [--particles N] [--hands]
 
-``--hands`` adds the two websocket runs again with the hand tracker on (``serve --hands``).
+``--hands`` adds the two websocket runs again with the hand tracker on (``serve --hands``); ``--odometry MODE`` adds
+them with that camera odometry (``serve --odometry MODE``), to compare with the server's default in the same run.
 """
 
 from __future__ import annotations
@@ -172,17 +173,17 @@ def wait_until_processing(proc: subprocess.Popen, base: str, frames: int = 10, t
 
 
 def run_case(name: str, realtime: bool, seconds: float, particles: int | None, db: Path, jpeg: bool = True,
-             hands: bool = False, hands_worker: str | None = None) -> dict:
+             hands: bool = False, hands_worker: str | None = None, odometry: str | None = None) -> dict:
     """One websocket run (see the module docstring); a run that fails (the server does not start processing, no
     message for 30 s) is recorded with its error instead of ending the benchmark."""
     try:
-        return _run_case(name, realtime, seconds, particles, db, jpeg, hands, hands_worker)
+        return _run_case(name, realtime, seconds, particles, db, jpeg, hands, hands_worker, odometry)
     except (RuntimeError, TimeoutError, OSError) as exc:
         return {"case": name, "realtime": realtime, "error": f"{type(exc).__name__}: {exc}"[:300]}
 
 
 def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, db: Path, jpeg: bool,
-              hands: bool, hands_worker: str | None) -> dict:
+              hands: bool, hands_worker: str | None, odometry: str | None = None) -> dict:
     port = free_port()
     cmd = [
         sys.executable,
@@ -208,6 +209,8 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
         cmd.append("--hands")
     if hands_worker:
         cmd += ["--hands-worker", hands_worker]
+    if odometry:
+        cmd += ["--odometry", odometry]
     env = dict(os.environ, ASSEMBLY_AGENT_MAX_FPS="1000")
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     base = f"http://127.0.0.1:{port}"
@@ -431,6 +434,9 @@ def main() -> int:
                     "(serve --hands-worker thread) instead of its child process")
     ap.add_argument("--hands-only", action="store_true",
                     help="only the two websocket runs with hands on (a quick comparison; implies --no-browser)")
+    ap.add_argument("--odometry", choices=("off", "default", "fastslam", "fused"), default=None,
+                    help="also the two websocket runs with this camera odometry (serve --odometry MODE) beside the "
+                    "runs with the server's default")
     ap.add_argument("--no-browser", action="store_true",
                     help="only the websocket runs (the browser runs' figures are kept from server.json)")
     ap.add_argument("--browser-only", action="store_true",
@@ -459,6 +465,13 @@ def main() -> int:
                 run_case("realtime-30fps, hands on, thread", True, args.seconds, args.particles, db, args.jpeg,
                          hands=True, hands_worker="thread"),
             ]
+    if args.odometry and not args.browser_only:
+        cases += [
+            run_case(f"unpaced, odometry {args.odometry}", False, args.seconds, args.particles, db, args.jpeg,
+                     odometry=args.odometry),
+            run_case(f"realtime-30fps, odometry {args.odometry}", True, args.seconds, args.particles, db, args.jpeg,
+                     odometry=args.odometry),
+        ]
     browser_cases = kept.get("browser_cases", []) if args.no_browser else [
         run_browser_case("panel without 3-D scene (baseline)", False, args.seconds, args.particles, db),
         run_browser_case("panel with 3-D scene", True, args.seconds, args.particles, db),

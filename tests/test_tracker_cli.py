@@ -53,3 +53,25 @@ def test_track_errors(recording, tmp_path, capsys):
     assert "no first-frame pose" in capsys.readouterr().err
     assert main(["track", str(recording), "--preset", "bogus"]) == 1
     assert "unknown tracker preset" in capsys.readouterr().err
+
+
+def test_track_and_serve_default_to_the_fused_odometry(recording, tmp_path, capsys):
+    """``track`` and ``serve`` run the odometry of :data:`tracker.odometry.ego_motion.DEFAULT_MODE` unless told
+    otherwise; on a fixed camera it idles and every line of ``--out`` carries the camera pose at the origin."""
+    from app.commands.track import DEFAULT_ODOMETRY
+    from app.settings import Settings
+    from tracker.odometry.ego_motion import DEFAULT_MODE
+
+    assert DEFAULT_ODOMETRY == DEFAULT_MODE == Settings().odometry == "fused"
+    out = tmp_path / "poses.jsonl"
+    assert main(["track", str(recording), "--out", str(out), "--particles", "60", "--frames", "4"]) == 0
+    assert "odometry fused: 4 of 4 camera poses measured" in capsys.readouterr().err
+    lines = [json.loads(s) for s in out.read_text().splitlines()]
+    assert len(lines) == 4
+    for d in lines:  # the simulated camera of this recording does not move
+        assert max(abs(x) for x in d["camera"]["t"]) < 1e-3
+    off = tmp_path / "off.jsonl"
+    assert main(["track", str(recording), "--out", str(off), "--particles", "60", "--frames", "4",
+                 "--odometry", "off"]) == 0
+    assert "odometry" not in capsys.readouterr().err
+    assert all("camera" not in json.loads(s) for s in off.read_text().splitlines())

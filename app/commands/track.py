@@ -20,7 +20,8 @@ Writes one JSON line per frame to ``--out`` (default: stdout is left for the rep
 
     {"index": i, "poses": {"<name>": {"t": [x, y, z], "q": [x, y, z, w]}}}
 
-(camera frame, metres, Hamilton quaternions); with ``--odometry default|fastslam`` each line also has
+(camera frame, metres, Hamilton quaternions); with the odometry on (``--odometry fused``, the default, or
+``default|fastslam``) each line also has
 ``"camera": {"t", "q", "ok"}``, the camera's pose in the world frame (= the first frame's camera frame; ``ok`` False
 when extrapolated). With odometry on, the tracker's particles are moved by the camera's motion before each step
 (static parts stay put in the world frame) and the table plane is propagated with the camera instead of re-checked
@@ -39,6 +40,10 @@ import sys
 import time
 from pathlib import Path
 
+DEFAULT_ODOMETRY = "fused"
+"""``--odometry``'s default: :data:`tracker.odometry.ego_motion.DEFAULT_MODE` (kept literal here so that ``--help``
+does not import the tracker; a test checks that the two agree)."""
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("track", help="track the parts of a recording with the depth particle filter")
@@ -53,9 +58,10 @@ def register(subparsers) -> None:
     p.add_argument("--no-color", action="store_true", help="depth only (ignore part colours)")
     p.add_argument("--no-table", action="store_true",
                    help="do not look for a table plane (e.g. a recording with depth of the object only)")
-    p.add_argument("--odometry", default="off", choices=("default", "fastslam", "fused", "off"),
-                   help="camera ego-motion (default off): the parts are moved by the camera's motion before each "
-                        "step and the table plane is propagated; --out still gets camera-frame poses")
+    p.add_argument("--odometry", default=DEFAULT_ODOMETRY, choices=("default", "fastslam", "fused", "off"),
+                   help=f"camera ego-motion (default {DEFAULT_ODOMETRY}; off: a fixed camera's poses are the same): "
+                        "the parts are moved by the camera's motion before each step and the table plane is "
+                        "propagated; --out still gets camera-frame poses")
     p.add_argument("--hands", action="store_true",
                    help="run the hand tracker beside the part tracker: a hidden part a hand touches is carried by it "
                         "(as the server with --hands); about 7 ms more per frame")
