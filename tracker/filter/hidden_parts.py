@@ -19,6 +19,7 @@ from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.filter.predict import adaptive_noise
 from tracker.filter.scene_motion import placed_by_depth
 from tracker.geometry.box_renderer import pixel_rays
+from tracker.geometry.fma import fma
 from tracker.geometry.pose import Pose
 
 if TYPE_CHECKING:
@@ -483,12 +484,44 @@ class PriorTerms:
 
 
 def _support_term(trk, p, R, plane, i) -> np.ndarray:
-    """Part ``i``'s term of :func:`log_support_prior` (subtracted from it)."""
+    """Part ``i``'s term of :func:`log_support_prior` (subtracted from it); one kernel (:func:`_support_kernel`) from
+    two particles on."""
     sig = trk.config.support_prior_sigma
     n, d = plane
+    if p.shape[0] >= 2:
+        return _support_kernel(np.asarray(p, np.float64), np.asarray(R, np.float64),
+                               np.ascontiguousarray(n, np.float64).reshape(3), float(d),
+                               np.ascontiguousarray(trk.hulls[i], np.float64), int(i), float(sig))
+    return _support_numpy(p, R, n, d, trk.hulls[i], i, sig)
+
+
+def _support_numpy(p, R, n, d, hull, i, sig) -> np.ndarray:
+    """:func:`_support_term` in numpy (the reference :func:`_support_kernel` is tested against)."""
     up = np.einsum("nji,j->ni", R[:, i], n)  # Rᵀ n per particle: the table's normal in the part's frame
-    h = np.abs((up @ trk.hulls[i].T).min(axis=1) + p[:, i] @ n + d) / sig
+    h = np.abs((up @ hull.T).min(axis=1) + p[:, i] @ n + d) / sig
     return np.where(h < 3.0, 0.5 * h * h, 3.0 * h - 4.5)
+
+
+@nb.njit(cache=True)
+def _support_kernel(p, R, n, d, hull, i, sig):
+    """:func:`_support_numpy` for two or more particles, its operations in the order numpy forms them here (einsum's
+    plain sums for Rᵀ n; the hull product and the particles' ``p · n`` with the fused multiply-adds of numpy's
+    matrix products on this project's machines, :mod:`tracker.geometry.fma`): the same values."""
+    m = p.shape[0]
+    out = np.empty(m)
+    for j in range(m):
+        u0 = (R[j, i, 0, 0] * n[0] + R[j, i, 1, 0] * n[1]) + R[j, i, 2, 0] * n[2]
+        u1 = (R[j, i, 0, 1] * n[0] + R[j, i, 1, 1] * n[1]) + R[j, i, 2, 1] * n[2]
+        u2 = (R[j, i, 0, 2] * n[0] + R[j, i, 1, 2] * n[1]) + R[j, i, 2, 2] * n[2]
+        low = np.inf
+        for v in range(hull.shape[0]):
+            x = fma(u2, hull[v, 2], fma(u1, hull[v, 1], u0 * hull[v, 0]))
+            if x < low or np.isnan(x):
+                low = x
+        pn = fma(p[j, i, 2], n[2], fma(p[j, i, 0], n[0], p[j, i, 1] * n[1]))
+        h = abs(low + pn + d) / sig
+        out[j] = 0.5 * h * h if h < 3.0 else 3.0 * h - 4.5
+    return out
 
 
 def log_rest_prior(trk, p) -> np.ndarray | float:

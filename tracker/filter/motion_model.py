@@ -18,6 +18,7 @@ import numba as nb
 import numpy as np
 
 from tracker.geometry.camera import Intrinsics
+from tracker.geometry.fma import matmul33
 from tracker.geometry.pose import Pose, matrix_to_quat, quat_to_matrix
 
 
@@ -44,34 +45,54 @@ def propagate(
     ``p_ref`` (M, 3), ``R_ref`` (M, 3, 3): reference (previous) poses; ``v_prev`` (M, 6) = (v, ω);
     ``u`` (3,) control input (metres); ``noise`` (M, 6) samples of w. Returns (p, R, v), new arrays.
 
-    The element-wise work (velocity, position, the rotation vector's skew matrix and Rodrigues' coefficients) is one
-    numba pass (:func:`_velocity_pass`) and the two 3×3 products stay numpy's, so that the result is
-    :func:`propagate_numpy`'s bit for bit (numpy's small matrix products round differently from a plain loop).
+    One numba pass (:func:`_propagate_kernel`) forms the operations of :func:`propagate_numpy` in its order, the two
+    3×3 products as numpy's matmul rounds them (:func:`tracker.geometry.fma.matmul33`), so that the result is
+    :func:`propagate_numpy`'s bit for bit without numpy's per-matrix product calls.
     """
     m = p_ref.shape[0]
     p = np.empty((m, 3))
+    R = np.empty((m, 3, 3))
     v = np.empty((m, 6))
-    K = np.empty((m, 3, 3))
-    fa = np.empty(m)
-    fb = np.empty(m)
-    _velocity_pass(np.asarray(p_ref, np.float64), np.asarray(v_prev, np.float64), np.asarray(noise, np.float64),
-                   np.asarray(u, np.float64).reshape(3), float(k_v), float(b), p, v, K, fa, fb)
-    E = K @ K
-    _rodrigues_sum(K, fa, fb, E)
-    return p, E @ np.asarray(R_ref, np.float64), v
+    _propagate_kernel(np.asarray(p_ref, np.float64), np.asarray(R_ref, np.float64), np.asarray(v_prev, np.float64),
+                      np.asarray(noise, np.float64), np.asarray(u, np.float64).reshape(3), float(k_v), float(b), p, R,
+                      v)
+    return p, R, v
 
 
 @nb.njit(cache=True)
-def _rodrigues_sum(K, fa, fb, E):
-    """In place ``E = (I + fa K) + fb E`` per particle (``E`` holding K K on entry): the element-wise sums of
-    :func:`propagate_numpy` / :func:`rotvec_to_matrix` in their order (same values)."""
-    for j in range(K.shape[0]):
+def _propagate_kernel(p_ref, R_ref, v_prev, noise, u, k_v, b, p, R, v):
+    """:func:`propagate` into ``p``, ``R``, ``v``. Per particle: ``v = k_v v_prev + noise`` (+ ``b u`` on the linear
+    part), ``p = p_ref + v[:3]``, the skew matrix ``K`` of ω = ``v[3:]`` and Rodrigues' coefficients ``fa`` = sin θ /
+    θ, ``fb`` = (1 − cos θ) / θ² (series below 1e-9 rad), ``E = (I + fa K) + fb (K K)`` and ``R = E R_ref``, with the
+    operations of :func:`propagate_numpy` and :func:`rotvec_to_matrix` (same values; the products rounded as numpy's
+    matmul). Works on strided inputs (one part's slice of the (N, K, ...) arrays)."""
+    m = p_ref.shape[0]
+    K = np.empty((3, 3))
+    KK = np.empty((3, 3))
+    E = np.empty((3, 3))
+    for j in range(m):
+        for a in range(6):
+            v[j, a] = k_v * v_prev[j, a] + noise[j, a]
+        for a in range(3):
+            v[j, a] += b * u[a]
+            p[j, a] = p_ref[j, a] + v[j, a]
+        w0, w1, w2 = v[j, 3], v[j, 4], v[j, 5]
+        th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        if th < 1e-9:
+            fa = 1.0 - th**2 / 6.0
+            fb = 0.5 - th**2 / 24.0
+        else:
+            fa = np.sin(th) / th
+            fb = (1.0 - np.cos(th)) / th**2
+        K[0, 0], K[0, 1], K[0, 2] = 0.0, -w2, w1
+        K[1, 0], K[1, 1], K[1, 2] = w2, 0.0, -w0
+        K[2, 0], K[2, 1], K[2, 2] = -w1, w0, 0.0
+        matmul33(K, K, KK)
         for a in range(3):
             for c in range(3):
                 eye = 1.0 if a == c else 0.0
-                E[j, a, c] = (eye + fa[j] * K[j, a, c]) + fb[j] * E[j, a, c]
-
-
+                E[a, c] = (eye + fa * K[a, c]) + fb * KK[a, c]
+        matmul33(E, R_ref[j], R[j])
 
 
 def propagate_numpy(
@@ -83,31 +104,6 @@ def propagate_numpy(
     p = p_ref + v[:, :3]
     R = rotvec_to_matrix(v[:, 3:]) @ R_ref
     return p, R, v
-
-
-@nb.njit(cache=True)
-def _velocity_pass(p_ref, v_prev, noise, u, k_v, b, p, v, K, fa, fb):
-    """Per particle: ``v = k_v v_prev + noise`` (+ ``b u`` on the linear part), ``p = p_ref + v[:3]``, the skew
-    matrix ``K`` of ω = ``v[3:]`` and Rodrigues' coefficients ``fa`` = sin θ / θ, ``fb`` = (1 − cos θ) / θ² (series
-    below 1e-9 rad), with the operations of :func:`propagate_numpy` and :func:`rotvec_to_matrix` (same values).
-    Works on strided inputs (one part's slice of the (N, K, ...) arrays)."""
-    for j in range(p_ref.shape[0]):
-        for a in range(6):
-            v[j, a] = k_v * v_prev[j, a] + noise[j, a]
-        for a in range(3):
-            v[j, a] += b * u[a]
-            p[j, a] = p_ref[j, a] + v[j, a]
-        w0, w1, w2 = v[j, 3], v[j, 4], v[j, 5]
-        th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-        if th < 1e-9:
-            fa[j] = 1.0 - th**2 / 6.0
-            fb[j] = 0.5 - th**2 / 24.0
-        else:
-            fa[j] = np.sin(th) / th
-            fb[j] = (1.0 - np.cos(th)) / th**2
-        K[j, 0, 0], K[j, 0, 1], K[j, 0, 2] = 0.0, -w2, w1
-        K[j, 1, 0], K[j, 1, 1], K[j, 1, 2] = w2, 0.0, -w0
-        K[j, 2, 0], K[j, 2, 1], K[j, 2, 2] = -w1, w0, 0.0
 
 
 def sample_noise(

@@ -462,6 +462,11 @@ class TrackerConfig(BaseModel):
         description="Largest accepted model-to-measurement distance (m) per correspondence iteration.",
     )
     refine_updates: int = Field(2, ge=1, description="Gauss-Newton updates per correspondence iteration.")
+    refine_converged_step: float = Field(
+        0.0, ge=0.0, description="End a part's Gauss-Newton iterations, the finer thresholds' too, once an update's "
+        "norm (rad and m together) falls below this: its pose has converged (a speed setting; 0 = all thresholds "
+        "run).",
+    )
     refine_occlusion: float = Field(
         0.03, gt=0.0, description="A measurement this far (m) in front of a model point means it is occluded.",
     )

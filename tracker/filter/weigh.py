@@ -44,7 +44,9 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     table_plane = ctx.table_plane
     plane = table_plane if cfg.use_table_penalty else None
     support_plane = table_plane if cfg.support_prior_sigma > 0 else None
-    p_prev, R_prev, v_prev = trk.p, trk.R, trk.v
+    # last frame's particles, read one part at a time (its pass's reference poses); a resampling composes its
+    # indices into ``perm`` (the frame's rows in the current order, None = as they are) instead of gathering them
+    perm = None
     p_cur, R_cur, v_cur = pred
     pix, regions = evaluated
     loc = np.full(regions.shape, -1, np.int64)
@@ -125,7 +127,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
             ta = tb
         else:
             ta, tb, tc, changed_objs = _pass_render_likelihood(
-                trk, i, p_prev, R_prev, v_prev, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu, pv, gi, gj,
+                trk, i, _previous(trk, perm, i), p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu, pv, gi, gj,
                 D, loc, dirty, all_particles, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
                 alpha, cmask, cvalid, occ_cap)
         rest, support = priors.total(p_cur, R_cur, None if first else changed_objs)
@@ -138,7 +140,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
         log_w = np.log(np.maximum(w, 1e-300))
         if kl_from_uniform(w) > cfg.kl_max:
             idx = systematic_resample(w, trk.rng)
-            p_prev, R_prev, v_prev = p_prev[idx], R_prev[idx], v_prev[idx]
+            perm = idx if perm is None else perm[idx]
             p_cur, R_cur, v_cur = p_cur[idx], R_cur[idx], v_cur[idx]
             # dirty flags are all clear; ô is reached through anc
             if i != last_pass:
@@ -161,13 +163,21 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
         # the skipped parts' particles get this frame's motion noise after the weighing (their likelihood was taken at
         # the prediction), so that their cloud keeps its spread for when they move again
         for i in np.flatnonzero(skip):
-            p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i],
+            p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, *_previous(trk, perm, i), u[i],
                                                                   noise_scale[i])
     ctx.timings.update(render=t_render * 1e3, likelihood=t_lik * 1e3, penalties=t_pen * 1e3, resample=t_res * 1e3)
     return PassResult(p_cur, R_cur, v_cur, log_w, ell_prev, pix, Q, F, o_hat, anc, n_resampled)
 
 
-def _pass_render_likelihood(trk, i, p_prev, R_prev, v_prev, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu,
+def _previous(trk: MultiObjectTracker, perm: np.ndarray | None, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Part ``i``'s columns of last frame's particles (``trk.p``, ``trk.R``, ``trk.v``) in the current particle order:
+    rows ``perm`` (the resamplings of this frame's passes composed; None: none yet)."""
+    if perm is None:
+        return trk.p[:, i], trk.R[:, i], trk.v[:, i]
+    return trk.p[perm, i], trk.R[perm, i], trk.v[perm, i]
+
+
+def _pass_render_likelihood(trk, i, prev, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu,
                             pv, gi, gj, D, loc, dirty, all_particles, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell,
                             beta, lam, tail, use_occ, alpha, cmask, cvalid, occ_cap):
     """Part ``i``'s pass up to its likelihood: noisy propagation, connection particles, re-render of what changed and
@@ -176,7 +186,7 @@ def _pass_render_likelihood(trk, i, p_prev, R_prev, v_prev, p_cur, R_cur, v_cur,
     cfg = trk.config
     k = len(trk.parts)
     rect = render.bbox(trk, i, p_cur[:, i], R_cur[:, i])  # where the part was drawn before this pass
-    p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, p_prev[:, i], R_prev[:, i], v_prev[:, i], u[i],
+    p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, *prev, u[i],
                                                           noise_scale[i])
     changed_objs = {i}
     forced = None

@@ -62,6 +62,9 @@ class RefineSettings:
     """Model points used per part (evenly thinned when there are more)."""
     stop_step: float = 1e-6
     """Stop early when the update's norm (rad and m) falls below this."""
+    converged_step: float = 0.0
+    """End all correspondence iterations (the finer thresholds too) when an update's norm (rad and m) falls below
+    this: the pose has converged (0 = never; only ``stop_step`` ends an iteration's updates)."""
 
 
 @dataclass
@@ -189,9 +192,11 @@ def _solve_spd6(A, b):
 
 @nb.njit(cache=True)
 def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy, cx, cy,
-                  sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step):
+                  sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step,
+                  converged_step=0.0):
     """The correspondence iterations of :func:`refine_pose` (coarse to fine thresholds, ``updates`` Gauss-Newton
-    steps each, the inner loop ends early when the step's norm is below ``stop_step``). Updates ``R``, ``t`` in
+    steps each, the inner loop ends early when the step's norm is below ``stop_step``, all of them when it is below
+    ``converged_step``). Updates ``R``, ``t`` in
     place; returns (status: 0 done, 1 too few valid pairs, 2 singular system; the last pass's ``H``, ``n_valid``,
     ``n_obs``, and its median |r| when the status is 1 or 2 — NaN when done: the caller measures the final pose)."""
     c = np.empty(3)
@@ -225,7 +230,10 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
             d = t - c
             t[:] = c + Rw @ d + xi[3:]
             R[:, :] = Rw @ R
-            if np.sqrt(np.sum(xi * xi)) < stop_step:
+            step = np.sqrt(np.sum(xi * xi))
+            if step < converged_step:
+                return 0, H, n_valid, n_obs, med
+            if step < stop_step:
                 break
     return 0, H, n_valid, n_obs, med
 
@@ -233,8 +241,8 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
 @nb.njit(cache=True)
 def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy,
                          cx, cy, sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step,
-                         rpts, rR, rt, sd, gu, gv, su0, sv0, fdepth, inset, r_occ, r_agree, r_max_px, r_sigma, r_huber,
-                         r_weight,
+                         converged_step, rpts, rR, rt, sd, gu, gv, su0, sv0, fdepth, inset, r_occ, r_agree, r_max_px,
+                         r_sigma, r_huber, r_weight,
                          kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, rect, r_max_points):
     """:func:`_gauss_newton_with_region` in numba for a silhouette term whose outline comes from an
     :class:`~tracker.refine.region_term.OutlineScene` (its arrays, then the term's: contour points ``rpts`` extracted
@@ -306,7 +314,10 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
                 t[a] = c[a] + (Rw[a, 0] * d0 + Rw[a, 1] * d1 + Rw[a, 2] * d2) + xi[3 + a]
             Rn = Rw @ R
             R[:, :] = Rn
-            if np.sqrt(np.sum(xi * xi)) < stop_step:
+            step = np.sqrt(np.sum(xi * xi))
+            if step < converged_step:
+                return 0, H, n_valid, n_obs, med
+            if step < stop_step:
                 break
     return 0, H, n_valid, n_obs, med
 
@@ -331,7 +342,10 @@ def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: 
             Rw = rotvec_to_matrix(xi[:3])[0]
             t[:] = c + Rw @ (t - c) + xi[3:]
             R[:] = Rw @ R
-            if np.linalg.norm(xi) < cfg.stop_step:
+            step = np.linalg.norm(xi)
+            if step < cfg.converged_step:
+                return 0, info, n_valid, n_obs, med
+            if step < cfg.stop_step:
                 break
     return 0, info, n_valid, n_obs, med
 
@@ -376,7 +390,7 @@ def refine_pose(
         status, info, n_valid, n_observable, med = _gauss_newton(
             pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
             int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k,
-            behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step)
+            behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step, float(cfg.converged_step))
     elif region.scene is not None:
         sc, f, rs = region.scene, region.sdf, region.settings
         if not (region.pose is not None and region.outline_at is not None):
@@ -384,7 +398,7 @@ def refine_pose(
         status, info, n_valid, n_observable, med = _gauss_newton_region(
             pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
             int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k,
-            behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step,
+            behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step, float(cfg.converged_step),
             np.ascontiguousarray(region.points, np.float64), np.ascontiguousarray(region.pose[0], np.float64),
             np.ascontiguousarray(region.pose[1], np.float64), f.d, f.gu, f.gv, float(f.u0), float(f.v0),
             dep if region.frame_depth is None else region.frame_depth, float(region.inset), rs.occlusion_m,
