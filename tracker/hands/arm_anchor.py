@@ -116,13 +116,19 @@ def geodesic_labels(mask, z, seeds, step, step_cost):
 
 def working_depth(depth: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarray:
     """Full-resolution depth (m) subsampled every ``scale``-th px to the working ``shape`` (H, W); unknown → 0."""
-    z = np.asarray(depth)[::scale, ::scale][: shape[0], : shape[1]].astype(np.float64)
-    z = np.where(np.isfinite(z) & (z > 0), z, 0.0)
-    if z.shape != shape:
-        out = np.zeros(shape)
-        out[: z.shape[0], : z.shape[1]] = z
-        z = out
-    return z
+    return _working_depth(np.asarray(depth), scale, shape[0], shape[1])
+
+
+@nb.njit(cache=True, nogil=True)
+def _working_depth(depth, scale, h, w):
+    """float64 [h, w]: ``depth[y·scale, x·scale]`` where finite and > 0, else 0 (also beyond ``depth``'s extent)."""
+    out = np.zeros((h, w))
+    for y in range(min(h, (depth.shape[0] + scale - 1) // scale)):
+        for x in range(min(w, (depth.shape[1] + scale - 1) // scale)):
+            v = np.float64(depth[y * scale, x * scale])
+            if np.isfinite(v) and v > 0:
+                out[y, x] = v
+    return out
 
 
 @nb.njit(cache=True, nogil=True)

@@ -17,6 +17,7 @@ hands). Similarity: the Bhattacharyya coefficient Σ √(p q) of two normalised 
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 N_BINS = 8 * 16 * 16
@@ -33,12 +34,16 @@ SWAP_MARGIN = 0.2
 """The exchanged assignment must be better by this much (sum of two similarities) to swap ids."""
 
 
+@nb.njit(cache=True, nogil=True)
 def bin_image(ycc: np.ndarray) -> np.ndarray:
-    """Bin index (int32) of every pixel of a YCrCb uint8 image [h, w, 3]."""
-    y = ycc[..., 0].astype(np.int32) >> 5
-    cr = ycc[..., 1].astype(np.int32) >> 4
-    cb = ycc[..., 2].astype(np.int32) >> 4
-    return (y << 8) | (cr << 4) | cb
+    """Bin index (int32) of every pixel of a YCrCb uint8 image [h, w, 3]: (Y >> 5) << 8 | (Cr >> 4) << 4 | Cb >> 4."""
+    h, w = ycc.shape[0], ycc.shape[1]
+    out = np.empty((h, w), np.int32)
+    for y in range(h):
+        for x in range(w):
+            out[y, x] = ((np.int32(ycc[y, x, 0]) >> 5) << 8) | ((np.int32(ycc[y, x, 1]) >> 4) << 4) | (
+                np.int32(ycc[y, x, 2]) >> 4)
+    return out
 
 
 def background_bins(bins: np.ndarray) -> np.ndarray:
