@@ -17,9 +17,9 @@ per second and per frame the panel showed. Run it at a high priority on a shared
 Chromium resets its processes' priorities (renderers 0, the GPU process's main thread -8), so the browser runs
 set each Chromium thread back to the benchmark's priority, the server's (:func:`match_priority`).
 
-Writes benchmarks/results/server.json and server.md.
+Writes benchmarks/results/server.json and server.md (``--stem NAME``: NAME.json and NAME.md).
 
-    .venv/bin/python benchmarks/bench_server.py [--seconds 20] [--particles N] [--hands]
+    .venv/bin/python benchmarks/bench_server.py [--seconds 20] [--particles N] [--hands] [--stem NAME]
 
 ``--hands`` adds the two websocket runs again with the hand tracker on (``serve --hands``); ``--odometry MODE`` adds
 them with that camera odometry (``serve --odometry MODE``), to compare with the server's default in the same run.
@@ -245,6 +245,7 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
         "frames_processed": n1 - n0,
         "processed_fps": round((n1 - n0) / (w1 - w0), 2),
         "ws_messages": len(msgs),
+        "snapshots_per_s": round(len(msgs) / (w1 - w0), 2),
         "stale_frames_dropped": st1.get("frames_dropped", 0) - st0.get("frames_dropped", 0),
         "jpeg_received_per_s": round(n_jpeg / (w1 - w0), 1),
         "latency_ms_median": round(statistics.median(lat), 1) if lat else None,
@@ -427,6 +428,9 @@ def main() -> int:
     ap.add_argument("--particles", type=int, default=None, help="tracker particle count (default: the server's)")
     ap.add_argument("--no-jpeg", dest="jpeg", action="store_false", help="websocket only, no colour image fetches")
     ap.add_argument("--note", default="", help="a sentence appended to the markdown (e.g. earlier figures)")
+    ap.add_argument("--stem", default="server",
+                    help="results file stem (default server; another stem keeps server.md as it is, and with "
+                    "--no-browser its file has no browser runs unless an earlier STEM.json had them)")
     ap.add_argument("--hands", action="store_true",
                     help="also the two websocket runs with the hand tracker on (serve --hands; issue 14's >= 28/s)")
     ap.add_argument("--hands-thread", action="store_true",
@@ -447,7 +451,7 @@ def main() -> int:
     RESULTS.mkdir(parents=True, exist_ok=True)
     db = Path("/tmp") / f"bench-server-{os.getpid()}.sqlite3"
     mach = machine()
-    earlier = RESULTS / "server.json"
+    earlier = RESULTS / f"{args.stem}.json"
     kept = json.loads(earlier.read_text()) if (args.browser_only or args.no_browser) and earlier.exists() else {}
     cases = kept.get("cases", []) if args.browser_only else [] if args.hands_only else [
         run_case("unpaced", False, args.seconds, args.particles, db, args.jpeg),
@@ -488,10 +492,10 @@ def main() -> int:
         "browser_cases": browser_cases,
         "targets": {"processed_fps": 25, "latency_ms_median": 100, "panel_fps": 25},
     }
-    (RESULTS / "server.json").write_text(json.dumps(result, indent=2) + "\n")
+    (RESULTS / f"{args.stem}.json").write_text(json.dumps(result, indent=2) + "\n")
     m = result["machine"]
     lines = [
-        "## Web server (benchmarks/bench_server.py)",
+        "## Web server (benchmarks/bench_server.py" + ("" if args.stem == "server" else f" --stem {args.stem}") + ")",
         "",
         f"Simulated table (guidance-demo, 5 cubes, 640×480), guidance mode, tracker preset `default` with"
         f" N = {result['particles']} particles; `assembly-agent serve` as a subprocess (simulator rendered in its"
@@ -503,7 +507,7 @@ def main() -> int:
         "",
         "| run | processed fps (target ≥ 25) | latency capture → ws, median / p95 ms (target < 100) | "
         "tracker ms/frame: wall median / p95, CPU median | server CPU (100 % = 1 core) | server CPU ms per frame | "
-        "stale frames skipped | ws messages | load |",
+        "stale frames skipped | ws snapshots (per second) | load |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in cases:
@@ -514,7 +518,7 @@ def main() -> int:
             f"| {c['case']} | {c['processed_fps']} | {c['latency_ms_median']} / {c['latency_ms_p95']} | "
             f"{c['tracker_ms_median']} / {c['tracker_ms_p95']}, {c['tracker_cpu_ms_median']} | {c['cpu_percent']} % | "
             f"{c.get('cpu_ms_per_frame', '–')} | {c['stale_frames_dropped']} | {c['ws_messages']} of "
-            f"{c['frames_processed']} frames | {c.get('load_avg_1min', '–')} |"
+            f"{c['frames_processed']} frames ({c.get('snapshots_per_s', '–')}/s) | {c.get('load_avg_1min', '–')} |"
         )
     lines += ["", "Server CPU = the server process, its simulator process and its hand process (with hands on, worker "
               "\"process\"); CPU ms per frame = that CPU time over the frames processed; load = the machine's 1-minute "
@@ -538,8 +542,20 @@ def main() -> int:
     if result["cases_machine"]:
         lines += ["", "The runs above are kept from an earlier run (`--browser-only` re-measured only the browser"
                   f" runs below); its 1-minute load average was {result['cases_machine']['load_avg_1min']:.1f}."]
+    if browser_cases:
+        lines += _browser_lines(browser_cases)
+    if args.note:
+        lines += ["", args.note]
+    lines.append("")
+    (RESULTS / f"{args.stem}.md").write_text("\n".join(lines))
+    print("\n".join(lines))
+    return 0
+
+
+def _browser_lines(browser_cases: list[dict]) -> list[str]:
+    """The markdown of the server + headless browser runs (table and CPU by process)."""
     base_fps = browser_cases[0]["panel_fps"]
-    lines += [
+    lines = [
         "",
         "Server and a headless Chromium (Debian's, software WebGL: SwiftShader) on the same machine, the panel open at"
         " http://127.0.0.1 in a 1280×800 window (realtime source, viser scene on in the server): frames the panel"
@@ -567,12 +583,7 @@ def main() -> int:
     lines += ["", "CPU by process (% of one core): " + "; ".join(
         f"{c['case']}: " + ", ".join(f"{k} {v}" for k, v in c["cpu_percent_by_process"].items() if v >= 0.5)
         for c in browser_cases)]
-    if args.note:
-        lines += ["", args.note]
-    lines.append("")
-    (RESULTS / "server.md").write_text("\n".join(lines))
-    print("\n".join(lines))
-    return 0
+    return lines
 
 
 if __name__ == "__main__":
