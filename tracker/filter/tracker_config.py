@@ -465,7 +465,7 @@ class TrackerConfig(BaseModel):
     refine_converged_step: float = Field(
         0.0, ge=0.0, description="End a part's Gauss-Newton iterations, the finer thresholds' too, once an update's "
         "norm (rad and m together) falls below this: its pose has converged (a speed setting; 0 = all thresholds "
-        "run).",
+        "run; 5e-5 saved no measurable CPU on the tuning seeds, session 18).",
     )
     refine_occlusion: float = Field(
         0.03, gt=0.0, description="A measurement this far (m) in front of a model point means it is occluded.",
@@ -482,8 +482,8 @@ class TrackerConfig(BaseModel):
         "blob of about the same area and moved as its prediction says, and last frame's refinement correction small "
         "(filter/quiet_parts.py). It keeps its noise-free prediction; the refinement holds it to the depth. Off by "
         "default: 2-6 ms less per 7-cube frame, but more carried parts lost on the tuning seeds; with "
-        "quiet_max_residual_m 0.005 not worse on the tuning seeds (session 17) but five hand-carry tests fail "
-        "(benchmarks/history/issue-11-speed.md).",
+        "quiet_max_residual_m 0.005 not worse on the tuning seeds in session 17, but in session 18 (after "
+        "carry_keep_moving) set 1 lost 0 -> 2 parts (benchmarks/history/issue-11-speed.md).",
     )
     quiet_max_px: float = Field(
         1.5, ge=0.0, description="Largest difference (pixels) between the blob centroid's image motion and the "
