@@ -161,3 +161,32 @@ def test_each_track_reports_the_hand_at_the_end_of_its_own_arm():
         boxes[arm] = {e.id: e.box for e in tr.process(*scene)}
     assert dice(boxes[True][a], TOUCHING[0][0]) > 0.9 and dice(boxes[True][b], TOUCHING[1][0]) > 0.9
     assert dice(boxes[False][a], TOUCHING[0][0]) < 0.8  # without the arms the filters' boxes (grown over both)
+
+
+APART = [([40, 110, 80, 150], [49, 150, 71, 240], 0.72), ([200, 110, 240, 150], [209, 150, 231, 240], 0.72)]
+"""Two hands 120 px apart, each on its sleeve."""
+
+
+def _arm_runs(hands: list, near: float | None, every: int, frames: int, monkeypatch) -> int:
+    """How often the arm detector runs over ``frames`` frames of a static scene of ``hands`` with two tracks started
+    on their boxes."""
+    from tracker.hands import arm_anchor
+
+    calls = []
+    real = arm_anchor.arm_hands
+    monkeypatch.setattr(arm_anchor, "arm_hands", lambda *a, **k: calls.append(1) or real(*a, **k))
+    tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0, arm_near_px=near, arm_every=every))
+    scene = _scene(hands)
+    tr.process(*_scene([]))
+    tr.process(*scene)
+    for hand, _, _ in hands:
+        tr.start_track(hand)
+    for _ in range(frames):
+        tr.process(*scene)
+    return len(calls)
+
+
+def test_the_arm_detector_rests_while_two_agreeing_tracks_are_apart(monkeypatch):
+    assert _arm_runs(APART, None, 1, 7, monkeypatch) == 7  # every frame
+    assert _arm_runs(APART, 0.0, 3, 7, monkeypatch) == 3  # frames 1, 4, 7: the filters agree with their arms
+    assert _arm_runs(STACKED, 0.0, 3, 7, monkeypatch) == 7  # overlapping boxes: every frame

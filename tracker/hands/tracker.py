@@ -96,8 +96,14 @@ initialisation of new tracks:
   none worse; with ``arm_reset`` 0.823 / 11.9 px (0–3) and 0.819 / 11.7 px (4–7), against reporting only 12 runs
   better, 4 worse (seed 4 0.750 → 0.745). Not kept: seeding a hand only with skin at its wrist's depth (0.8033 →
   0.8034, seed 1 −0.016, seed 4 +0.013). Tuning seeds never hold a foreground over 37 % of the frame
-  (``arm_anchor.MAX_FG_FRAC`` 0.5). About 4.5 ms CPU more per two-hand frame. One hand (S1, S3, ground-truth start)
-  unchanged: it runs only with two live tracks.
+  (``arm_anchor.MAX_FG_FRAC`` 0.5). One hand (S1, S3, ground-truth start) unchanged: it runs only with two live
+  tracks. Cost (hands-s2 tuning seeds 0–4, filter seed 0, thread CPU per frame against ``arm_anchor`` off in the same
+  process, load 8): 2.5 ms with the compiled detector (7.7 ms with the NumPy one of session 17, load 5); it rests
+  while the two tracks' boxes are more than ``arm_near_px`` 16 working px apart and its last run agreed with both
+  filters (``arm_every`` 5: it runs on 1624 of 1940 two-track frames of seeds 0, 2, 4, 0.7 ms less per frame at load
+  5): F̄^b 0.8226 → 0.8246, ē^p 11.93 → 11.75 px (filter seeds 0–3), 0.8188 → 0.8198, 11.67 → 11.59 px (4–7), one of
+  40 runs worse by more than 0.005 (−0.007). Resting whenever the boxes do not overlap, checking every 10th frame,
+  ran on 1240 of 1644 frames: 0.8247 / 11.77 px (0–3) but 0.8187 / 11.75 px (4–7), three runs worse: not kept.
 * Mutual exclusion (product addition, ``exclusion``, off): each particle of a track loses weight by
   exp(−10 · max(0, F − 0.5)), F its box F-score with the other track's predicted box (:mod:`tracker.hands.exclusion`),
   so that the lower hand's track does not follow the top hand onto its box (two real palm boxes score above 0.6 in
@@ -211,6 +217,9 @@ ARM_ENTRY_NEAR = 40.0
 """Working px an arm's entry may lie from a track's remembered entry to be that track's arm (_report_arms)."""
 ARM_RESET_F = 0.3
 """Box F-score with its arm's hand box below which a filter restarts there (``arm_reset``)."""
+ARM_AGREE_F = 0.8
+"""Box F-score with its arm's hand box from which a filter agrees with its arm (``arm_near_px``: the detector may then
+rest while the two tracks are apart)."""
 CLAIM_CERTAIN = 0.5
 """Share of its particles in the section-6 mode from which a track claims the unowned skin pixels of its box in the
 owner map (:mod:`tracker.hands.ownership`)."""
@@ -243,7 +252,10 @@ class HandTrackerConfig:
     particles are penalised for taking the other track's box (:mod:`tracker.hands.exclusion`); ``group_box``: two
     stacked hands both report their shared colour component's box (:mod:`tracker.hands.group_box`); ``arm_anchor``:
     each of two tracks reports the hand at the far end of its own arm (:mod:`tracker.hands.arm_anchor`), ``arm_reset``
-    also restarts a filter that is far from it there;
+    also restarts a filter that is far from it there; ``arm_near_px`` / ``arm_every``: the arm detector runs every
+    frame only while the two tracks' boxes lie within ``arm_near_px`` working px of each other (0: while they overlap),
+    or its last run disagreed with a filter (box F-score below ARM_AGREE_F) or missed an arm, else every
+    ``arm_every``-th frame (None: every frame);
     ``isolation_margin``: a track's
     appearance is learnt and compared for id swaps only while its box grown by this many box sizes on every side meets
     no other track's box (default identity.MARGIN, the appearance region; 0 gave F̄^b 0.702 against 0.694 on tuning
@@ -287,6 +299,8 @@ class HandTrackerConfig:
     group_box: bool = True
     arm_anchor: bool = True
     arm_reset: bool = True
+    arm_near_px: float | None = 16.0
+    arm_every: int = 5
     ac_hat: float = 0.55
     am_hat: float = 0.45
 
@@ -415,6 +429,8 @@ class HandTracker(TrackIdentity):
         self._fresh: list[int] = []  # keys of the tracks started since the owner map was last settled
         self._arm_bg: np.ndarray | None = None  # the first frame's depth at the working resolution (arm_anchor)
         self._entries: dict[int, tuple[float, float]] = {}  # track id -> where its arm enters the image (arm_anchor)
+        self._arm_idle = 0  # frames since the arm detector last ran (arm_every)
+        self._arm_agreed = False  # whether its last run found both tracks' arms and restarted no filter
 
     # ------------------------------------------------------------------ resolution
     def to_full(self, state: np.ndarray) -> np.ndarray:
@@ -721,7 +737,7 @@ class HandTracker(TrackIdentity):
                 e.id = tr.id
         if cfg.group_box:
             self._report_group(ests, feats, size)
-        if cfg.arm_anchor and self._arm_bg is not None and self._depth is not None:
+        if cfg.arm_anchor and self._arm_bg is not None and self._depth is not None and self._arms_due():
             self._report_arms(ests, rgb)
         if cfg.adapt:
             self._collect_adapt_pixels(rgb, mcur, roi)
@@ -748,6 +764,21 @@ class HandTracker(TrackIdentity):
             e.state = st
             e.box = clipped_box(st, self.full_size)
 
+    def _arms_due(self) -> bool:
+        """Whether the arm detector runs this frame (``arm_near_px``, ``arm_every``): with two live tracks, every
+        frame while their boxes lie within ``arm_near_px`` working px of each other (or overlap), while the last run
+        disagreed with a filter (restarted it) or did not find both tracks' arms, and every ``arm_every``-th frame
+        otherwise."""
+        if len(self.tracks) != 2:
+            return False
+        cfg = self.config
+        self._arm_idle += 1
+        if cfg.arm_near_px is None or self._arm_idle >= cfg.arm_every or not self._arm_agreed:
+            return True
+        a, b = (state_box(tr.filt.estimate) for tr in self.tracks)
+        gap = max(a[0] - b[2], b[0] - a[2], a[1] - b[3], b[1] - a[3])
+        return gap <= cfg.arm_near_px
+
     def _report_arms(self, ests: list[HandEstimate], rgb: np.ndarray) -> None:
         """Each hand at the far end of its own arm (``arm_anchor``, :mod:`tracker.hands.arm_anchor`). Every track id
         remembers where its arm enters the image: first the entry of the arm whose hand box matches the track's box
@@ -757,6 +788,8 @@ class HandTracker(TrackIdentity):
         if len(self.tracks) != 2:
             return
         assert self._depth is not None and self._arm_bg is not None and self.full_size is not None
+        self._arm_idle = 0
+        self._arm_agreed = False
         z = arm_anchor.working_depth(self._depth, self.s, rgb.shape[:2])
         hands = arm_anchor.arm_hands(self._frame_mask(rgb), z, self._arm_bg)
         if not hands:
@@ -776,6 +809,7 @@ class HandTracker(TrackIdentity):
                         pairs.append((dd, i, j))
         used_t: set[int] = set()
         used_h: set[int] = set()
+        agreed = True
         for _, i, j in sorted(pairs):
             if i in used_t or j in used_h:
                 continue
@@ -785,7 +819,9 @@ class HandTracker(TrackIdentity):
             self._entries[tr.id] = hd.entry
             b = hd.box
             st = np.array([(b[0] + b[2]) / 2.0, (b[1] + b[3]) / 2.0, b[2] - b[0], b[3] - b[1], 0.0, 0.0])
-            if self.config.arm_reset and box_f_score(b, boxes[i]) < ARM_RESET_F:
+            f = box_f_score(b, boxes[i])
+            agreed = agreed and f >= ARM_AGREE_F
+            if self.config.arm_reset and f < ARM_RESET_F:
                 tr.filt.set_state(st)
             for e in ests:
                 if e.id == tr.id:
@@ -793,6 +829,7 @@ class HandTracker(TrackIdentity):
                     full[:4] = self.to_full(st)[:4]
                     e.state = full
                     e.box = clipped_box(full, self.full_size)
+        self._arm_agreed = agreed and len(used_t) == 2
 
     def _exclusion_boxes(self) -> np.ndarray:
         """Predicted inclusive boxes [n_tracks, 4] (working px) of the live tracks for the mutual exclusion
