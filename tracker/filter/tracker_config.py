@@ -551,6 +551,15 @@ class TrackerConfig(BaseModel):
         "depth lies within this many metres of the point's own is not paired (the depth shows the part there; the "
         "blob left out a shaded face, which would turn the part). 0 = off.",
     )
+    refine_region_normal_cos: float = Field(
+        0.0, ge=0.0, le=1.0, description="Silhouette term: a rendered outline point is paired with the colour blob's "
+        "edge only where that edge faces the outline's own way (cosine of the blob's outward gradient and the "
+        "rendered silhouette's outward normal at least this; a cube's shaded side the blob left out otherwise pulls "
+        "towards another edge of the blob and turns the part). 0 = off (session 18: 0.5 holds a cube under another "
+        "at the truth where it went 10° and 4 mm off on tuning seed 4 of guess-1, paired on both tuning sets 652 -> "
+        "643 and 875 -> 871 bad part-frames, lost 0 -> 0 and 2 -> 1, but 6 hand-carry tests of partly seen carried "
+        "cubes fail with it: not the default yet).",
+    )
     table_silhouette: bool = Field(
         False, description="A resting part seen in colour but not placed by the depth (a hand's projector shadow) is "
         "placed on the table from its colour blob's outline (refine/table_silhouette.py).",

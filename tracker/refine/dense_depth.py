@@ -242,7 +242,7 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
 def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy,
                          cx, cy, sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step,
                          converged_step, rpts, rR, rt, sd, gu, gv, su0, sv0, fdepth, inset, r_occ, r_agree, r_max_px,
-                         r_sigma, r_huber, r_weight,
+                         r_sigma, r_huber, r_weight, ogu, ogv, r_min_cos,
                          kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, rect, r_max_points):
     """:func:`_gauss_newton_with_region` in numba for a silhouette term whose outline comes from an
     :class:`~tracker.refine.region_term.OutlineScene` (its arrays, then the term's: contour points ``rpts`` extracted
@@ -286,7 +286,8 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
                 if fresh.shape[0] >= 8:
                     cur = fresh
             Hr, gr, _nr = _region_accumulate(cur, R, t, c, sd, gu, gv, su0, sv0, fdepth, fx, fy, cx, cy, inset,
-                                             r_occ, r_agree, r_max_px, r_sigma, r_huber, r_weight)
+                                             r_occ, r_agree, r_max_px, r_sigma, r_huber, r_weight, ogu, ogv,
+                                             r_min_cos)
             A = H + Hr
             for a in range(3):
                 A[a, a] += lambda_rot
@@ -402,7 +403,8 @@ def refine_pose(
             np.ascontiguousarray(region.points, np.float64), np.ascontiguousarray(region.pose[0], np.float64),
             np.ascontiguousarray(region.pose[1], np.float64), f.d, f.gu, f.gv, float(f.u0), float(f.v0),
             dep if region.frame_depth is None else region.frame_depth, float(region.inset), rs.occlusion_m,
-            rs.depth_agree_m, rs.max_px, rs.sigma_px, rs.huber_k, rs.weight, sc.kinds, sc.Rs, sc.ts, sc.centers,
+            rs.depth_agree_m, rs.max_px, rs.sigma_px, rs.huber_k, rs.weight, *region.normal_arrays(), sc.kinds,
+            sc.Rs, sc.ts, sc.centers,
             sc.halves, sc.verts, sc.faces, sc.voff, sc.foff, sc.obj, sc.rect, sc.max_points)
     else:
         status, info, n_valid, n_observable, med = _gauss_newton_with_region(

@@ -102,7 +102,8 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
         min_valid_fraction=cfg.refine_min_valid_fraction, max_points=cfg.refine_max_points,
         converged_step=cfg.refine_converged_step,
     )
-    region = (RegionSettings(weight=cfg.refine_region_weight, depth_agree_m=cfg.refine_region_depth_agree)
+    region = (RegionSettings(weight=cfg.refine_region_weight, depth_agree_m=cfg.refine_region_depth_agree,
+                             normal_cos=cfg.refine_region_normal_cos)
               if cfg.refine_region_weight > 0 else None)
     return PartRefiner(trk.intrinsics, shapes, list(trk.center), trk.corners, settings, cfg.refine_stride,
                        cfg.refine_max_translation, cfg.refine_max_rotation, region)
