@@ -60,6 +60,23 @@ def propagate(
 
 
 @nb.njit(cache=True)
+def rodrigues_terms(w0: float, w1: float, w2: float, K: np.ndarray) -> tuple[float, float]:
+    """Rodrigues' formula ``R = I + a K + b K²`` of the rotation vector ``(w0, w1, w2)`` (radians): writes its skew
+    matrix into ``K`` (3×3) and returns ``(a, b) = (sin θ / θ, (1 − cos θ) / θ²)``, by their series below 1e-9 rad."""
+    th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if th < 1e-9:
+        fa = 1.0 - th**2 / 6.0
+        fb = 0.5 - th**2 / 24.0
+    else:
+        fa = np.sin(th) / th
+        fb = (1.0 - np.cos(th)) / th**2
+    K[0, 0], K[0, 1], K[0, 2] = 0.0, -w2, w1
+    K[1, 0], K[1, 1], K[1, 2] = w2, 0.0, -w0
+    K[2, 0], K[2, 1], K[2, 2] = -w1, w0, 0.0
+    return fa, fb
+
+
+@nb.njit(cache=True)
 def _propagate_kernel(p_ref, R_ref, v_prev, noise, u, k_v, b, p, R, v):
     """:func:`propagate` into ``p``, ``R``, ``v``. Per particle: ``v = k_v v_prev + noise`` (+ ``b u`` on the linear
     part), ``p = p_ref + v[:3]``, the skew matrix ``K`` of ω = ``v[3:]`` and Rodrigues' coefficients ``fa`` = sin θ /
@@ -76,17 +93,7 @@ def _propagate_kernel(p_ref, R_ref, v_prev, noise, u, k_v, b, p, R, v):
         for a in range(3):
             v[j, a] += b * u[a]
             p[j, a] = p_ref[j, a] + v[j, a]
-        w0, w1, w2 = v[j, 3], v[j, 4], v[j, 5]
-        th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-        if th < 1e-9:
-            fa = 1.0 - th**2 / 6.0
-            fb = 0.5 - th**2 / 24.0
-        else:
-            fa = np.sin(th) / th
-            fb = (1.0 - np.cos(th)) / th**2
-        K[0, 0], K[0, 1], K[0, 2] = 0.0, -w2, w1
-        K[1, 0], K[1, 1], K[1, 2] = w2, 0.0, -w0
-        K[2, 0], K[2, 1], K[2, 2] = -w1, w0, 0.0
+        fa, fb = rodrigues_terms(v[j, 3], v[j, 4], v[j, 5], K)
         matmul33(K, K, KK)
         for a in range(3):
             for c in range(3):

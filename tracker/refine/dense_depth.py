@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from tracker.filter.motion_model import rotvec_to_matrix
+from tracker.filter.motion_model import rodrigues_terms, rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
 from tracker.refine.normal_equations import add_huber, twist_row
 from tracker.refine.region_term import RegionTerm, _scene_outline
@@ -295,17 +295,7 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
             xi, ok = _solve_spd6(A, -(g + gr))
             if not ok:
                 return 2, H, n_valid, n_obs, _median_of(absr, n_valid)
-            w0, w1, w2 = xi[0], xi[1], xi[2]
-            th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-            if th < 1e-9:
-                fa = 1.0 - th**2 / 6.0
-                fb = 0.5 - th**2 / 24.0
-            else:
-                fa = np.sin(th) / th
-                fb = (1.0 - np.cos(th)) / th**2
-            K[0, 0], K[0, 1], K[0, 2] = 0.0, -w2, w1
-            K[1, 0], K[1, 1], K[1, 2] = w2, 0.0, -w0
-            K[2, 0], K[2, 1], K[2, 2] = -w1, w0, 0.0
+            fa, fb = rodrigues_terms(xi[0], xi[1], xi[2], K)
             for a in range(3):
                 for b in range(3):
                     kk = K[a, 0] * K[0, b] + K[a, 1] * K[1, b] + K[a, 2] * K[2, b]
