@@ -10,6 +10,8 @@ from tracker.hands.arm_anchor import (
     BORDER_PX,
     MIN_RUN,
     RUN_GAP,
+    _geodesic_buckets,
+    _geodesic_heap,
     _one_border_run,
     arm_hands,
     geodesic_labels,
@@ -105,6 +107,25 @@ def test_one_border_run_agrees_with_the_runs_of_the_border_pixels():
         counts[min(n_runs, 2)] += 1
         assert _one_border_run(ys, xs, h, w, BORDER_PX, RUN_GAP, MIN_RUN) == (n_runs == 1)
     assert min(counts.values()) > 10  # every case occurred
+
+
+def test_bucket_queue_geodesic_equals_the_heap_one():
+    """Labels and distances of the bucket queue (whole-number step cost) equal the binary heap's on random masks,
+    depths with steps and seeds, ties included (small masks: many equal distances)."""
+    rng = np.random.default_rng(1)
+    reached = 0
+    for _ in range(100):
+        h, w = (int(v) for v in rng.integers(5, 30, 2))
+        mask = (rng.random((h, w)) < 0.8).astype(np.uint8)
+        z = np.where(rng.random((h, w)) < 0.2, 0.6, 0.7) * (rng.random((h, w)) < 0.95)
+        seeds = np.zeros((h, w), np.int32)
+        seeds[rng.integers(0, h, 4), rng.integers(0, w, 4)] = rng.integers(1, 4, 4)
+        for cost in (20.0, 0.0, 3.0):
+            lab_h, dist_h = _geodesic_heap(mask, z, seeds, 0.012, cost)
+            lab_b, dist_b = _geodesic_buckets(mask, z, seeds, 0.012, cost)
+            assert np.array_equal(lab_h, lab_b) and np.array_equal(dist_h, dist_b)
+            reached += int(np.count_nonzero(lab_b))
+    assert reached > 10000
 
 
 def test_two_touching_hands_are_split_at_the_ends_of_their_arms():

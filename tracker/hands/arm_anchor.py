@@ -73,11 +73,8 @@ class ArmHand:
 
 
 @nb.njit(cache=True, nogil=True)
-def geodesic_labels(mask, z, seeds, step, step_cost):
-    """Multi-source geodesic labelling over ``mask`` (uint8 H×W) from ``seeds`` (int32 H×W, 0 = none, k > 0 the
-    label; only seeds on the mask count): Dijkstra with 4-neighbour steps of cost 1 plus ``step_cost`` where both
-    depths ``z`` (float64 H×W, ≤ 0 unknown) are known and differ by more than ``step``. Returns (labels int32,
-    distances float64; 1e18 where not reached)."""
+def _geodesic_heap(mask, z, seeds, step, step_cost):
+    """:func:`geodesic_labels` with a binary heap (any ``step_cost``)."""
     h, w = mask.shape
     dist = np.full((h, w), 1e18)
     lab = np.zeros((h, w), np.int32)
@@ -112,6 +109,82 @@ def geodesic_labels(mask, z, seeds, step, step_cost):
                 lab[yy, xx] = lab[y, x]
                 heapq.heappush(heap, (nd, yy, xx))
     return lab, dist
+
+
+@nb.njit(cache=True, nogil=True)
+def _geodesic_buckets(mask, z, seeds, step, step_cost):
+    """:func:`geodesic_labels` for a whole-number ``step_cost`` with a bucket queue (Dial's algorithm): every distance
+    is a whole number, each bucket is complete when its turn comes (steps cost at least 1), and its pixels are taken
+    in raster order, the heap's order on equal distances — the same labels and distances, without the heap."""
+    h, w = mask.shape
+    big = int(step_cost) + 1
+    k_ring = big + 1
+    dist = np.full((h, w), 1e18)
+    lab = np.zeros((h, w), np.int32)
+    ring = [np.empty(64, np.int64) for _ in range(k_ring)]
+    count = np.zeros(k_ring, np.int64)
+    pending = 0
+    for y in range(h):
+        for x in range(w):
+            if seeds[y, x] > 0 and mask[y, x]:
+                dist[y, x] = 0.0
+                lab[y, x] = seeds[y, x]
+                if count[0] == len(ring[0]):
+                    grown = np.empty(2 * len(ring[0]), np.int64)
+                    grown[: count[0]] = ring[0]
+                    ring[0] = grown
+                ring[0][count[0]] = y * w + x
+                count[0] += 1
+                pending += 1
+    dys = (1, -1, 0, 0)
+    dxs = (0, 0, 1, -1)
+    d = 0
+    while pending > 0:
+        b = d % k_ring
+        todo = np.sort(ring[b][: count[b]])
+        pending -= count[b]
+        count[b] = 0
+        for p in todo:
+            y = p // w
+            x = p - y * w
+            if d > dist[y, x]:
+                continue
+            for q in range(4):
+                yy = y + dys[q]
+                xx = x + dxs[q]
+                if yy < 0 or xx < 0 or yy >= h or xx >= w or not mask[yy, xx]:
+                    continue
+                c = 1
+                za = z[y, x]
+                zb = z[yy, xx]
+                if za > 0 and zb > 0 and abs(za - zb) > step:
+                    c = big
+                nd = d + c
+                if nd < dist[yy, xx]:
+                    dist[yy, xx] = nd
+                    lab[yy, xx] = lab[y, x]
+                    t = nd % k_ring
+                    if count[t] == len(ring[t]):
+                        grown = np.empty(2 * len(ring[t]), np.int64)
+                        grown[: count[t]] = ring[t]
+                        ring[t] = grown
+                    ring[t][count[t]] = yy * w + xx
+                    count[t] += 1
+                    pending += 1
+        d += 1
+    return lab, dist
+
+
+def geodesic_labels(mask: np.ndarray, z: np.ndarray, seeds: np.ndarray, step: float,
+                    step_cost: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Multi-source geodesic labelling over ``mask`` (uint8 H×W) from ``seeds`` (int32 H×W, 0 = none, k > 0 the
+    label; only seeds on the mask count): Dijkstra with 4-neighbour steps of cost 1 plus ``step_cost`` where both
+    depths ``z`` (float64 H×W, ≤ 0 unknown) are known and differ by more than ``step``; on equal distances the pixel
+    first in raster order spreads its label first. Returns (labels int32, distances float64; 1e18 where not
+    reached)."""
+    if step_cost >= 0 and float(step_cost).is_integer():
+        return _geodesic_buckets(mask, z, seeds, step, step_cost)
+    return _geodesic_heap(mask, z, seeds, step, step_cost)
 
 
 def working_depth(depth: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarray:
