@@ -77,7 +77,7 @@ def test_blob_follow_ignores_a_blob_whose_area_jumps():
 
 
 def _shrinking(overlap: bool, inside_px: float = 0.0, keep_anchor: bool = False,
-               anchors: list | None = None) -> tuple[np.ndarray, int]:
+               anchors: list | None = None, inside_covered: bool = False) -> tuple[np.ndarray, int]:
     """A red cube rests at 0.682 m with no depth near it while something comes over it from the right: its blob
     loses 2 px of its right side per frame (at most a sixth of its area per frame, so the area test lets it through)
     for 12 frames. Returns the image position (u) of the estimate's centre minus the truth's, per frame, and the
@@ -92,7 +92,8 @@ def _shrinking(overlap: bool, inside_px: float = 0.0, keep_anchor: bool = False,
     intr = Intrinsics.default(640, 480)
     cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, blob_follow_overlap=overlap,
                                                        blob_follow_inside_px=inside_px,
-                                                       blob_follow_keep_anchor=keep_anchor)
+                                                       blob_follow_keep_anchor=keep_anchor,
+                                                       blob_follow_inside_covered=inside_covered)
     tr = MultiObjectTracker([PartSpec.cube("red", "red")], intr, cfg, seed=0)
     truth = Pose([-0.02, 0.0, 0.682], [0, 0, 0, 1])
     tr.initialize({"red": truth})
@@ -157,3 +158,30 @@ def test_a_dragged_resting_part_keeps_its_rest_anchor():
     assert n_dragged >= 8 and n_kept >= 8, (n_dragged, n_kept)  # blob follow fires in both
     assert max(dragged_anchor) > 0.005, dragged_anchor  # metres: the anchor went with the drag
     assert max(kept_anchor) < 0.002, kept_anchor
+
+
+def test_the_inside_test_gated_by_the_depth_holds_a_covered_part_and_follows_one_it_cannot_see_covered():
+    """``blob_follow_inside_covered``: the footprint test stops blob follow only while the depth shows something over
+    the part. With no depth over it (a projector shadow), nothing says a hand is there: the shrinking blob is
+    followed as without the inside test. The gate itself: a hand 6 cm over the cube covers it; the cube itself, the
+    bare table or no depth do not."""
+    from types import SimpleNamespace
+
+    from tracker.filter.blob_follow import covered_now
+    from tracker.filter.particle_filter import MultiObjectTracker
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+
+    _, n_held = _shrinking(False, inside_px=3.0)
+    _, n_gated = _shrinking(False, inside_px=3.0, inside_covered=True)
+    assert n_held == 0 and n_gated >= 8, (n_held, n_gated)
+    intr = Intrinsics.default(160, 120)
+    tr = MultiObjectTracker([PartSpec.cube("red", "red")], intr, TrackerConfig.preset("default"), seed=0)
+    tr.initialize({"red": Pose([0.0, 0.0, 0.682], [0, 0, 0, 1])})
+    hand = np.full((120, 160), 0.62, np.float32)
+    table = np.full((120, 160), 0.7, np.float32)
+    cube = table.copy()
+    cube[40:80, 50:110] = 0.664  # the cube's top face and around it (the footprint's pixels show its surface)
+    none = np.full_like(hand, np.nan)
+    for depth, want in ((hand, True), (table, False), (cube, False), (none, False), (None, False)):
+        assert covered_now(tr, 0, SimpleNamespace(depth=depth, table_plane=PLANE)) == want

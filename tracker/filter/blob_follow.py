@@ -90,7 +90,8 @@ def follow_blobs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> np.n
         if cfg.blob_follow_overlap and not moved_outline(outline_of(now), outline_of(before), shift):
             continue  # the outline only shrank where something came over it: an occlusion, not a motion
         if (cfg.blob_follow_inside_px > 0 and not carried[i]
-                and inside_footprint(trk, i, detections.get(name), cfg.blob_follow_inside_px)):
+                and inside_footprint(trk, i, detections.get(name), cfg.blob_follow_inside_px)
+                and (not cfg.blob_follow_inside_covered or covered_now(trk, i, ctx))):
             continue  # the blob changed within the part's own footprint: something came over it
         last = trk._refiner.last[i] if trk._refiner is not None else None
         unsupported = last is None or not last.healthy  # the depth could not place it in the last frame
@@ -180,6 +181,17 @@ def inside_footprint(trk: MultiObjectTracker, obj: int, det, margin_px: float) -
     x, y, w, h = (float(v) for v in bbox)
     u0, v0, u1, v1 = fp
     return bool(x >= u0 - margin_px and y >= v0 - margin_px and x + w <= u1 + margin_px and y + h <= v1 + margin_px)
+
+
+def covered_now(trk: MultiObjectTracker, obj: int, ctx: FrameContext) -> bool:
+    """``blob_follow_inside_covered``: is part ``obj``'s footprint covered in this frame's depth (something nearer than
+    its surface over most of it, no table showing: :func:`~tracker.filter.footprint_depth.covered`)? False without
+    depth."""
+    from tracker.filter.footprint_depth import classify_footprint, covered
+
+    if ctx.depth is None:
+        return False
+    return covered(classify_footprint(trk, obj, ctx.depth, ctx.table_plane))
 
 
 def centre(trk: MultiObjectTracker, obj: int) -> np.ndarray:

@@ -354,6 +354,12 @@ class TrackerConfig(BaseModel):
         "resting part (its centroid moves away from the occluder), not the part moving; a part that moves leaves "
         "its footprint.",
     )
+    blob_follow_inside_covered: bool = Field(
+        False, description="With blob_follow_inside_px: a blob inside the part's footprint stops blob follow only "
+        "while the depth over the footprint is covered (nearer than the part's surface over at least half of it, no "
+        "table showing; filter/footprint_depth.py): a hand over it. A part the depth still shows, or whose place shows "
+        "the table, is followed.",
+    )
     blob_follow_keep_anchor: bool = Field(
         False, description="Blob follow moves a part that is not carried without its rest anchor: a hand coming over "
         "a resting part drags its shrinking blob's centroid, and a moved anchor would then hold the hidden part where "
