@@ -52,11 +52,13 @@ RUN_GAP = 8.0
 """Gap (working px along the image border) that splits a component's border pixels into separate runs."""
 MIN_RUN = 6
 """Fewest border pixels of a run."""
-WRIST_FAR = 0.8
+WRIST_FAR = 0.9
 """Share of the farthest distance from the arm's entry point beyond which a sleeve pixel next to skin is wrist (0.7
-in session 17; 0.8 on hands-s2 tuning seeds 0–4, ground-truth start, paired: F̄^b 0.8246 → 0.8272, ē^p 11.75 →
-11.48 px on filter seeds 0–3, 0.8198 → 0.8251, 11.59 → 11.03 px on 4–7, no run worse by 0.005: a sleeve that also
-touches skin nearer its entry, e.g. the other hand lying on it, seeds less of that hand)."""
+in session 17). hands-s2 tuning seeds 0–4, ground-truth start, paired: 0.7 → 0.8 F̄^b 0.8246 → 0.8272, ē^p 11.75 →
+11.48 px on filter seeds 0–3, 0.8198 → 0.8251, 11.59 → 11.03 px on 4–7; 0.8 → 0.9 0.8272 → 0.8384, 11.48 → 10.84 px
+and 0.8251 → 0.8337, 11.03 → 10.60 px, no run worse by 0.005 in either step; 0.95 on filter seeds 0, 1: 0.8397 →
+0.8431 but seed 2 worse in both runs (−0.014, −0.020), not kept. A sleeve that also touches skin nearer its entry
+(e.g. the other hand lying on it) seeds less of that hand."""
 DEPTH_STEP = 0.012
 """Depth difference (m) between 4-neighbours that counts as a step (the edge of the upper hand)."""
 DEPTH_STEP_COST = 20.0
