@@ -163,3 +163,12 @@ def test_a_hand_that_moved_far_from_a_hidden_part_it_covered_has_taken_it():
     assert taken[frames < 247].max() < 0.005  # resting and hidden: the same either way
     assert taken[after].max() < 0.02, taken[after].max()
     assert left[after].max() > 0.04, left[after].max()
+
+
+def test_the_table_showing_where_a_hidden_part_was_starts_its_carry():
+    """carry_left_table (default): the same snatch without carry_shadow_take_m and without the hand tracker: the table
+    shows on part of the cube's place as the hand takes it, and the cube is carried from then on (within 2 cm)."""
+    carried, _ = snatch_under_arm(left_table=0.2)
+    frames = SNATCH_FRAMES
+    assert carried[frames < 247].max() < 0.005
+    assert carried[frames >= 252].max() < 0.02, carried[frames >= 252].max()
