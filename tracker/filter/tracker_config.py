@@ -765,5 +765,8 @@ PRESETS["default"] = {
     "carry_keep_unseen": 0.3,
     "carry_anchor_start": True,
     "carry_keep_moving": 0.005,
+    "carry_left_table": 0.2,
+    "blob_follow_inside_px": 3.0,
+    "blob_follow_inside_covered": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
