@@ -166,12 +166,13 @@ def _redetections(err: str) -> int:
 
 
 def test_track_command_redetects_the_table_on_a_moving_camera_recording(tmp_path, capsys):
-    """Measured (seed 2, 60 frames): 3 re-detections with "sway", none with the fixed camera."""
+    """Measured (seed 2, 60 frames): 3 re-detections with "sway", none with the fixed camera (odometry off: with the
+    default fused odometry the plane is carried with the camera instead of re-detected)."""
     out = tmp_path / "rec"
     assert main(["simulate", "static", "--out", str(out), "--frames", "60", "--seed", "2", "--camera-motion",
                  "sway"]) == 0  # fmt: skip
     capsys.readouterr()
-    assert main(["track", str(out), "--particles", "60"]) == 0
+    assert main(["track", str(out), "--particles", "60", "--odometry", "off"]) == 0
     cap = capsys.readouterr()
     assert _redetections(cap.err) >= 2
     row = [s for s in cap.out.splitlines() if s.startswith("all")][0]
@@ -179,5 +180,5 @@ def test_track_command_redetects_the_table_on_a_moving_camera_recording(tmp_path
     fixed = tmp_path / "fixed"
     assert main(["simulate", "static", "--out", str(fixed), "--frames", "30", "--seed", "2"]) == 0
     capsys.readouterr()
-    assert main(["track", str(fixed), "--particles", "30"]) == 0
+    assert main(["track", str(fixed), "--particles", "30", "--odometry", "off"]) == 0
     assert _redetections(capsys.readouterr().err) == 0
