@@ -77,6 +77,15 @@ class ArmHand:
     n: int
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _depth_step(z, y, x, yy, xx, step):
+    """Whether the move from pixel ``(y, x)`` to its neighbour ``(yy, xx)`` crosses a depth step: both have depth
+    (> 0, metres) and they differ by more than ``step``. The geodesic split charges such a move extra."""
+    za = z[y, x]
+    zb = z[yy, xx]
+    return za > 0 and zb > 0 and abs(za - zb) > step
+
+
 @nb.njit(cache=True, nogil=True)
 def _geodesic_heap(mask, z, seeds, step, step_cost):
     """:func:`geodesic_labels` with a binary heap (any ``step_cost``)."""
@@ -103,11 +112,7 @@ def _geodesic_heap(mask, z, seeds, step, step_cost):
             xx = x + dxs[q]
             if yy < 0 or xx < 0 or yy >= h or xx >= w or not mask[yy, xx]:
                 continue
-            c = 1.0
-            za = z[y, x]
-            zb = z[yy, xx]
-            if za > 0 and zb > 0 and abs(za - zb) > step:
-                c += step_cost
+            c = 1.0 + step_cost if _depth_step(z, y, x, yy, xx, step) else 1.0
             nd = d + c
             if nd < dist[yy, xx]:
                 dist[yy, xx] = nd
@@ -159,11 +164,7 @@ def _geodesic_buckets(mask, z, seeds, step, step_cost):
                 xx = x + dxs[q]
                 if yy < 0 or xx < 0 or yy >= h or xx >= w or not mask[yy, xx]:
                     continue
-                c = 1
-                za = z[y, x]
-                zb = z[yy, xx]
-                if za > 0 and zb > 0 and abs(za - zb) > step:
-                    c = big
+                c = big if _depth_step(z, y, x, yy, xx, step) else 1
                 nd = d + c
                 if nd < dist[yy, xx]:
                     dist[yy, xx] = nd

@@ -492,8 +492,9 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
         if agree > 0.0 and r > inset + 1.0 and meas > 0.0 and abs(meas - x2) < agree:
             continue  # outside the blob, but the depth shows the part's surface here: the blob missed a shaded face
         if min_cos > 0.0 and ogu.shape[0] == h and ogu.shape[1] == w:
-            nu_ = ogu[min(max(int(np.floor(fv + 0.5)), 0), h - 1), min(max(int(np.floor(fu + 0.5)), 0), w - 1)]
-            nv_ = ogv[min(max(int(np.floor(fv + 0.5)), 0), h - 1), min(max(int(np.floor(fu + 0.5)), 0), w - 1)]
+            jn = min(max(int(np.floor(fv + 0.5)), 0), h - 1)  # the normal field's nearest cell
+            inn = min(max(int(np.floor(fu + 0.5)), 0), w - 1)
+            nu_, nv_ = ogu[jn, inn], ogv[jn, inn]
             nn = np.sqrt(nu_ * nu_ + nv_ * nv_) * np.sqrt(du * du + dv * dv)
             if nn > 0.0 and (nu_ * du + nv_ * dv) < min_cos * nn:
                 continue  # the nearest blob edge faces another way than the outline here: not this edge's match
