@@ -886,3 +886,34 @@ def test_support_prior_kernel_matches_numpy():
             got = _support_kernel(p, R, normal, d, hull, i, 0.003)
             assert np.allclose(got, want, rtol=1e-12, atol=1e-12)  # bit for bit on the development machine
             assert (want > 0).any()
+
+
+def test_warm_up_loads_the_kernels_a_session_calls_later():
+    """A tracker's warm-up gives the rest and support priors' kernels and the hand carry's point and registration
+    kernels the very signatures the session's calls use: calling them as the session does adds no new one (it would
+    be compiled or loaded from the cache mid-session, tens of ms in one frame)."""
+    from tracker.filter import hand_carry, hidden_parts
+    from tracker.geometry import depth_points, point_icp
+
+    parts = [PartSpec(f"c{i}", box=(0.03, 0.03, 0.04)) for i in range(3)]
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=30)
+    trk = MultiObjectTracker(parts, INTR, cfg, seed=0)
+    kernels = [hidden_parts._rest_prior, hidden_parts._support_kernel, depth_points.window_points,
+               point_icp.build_grid, point_icp.rigid_icp]
+    before = [list(k.signatures) for k in kernels]
+    assert all(before)
+    rng = np.random.default_rng(3)
+    trk.initialize({p.name: Pose.from_rt(np.eye(3), [0.05 * i, 0.0, 0.6]) for i, p in enumerate(parts)})
+    trk._rest_on = np.array([True, False, True])
+    trk._rest_t = trk.p[0].copy()
+    plane = (np.array([0.0, -0.8, -0.6]), 0.45)
+    p = trk.p + rng.normal(0.0, 0.003, trk.p.shape)
+    assert hidden_parts.log_rest_prior(trk, p).shape == (30,)
+    assert hidden_parts._support_term(trk, p, trk.R, plane, 1).shape == (30,)
+    depth = np.full((INTR.height, INTR.width), 0.6, np.float32)
+    pts = hand_carry.above_table_points(depth, INTR, np.array([0.0, 0.0, 0.6]), 0.05, plane, 0.01, 4,
+                                        [(np.array([0.02, 0.0, 0.6]), 0.01)])
+    assert pts.shape[0] > 6
+    w, t = hand_carry.register_rigid(pts, pts + np.array([0.002, 0.0, 0.0]), 5, 0.01, 0.2)
+    assert np.isfinite(w).all() and np.isfinite(t).all()
+    assert [list(k.signatures) for k in kernels] == before

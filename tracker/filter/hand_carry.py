@@ -519,6 +519,19 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
     return w, t
 
 
+def warm_up() -> None:
+    """Load (or compile) the numba kernels of the hand-patch points and registrations (:func:`above_table_points`,
+    :func:`register_rigid`) on tiny inputs of the types the carry passes them, so that a session's first carry does
+    not pay for it."""
+    depth = np.full((8, 8), 0.5, np.float32)
+    intr = Intrinsics(8, 8, 10.0, 10.0, 4.0, 4.0)
+    above_table_points(depth, intr, np.array([0.0, 0.0, 0.5]), 0.1, (np.array([0.0, 0.0, -1.0]), 0.6), 0.0, 1,
+                       [(np.array([0.0, 0.0, 0.4]), 0.01)])
+    g = np.linspace(-0.02, 0.02, 3)
+    pts = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) + np.array([0.0, 0.0, 0.5])
+    register_rigid(pts, pts + 0.001, 2, 0.01, 0.1)
+
+
 def _rot(w: np.ndarray) -> np.ndarray:
     """Rotation matrix (3, 3) of one rotation vector (rad)."""
     return rotvec_to_matrix(w)[0]

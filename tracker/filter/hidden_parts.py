@@ -524,6 +524,16 @@ def _support_kernel(p, R, n, d, hull, i, sig):
     return out
 
 
+def warm_up() -> None:
+    """Load (or compile) the kernels of the rest and support priors on tiny inputs of the types the passes give
+    them (they run only once a part rests hidden or is held to the table)."""
+    p = np.zeros((2, 1, 3))
+    p[..., 2] = 0.5
+    R = np.tile(np.eye(3), (2, 1, 1, 1))
+    _rest_prior(p, np.zeros(1, np.int64), np.zeros((1, 3)), 1e-4)
+    _support_kernel(p, R, np.array([0.0, 0.0, -1.0]), 0.6, np.full((8, 3), 0.01), 0, 0.002)
+
+
 def log_rest_prior(trk, p) -> np.ndarray | float:
     """Rest prior (TrackerConfig.rest_prior_sigma): Gaussian pull of resting hidden parts to their anchors."""
     if not trk._rest_on.any():

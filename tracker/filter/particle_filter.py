@@ -35,7 +35,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.filter import blob_follow, colour_input, hidden_parts, predict, quiet_parts, render, scene_motion, weigh
+from tracker.filter import (
+    blob_follow,
+    colour_input,
+    hand_carry,
+    hidden_parts,
+    predict,
+    quiet_parts,
+    render,
+    scene_motion,
+    weigh,
+)
 from tracker.filter.connection_particles import ResolvedConnection, resolve_hints
 from tracker.filter.depth_likelihood import (
     LikelihoodParams,
@@ -384,4 +394,7 @@ class MultiObjectTracker:
         finish_occlusion(Q, F, oh, an, k)
         if len(self.pairs):
             intersection_log_penalty(R, t, self.center, self.half, self.pairs, 0.001, 0.01)
+        # kernels first called only once a part rests hidden or a hand carries one (else loaded mid-session)
+        hidden_parts.warm_up()
+        hand_carry.warm_up()
 
