@@ -65,6 +65,9 @@ def main() -> int:
                          "collapse_reacquire=true")  # fmt: skip
     ap.add_argument("--stem", default=None, help="results file stem (default hands / hands_particles)")
     args = ap.parse_args()
+    import cv2
+
+    cv2.setNumThreads(1)  # one core, as the server's hand process: OpenCV's worker threads would escape the CPU time
     seeds = tuple(int(s) for s in (args.seeds or ("100,101,102" if args.experiment == 1 else "100")).split(","))
     if min(seeds) < 100:
         raise SystemExit("report held-out seeds only (>= 100); seeds 0–4 are for tuning")

@@ -81,27 +81,25 @@ def _task_cpu(stat: Path) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def cpu_by_thread(pid: int) -> dict[str, float]:
-    """CPU seconds (user + system) of the server ``pid`` and its live child processes, by
-    ``"<process>/<thread>"``: the process ``server`` or its child's label (``simulator``, ``hands``, from the OS
-    names the children give themselves), the thread by its OS name (``pipeline-worker``, ``frame-reader``…;
-    unnamed threads, e.g. the event loop and the JPEG encoder's, are ``other``). Threads that ended are missing."""
-    out: dict[str, float] = {}
+def _threads(pid: int) -> dict[int, tuple[str, Path]]:
+    """The threads of the server ``pid`` and of its live child processes: thread id → (``"<process>/<thread>"``,
+    its /proc task directory). The process is ``server`` or its child's label (``simulator``, ``hands``, from the OS
+    names the children give themselves), the thread its OS name (``pipeline-worker``, ``frame-reader``…; unnamed
+    threads, e.g. the event loop and the JPEG encoder's, are ``other``; a child's first thread is ``main``)."""
+    out: dict[int, tuple[str, Path]] = {}
 
     def add(p: int, label: str) -> None:
         children: set[int] = set()
         for task in Path(f"/proc/{p}/task").glob("*"):
             try:
                 comm = (task / "comm").read_text().strip()
-                cpu = _task_cpu(task / "stat")
                 children.update(int(c) for c in (task / "children").read_text().split())
-            except (OSError, ValueError, IndexError):
+            except (OSError, ValueError):
                 continue
             thread = "main" if task.name == str(p) and label != "server" else comm
             if thread.startswith("python") or thread in ("asyncio", "uvicorn"):
                 thread = "other"
-            key = f"{label}/{thread}"
-            out[key] = out.get(key, 0.0) + cpu
+            out[int(task.name)] = (f"{label}/{thread}", task)
         for c in sorted(children):
             try:
                 name = Path(f"/proc/{c}/comm").read_text().strip()
@@ -111,6 +109,69 @@ def cpu_by_thread(pid: int) -> dict[str, float]:
 
     add(pid, "server")
     return out
+
+
+def cpu_by_thread(pid: int) -> dict[str, float]:
+    """CPU seconds (user + system) of the server ``pid`` and its live child processes, by ``"<process>/<thread>"``
+    (:func:`_threads`). Threads that ended are missing."""
+    out: dict[str, float] = {}
+    for key, task in _threads(pid).values():
+        try:
+            cpu = _task_cpu(task / "stat")
+        except (OSError, ValueError, IndexError):
+            continue
+        out[key] = out.get(key, 0.0) + cpu
+    return out
+
+
+def sched_by_thread(pid: int) -> dict[int, tuple[str, float, float]]:
+    """Per thread of the server and its children (:func:`_threads`): thread id → (``"<process>/<thread>"``, seconds
+    on a core, seconds runnable but waiting for a core), from /proc/…/schedstat (empty where the kernel has none)."""
+    out: dict[int, tuple[str, float, float]] = {}
+    for tid, (key, task) in _threads(pid).items():
+        try:
+            run_ns, wait_ns = (int(x) for x in (task / "schedstat").read_text().split()[:2])
+        except (OSError, ValueError):
+            continue
+        out[tid] = (key, run_ns / 1e9, wait_ns / 1e9)
+    return out
+
+
+SCHED_THREADS = ("server/pipeline-worker", "hands/main", "simulator/main")
+"""The threads whose scheduler states the report shows: the pipeline, the hand step, the simulator's rendering."""
+
+
+def sched_split(before: dict[int, tuple[str, float, float]], after: dict[int, tuple[str, float, float]],
+                wall_s: float) -> dict[str, dict[str, float]]:  # fmt: skip
+    """Share of the wall time ``wall_s`` (%) each ``"<process>/<thread>"`` spent on a core (``run``), runnable but
+    waiting for one (``runqueue``: the cores were busy) and neither (``blocked``: sleeping on a lock, a queue, a pipe,
+    a timer), between two :func:`sched_by_thread` readings; threads of one key are summed (their wall time too);
+    threads not alive at both readings are left out."""
+    acc: dict[str, list[float]] = {}
+    for tid, (key, run1, wait1) in after.items():
+        if tid not in before or before[tid][0] != key:
+            continue
+        a = acc.setdefault(key, [0.0, 0.0, 0.0])
+        a[0] += run1 - before[tid][1]
+        a[1] += wait1 - before[tid][2]
+        a[2] += wall_s
+    out = {}
+    for key, (run, wait, wall) in sorted(acc.items()):
+        if wall <= 0:
+            continue
+        run, wait = min(run, wall), min(wait, wall)
+        out[key] = {"run": round(100 * run / wall, 1), "runqueue": round(100 * wait / wall, 1),
+                    "blocked": round(100 * max(wall - run - wait, 0.0) / wall, 1)}
+    return out
+
+
+def frame_steps(indices: list[int]) -> dict[str, float] | None:
+    """Frames the source advanced between consecutive snapshots (1: none skipped), mean and largest, over the steps
+    forward (a source that loops restarts its index: that step is left out); None with fewer than two snapshots."""
+    steps = [b - a for a, b in zip(indices[:-1], indices[1:], strict=True) if b > a]
+    if not steps:
+        return None
+    return {"mean": round(sum(steps) / len(steps), 2), "max": max(steps)}
 
 
 def cpu_split(before: dict[str, float], after: dict[str, float], frames: int) -> tuple[dict, dict]:
@@ -218,9 +279,11 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
         wait_until_processing(proc, base)
         load = os.getloadavg()[0]
         cpu0, threads0, w0 = cpu_seconds(proc.pid), cpu_by_thread(proc.pid), time.time()
+        sched0 = sched_by_thread(proc.pid)
         st0 = httpx.get(f"{base}/api/status").json()["worker"]
         msgs, n_jpeg = asyncio.run(read_ws(f"ws://127.0.0.1:{port}/ws", seconds, jpeg))
         cpu1, threads1, w1 = cpu_seconds(proc.pid), cpu_by_thread(proc.pid), time.time()
+        sched1 = sched_by_thread(proc.pid)
         st1 = httpx.get(f"{base}/api/status").json()["worker"]
         n0, n1 = st0["frames_processed"], st1["frames_processed"]
     finally:
@@ -260,6 +323,8 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
         "tracker_ms_p95": round(tracker_ms[int(0.95 * (len(tracker_ms) - 1))], 1) if tracker_ms else None,
         "tracker_cpu_ms_median": round(statistics.median(tracker_cpu), 1) if tracker_cpu else None,
         "stage_ms_median": {k: round(statistics.median(v), 2) for k, v in sorted(stages.items())},
+        "sched_percent_by_thread": sched_split(sched0, sched1, w1 - w0),
+        "frame_step": frame_steps([m["index"] for m in msgs]),
         "frame_errors": sorted({e for m in msgs for e in m["errors"]})[:5],
     }
 
@@ -522,12 +587,22 @@ def main() -> int:
         )
     lines += ["", "Server CPU = the server process, its simulator process and its hand process (with hands on, worker "
               "\"process\"); CPU ms per frame = that CPU time over the frames processed; load = the machine's 1-minute "
-              "load average when the run's measurement started (above 1, other jobs shared the 2 cores)."]
+              "load average when the run's measurement started (above 1, other jobs shared the 2 cores). Scheduler "
+              "states (from /proc/…/schedstat): a thread that waits for a core is starved of CPU (other threads or "
+              "jobs hold the cores); one that is blocked waits for a lock, a queue, a pipe or a timer."]
     for c in cases:
         if "error" in c or "cpu_ms_per_frame_by_thread" not in c:
             continue
         lines += ["", f"CPU ms per frame by process and thread ({c['case']} run): " + "; ".join(
             f"{k} {v}" for k, v in c["cpu_ms_per_frame_by_thread"].items())]
+    for c in cases:
+        sched = {k: v for k, v in c.get("sched_percent_by_thread", {}).items() if k in SCHED_THREADS}
+        if "error" in c or not sched:
+            continue
+        step = c.get("frame_step") or {}
+        lines += ["", f"Scheduler states, % of the wall time on a core / waiting for a core / blocked ({c['case']} "
+                  "run): " + "; ".join(f"{k} {v['run']} / {v['runqueue']} / {v['blocked']}" for k, v in sched.items())
+                  + (f"; frames advanced per snapshot {step['mean']} (at most {step['max']})" if step else "")]
     for c in cases:
         if "error" in c:
             continue

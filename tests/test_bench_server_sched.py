@@ -1,0 +1,54 @@
+"""bench_server's scheduler states and frame steps (they tell a starved pipeline from a blocked one)."""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bench_server import frame_steps, sched_by_thread, sched_split  # noqa: E402
+
+
+def test_sched_split_shares_of_the_wall_time():
+    before = {11: ("server/pipeline-worker", 1.0, 0.5), 12: ("hands/main", 0.0, 0.0), 13: ("server/other", 0.0, 0.0),
+              14: ("server/other", 2.0, 0.0)}  # fmt: skip
+    after = {11: ("server/pipeline-worker", 5.0, 3.5), 12: ("hands/main", 1.0, 2.0), 13: ("server/other", 1.0, 0.0),
+             14: ("server/other", 3.0, 1.0), 15: ("server/other", 9.0, 0.0)}  # fmt: skip
+    got = sched_split(before, after, 10.0)
+    assert got["server/pipeline-worker"] == {"run": 40.0, "runqueue": 30.0, "blocked": 30.0}
+    assert got["hands/main"] == {"run": 10.0, "runqueue": 20.0, "blocked": 70.0}
+    # two threads of one key share 20 s of wall time; the thread started between the readings (15) is left out
+    assert got["server/other"] == {"run": 10.0, "runqueue": 5.0, "blocked": 85.0}
+
+
+def test_sched_split_leaves_out_a_reused_thread_id():
+    got = sched_split({7: ("server/frame-reader", 1.0, 1.0)}, {7: ("hands/main", 2.0, 1.0)}, 1.0)
+    assert got == {}
+
+
+def test_frame_steps():
+    assert frame_steps([10, 11, 12, 13]) == {"mean": 1.0, "max": 1}
+    assert frame_steps([10, 12, 15, 0, 3]) == {"mean": 2.67, "max": 3}  # 15 -> 0: the source looped
+    assert frame_steps([5]) is None
+
+
+@pytest.mark.skipif(not Path(f"/proc/{os.getpid()}/task").exists(), reason="no /proc")
+def test_sched_by_thread_reads_this_process_threads():
+    stop = threading.Event()
+    t = threading.Thread(target=stop.wait, name="idle")
+    t.start()
+    try:
+        s0 = sched_by_thread(os.getpid())
+        s1 = sched_by_thread(os.getpid())
+    finally:
+        stop.set()
+        t.join()
+    if t.native_id not in s0:
+        pytest.skip("no schedstat in this kernel")
+    assert t.native_id in s1 and threading.get_native_id() in s1
+    key, run, wait = s1[t.native_id]
+    assert key.startswith("server/") and run >= s0[t.native_id][1] >= 0.0 and wait >= s0[t.native_id][2] >= 0.0
