@@ -150,3 +150,100 @@ def test_depth_explained_sees_a_hand_over_the_part_and_a_moved_part():
     holes[:, :] = np.nan
     assert not depth_explained(holes, intr, faces, rot, t, 0.005, 0.85)
     assert not depth_explained(None, intr, faces, rot, t, 0.005, 0.85)
+
+
+def _run(overrides: dict, frames: int = 24):
+    """The ``static`` scene of :func:`_session` tracked with these TrackerConfig overrides; returns the session, the
+    per-frame quiet parts (frames, K) and the per-frame worst translation (m) and rotation (deg) errors."""
+    from app.commands.track import TrackSession
+    from tracker.geometry.symmetry import symmetric_rotation_error, symmetry_group
+    from tracker.sources.simulator import SimulatedTable
+
+    src = SimulatedTable("static", seed=3, realtime=False, n_frames=frames)
+    cfg = TrackerConfig.preset("default").with_overrides(**overrides)
+    ts = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=0)
+    groups = {p.name: symmetry_group(p) for p in src.parts}
+    settled, t_err, r_err = [], [], []
+    for i in range(frames):
+        frame = src.render(i)
+        state, _ = ts.step(frame)
+        settled.append(ts.tracker._settled.copy())
+        truth = frame.meta["groundtruth"]["poses"]
+        t_err.append(max(float(np.linalg.norm(state.poses[n].t - truth[n].t)) for n in state.poses))
+        r_err.append(max(np.degrees(float(symmetric_rotation_error(state.poses[n].R, truth[n].R, groups[n])))
+                         for n in state.poses))
+    return ts, np.array(settled), np.array(t_err), np.array(r_err)
+
+
+LIGHT = {"quiet_refine_skip": True, "quiet_refine_hold": True, "quiet_thin": True, "quiet_pixels_per_part": 60,
+         "quiet_max_residual_m": 0.005}
+"""The lighter quiet settings together: a quiet part keeps its pass on fewer pixels and is held at its prediction
+instead of refined."""
+
+
+def test_held_quiet_parts_are_refined_every_other_frame_and_stay_precise():
+    ts, settled, t_err, r_err = _run(LIGHT)
+    k = settled.shape[1]
+    assert ts.tracker.n_quiet_skipped == 0  # no pass is skipped
+    # resting cubes whose faces the depth shows (2 of the 5: touching neighbours hide the others' face points) are
+    # quiet on about every other frame
+    assert settled.sum() >= 0.1 * k * settled.shape[0]
+    assert not (settled[1:] & settled[:-1]).any()  # a held part has no correction to remember: refined next frame
+    _, off, t_full, r_full = _run({})
+    assert not off.any()
+    assert t_err[5:].max() < 0.003 and r_err[5:].max() < 3.0
+    assert np.median(t_err[5:]) <= np.median(t_full[5:]) + 0.0005
+    assert np.median(r_err[5:]) <= np.median(r_full[5:]) + 0.5
+
+
+def test_quiet_thin_evaluates_a_quiet_part_on_fewer_pixels_without_skipping_it():
+    """quiet_thin: a quiet part (``_settled``) whose pass runs gets the quiet pixel budget; without quiet_thin only a
+    part whose pass is skipped does."""
+    from tracker.filter import render
+    from tracker.filter.particle_filter import MultiObjectTracker
+    from tracker.geometry.camera import Intrinsics
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+
+    intr = Intrinsics(640, 480, 600.0, 600.0, 320.0, 240.0)
+    parts = [PartSpec.cube(c, c) for c in ("red", "green")]
+    depth = np.full((480, 640), 0.3, np.float32)
+    lattices = {}
+    for thin in (False, True):
+        cfg = TrackerConfig.preset("default").with_overrides(n_particles=20, likelihood_pixels_per_part=250,
+                                                             quiet_pixels_per_part=40, quiet_thin=thin)
+        trk = MultiObjectTracker(parts, intr, cfg, seed=0)
+        trk.initialize({"red": Pose([-0.06, 0.0, 0.25], [0, 0, 0, 1]), "green": Pose([0.06, 0.0, 0.25], [0, 0, 0, 1])})
+        trk._quiet_now = np.array([False, False])
+        trk._settled = np.array([True, False])
+        render.evaluated_pixels(trk, depth, trk.p, trk.R, trk.p, trk.R)
+        lattices[thin] = trk._lattice.copy()
+    assert lattices[True][0] > lattices[False][0]
+    assert lattices[True][1] == lattices[False][1]
+
+
+def test_quiet_refine_last_refines_a_quiet_part_on_the_finest_thresholds(monkeypatch):
+    from tracker.filter.particle_filter import MultiObjectTracker
+    from tracker.geometry.camera import Intrinsics
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+    from tracker.refine import part_refiner
+
+    intr = Intrinsics(640, 480, 600.0, 600.0, 320.0, 240.0)
+    parts = [PartSpec.cube(c, c) for c in ("red", "green")]
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=20, quiet_refine_last=2)
+    trk = MultiObjectTracker(parts, intr, cfg, seed=0)
+    refiner = trk._refiner
+    assert refiner.short_settings.thresholds == tuple(cfg.refine_thresholds)[-2:]
+    seen = {}
+    real = part_refiner.refine_pose
+
+    def spy(depth, intrinsics, pts, nrm, R0, t0, center, settings, *rest):
+        seen[round(float(t0[0]), 2)] = settings.thresholds
+        return real(depth, intrinsics, pts, nrm, R0, t0, center, settings, *rest)
+
+    monkeypatch.setattr(part_refiner, "refine_pose", spy)
+    poses = [Pose([-0.06, 0.0, 0.3], [0, 0, 0, 1]), Pose([0.06, 0.0, 0.3], [0, 0, 0, 1])]
+    depth = np.full((480, 640), 0.33, np.float32)
+    refiner.refine(depth, [(p.R, p.t) for p in poses], [True, True], short=[True, False])
+    assert seen == {-0.06: tuple(cfg.refine_thresholds)[-2:], 0.06: tuple(cfg.refine_thresholds)}

@@ -230,6 +230,9 @@ class MultiObjectTracker:
         self._quiet_memory = None  # quiet parts: last frame's blobs, estimate centres, small corrections
         self._quiet_skips = np.zeros(k, np.int64)  # passes skipped in a row per part
         self._quiet_now = np.zeros(k, bool)  # parts whose pass this frame skips
+        self._settled = np.zeros(k, bool)  # quiet parts this frame (quiet_thin, quiet_refine_last; skipped or not)
+        self.n_settled = 0  # part-frames found quiet since initialize (diagnostics, tests)
+        self._held_poses: dict[int, Pose] = {}  # quiet parts' predicted mean poses this frame (quiet_refine_hold)
         self._quiet_faces: dict[int, np.ndarray] = {}  # box face sample points per part (quiet_max_residual_m)
         self.n_quiet_skipped = 0  # coordinate passes skipped since initialize (diagnostics, tests)
         self._initialized = True

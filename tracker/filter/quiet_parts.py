@@ -22,6 +22,15 @@ A quiet part keeps its noise-free prediction (its particles as they are, moved b
 likelihood of that prediction, which the first full render of the frame has already evaluated; its pass is skipped.
 The same skip serves one accuracy setting, whatever ``quiet_skip`` says: ``carry_hidden_skip``, a part hidden in the
 hand that has just moved it.
+
+Two lighter settings keep a quiet part's pass (its particles keep their noise, likelihood and resampling, so its
+cloud keeps its spread for when a hand takes it) and only make it cheaper: ``quiet_thin`` evaluates its likelihood
+on the smaller pixel budget ``quiet_pixels_per_part`` (the refinement restores the precision), and
+``quiet_refine_last`` > 0 refines it with only the last (finest) correspondence thresholds of the dense refinement
+(last frame's correction was small and the depth shows it at its prediction: the coarse thresholds only re-find
+where it already is). ``quiet_refine_skip`` does not refine it this frame (it keeps the filter's estimate, or with
+``quiet_refine_hold`` its noise-free prediction's mean pose, ``trk._held_poses``); having no correction to
+remember, it is not quiet the next frame and is refined then.
 Pixels: full-resolution image coordinates; positions camera frame, metres.
 """
 
@@ -33,6 +42,7 @@ import numba as nb
 import numpy as np
 
 from tracker.filter.blob_follow import confident_blob
+from tracker.filter.motion_model import mean_poses
 from tracker.filter.resampling import normalize_log_weights
 
 if TYPE_CHECKING:
@@ -131,18 +141,21 @@ def _face_residuals(depth, faces, R, t, fx, fy, cx, cy, tol):
 def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected: np.ndarray,
                 pred: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
     """(K,) bool: the parts whose coordinate pass is skipped this frame (module docstring), also kept as
-    ``trk._quiet_now``. ``pred``: the noise-free prediction (p (N, K, 3), R (N, K, 3, 3), v) of this frame. All False
-    when ``quiet_skip`` is off."""
+    ``trk._quiet_now``; the quiet parts themselves (whether or not their pass is skipped) as ``trk._settled``.
+    ``pred``: the noise-free prediction (p (N, K, 3), R (N, K, 3, 3), v) of this frame. None is quiet unless
+    ``quiet_skip``, ``quiet_thin`` or ``quiet_refine_last`` is on."""
     cfg = trk.config
     k = len(trk.parts)
     quiet = np.zeros(k, bool)
+    trk._settled = np.zeros(k, bool)
+    trk._held_poses = {}
     memory = trk._quiet_memory
     trk._quiet_memory = None  # one frame old at most: set again after this frame's refinement
     if cfg.carry_hidden_skip > 0:
         # hidden in the hand that has just moved it: the depth shows the hand, not the part, and the pass would only
         # spread it over the hand's surface; the hand's registration is its motion
         quiet |= trk._carry_moved & ~detected & (trk.visibility < cfg.carry_hidden_skip)
-    if not cfg.quiet_skip or memory is None or not detections:
+    if not detection_on(cfg) or memory is None or not detections:
         trk._quiet_skips[:] = 0
         trk._quiet_now = quiet
         return quiet
@@ -150,7 +163,8 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
     w = normalize_log_weights(trk.log_w)
     carried = trk._carry.carried
     for i, name in enumerate(trk.names):
-        if not (small[i] and detected[i] and last_blob[i] is not None) or trk._quiet_skips[i] >= cfg.quiet_max_skips:
+        if not (small[i] and detected[i] and last_blob[i] is not None) or (
+                cfg.quiet_skip and trk._quiet_skips[i] >= cfg.quiet_max_skips):
             continue
         if (carried[i] or trk._was_carried[i] or name in ctx.touched or trk._blob_moved[i] or trk._blob_off[i]
                 or trk.visibility[i] < cfg.visible_fraction_full):
@@ -172,11 +186,26 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
                     ctx.depth, intr, _faces_of(trk, i), est.R, est.t + shift,
                     cfg.quiet_max_residual_m, cfg.quiet_min_inliers):
                 continue
-        quiet[i] = True
-    trk._quiet_skips = np.where(quiet, trk._quiet_skips + 1, 0)
+        trk._settled[i] = True
+    if cfg.quiet_refine_skip and cfg.quiet_refine_hold and trk._settled.any():
+        # where a quiet part is held this frame: its noise-free prediction's mean pose
+        sel = np.flatnonzero(trk._settled)
+        trk._held_poses = dict(zip(sel.tolist(), mean_poses(pred[0][:, sel], pred[1][:, sel], w), strict=True))
+    if cfg.quiet_skip:
+        quiet |= trk._settled
+        trk._quiet_skips = np.where(quiet, trk._quiet_skips + 1, 0)
+        trk.n_quiet_skipped += int(quiet.sum())
+    else:
+        trk._quiet_skips[:] = 0
+    trk.n_settled += int(trk._settled.sum())
     trk._quiet_now = quiet
-    trk.n_quiet_skipped += int(quiet.sum())
     return quiet
+
+
+def detection_on(cfg) -> bool:
+    """Is any setting on that acts on quiet parts (``quiet_skip``, ``quiet_thin``, ``quiet_refine_last``,
+    ``quiet_refine_skip``)?"""
+    return bool(cfg.quiet_skip or cfg.quiet_thin or cfg.quiet_refine_last > 0 or cfg.quiet_refine_skip)
 
 
 def remember(trk: MultiObjectTracker, detections, poses: dict, corrections: list) -> None:
@@ -184,7 +213,7 @@ def remember(trk: MultiObjectTracker, detections, poses: dict, corrections: list
     the image position of its final estimate's centre and whether its accepted correction was small
     (``corrections[k]``: the refinement's :class:`~tracker.refine.part_refiner.Correction` or None)."""
     cfg = trk.config
-    if not cfg.quiet_skip:
+    if not detection_on(cfg):
         return
     k = len(trk.parts)
     blobs = [confident_blob(trk, detections.get(n)) if detections else None for n in trk.names]

@@ -87,9 +87,13 @@ def evaluated_pixels(trk, depth, p_prev, R_prev, p_det, R_det):
     depth = np.asarray(depth)
     max_depth = depth.dtype.type(cfg.max_depth) if depth.dtype.kind == "f" else float(cfg.max_depth)
     budgets = np.full(k, int(cfg.likelihood_pixels_per_part), np.int64)
+    # (``quiet_thin``: a quiet part whose pass runs gets it too, its likelihood taken on fewer pixels)
     quiet = getattr(trk, "_quiet_now", None)
     if quiet is not None and cfg.quiet_pixels_per_part > 0 and budgets[0] > 0:
-        budgets[np.asarray(quiet, bool)] = min(int(cfg.quiet_pixels_per_part), int(budgets[0]))
+        thin = np.asarray(quiet, bool)
+        if cfg.quiet_thin:
+            thin = thin | np.asarray(trk._settled, bool)
+        budgets[thin] = min(int(cfg.quiet_pixels_per_part), int(budgets[0]))
     pix, regions, any_valid = _evaluated(depth, trk._vs, trk._us, max_depth, trk._pu, trk._pv, trk._gi, trk._gj,
                                          bounds, budgets, trk._lattice)
     if not any_valid or not pix.size:

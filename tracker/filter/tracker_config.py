@@ -516,6 +516,27 @@ class TrackerConfig(BaseModel):
     quiet_max_skips: int = Field(
         3, ge=0, description="Passes a quiet part may skip in a row; the next one runs (its particles re-spread).",
     )
+    quiet_thin: bool = Field(
+        False, description="A quiet part (the tests of quiet_skip) keeps its coordinate pass, but its likelihood is "
+        "evaluated on quiet_pixels_per_part pixels (filter/quiet_parts.py): its particles keep their noise and "
+        "resampling, so its cloud keeps its spread for when a hand takes it (what quiet_skip lost). Speed setting; off "
+        "until the paired tuning-seed runs decide.",
+    )
+    quiet_refine_last: int = Field(
+        0, ge=0, description="A quiet part is refined with only the last (finest) this many correspondence thresholds "
+        "of refine_thresholds (0 = all): its last correction was small and the depth shows it at its prediction. "
+        "Speed setting; off until the paired tuning-seed runs decide.",
+    )
+    quiet_refine_skip: bool = Field(
+        False, description="A quiet part is not refined this frame: it keeps the filter's estimate (no loss count, no "
+        "re-acquisition, no table fit). Having no correction to remember, it is not quiet the next frame, so it is "
+        "refined at least every other frame. Speed setting; off until the paired tuning-seed runs decide.",
+    )
+    quiet_refine_hold: bool = Field(
+        False, description="With quiet_refine_skip: a quiet part is held at its noise-free prediction's mean pose "
+        "(its particles moved there, as a refinement's correction moves them) instead of keeping the filter's "
+        "estimate of the frame.",
+    )
     quiet_max_residual_m: float = Field(
         0.0, ge=0.0, description="With quiet_skip: a quiet part's depth must also be explained at its prediction "
         "this frame: of the sample points on its camera-facing box faces (last estimate moved by the prediction) at "

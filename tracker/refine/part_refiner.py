@@ -54,7 +54,8 @@ class PartRefiner:
 
     def __init__(self, intrinsics: Intrinsics, shapes: list, centers: list[np.ndarray], corners: list[np.ndarray],
                  settings: RefineSettings, stride: int = 2, max_translation: float = 0.03,
-                 max_rotation: float = 0.35, region: RegionSettings | None = None) -> None:
+                 max_rotation: float = 0.35, region: RegionSettings | None = None,
+                 short_settings: RefineSettings | None = None) -> None:
         self.intrinsics = intrinsics
         self.shapes = shapes
         self.centers = [np.asarray(c, np.float64) for c in centers]
@@ -64,6 +65,7 @@ class PartRefiner:
         self.max_translation = float(max_translation)
         self.max_rotation = float(max_rotation)
         self.region = region  # silhouette term against the colour blob (None = depth only)
+        self.short_settings = short_settings  # for the parts :meth:`refine` is told need less (fewer thresholds)
         self.last: list[RefineResult | None] = [None] * len(shapes)
         self._packed = pack_shapes(shapes)  # the shapes as the numba outline renderer takes them
 
@@ -164,14 +166,15 @@ class PartRefiner:
     def refine(self, depth: np.ndarray, poses: list, active: list[bool],
                allowed: list[np.ndarray | None] | None = None,
                outlines: list[np.ndarray | None] | None = None,
-               frame_depth: np.ndarray | None = None) -> list[Correction | None]:
+               frame_depth: np.ndarray | None = None, short: list[bool] | None = None) -> list[Correction | None]:
         """Refine the ``active`` parts at ``poses[k] = (R, t)`` (None: part not rendered, e.g. not tracked) against
         ``depth``; ``allowed[k]``: optional H×W mask of the pixels part k may claim; ``outlines[k]``: optional
         polygon of part k's colour blob for the silhouette term (:mod:`tracker.refine.region_term`), which tests
         what hides an outline on ``frame_depth`` (``depth`` when None). Returns per
         part the accepted correction or None (inactive, not visible, not healthy or out of bounds; ``self.last``
         keeps each part's :class:`RefineResult` for loss detection and re-acquisition: a healthy one whose
-        correction was out of bounds says so in its ``reason``)."""
+        correction was out of bounds says so in its ``reason``). ``short[k]``: part k is refined with
+        ``short_settings`` (e.g. its finest thresholds only) when those were given."""
         k = len(self.shapes)
         out: list[Correction | None] = [None] * k
         self.last = [None] * k
@@ -187,7 +190,10 @@ class PartRefiner:
             body = (pts - t0) @ R0
             nbody = nrm @ R0
             mask = None if allowed is None else allowed[i]
-            res = refine_pose(depth, self.intrinsics, body, nbody, R0, t0, self.centers[i], self.settings,
+            settings = self.settings
+            if short is not None and short[i] and self.short_settings is not None:
+                settings = self.short_settings
+            res = refine_pose(depth, self.intrinsics, body, nbody, R0, t0, self.centers[i], settings,
                               mask, self._region(poses, i, None if outlines is None else outlines[i],
                                                  depth if frame_depth is None else frame_depth, bounds))
             self.last[i] = res

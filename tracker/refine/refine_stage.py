@@ -9,6 +9,7 @@ correction, so that the next prediction starts at the refined pose. Camera frame
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,7 +20,7 @@ from tracker.filter.frame_context import table_normal_offset
 from tracker.filter.penalties import intersection_flags
 from tracker.geometry.pose import Pose
 from tracker.refine import table_silhouette
-from tracker.refine.dense_depth import RefineSettings
+from tracker.refine.dense_depth import RefineResult, RefineSettings
 from tracker.refine.icp_refinement import PartSurfaceModel, icp_refine, part_points
 from tracker.refine.part_refiner import PartRefiner
 from tracker.refine.recovery import CUBE_STARTS, CUBE_TURNS_DEG, MESH_STARTS, reacquire, turns_about
@@ -105,8 +106,11 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
     region = (RegionSettings(weight=cfg.refine_region_weight, depth_agree_m=cfg.refine_region_depth_agree,
                              normal_cos=cfg.refine_region_normal_cos)
               if cfg.refine_region_weight > 0 else None)
+    short = None
+    if cfg.quiet_refine_last > 0:
+        short = dataclasses.replace(settings, thresholds=tuple(cfg.refine_thresholds)[-int(cfg.quiet_refine_last):])
     return PartRefiner(trk.intrinsics, shapes, list(trk.center), trk.corners, settings, cfg.refine_stride,
-                       cfg.refine_max_translation, cfg.refine_max_rotation, region)
+                       cfg.refine_max_translation, cfg.refine_max_rotation, region, short)
 
 
 def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray, detections,
@@ -136,14 +140,33 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         allowed.append(mask)
         visible.append(seen)
         outlines.append(None if mask is None else getattr(detections.get(name), "contour", None))
-    corrections = trk._refiner.refine(depth, poses, active, allowed, outlines, frame_depth)
-    placed = table_silhouette.place_on_table(trk, poses, corrections, detections, plane, frame_depth)
+    short = None
+    if trk.config.quiet_refine_last > 0:  # quiet parts: the finest thresholds only (filter/quiet_parts.py)
+        short = [bool(x) for x in trk._settled]
+    # quiet_refine_skip: a quiet part keeps the filter's estimate this frame (no correction to remember: it is not
+    # quiet next frame, so it is refined at least every other frame); no loss count, no re-acquisition, no table fit
+    held = np.asarray(trk._settled, bool) if trk.config.quiet_refine_skip else np.zeros(k, bool)
+    active = [a and not h for a, h in zip(active, held, strict=True)]
+    before = list(trk._refiner.last)
+    corrections = trk._refiner.refine(depth, poses, active, allowed, outlines, frame_depth, short)
+    for i in np.flatnonzero(held):
+        # the later stages read ``last`` as "the depth placed it": a held part was placed last frame (its correction
+        # was small), so it keeps that result (not moved with the scene, still a landmark, not followed by its blob)
+        trk._refiner.last[i] = before[i]
+    placed = table_silhouette.place_on_table(trk, poses, corrections, detections, plane, frame_depth, held)
     trk.silhouette_placed = placed
     carried = np.asarray(trk._carry.carried, bool).copy()
     released = trk._was_carried & ~carried
     trk._was_carried = carried
     trk._cooldown = np.maximum(trk._cooldown - 1, 0)
+    hold = trk.config.quiet_refine_hold
     for i in range(k):
+        if held[i]:
+            pose = trk._held_poses.get(i) if hold else None
+            if pose is not None:  # held at its prediction: the particles' mean moves there
+                res = RefineResult(pose.R, pose.t, True, 0, 0, 0.0, float("nan"), reason="held at its prediction")
+                corrections[i] = trk._refiner.correction(poses[i][0], poses[i][1], res)
+            continue
         if placed[i]:  # placed by its colour outline on the table: not re-acquired from its sliver of depth
             trk._loss.reset(i)
             continue
@@ -180,7 +203,9 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
             continue
         name = trk.names[i]
         ref = Pose.from_rt(corr.R, corr.t)
-        if intersects_others(trk, i, ref, state.poses):
+        # (a held part stays where its last refinement, which passed this test, put it: not tested against the
+        # filter's estimates of its neighbours, which may touch it)
+        if not held[i] and intersects_others(trk, i, ref, state.poses):
             continue
         trk.p[:, i], trk.R[:, i] = corr.apply_to(trk.p[:, i], trk.R[:, i])
         state.poses[name] = ref
@@ -190,7 +215,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         if placed[i]:  # the rest prior holds it here, not where it was last seen with its depth
             trk._rest_t[i] = corr.t.copy()
             trk._rest_R[i] = corr.R.copy()
-    quiet_parts.remember(trk, detections, state.poses, applied)
+    # a held part's correction is not the depth's: it is not remembered (so the part is refined next frame)
+    quiet_parts.remember(trk, detections, state.poses, [None if h else c for h, c in zip(held, applied, strict=True)])
 
 
 def reuse_icp(trk: MultiObjectTracker, obj: int, est: Pose, det) -> Pose | None:

@@ -181,10 +181,11 @@ def resting(trk: MultiObjectTracker, obj: int, R: np.ndarray, t: np.ndarray, pla
 
 
 def place_on_table(trk: MultiObjectTracker, poses: list, corrections: list, detections, plane,
-                   frame_depth: np.ndarray | None) -> np.ndarray:
+                   frame_depth: np.ndarray | None, held: np.ndarray | None = None) -> np.ndarray:
     """The stage (module docstring), inside the refinement: for every part without a depth correction
     (``corrections[k]`` None) that qualifies, fit it on the table from its estimate ``poses[k] = (R, t)``; an accepted
-    fit becomes its correction (``corrections`` is updated). Returns the bool mask of the parts placed; the fits are
+    fit becomes its correction (``corrections`` is updated). ``held[k]``: part k was not refined this frame on
+    purpose (``quiet_refine_skip``) and is not fitted either. Returns the bool mask of the parts placed; the fits are
     kept in ``trk.last_silhouette`` (diagnostics)."""
     cfg = trk.config
     k = len(trk.parts)
@@ -196,7 +197,8 @@ def place_on_table(trk: MultiObjectTracker, poses: list, corrections: list, dete
     carried = np.asarray(trk._carry.carried, bool)
     for i, name in enumerate(trk.names):
         part = trk.parts[i]
-        if corrections[i] is not None or part.box is None or part.color is None or carried[i] or trk._blob_moved[i]:
+        if (corrections[i] is not None or part.box is None or part.color is None or carried[i] or trk._blob_moved[i]
+                or (held is not None and held[i])):
             continue
         det = detections.get(name)
         if det is None or getattr(det, "contour", None) is None:
