@@ -146,6 +146,25 @@ def test_the_upper_hand_is_split_from_the_lower_one_by_the_depth_step():
     assert dice(_inclusive_to_excl(hands[1].box), STACKED[1][0]) > 0.9
 
 
+def test_the_blind_band_along_the_upper_hand_splits_it_from_the_lower_one(monkeypatch):
+    """Hands at one depth, B lying over A's upper right and reaching left, nearer A's wrist than its own: only the
+    sensor's band without depth along B's edge over A (HOLE_STEP) tells them apart."""
+    from tracker.hands import arm_anchor
+
+    a_hand, b_hand = [50, 110, 100, 150], [70, 80, 130, 130]
+    rgb, depth = _scene([(a_hand, [55, 150, 77, 240], 0.72), (b_hand, [110, 130, 132, 240], 0.72)])
+    depth[110:130, 70] = np.nan  # B's left edge over A
+    depth[129, 70:100] = np.nan  # B's lower edge over A
+    got = {}
+    for hole in (True, False):
+        monkeypatch.setattr(arm_anchor, "HOLE_STEP", hole)
+        hands = _hands((rgb, depth))
+        assert len(hands) == 2
+        got[hole] = _inclusive_to_excl(hands[1].box)
+    assert dice(got[True], b_hand) > 0.95
+    assert dice(got[False], b_hand) < 0.9  # without it A's wrist takes B's left part
+
+
 def test_no_depth_change_no_arms():
     rgb, depth = _scene(TOUCHING)
     skin = SkinModel.load().with_threshold(-2.0).mask(rgb)

@@ -16,7 +16,8 @@ frame and without tracking, each arm and the skin pixels at its end:
    of the farthest and that lie next to skin; the skin pixels next to them seed the hand.
 4. Hands: one multi-source geodesic distance over the skin mask from all arms' seeds at once (Dijkstra, 4-neighbour
    steps of cost 1, plus :data:`DEPTH_STEP_COST` across a depth step larger than :data:`DEPTH_STEP` m: the edge of
-   the upper hand over the lower one); each skin pixel belongs to the arm whose wrist reaches it first. A hand's box
+   the upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's
+   blind band along that edge); each skin pixel belongs to the arm whose wrist reaches it first. A hand's box
    is the tight box of its pixels (at least :data:`MIN_HAND_PX`).
 
 Without depth nothing is found. Dev measurement (``hands-s2`` tuning seeds 0–4, this detector alone, no tracking,
@@ -65,6 +66,20 @@ DEPTH_STEP_COST = 20.0
 """Extra geodesic cost (working px) of crossing a depth step."""
 MIN_HAND_PX = 20
 """Fewest skin pixels (working px) a hand must get to be reported."""
+HOLE_STEP = True
+"""Whether a skin pixel without depth counts as a depth step for the geodesic split: stepping into or out of it costs
+:data:`DEPTH_STEP_COST` (a depth sensor has no depth along an occluding edge, so the edge of the upper hand over the
+lower one is a band of unknown depth, which the two-sided step test never sees; in the simulator's ``hands-s2`` the
+4-neighbour pairs across the two hands' boundary had no depth on a side in most cases). Session 19, ``hands-s2``
+tuning seeds 0–4, ground-truth start: F̄^b 0.8409 → 0.8637, ē^p 10.05 → 8.46 px (filter seed 0), 0.8382 → 0.8629,
+10.49 → 8.69 px (filter seed 1), every sequence better in both; automatic start 0.853 → 0.872, 9.37 → 8.00 px, missed
+hands 1.6 % both, false boxes 0.0218 → 0.0224 per frame; ``hands-s1`` and ``hands-s3`` unchanged. Band grown by 0 px:
+0.8594, by 2 px: 0.8418 (filter seed 0); :data:`DEPTH_STEP_COST` 10 / 40 with it: 0.8552 / 0.8665 (not changed)."""
+HOLE_GROW = 1
+"""Working px by which the pixels without depth are grown (a square) before :data:`HOLE_STEP` marks the skin pixels
+among them: at the working resolution a band of one or two full-resolution pixels has gaps."""
+HOLE_DEPTH = 1e3
+"""Depth (m) given to the skin pixels without depth when :data:`HOLE_STEP` is on: far from every measured depth."""
 
 
 @dataclass
@@ -412,7 +427,13 @@ def arm_hands(skin: np.ndarray, z: np.ndarray, background: np.ndarray) -> list[A
     seeds, entries = _arm_seeds(sk, near, sleeve, BORDER_PX, MIN_ARM_FRAC * h * w, RUN_GAP, MIN_RUN, WRIST_FAR)
     if not len(entries):
         return []
-    labels, _ = geodesic_labels(sk, z, seeds, DEPTH_STEP, DEPTH_STEP_COST)
+    zg = z
+    if HOLE_STEP:
+        hole = (z <= 0).astype(np.uint8)
+        if HOLE_GROW:
+            hole = cv2.dilate(hole, np.ones((2 * HOLE_GROW + 1, 2 * HOLE_GROW + 1), np.uint8))
+        zg = np.where((hole > 0) & (sk > 0), HOLE_DEPTH, z)
+    labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST)
     boxes, counts = _label_boxes(labels, len(entries))
     return [ArmHand((float(e[0]), float(e[1])), (int(b[0]), int(b[1]), int(b[2]), int(b[3])), int(c))
             for e, b, c in zip(entries, boxes, counts, strict=True) if c >= MIN_HAND_PX]  # fmt: skip
