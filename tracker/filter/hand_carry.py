@@ -113,6 +113,14 @@ class HandCarry:
         self.shadows: list[Shadow | None] = [None] * n_parts  # hidden resting parts' would-be carries
         self.was_in_air = np.zeros(n_parts, bool)  # the carried part has been in the air during this carry
         self.set_down = np.zeros(n_parts, np.int64)  # frames in a row it has then been on the table (note_heights)
+        # carry_backtrack: the last depth images (oldest first) with the camera motion since each (4×4, old camera
+        # frame → current; None: the camera stayed), and per part the pose the refinement last placed it at
+        # (current camera frame) and the frames completed since (-1: never placed)
+        self._ring: deque[list] = deque(maxlen=int(config.carry_backtrack) + 1)
+        self.placed_R = np.repeat(np.eye(3)[None], n_parts, axis=0)
+        self.placed_t = np.zeros((n_parts, 3))
+        self.placed_age = np.full(n_parts, -1, np.int64)
+        self.backtracked = np.zeros(n_parts, bool)  # this frame's carry starts from a backtracked pose
 
     @property
     def carried(self) -> np.ndarray:
@@ -155,10 +163,24 @@ class HandCarry:
         self.keys = [None if pts is None else pts @ Rd.T + td for pts in self.keys]
         self.last_step = self.last_step @ Rd.T
         self.last_turn = self.last_turn @ Rd.T  # a rotation vector in the camera frame turns with the camera
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = Rd, td
         if self._prev_depth is not None:
-            T = np.eye(4)
-            T[:3, :3], T[:3, 3] = Rd, td
             self._prev_motion = T if self._prev_motion is None else T @ self._prev_motion
+        for item in self._ring:
+            item[1] = T if item[1] is None else T @ item[1]
+        self.placed_R = np.einsum("ij,kjl->kil", Rd, self.placed_R)
+        self.placed_t = self.placed_t @ Rd.T + td
+
+    def note_placed(self, placed: np.ndarray, rotations: np.ndarray, positions: np.ndarray) -> None:
+        """End of a frame (``carry_backtrack``): the parts ``placed`` (K,) bool by the dense-depth refinement this
+        frame, at their final poses (``rotations`` (K, 3, 3) body → camera, ``positions`` (K, 3) m, camera frame),
+        are remembered as placed now; the others' placements age by one frame."""
+        placed = np.asarray(placed, bool)
+        self.placed_age = np.where(self.placed_age >= 0, self.placed_age + 1, -1)
+        self.placed_age[placed] = 0
+        self.placed_R[placed] = np.asarray(rotations, np.float64)[placed]
+        self.placed_t[placed] = np.asarray(positions, np.float64)[placed]
 
     def move_history(self, Rd: np.ndarray, td: np.ndarray) -> None:
         """The scene moved by ``x ↦ Rd x + td`` (camera frame, m) since the last frame, as the resting parts show it
@@ -170,14 +192,51 @@ class HandCarry:
         """Hand points around ``center`` in the last frame's depth image, in the current camera frame (the camera's
         motion since that image, :meth:`move_with_camera`, applied: unmoved, a carry's first registration would
         count the camera's motion, already applied to the part, a second time). Arguments in the current frame."""
-        M = self._prev_motion
+        return self._points_of(self._prev_depth, self._prev_motion, center, radius, plane, exclude)
+
+    def _points_of(self, depth: np.ndarray, M: np.ndarray | None, center: np.ndarray, radius: float, plane,
+                   exclude) -> np.ndarray:
+        """Hand points around ``center`` in an earlier ``depth`` image, in the current camera frame; ``M`` (4×4 or
+        None: the camera stayed) is the camera's motion since that image (old camera frame → current). Arguments in
+        the current frame."""
         if M is None:
-            return self._points(self._prev_depth, center, radius, plane, exclude)
+            return self._points(depth, center, radius, plane, exclude)
         R, t = M[:3, :3], M[:3, 3]
         old_plane = None if plane is None else (R.T @ plane[0], float(plane[1] + plane[0] @ t))
         old_exclude = [(R.T @ (c - t), r) for c, r in exclude]
-        pts = self._points(self._prev_depth, R.T @ (center - t), radius, old_plane, old_exclude)
+        pts = self._points(depth, R.T @ (center - t), radius, old_plane, old_exclude)
         return pts @ R.T + t
+
+    def _backtrack(self, obj: int, plane, exclude) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """``carry_backtrack``: the hand's motion (x ↦ ``R`` x + ``t``, current camera frame, m) from the frame in
+        which the refinement last placed part ``obj`` (1 to ``carry_backtrack`` frames before the previous one) to
+        the previous frame, by registering the hand points around the part in each kept depth image to the next
+        image's, together with the last of those registrations (rotation vector (rad), translation (m): the next
+        registration's first guess); None when that placement is too old, too recent or the hand points too few."""
+        cfg = self.config
+        age = int(self.placed_age[obj])
+        if age < 1 or age > cfg.carry_backtrack or len(self._ring) < age + 1:
+            return None
+        frames = list(self._ring)[-(age + 1):]
+        axis = plane[0] if (plane is not None and cfg.carry_rotation_axis == "table") else None
+        R, t = np.eye(3), np.zeros(3)
+        p = self.placed_t[obj].copy()
+        w, step = np.zeros(3), np.zeros(3)
+        for (d0, M0), (d1, M1) in zip(frames[:-1], frames[1:], strict=True):
+            src = self._points_of(d0, M0, p, cfg.carry_radius, plane, exclude)
+            dst = self._points_of(d1, M1, p + step, cfg.carry_radius + cfg.carry_max_step, plane, exclude)
+            if src.shape[0] < cfg.carry_min_points or dst.shape[0] < cfg.carry_min_points:
+                return None
+            if cfg.carry_rotation:
+                w, step = register_rigid(src, dst, cfg.carry_iterations, cfg.carry_max_step, cfg.carry_max_turn,
+                                         (w, step), axis, cfg.carry_turn_fallback)
+            else:
+                w, step = np.zeros(3), register_translation(src, dst, cfg.carry_iterations, cfg.carry_max_step, step)
+            c = src.mean(axis=0)
+            Rw = _rot(w)
+            d = c + step - Rw @ c
+            R, t, p = Rw @ R, Rw @ t + d, Rw @ p + d
+        return R, t, w, step
 
     def forget(self, obj: int) -> None:
         """Drop part ``obj``'s remembered positions (it was re-seeded: the jump is no motion of the part)."""
@@ -211,13 +270,16 @@ class HandCarry:
         return not supported_by_other(obj, positions, heights, self.radii)
 
     def update(self, depth: np.ndarray | None, positions: np.ndarray, hidden: np.ndarray, released: np.ndarray,
-               heights: np.ndarray, plane, touched: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+               heights: np.ndarray, plane, touched: np.ndarray | None = None,
+               rotations: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """One frame. ``positions`` (K, 3) current estimates; ``hidden`` (K,) parts without a reliable blob and
         with a low visible fraction; ``released`` (K,) parts whose blob is reliable again; ``heights`` (K,) lowest
         point above the table (m, inf = unknown); ``touched`` (K,) parts a tracked hand touches (the hand tracker's
-        contact test): a hidden touched part is taken to be in that hand like a moving one. Returns each part's
-        rigid motion this frame as rotations (K, 3, 3) and translations (K, 3): a camera-frame point x moves to
-        ``Rd @ x + td`` (identity and zero when not carried)."""
+        contact test): a hidden touched part is taken to be in that hand like a moving one; ``rotations`` (K, 3, 3)
+        the estimates' rotations (body → camera; needed by ``carry_backtrack``). Returns each part's rigid motion
+        this frame as rotations (K, 3, 3) and translations (K, 3): a camera-frame point x moves to ``Rd @ x + td``
+        (identity and zero when not carried; with ``carry_backtrack`` a starting carry's motion includes the move
+        from the estimate to the backtracked pose)."""
         cfg = self.config
         k = len(self.patches)
         rot = np.repeat(np.eye(3)[None], k, axis=0)
@@ -226,7 +288,10 @@ class HandCarry:
             return rot, delta
         moved = self.moved()
         carried = self.carried
+        positions = np.array(positions, np.float64)  # a backtracked start moves its part's entry (carry_backtrack)
+        self.backtracked = np.zeros(k, bool)
         for i in range(k):
+            back = None  # carry_backtrack: (R, t) from the estimate to the backtracked pose in the previous frame
             if released[i] or not hidden[i]:
                 self.patches[i] = None
                 self.keys[i] = None
@@ -240,6 +305,16 @@ class HandCarry:
                         self._follow_shadow(i, depth, positions[i], plane, exclude)
                     continue
                 self.shadows[i] = None
+                if (cfg.carry_backtrack > 0 and rotations is not None and self._prev_depth is not depth
+                        and (moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights))):
+                    found = self._backtrack(i, plane, exclude)
+                    if found is not None:
+                        Rh, th, w0, t0 = found
+                        R_new = Rh @ self.placed_R[i]
+                        Rb = R_new @ np.asarray(rotations[i], np.float64).T
+                        back = (Rb, Rh @ self.placed_t[i] + th - Rb @ positions[i])
+                        self.backtracked[i] = True
+                        positions[i] = Rh @ self.placed_t[i] + th
                 prev = None
                 if cfg.carry_start_register and self._prev_depth is not None and self._prev_depth is not depth:
                     prev = self._previous_points(positions[i], cfg.carry_radius, plane, exclude)
@@ -248,10 +323,14 @@ class HandCarry:
                     # part moves with the hand from the first frame of the carry, not one frame late
                     self.start(i, prev)
                     self.last_step[i] = self.last_step_of(i)
+                    if back is not None:
+                        self.last_turn[i], self.last_step[i] = w0, t0
                 else:
                     pts = self._points(depth, positions[i], cfg.carry_radius, plane, exclude)
                     if pts.shape[0] >= cfg.carry_min_points:
                         self.start(i, pts)
+                        if back is not None:
+                            rot[i], delta[i] = back
                     continue
             # search the current points around where last frame's hand motion would take the part, in a window
             # widened by the largest hand motion per frame
@@ -278,10 +357,14 @@ class HandCarry:
                 rot[i], delta[i] = self._to_keyframe(i, rot[i], delta[i], pts, plane)
             self.last_step[i], self.last_turn[i] = t, w
             new_pos = Rw @ positions[i] + delta[i]
+            if back is not None:  # from the estimate to the backtracked pose, then with the hand to this frame
+                rot[i], delta[i] = rot[i] @ back[0], rot[i] @ back[1] + delta[i]
             near = ((pts - new_pos) ** 2).sum(1) <= cfg.carry_radius**2
             self.patches[i] = pts[near] if near.sum() >= cfg.carry_min_points else None
             if cfg.carry_keyframe and self.keys[i] is None and self.patches[i] is not None:
                 self.keys[i] = self.patches[i].copy()
+        if cfg.carry_backtrack > 0 and self._prev_depth is not depth:
+            self._ring.append([depth, None])
         self._prev_depth = depth  # kept by reference: a source that reuses its buffer gives the same object (unused)
         self._prev_motion = None
         return rot, delta

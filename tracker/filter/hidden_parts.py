@@ -97,7 +97,8 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     if cfg.carry_keep_moving > 0 and depth is not None:
         tentative = was_carried & ~held  # registered with the hand, then kept only if it moved with it (below)
         held = held | tentative
-    rot, delta = trk._carry.update(depth, pos, held, ~held, heights, plane, grasped)
+    rotations = np.array([trk.estimates[nm].R for nm in trk.names]) if cfg.carry_backtrack > 0 else None
+    rot, delta = trk._carry.update(depth, pos, held, ~held, heights, plane, grasped, rotations)
     for i in np.nonzero(tentative)[0]:
         if not moved_with_hand(trk, i, depth, rot[i], delta[i]):
             trk._carry.release(i)
@@ -148,8 +149,21 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
             out_of_table(trk, i, plane)
         recentre(trk, i)
     trk._last_centers = centers
+    for i in np.nonzero(trk._carry.backtracked & trk._carry.carried & trk._carry_moved)[0]:
+        collapse(trk, i)
     trk._carry.note_heights(heights, cfg.carry_min_height)
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
+
+
+def collapse(trk, obj: int) -> None:
+    """Put every particle of part ``obj`` at its estimate (camera frame), velocities zero: a carry started from a
+    backtracked pose (``carry_backtrack``) places the part by the hand's motion, and the particles the filter spread
+    while it lagged the vanishing part (re-drawn around a sliver's blob, the wide noise of a fast part) would pull
+    the estimate, their mean, back off it."""
+    est = trk.estimates[trk.names[obj]]
+    trk.p[:, obj] = est.t
+    trk.R[:, obj] = est.R
+    trk.v[:, obj] = 0.0
 
 
 def moved_with_hand(trk, obj: int, depth: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:

@@ -293,6 +293,10 @@ class MultiObjectTracker:
         predict.update_velocities(self, state.poses, detected & ~self._rest_on & ~self._carry.carried)
         if self.config.carry_follow:
             self._carry.record(ctx.now, np.array([state.poses[nm].t for nm in self.names]))
+            if self.config.carry_backtrack > 0:
+                placed = np.array([scene_motion.placed_by_depth(self, i) for i in range(len(self.names))], bool)
+                self._carry.note_placed(placed, np.array([state.poses[nm].R for nm in self.names]),
+                                        np.array([state.poses[nm].t for nm in self.names]))
             state.carried = [nm for nm, c in zip(self.names, self._carry.carried, strict=True) if c]
         ctx.timings["total"] = (time.perf_counter() - ctx.t0) * 1e3
         state.timings = ctx.timings

@@ -159,6 +159,14 @@ class TrackerConfig(BaseModel):
         "registered to this frame's (first guess: the part's own last step): the part moves with the hand from the "
         "first frame of the carry instead of standing still for one frame.",
     )
+    carry_backtrack: int = Field(
+        0, ge=0, description="A carry started by the motion test (the estimate moving, or in the air) of a part that "
+        "the dense-depth refinement last placed 1 to carry_backtrack frames before the previous one starts from that "
+        "placed pose, moved by the hand's motion since (the hand points of each kept depth image registered to the "
+        "next, then to this frame's): a part lifted fast vanishes in the hand while the filter's constant-velocity "
+        "prediction lags it, and the carry would keep that lag (1-3 cm, mostly along the viewing ray) to the end. "
+        "0 = off (the carry starts from the current estimate).",
+    )
     carry_turn_fallback: bool = Field(
         False, description="A hand-patch registration that turns more than carry_max_turn in one frame has failed "
         "(a fast move mismatched its point pairs): the carried part follows the translation-only registration, "
