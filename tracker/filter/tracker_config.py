@@ -798,5 +798,6 @@ PRESETS["default"] = {
     "carry_left_table": 0.2,
     "blob_follow_inside_px": 3.0,
     "blob_follow_inside_covered": True,
+    "carry_backtrack": 3,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
