@@ -339,3 +339,87 @@ def test_the_normal_test_is_a_tracker_setting():
     assert trk._refiner.region is not None and trk._refiner.region.normal_cos == 0.0  # off by default
     on = TrackerConfig.preset("default").with_overrides(refine_region_normal_cos=0.5)
     assert MultiObjectTracker([PartSpec.cube("red", "red")], INTR, on, seed=0)._refiner.region.normal_cos == 0.5
+
+
+def test_the_line_search_finds_the_blob_edge_along_the_normal_not_the_nearest_one():
+    """A blob filling the left half of a crop (edge at column 20) with a notch cut into its top rows: from a point
+    inside the notch's corner region, the search along +u finds the blob's right edge at its true distance, while
+    the signed distance's nearest edge is the notch's floor, at right angles to the line; no edge facing the other
+    way (−u) is ever returned."""
+    from tracker.refine.region_term import _line_edge
+
+    crop = np.zeros((60, 60), np.uint8)
+    crop[:, :20] = 1
+    crop[:8, 10:20] = 0  # the notch: its floor (row 8) is an edge facing up
+    sdf = SignedDistance._of_crop(crop, 0, 0)
+    assert sdf is not None
+    # a point on row 30 at column 16.2: the blob's right edge (between columns 19 and 20) lies 3.3 px along +u
+    s = _line_edge(sdf.d, 16.2, 30.0, 1.0, 0.0, 12.0)
+    assert abs(s - 3.3) < 0.15, s
+    # from outside the blob (column 23.5) the edge is behind the point: s ≈ −4
+    s = _line_edge(sdf.d, 23.5, 30.0, 1.0, 0.0, 12.0)
+    assert abs(s + 4.0) < 0.15, s
+    # a point in the notch (row 5, column 14): along +u the next inside-to-outside crossing is the notch's left
+    # side (column 10 → 9.5, behind it); the nearest edge of the signed distance is the notch floor (3 px down)
+    s = _line_edge(sdf.d, 14.0, 5.0, 1.0, 0.0, 12.0)
+    assert abs(s + 4.5) < 0.15, s
+    assert abs(sdf.gv[5, 14]) > abs(sdf.gu[5, 14])  # the signed distance's gradient points at the floor
+    # along −u (the normal facing the other way) an inside-to-outside crossing must go from inside at larger u to
+    # outside at smaller u: none within reach of a point far right of the blob
+    assert not np.isfinite(_line_edge(sdf.d, 50.0, 30.0, -1.0, 0.0, 12.0))
+
+
+def test_correspondence_lines_hold_a_part_whose_blob_misses_a_face():
+    """The blob of :func:`test_outline_points_are_paired_only_with_a_blob_edge_that_faces_their_way` (a quarter left
+    out): with the correspondence lines the part stays at the true pose; paired by the signed distance alone it moves
+    and turns."""
+    truth = face_on(0.0)
+    depth = render_box_depth(INTR, [truth], [(EDGE, EDGE, EDGE)]).astype(np.float32)
+    seen = np.isfinite(depth)
+    rows, cols = np.nonzero(seen.any(axis=1))[0], np.nonzero(seen.any(axis=0))[0]
+    cut = np.zeros_like(seen)
+    cut[rows.min():(rows.min() + rows.max()) // 2, (cols.min() + cols.max()) // 2:] = True
+    cut &= seen
+    depth[~seen] = 0.62
+    depth[cut] = np.nan
+    depth += np.random.default_rng(2).normal(0.0, 0.0005, depth.shape).astype(np.float32)
+    contours, _ = cv2.findContours((seen & ~cut).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    outline = max(contours, key=cv2.contourArea).reshape(-1, 2)
+    errors = {}
+    for lines in (0.0, 1.0):
+        ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=2,
+                          region=RegionSettings(depth_agree_m=0.008, lines=lines))
+        ref.refine(depth, [(truth.R, truth.t)], [True], outlines=[outline])
+        res = ref.last[0]
+        assert res is not None and res.healthy
+        errors[lines] = (yaw_error(res.R, truth), 1e3 * float(np.linalg.norm(res.t - truth.t)))
+    for lines in (1.0,):
+        assert errors[lines][0] < 0.5 and errors[lines][1] < 0.5, errors
+    assert errors[0.0][0] > 0.6 or errors[0.0][1] > 0.6, errors
+
+
+def test_correspondence_lines_recover_a_turn_in_both_loops():
+    """With the correspondence lines on (1 px), the numba and the Python Gauss-Newton loops give the same pose, and it
+    recovers a turn about the view axis that depth alone cannot see."""
+    rng = np.random.default_rng(5)
+    truth = face_on(12.0)
+    depth = render_box_depth(INTR, [truth], [(EDGE, EDGE, EDGE)]).astype(np.float32)
+    depth[~np.isfinite(depth)] = 0.62
+    depth += rng.normal(0.0, 0.0005, depth.shape).astype(np.float32)
+    outline = outline_of(truth)
+    for yaw in (6.0, 17.0):
+        start = face_on(yaw)
+        ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=2,
+                          region=RegionSettings(lines=1.0))
+        region = ref._region([(start.R, start.t)], 0, outline, depth)
+        assert region is not None and region.scene is not None and region.own_normal is not None
+        render = render_surfaces(INTR, [SHAPE], [(start.R, start.t)], ref._rect([(start.R, start.t)]), ref.stride)
+        pts, nrm = render.points_of(0, INTR)
+        body, nbody = (pts - start.t) @ start.R, nrm @ start.R
+        fast = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region)
+        region_py = ref._region([(start.R, start.t)], 0, outline, depth)
+        region_py.scene = None
+        slow = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region_py)
+        assert fast.healthy and slow.healthy
+        assert np.allclose(fast.R, slow.R, rtol=0.0, atol=1e-10) and np.allclose(fast.t, slow.t, rtol=0.0, atol=1e-10)
+        assert yaw_error(fast.R, truth) < 1.0, (yaw, yaw_error(fast.R, truth))

@@ -596,6 +596,13 @@ class TrackerConfig(BaseModel):
         "643 and 875 -> 871 bad part-frames, lost 0 -> 0 and 2 -> 1, but 6 hand-carry tests of partly seen carried "
         "cubes fail with it: not the default yet).",
     )
+    refine_region_lines: float = Field(
+        0.0, ge=0.0, description="Silhouette term, correspondence lines (ICG/M3T), tolerance in px: each rendered "
+        "outline point's colour-blob edge is also searched along the outline's own outward normal (the nearest "
+        "crossing from inside to outside within the term's reach; none: not paired); where the residual it gives "
+        "differs from the blob's signed distance (the nearest edge, which may lie at right angles to the outline) by "
+        "more than this, the point is paired along its normal (refine/region_term.py `_line_edge`). 0 = off.",
+    )
     table_silhouette: bool = Field(
         False, description="A resting part seen in colour but not placed by the depth (a hand's projector shadow) is "
         "placed on the table from its colour blob's outline (refine/table_silhouette.py).",

@@ -242,7 +242,7 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
 def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy,
                          cx, cy, sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step,
                          converged_step, rpts, rR, rt, sd, gu, gv, su0, sv0, fdepth, inset, r_occ, r_agree, r_max_px,
-                         r_sigma, r_huber, r_weight, ogu, ogv, r_min_cos,
+                         r_sigma, r_huber, r_weight, ogu, ogv, r_min_cos, r_lines,
                          kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, rect, r_max_points):
     """:func:`_gauss_newton_with_region` in numba for a silhouette term whose outline comes from an
     :class:`~tracker.refine.region_term.OutlineScene` (its arrays, then the term's: contour points ``rpts`` extracted
@@ -287,7 +287,7 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
                     cur = fresh
             Hr, gr, _nr = _region_accumulate(cur, R, t, c, sd, gu, gv, su0, sv0, fdepth, fx, fy, cx, cy, inset,
                                              r_occ, r_agree, r_max_px, r_sigma, r_huber, r_weight, ogu, ogv,
-                                             r_min_cos)
+                                             r_min_cos, r_lines)
             A = H + Hr
             for a in range(3):
                 A[a, a] += lambda_rot

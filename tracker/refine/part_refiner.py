@@ -151,7 +151,7 @@ class PartRefiner:
         term = region_term(outline_at, R0, t0, outline, self.intrinsics, rect, cfg, 1, frame_depth)
         if term is not None:
             term.scene = scene
-            if cfg.normal_cos > 0.0:  # the outline's own normals: the visible silhouette over the blob's grid
+            if cfg.normal_cos > 0.0 or cfg.lines > 0.0:  # own normals: the visible silhouette
                 h, w = term.sdf.d.shape
                 u0, v0 = term.sdf.u0, term.sdf.v0
                 own = render_surfaces(self.intrinsics, self.shapes, poses, (u0, v0, u0 + w, v0 + h), 1)

@@ -104,7 +104,7 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
         converged_step=cfg.refine_converged_step,
     )
     region = (RegionSettings(weight=cfg.refine_region_weight, depth_agree_m=cfg.refine_region_depth_agree,
-                             normal_cos=cfg.refine_region_normal_cos)
+                             normal_cos=cfg.refine_region_normal_cos, lines=cfg.refine_region_lines)
               if cfg.refine_region_weight > 0 else None)
     short = None
     if cfg.quiet_refine_last > 0:

@@ -67,6 +67,13 @@ class RegionSettings:
     start pose) must reach this. The nearest blob edge of a point on a shaded face the blob left out (a cube's side
     seen at a grazing angle, darker than its colour) is usually another edge of the blob, at right angles to the
     outline there; paired, it turned a cube under another by 10° on tuning seed 4 of guess-1 (session 18). 0 = off."""
+    lines: float = 0.0
+    """Correspondence lines (ICG/M3T's region modality), tolerance in px (0 = off): each contour point's blob edge is
+    also searched along the outward normal of the part's own rendered silhouette there (:func:`_line_edge`; no
+    crossing within ``max_px``: not paired); where the residual that edge gives differs from the signed distance's
+    (the nearest edge's) by more than this, the nearest edge is another one (e.g. at right angles to the outline) and
+    the point is paired along its normal; otherwise by the signed distance (exact at the true pose, where the line's
+    crossing of a pixel staircase is not). Needs the own silhouette (:meth:`RegionTerm.set_own_silhouette`)."""
     weight: float = 1.0
     """Multiplier of the term's information against the depth term's."""
     max_points: int = 200
@@ -447,10 +454,12 @@ def pack_shapes(shapes: list) -> tuple:
 
 @nb.njit(cache=True)
 def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, occlusion, agree, max_px, sigma,
-                huber_k, weight, ogu, ogv, min_cos):
+                huber_k, weight, ogu, ogv, min_cos, lines=0.0):
     """Normal equations ``H`` (6, 6), ``g`` (6) of the silhouette residuals and the number of paired points (see
     :meth:`RegionTerm.normal_equations`). ``ogu``, ``ogv``: the outward normal field of the part's own rendered
-    silhouette on the grid of ``sd`` (empty: no normal test), ``min_cos``: :attr:`RegionSettings.normal_cos`."""
+    silhouette on the grid of ``sd`` (empty: no normal test and no lines), ``min_cos``:
+    :attr:`RegionSettings.normal_cos`; ``lines``: :attr:`RegionSettings.lines` (each point's blob edge is searched
+    along its own outline normal, :func:`_line_edge`, in place of the signed distance's nearest edge)."""
     H = np.zeros((6, 6))
     g = np.zeros(6)
     h, w = sd.shape
@@ -487,11 +496,41 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
         r = w00 * sd[j0, i0] + w01 * sd[j0, i0 + 1] + w10 * sd[j0 + 1, i0] + w11 * sd[j0 + 1, i0 + 1] + inset
         du = w00 * gu[j0, i0] + w01 * gu[j0, i0 + 1] + w10 * gu[j0 + 1, i0] + w11 * gu[j0 + 1, i0 + 1]
         dv = w00 * gv[j0, i0] + w01 * gv[j0, i0 + 1] + w10 * gv[j0 + 1, i0] + w11 * gv[j0 + 1, i0 + 1]
-        if abs(r) > max_px or (du == 0.0 and dv == 0.0):
-            continue
         if agree > 0.0 and r > inset + 1.0 and meas > 0.0 and abs(meas - x2) < agree:
             continue  # outside the blob, but the depth shows the part's surface here: the blob missed a shaded face
-        if min_cos > 0.0 and ogu.shape[0] == h and ogu.shape[1] == w:
+        if lines > 0.0:
+            if ogu.shape[0] != h or ogu.shape[1] != w:
+                continue  # no own normals: nothing to search along
+            jn = min(max(int(np.floor(fv + 0.5)), 0), h - 1)  # the normal field's nearest cell
+            inn = min(max(int(np.floor(fu + 0.5)), 0), w - 1)
+            nu_, nv_ = ogu[jn, inn], ogv[jn, inn]
+            nn = np.sqrt(nu_ * nu_ + nv_ * nv_)
+            if nn == 0.0:
+                continue
+            s_edge = _line_edge(sd, fu, fv, nu_ / nn, nv_ / nn, max_px)
+            if not np.isfinite(s_edge):
+                continue  # no edge of the blob facing this way along the line
+            r_line = inset - s_edge
+            if abs(r_line - r) > lines:  # the nearest edge is another than the line's: pair along the line
+                r = r_line
+                du, dv = nu_ / nn, nv_ / nn
+            elif abs(r) > max_px or (du == 0.0 and dv == 0.0):
+                continue
+            # the paired edge, and the pixel just beyond it outside the blob: a measurement in front of the point
+            # there makes it an occluder's edge (a hand or a part in front cuts the blob), not the part's outline
+            gn = np.sqrt(du * du + dv * dv)
+            beyond = r - inset - EDGE_BEYOND_PX
+            eu = u - beyond * du / gn
+            ev = v - beyond * dv / gn
+            ju = int(np.floor(eu + 0.5))
+            jv = int(np.floor(ev + 0.5))
+            if 0 <= ju < ww and 0 <= jv < hh:
+                em = depth[jv, ju]
+                if em > 0.0 and np.isfinite(em) and em < x2 - EDGE_OCCLUDER_M:
+                    continue
+        elif abs(r) > max_px or (du == 0.0 and dv == 0.0):
+            continue
+        if min_cos > 0.0 and lines <= 0.0 and ogu.shape[0] == h and ogu.shape[1] == w:
             jn = min(max(int(np.floor(fv + 0.5)), 0), h - 1)  # the normal field's nearest cell
             inn = min(max(int(np.floor(fu + 0.5)), 0), w - 1)
             nu_, nv_ = ogu[jn, inn], ogv[jn, inn]
@@ -509,6 +548,71 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
         for q in range(p):
             H[p, q] = H[q, p]
     return H, g, n
+
+
+EDGE_BEYOND_PX = 1.5
+"""With the correspondence lines: how far (px) beyond a paired blob edge, outside the blob, the depth is read to
+tell an occluder's edge from the part's outline (:func:`_accumulate`)."""
+EDGE_OCCLUDER_M = 0.005
+"""With the correspondence lines: a measurement this much (m) in front of a contour point just beyond its paired
+blob edge makes that edge an occluder's: the pair is dropped."""
+LINE_STEP_PX = 0.5
+"""Sampling step (px) of the search along a correspondence line (:func:`_line_edge`)."""
+
+
+@nb.njit(cache=True, inline="always")
+def _bilinear(a, fu, fv):
+    """``a`` at the sub-pixel position ``(fu, fv)`` (columns, rows; inside the grid)."""
+    h, w = a.shape
+    i0 = min(int(np.floor(fu)), w - 2)
+    j0 = min(int(np.floor(fv)), h - 2)
+    x = fu - i0
+    y = fv - j0
+    return ((1 - x) * (1 - y) * a[j0, i0] + x * (1 - y) * a[j0, i0 + 1] + (1 - x) * y * a[j0 + 1, i0]
+            + x * y * a[j0 + 1, i0 + 1])
+
+
+@nb.njit(cache=True)
+def _line_edge(sd, fu, fv, nu, nv, max_px):
+    """Position ``s`` (px) along the correspondence line ``(fu, fv) + s (nu, nv)`` (grid of ``sd``, unit outward
+    normal ``(nu, nv)`` of the part's rendered outline there) of the nearest crossing of the blob's edge from inside
+    (``sd`` < 0) to outside in the normal's direction, within ``|s|`` ≤ ``max_px``; ``inf`` when there is none.
+
+    This is the correspondence-line search of ICG/M3T's region modality on a binary blob: an outline point is paired
+    only with an edge that it would reach by moving along its own normal, never with an edge at right angles to it
+    (the nearest edge of the signed distance, which a shaded face the blob left out offers). The crossing is placed
+    by linear interpolation of ``sd`` between the two samples around it (``sd`` is a distance: linear across an
+    edge)."""
+    h, w = sd.shape
+    step = LINE_STEP_PX
+    n = int(np.floor(max_px / step))
+    d0 = _bilinear(sd, fu, fv)
+    # walk outward from s = 0 both ways at once; the first interval (nearest first) with a crossing wins
+    prev_f, prev_b = d0, d0
+    alive_f, alive_b = True, True
+    for k in range(1, n + 1):
+        for side in range(2):
+            if (side == 0 and not alive_f) or (side == 1 and not alive_b):
+                continue
+            s = k * step if side == 0 else -k * step
+            pu = fu + s * nu
+            pv = fv + s * nv
+            if not (pu >= 0.0 and pu <= w - 1 and pv >= 0.0 and pv <= h - 1):
+                if side == 0:
+                    alive_f = False
+                else:
+                    alive_b = False
+                continue
+            d = _bilinear(sd, pu, pv)
+            if side == 0:  # interval [s − step, s]: inside at its start, outside at its end
+                if prev_f < 0.0 <= d:
+                    return s - step + step * (-prev_f) / (d - prev_f)
+                prev_f = d
+            else:  # interval [s, s + step]
+                if d < 0.0 <= prev_b:
+                    return s + step * (-d) / (prev_b - d)
+                prev_b = d
+    return np.inf
 
 
 @nb.njit(cache=True)
@@ -675,6 +779,10 @@ class SignedDistance:
         return cls(u0, v0, d, gu, gv)
 
 
+NORMAL_BLUR_PX = 2.0
+"""Standard deviation (px) of the Gaussian that smooths the own silhouette before its gradient gives the outline's
+normals (:meth:`RegionTerm.set_own_silhouette`)."""
+
 _NO_FIELD = np.zeros((0, 0))
 """An empty normal field: :func:`_accumulate` without the normal test."""
 
@@ -706,15 +814,31 @@ class RegionTerm:
 
     def set_own_silhouette(self, own: np.ndarray) -> None:
         """Take the part's own visible silhouette at the start pose (bool, the shape of :attr:`sdf`'s grid) for the
-        normal test; a silhouette that fills or misses the whole grid gives none."""
-        f = SignedDistance._of_crop(np.ascontiguousarray(own, np.uint8), self.sdf.u0, self.sdf.v0)
-        self.own_normal = None if f is None else (f.gu, f.gv)
+        normal test or the correspondence lines; a silhouette that fills or misses the whole grid gives none.
 
-    def normal_arrays(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """``(gu, gv, min_cos)`` for :func:`_accumulate` (empty arrays and 0 when the normal test is off)."""
-        if self.own_normal is None or self.settings.normal_cos <= 0.0:
-            return _NO_FIELD, _NO_FIELD, 0.0
-        return self.own_normal[0], self.own_normal[1], float(self.settings.normal_cos)
+        For the lines (:attr:`RegionSettings.lines` > 0) the outward normal field is the negated gradient of the
+        silhouette blurred with a Gaussian of :data:`NORMAL_BLUR_PX` (the pixel mask's own distance transform gives
+        only the directions 0°, 45° and 90° along a slanted edge's staircase, which a line would follow); for the
+        normal test alone, the gradient of the silhouette's signed distance."""
+        mask = np.ascontiguousarray(own, np.uint8)
+        n_in = int(cv2.countNonZero(mask))
+        if n_in == 0 or n_in == mask.size or min(mask.shape) < 2:
+            self.own_normal = None
+        elif self.settings.lines > 0.0:
+            soft = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), NORMAL_BLUR_PX)
+            gv, gu = np.gradient(soft.astype(np.float64))
+            self.own_normal = (-gu, -gv)
+        else:
+            f = SignedDistance._of_crop(mask, self.sdf.u0, self.sdf.v0)
+            self.own_normal = None if f is None else (f.gu, f.gv)
+
+    def normal_arrays(self) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """``(gu, gv, min_cos, lines)`` for :func:`_accumulate` (empty arrays and zeros when neither the normal
+        test nor the correspondence lines are on)."""
+        cfg = self.settings
+        if self.own_normal is None or (cfg.normal_cos <= 0.0 and cfg.lines <= 0.0):
+            return _NO_FIELD, _NO_FIELD, 0.0, 0.0
+        return self.own_normal[0], self.own_normal[1], float(cfg.normal_cos), float(cfg.lines)
 
     def normal_equations(self, R: np.ndarray, t: np.ndarray, c: np.ndarray, depth: np.ndarray,
                          intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray, int]:
@@ -728,14 +852,14 @@ class RegionTerm:
             if pts.shape[0] >= 8:
                 self.points = pts
         f = self.sdf
-        ogu, ogv, min_cos = self.normal_arrays()
+        ogu, ogv, min_cos, lines = self.normal_arrays()
         return _accumulate(np.ascontiguousarray(self.points, np.float64), np.ascontiguousarray(R, np.float64),
                            np.ascontiguousarray(t, np.float64), np.ascontiguousarray(c, np.float64), f.d, f.gu, f.gv,
                            float(f.u0), float(f.v0), depth if self.frame_depth is None else self.frame_depth,
                            intrinsics.fx, intrinsics.fy, intrinsics.cx,
                            intrinsics.cy, float(self.inset), cfg.occlusion_m, cfg.depth_agree_m, cfg.max_px,
                            cfg.sigma_px, cfg.huber_k,
-                           cfg.weight, ogu, ogv, min_cos)
+                           cfg.weight, ogu, ogv, min_cos, lines)
 
 
 def body_outline(render: SurfaceRender, obj: int, R: np.ndarray, t: np.ndarray, intrinsics: Intrinsics,
