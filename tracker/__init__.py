@@ -8,9 +8,13 @@ Conventions used everywhere in this package:
 * Images: colour is RGB ``uint8`` H×W×3; depth is ``float32`` metres H×W with NaN where missing.
 """
 
-from tracker.frame import Frame
-from tracker.geometry.camera import Intrinsics
-from tracker.geometry.parts import PartSpec
-from tracker.geometry.pose import Pose
+from tracker import numba_cache
+
+numba_cache.configure()  # before any kernel module is imported: a cache keyed by the kernels' source
+
+from tracker.frame import Frame  # noqa: E402
+from tracker.geometry.camera import Intrinsics  # noqa: E402
+from tracker.geometry.parts import PartSpec  # noqa: E402
+from tracker.geometry.pose import Pose  # noqa: E402
 
 __all__ = ["Frame", "Intrinsics", "PartSpec", "Pose"]
