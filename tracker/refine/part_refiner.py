@@ -17,7 +17,7 @@ from tracker.filter.motion_model import rotate_left
 from tracker.geometry.camera import Intrinsics
 from tracker.refine.dense_depth import RefineResult, RefineSettings, refine_pose
 from tracker.refine.region_term import OutlineScene, RegionSettings, pack_shapes, region_term
-from tracker.refine.surface_render import render_surfaces
+from tracker.refine.surface_render import SurfaceRender, render_surfaces
 
 
 @dataclass
@@ -123,12 +123,13 @@ class PartRefiner:
                            self.settings, allowed, region)
 
     def _region(self, poses: list, obj: int, outline: np.ndarray | None, frame_depth: np.ndarray,
-                bounds: list | None = None):
+                bounds: list | None = None, render: SurfaceRender | None = None):
         """Silhouette term of part ``obj`` (None without an outline or with the term off). Its outline is taken
         from a render at full resolution over the part's own rectangle (every part drawn, so that an outline
         against a part in front is not used): at the true pose the rendered and the detected blob then cover the
         same pixels and the residuals vanish exactly. ``bounds``: :meth:`_bounds` of the parts at ``poses`` when
-        already computed."""
+        already computed; ``render``: the frame's strided render of the parts at ``poses`` (the own silhouette for the
+        correspondence lines' normals is then sampled from it, not rendered again)."""
         if self.region is None or self.region.weight <= 0.0 or outline is None or poses[obj] is None:
             return None
         own = [None] * len(poses)
@@ -154,8 +155,11 @@ class PartRefiner:
             if cfg.normal_cos > 0.0 or cfg.lines > 0.0:  # own normals: the visible silhouette
                 h, w = term.sdf.d.shape
                 u0, v0 = term.sdf.u0, term.sdf.v0
-                own = render_surfaces(self.intrinsics, self.shapes, poses, (u0, v0, u0 + w, v0 + h), 1)
-                term.set_own_silhouette(own.label == obj)
+                if render is not None and cfg.lines > 0.0:  # smoothed anyway: the strided render's nearest sample
+                    term.set_own_silhouette(_sampled_silhouette(render, obj, u0, v0, w, h))
+                else:
+                    own = render_surfaces(self.intrinsics, self.shapes, poses, (u0, v0, u0 + w, v0 + h), 1)
+                    term.set_own_silhouette(own.label == obj)
         return term
 
     def correction(self, R0: np.ndarray, t0: np.ndarray, res: RefineResult) -> Correction:
@@ -195,7 +199,7 @@ class PartRefiner:
                 settings = self.short_settings
             res = refine_pose(depth, self.intrinsics, body, nbody, R0, t0, self.centers[i], settings,
                               mask, self._region(poses, i, None if outlines is None else outlines[i],
-                                                 depth if frame_depth is None else frame_depth, bounds))
+                                                 depth if frame_depth is None else frame_depth, bounds, render))
             self.last[i] = res
             if not res.healthy:
                 continue
@@ -207,3 +211,16 @@ class PartRefiner:
                 continue
             out[i] = Correction(res.R, res.t, Rd, res.t - Rd @ t0, res)
         return out
+
+
+def _sampled_silhouette(render: SurfaceRender, obj: int, u0: int, v0: int, w: int, h: int) -> np.ndarray:
+    """Part ``obj``'s visible silhouette over the image window ``(u0, v0)`` + ``(w, h)`` (bool (h, w)) from a strided
+    render: each pixel takes the render's nearest sample (outside the render: not the part)."""
+    nv, nu = render.label.shape
+    i = np.rint((np.arange(u0, u0 + w) - render.u0) / render.stride).astype(np.int64)
+    j = np.rint((np.arange(v0, v0 + h) - render.v0) / render.stride).astype(np.int64)
+    iv = (i >= 0) & (i < nu)
+    jv = (j >= 0) & (j < nv)
+    own = np.zeros((h, w), bool)
+    own[np.ix_(jv, iv)] = render.label[np.ix_(j[jv], i[iv])] == obj
+    return own

@@ -507,15 +507,19 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
             nn = np.sqrt(nu_ * nu_ + nv_ * nv_)
             if nn == 0.0:
                 continue
-            s_edge = _line_edge(sd, fu, fv, nu_ / nn, nv_ / nn, max_px)
-            if not np.isfinite(s_edge):
-                continue  # no edge of the blob facing this way along the line
-            r_line = inset - s_edge
-            if abs(r_line - r) > lines:  # the nearest edge is another than the line's: pair along the line
-                r = r_line
-                du, dv = nu_ / nn, nv_ / nn
-            elif abs(r) > max_px or (du == 0.0 and dv == 0.0):
-                continue
+            gn = np.sqrt(du * du + dv * dv)
+            if abs(r) <= max_px and gn > 0.0 and nu_ * du + nv_ * dv >= LINE_SAME_COS * nn * gn:
+                pass  # the nearest edge faces the outline's way: it is the line's (no search needed)
+            else:
+                s_edge = _line_edge(sd, fu, fv, nu_ / nn, nv_ / nn, max_px)
+                if not np.isfinite(s_edge):
+                    continue  # no edge of the blob facing this way along the line
+                r_line = inset - s_edge
+                if abs(r_line - r) > lines:  # the nearest edge is another than the line's: pair along the line
+                    r = r_line
+                    du, dv = nu_ / nn, nv_ / nn
+                elif abs(r) > max_px or gn == 0.0:
+                    continue
             # the paired edge, and the pixel just beyond it outside the blob: a measurement in front of the point
             # there makes it an occluder's edge (a hand or a part in front cuts the blob), not the part's outline
             gn = np.sqrt(du * du + dv * dv)
@@ -556,6 +560,10 @@ tell an occluder's edge from the part's outline (:func:`_accumulate`)."""
 EDGE_OCCLUDER_M = 0.005
 """With the correspondence lines: a measurement this much (m) in front of a contour point just beyond its paired
 blob edge makes that edge an occluder's: the pair is dropped."""
+LINE_SAME_COS = 0.95
+"""With the correspondence lines: a contour point whose nearest blob edge (the signed distance's gradient) is within
+this cosine of its outline normal is paired by the signed distance without searching its line (the nearest edge is
+the line's)."""
 LINE_STEP_PX = 0.5
 """Sampling step (px) of the search along a correspondence line (:func:`_line_edge`)."""
 
