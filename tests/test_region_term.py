@@ -300,11 +300,10 @@ def test_the_default_tracker_refines_with_the_depth_agreement_rule():
     assert trk._refiner.region is not None and trk._refiner.region.depth_agree_m > 0.0
 
 
-def test_outline_points_are_paired_only_with_a_blob_edge_that_faces_their_way():
-    """The blob leaves out the top right quarter of the part (a shaded face, and no depth there: a face seen at a
-    grazing angle gives none). The nearest blob edge of many outline points there is an edge of the cut, at right
-    angles to the outline: paired with it (``normal_cos`` 0) they pull the part down and left and turn it; with the
-    normal test the part stays at the true pose."""
+def _blob_missing_a_quarter() -> tuple[Pose, np.ndarray, np.ndarray]:
+    """A cube seen face-on whose colour blob and depth leave out the top right quarter of the face (a shaded face seen
+    at a grazing angle gives neither colour nor depth): its true pose, the depth (table 0.62 m behind, seeded noise)
+    and the blob's outline."""
     truth = face_on(0.0)
     depth = render_box_depth(INTR, [truth], [(EDGE, EDGE, EDGE)]).astype(np.float32)
     seen = np.isfinite(depth)
@@ -315,9 +314,16 @@ def test_outline_points_are_paired_only_with_a_blob_edge_that_faces_their_way():
     depth[~seen] = 0.62
     depth[cut] = np.nan
     depth += np.random.default_rng(2).normal(0.0, 0.0005, depth.shape).astype(np.float32)
-    blob = seen & ~cut
-    contours, _ = cv2.findContours(blob.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    outline = max(contours, key=cv2.contourArea).reshape(-1, 2)
+    contours, _ = cv2.findContours((seen & ~cut).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return truth, depth, max(contours, key=cv2.contourArea).reshape(-1, 2)
+
+
+def test_outline_points_are_paired_only_with_a_blob_edge_that_faces_their_way():
+    """The blob leaves out the top right quarter of the part (a shaded face, and no depth there: a face seen at a
+    grazing angle gives none). The nearest blob edge of many outline points there is an edge of the cut, at right
+    angles to the outline: paired with it (``normal_cos`` 0) they pull the part down and left and turn it; with the
+    normal test the part stays at the true pose."""
+    truth, depth, outline = _blob_missing_a_quarter()
     errors = {}
     for cos in (0.0, 0.5):
         ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=2,
@@ -370,21 +376,9 @@ def test_the_line_search_finds_the_blob_edge_along_the_normal_not_the_nearest_on
 
 
 def test_correspondence_lines_hold_a_part_whose_blob_misses_a_face():
-    """The blob of :func:`test_outline_points_are_paired_only_with_a_blob_edge_that_faces_their_way` (a quarter left
-    out): with the correspondence lines the part stays at the true pose; paired by the signed distance alone it moves
-    and turns."""
-    truth = face_on(0.0)
-    depth = render_box_depth(INTR, [truth], [(EDGE, EDGE, EDGE)]).astype(np.float32)
-    seen = np.isfinite(depth)
-    rows, cols = np.nonzero(seen.any(axis=1))[0], np.nonzero(seen.any(axis=0))[0]
-    cut = np.zeros_like(seen)
-    cut[rows.min():(rows.min() + rows.max()) // 2, (cols.min() + cols.max()) // 2:] = True
-    cut &= seen
-    depth[~seen] = 0.62
-    depth[cut] = np.nan
-    depth += np.random.default_rng(2).normal(0.0, 0.0005, depth.shape).astype(np.float32)
-    contours, _ = cv2.findContours((seen & ~cut).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    outline = max(contours, key=cv2.contourArea).reshape(-1, 2)
+    """The blob of :func:`_blob_missing_a_quarter`: with the correspondence lines the part stays at the true pose;
+    paired by the signed distance alone it moves and turns."""
+    truth, depth, outline = _blob_missing_a_quarter()
     errors = {}
     for lines in (0.0, 1.0):
         ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=2,
