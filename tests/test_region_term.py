@@ -318,20 +318,24 @@ def _blob_missing_a_quarter() -> tuple[Pose, np.ndarray, np.ndarray]:
     return truth, depth, max(contours, key=cv2.contourArea).reshape(-1, 2)
 
 
+def _errors_on_a_blob_missing_a_quarter(region: RegionSettings) -> tuple[float, float]:
+    """Rotation (deg, cube symmetry) and translation (mm) error of the part of :func:`_blob_missing_a_quarter` refined
+    from its true pose with the silhouette term ``region`` (the refinement must be healthy)."""
+    truth, depth, outline = _blob_missing_a_quarter()
+    ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=2, region=region)
+    ref.refine(depth, [(truth.R, truth.t)], [True], outlines=[outline])
+    res = ref.last[0]
+    assert res is not None and res.healthy
+    return yaw_error(res.R, truth), 1e3 * float(np.linalg.norm(res.t - truth.t))
+
+
 def test_outline_points_are_paired_only_with_a_blob_edge_that_faces_their_way():
     """The blob leaves out the top right quarter of the part (a shaded face, and no depth there: a face seen at a
     grazing angle gives none). The nearest blob edge of many outline points there is an edge of the cut, at right
     angles to the outline: paired with it (``normal_cos`` 0) they pull the part down and left and turn it; with the
     normal test the part stays at the true pose."""
-    truth, depth, outline = _blob_missing_a_quarter()
-    errors = {}
-    for cos in (0.0, 0.5):
-        ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=2,
-                          region=RegionSettings(depth_agree_m=0.008, normal_cos=cos))
-        ref.refine(depth, [(truth.R, truth.t)], [True], outlines=[outline])
-        res = ref.last[0]
-        assert res is not None and res.healthy
-        errors[cos] = (yaw_error(res.R, truth), 1e3 * float(np.linalg.norm(res.t - truth.t)))
+    errors = {cos: _errors_on_a_blob_missing_a_quarter(RegionSettings(depth_agree_m=0.008, normal_cos=cos))
+              for cos in (0.0, 0.5)}
     assert errors[0.5][0] < 0.5 and errors[0.5][1] < 0.5, errors
     assert errors[0.0][0] > 0.6 or errors[0.0][1] > 0.6, errors  # 0.97° and 1.05 mm when written
 
@@ -378,15 +382,8 @@ def test_the_line_search_finds_the_blob_edge_along_the_normal_not_the_nearest_on
 def test_correspondence_lines_hold_a_part_whose_blob_misses_a_face():
     """The blob of :func:`_blob_missing_a_quarter`: with the correspondence lines the part stays at the true pose;
     paired by the signed distance alone it moves and turns."""
-    truth, depth, outline = _blob_missing_a_quarter()
-    errors = {}
-    for lines in (0.0, 1.0):
-        ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=2,
-                          region=RegionSettings(depth_agree_m=0.008, lines=lines))
-        ref.refine(depth, [(truth.R, truth.t)], [True], outlines=[outline])
-        res = ref.last[0]
-        assert res is not None and res.healthy
-        errors[lines] = (yaw_error(res.R, truth), 1e3 * float(np.linalg.norm(res.t - truth.t)))
+    errors = {lines: _errors_on_a_blob_missing_a_quarter(RegionSettings(depth_agree_m=0.008, lines=lines))
+              for lines in (0.0, 1.0)}
     for lines in (1.0,):
         assert errors[lines][0] < 0.5 and errors[lines][1] < 0.5, errors
     assert errors[0.0][0] > 0.6 or errors[0.0][1] > 0.6, errors

@@ -499,45 +499,13 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
         if agree > 0.0 and r > inset + 1.0 and meas > 0.0 and abs(meas - x2) < agree:
             continue  # outside the blob, but the depth shows the part's surface here: the blob missed a shaded face
         if lines > 0.0:
-            if ogu.shape[0] != h or ogu.shape[1] != w:
-                continue  # no own normals: nothing to search along
-            jn = min(max(int(np.floor(fv + 0.5)), 0), h - 1)  # the normal field's nearest cell
-            inn = min(max(int(np.floor(fu + 0.5)), 0), w - 1)
-            nu_, nv_ = ogu[jn, inn], ogv[jn, inn]
-            nn = np.sqrt(nu_ * nu_ + nv_ * nv_)
-            if nn == 0.0:
+            ok, r, du, dv = _line_pair(sd, ogu, ogv, depth, fu, fv, u, v, x2, r, du, dv, inset, max_px, lines)
+            if not ok:
                 continue
-            gn = np.sqrt(du * du + dv * dv)
-            if abs(r) <= max_px and gn > 0.0 and nu_ * du + nv_ * dv >= LINE_SAME_COS * nn * gn:
-                pass  # the nearest edge faces the outline's way: it is the line's (no search needed)
-            else:
-                s_edge = _line_edge(sd, fu, fv, nu_ / nn, nv_ / nn, max_px)
-                if not np.isfinite(s_edge):
-                    continue  # no edge of the blob facing this way along the line
-                r_line = inset - s_edge
-                if abs(r_line - r) > lines:  # the nearest edge is another than the line's: pair along the line
-                    r = r_line
-                    du, dv = nu_ / nn, nv_ / nn
-                elif abs(r) > max_px or gn == 0.0:
-                    continue
-            # the paired edge, and the pixel just beyond it outside the blob: a measurement in front of the point
-            # there makes it an occluder's edge (a hand or a part in front cuts the blob), not the part's outline
-            gn = np.sqrt(du * du + dv * dv)
-            beyond = r - inset - EDGE_BEYOND_PX
-            eu = u - beyond * du / gn
-            ev = v - beyond * dv / gn
-            ju = int(np.floor(eu + 0.5))
-            jv = int(np.floor(ev + 0.5))
-            if 0 <= ju < ww and 0 <= jv < hh:
-                em = depth[jv, ju]
-                if em > 0.0 and np.isfinite(em) and em < x2 - EDGE_OCCLUDER_M:
-                    continue
         elif abs(r) > max_px or (du == 0.0 and dv == 0.0):
             continue
-        if min_cos > 0.0 and lines <= 0.0 and ogu.shape[0] == h and ogu.shape[1] == w:
-            jn = min(max(int(np.floor(fv + 0.5)), 0), h - 1)  # the normal field's nearest cell
-            inn = min(max(int(np.floor(fu + 0.5)), 0), w - 1)
-            nu_, nv_ = ogu[jn, inn], ogv[jn, inn]
+        elif min_cos > 0.0 and ogu.shape[0] == h and ogu.shape[1] == w:
+            nu_, nv_ = _own_normal(ogu, ogv, fu, fv)
             nn = np.sqrt(nu_ * nu_ + nv_ * nv_) * np.sqrt(du * du + dv * dv)
             if nn > 0.0 and (nu_ * du + nv_ * dv) < min_cos * nn:
                 continue  # the nearest blob edge faces another way than the outline here: not this edge's match
@@ -552,6 +520,55 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
         for q in range(p):
             H[p, q] = H[q, p]
     return H, g, n
+
+@nb.njit(cache=True, inline="always")
+def _own_normal(ogu, ogv, fu, fv):
+    """The own silhouette's normal field at its nearest cell to the sub-pixel position ``(fu, fv)`` (not unit)."""
+    h, w = ogu.shape
+    jn = min(max(int(np.floor(fv + 0.5)), 0), h - 1)
+    inn = min(max(int(np.floor(fu + 0.5)), 0), w - 1)
+    return ogu[jn, inn], ogv[jn, inn]
+
+
+@nb.njit(cache=True, inline="always")
+def _line_pair(sd, ogu, ogv, depth, fu, fv, u, v, x2, r, du, dv, inset, max_px, tol):
+    """The correspondence-line pairing of one contour point (:attr:`RegionSettings.lines` = ``tol``): from its
+    signed-distance residual ``r`` and gradient ``(du, dv)`` at grid position ``(fu, fv)`` (image ``(u, v)``, depth
+    ``x2``), ``(ok, r, du, dv)`` of the pair to use — the signed distance's where its nearest edge faces the outline's
+    own normal or gives the line's edge within ``tol``, else the line's (:func:`_line_edge`); ``ok`` False when
+    there is no own normal, no edge along the line, or the paired edge is an occluder's (a measurement
+    ``EDGE_OCCLUDER_M`` nearer than the point ``EDGE_BEYOND_PX`` beyond it, outside the blob)."""
+    h, w = sd.shape
+    if ogu.shape[0] != h or ogu.shape[1] != w:
+        return False, r, du, dv  # no own normals: nothing to search along
+    nu_, nv_ = _own_normal(ogu, ogv, fu, fv)
+    nn = np.sqrt(nu_ * nu_ + nv_ * nv_)
+    if nn == 0.0:
+        return False, r, du, dv
+    gn = np.sqrt(du * du + dv * dv)
+    if not (abs(r) <= max_px and gn > 0.0 and nu_ * du + nv_ * dv >= LINE_SAME_COS * nn * gn):
+        # the nearest edge does not face the outline's way: search the line
+        s_edge = _line_edge(sd, fu, fv, nu_ / nn, nv_ / nn, max_px)
+        if not np.isfinite(s_edge):
+            return False, r, du, dv  # no edge of the blob facing this way along the line
+        r_line = inset - s_edge
+        if abs(r_line - r) > tol:  # the nearest edge is another than the line's: pair along the line
+            r, du, dv = r_line, nu_ / nn, nv_ / nn
+        elif abs(r) > max_px or gn == 0.0:
+            return False, r, du, dv
+    # the paired edge, and the pixel just beyond it outside the blob: a measurement in front of the point there makes
+    # it an occluder's edge (a hand or a part in front cuts the blob), not the part's outline
+    gn = np.sqrt(du * du + dv * dv)
+    beyond = r - inset - EDGE_BEYOND_PX
+    ju = int(np.floor(u - beyond * du / gn + 0.5))
+    jv = int(np.floor(v - beyond * dv / gn + 0.5))
+    hh, ww = depth.shape
+    if 0 <= ju < ww and 0 <= jv < hh:
+        em = depth[jv, ju]
+        if em > 0.0 and np.isfinite(em) and em < x2 - EDGE_OCCLUDER_M:
+            return False, r, du, dv
+    return True, r, du, dv
+
 
 
 EDGE_BEYOND_PX = 1.5
