@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numba as nb
 import numpy as np
 
 from tracker.assembly.events import ConnectionEvent
@@ -259,15 +260,25 @@ _UNITS_TO_METRES: dict[float, np.ndarray] = {}
 def depth_units_to_metres(raw: np.ndarray, depth_scale: float) -> np.ndarray:
     """uint16 depth units → float32 metres ``float32(value × depth_scale)`` (the product in float64), 0 → NaN.
 
-    Looked up in a table made once per ``depth_scale`` (the same values as converting each pixel, in about 2/3 of
-    the time for a 640×480 image)."""
+    Looked up in a table made once per ``depth_scale`` (the same values as converting each pixel) by a compiled
+    loop: 0.3 ms for a 640×480 image against 0.9–3.6 ms for numpy's ``take``, which widens the indices first."""
     lut = _UNITS_TO_METRES.get(depth_scale)
     if lut is None:
         lut = (np.arange(MAX_DEPTH_UNITS + 1, dtype=np.float64) * depth_scale).astype(np.float32)
         lut[0] = np.nan
         if len(_UNITS_TO_METRES) < 16:
             _UNITS_TO_METRES[depth_scale] = lut
-    return np.take(lut, np.asarray(raw, np.uint16))
+    units = np.ascontiguousarray(raw, np.uint16)
+    return _look_up(units.reshape(-1), lut).reshape(units.shape)
+
+
+@nb.njit(cache=True)
+def _look_up(units: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """``lut[units]`` (1-D uint16 indices into a float32 table of 65536 entries)."""
+    out = np.empty(units.shape[0], np.float32)
+    for i in range(units.shape[0]):
+        out[i] = lut[units[i]]
+    return out
 
 
 def depth_metres_to_units(depth: np.ndarray, depth_scale: float) -> np.ndarray:
