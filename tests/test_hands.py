@@ -187,6 +187,31 @@ def test_hands_command_writes_one_json_line_per_frame(recording, tmp_path, capsy
     assert "tracked 40 frames" in capsys.readouterr().out
 
 
+def test_hand_commands_run_opencv_on_one_thread(recording, tmp_path, monkeypatch):
+    """`hands` and `evaluate hands` time the tracker on one core, as the server's hand process does: OpenCV's
+    worker threads would escape the thread CPU time of Experiment 1's runtime table."""
+    import tracker.evaluation.hands as evaluation
+
+    seen: list[int] = []
+
+    def fake_experiment(out, seeds, runs, n_frames):
+        seen.append(cv2.getNumThreads())
+        return {"hands-s1": {}}
+
+    monkeypatch.setattr(evaluation, "experiment_1", fake_experiment)
+    before = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(4)
+        assert main(["evaluate", "hands", "--out", str(tmp_path / "e"), "--seeds", "100", "--runs", "1"]) == 0
+        assert seen == [1]
+        cv2.setNumThreads(4)
+        out = tmp_path / "h.jsonl"
+        assert main(["hands", str(recording), "--out", str(out), "--frames", "2"]) == 0
+        assert cv2.getNumThreads() == 1 and len(out.read_text().splitlines()) == 2
+    finally:
+        cv2.setNumThreads(before)
+
+
 def test_hands_command_bad_input(recording, tmp_path, capsys):
     assert main(["hands", str(tmp_path / "missing"), "--out", str(tmp_path / "x.jsonl")]) == 1
     assert "missing" in capsys.readouterr().err

@@ -71,8 +71,13 @@ def _seeds(args: argparse.Namespace) -> list[int] | None:
 
 
 def run_hands(args: argparse.Namespace) -> int:
+    import cv2
+
     from tracker.evaluation.hands import experiment_1, experiment_2
 
+    # one core, as the server's hand process (tracker.hands.process) and bench_hands.py: the runtime table is
+    # thread CPU time, which OpenCV's worker threads (the optical flow) would escape
+    cv2.setNumThreads(1)
     default = "100,101,102" if args.experiment == "hands" else "100"
     seeds = tuple(_seeds(args) or [int(x) for x in default.split(",")])
     if not seeds or args.runs < 1:

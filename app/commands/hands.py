@@ -46,6 +46,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--particles must be at least 1, got {args.particles}")
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames must be at least 1, got {args.frames}")
+    import cv2
+
+    cv2.setNumThreads(1)  # one core, as the server's hand process: the spec's budget is per frame on one core
     cfg = HandTrackerConfig(method=args.method, n_particles=args.particles, flow=args.flow, seed=args.seed)
     src = RecordingSource(args.recording)
     tracker = HandTracker(cfg, focal=src.intrinsics.fx)
