@@ -1,7 +1,8 @@
 """Speed of the tracker on one core (issue 11, item 6): held-out simulator sessions, decoding and perception included.
 
-Two sessions of the held-out design (:data:`benchmarks.bench_heldout.DESIGN`, seeds >= 100 as that benchmark gives
-them: session k gets seed 100 + k): a 5-cube one (default session 1, ``static``, hand-held camera) and a 7-cube
+Sessions of the held-out design (:data:`benchmarks.bench_heldout.DESIGN`, seeds >= 100 as that benchmark gives
+them: session k gets seed 100 + k): two 5-cube ones (default sessions 0 and 1, ``static`` with a fixed and with a
+hand-held camera: the camera odometry idles on a fixed camera and works every frame on a moving one) and a 7-cube
 one (default session 15, ``learning-5``, swaying camera). Each session is rendered by the simulator, written as a
 recording (PNG colour, 16-bit PNG depth in millimetres, as ``assembly-agent simulate`` writes it) and then read
 back and tracked frame by frame exactly as ``assembly-agent track`` does it
@@ -9,7 +10,9 @@ back and tracked frame by frame exactly as ``assembly-agent track`` does it
 preset, N = 225). Per frame, thread CPU time (``time.thread_time``; OpenCV, numba and BLAS held to one thread) of
 
 * **decode**: reading the frame's colour and depth images (:meth:`RecordingSource.read`);
-* **perception**: the table plane and the colour detection (``TrackSession.step`` minus the tracker step);
+* **perception**: the table plane, the colour detection and the camera odometry (``TrackSession.step`` minus the
+  tracker step; the odometry is ``track``'s default, ``fused``, unless ``--odometry`` says otherwise; its own share
+  is reported as **odometry**);
 * **tracker**: the tracker step (prediction, passes, refinement, recovery);
 * **pipeline**: the three together, and the frames per second one core would give (1000 / pipeline ms).
 
@@ -23,7 +26,7 @@ numba's compilation or cache loading). Issue 11's targets: 5 cubes >= 30 fps inc
 Writes benchmarks/results/tracker_speed.json and .md. Usage::
 
     .venv/bin/python benchmarks/bench_tracker_speed.py [--frames 150] [--sessions 1,15] [--no-write]
-        [--pair quiet_skip=true]
+        [--pair quiet_skip=true] [--odometry off|default|fused]
 """
 
 from __future__ import annotations
@@ -53,7 +56,7 @@ TARGET_FPS_5 = 30.0
 """Issue 11: 5 cubes, N = 225, at least this many frames per second including decoding and perception."""
 TARGET_TRACKER_MS_7 = 15.0
 """Issue 11: 7 cubes, N = 225, at most this tracker time per frame (ms)."""
-STAGES = ("decode", "perception", "tracker", "pipeline", "icp")
+STAGES = ("decode", "perception", "odometry", "tracker", "pipeline", "icp")
 
 
 def _stats(values: list[float]) -> dict:
@@ -78,16 +81,18 @@ def parse_overrides(text: str) -> dict:
     return out
 
 
-def run_session(session: int, seed: int, frames: int, pair: dict | None = None) -> dict:
+def run_session(session: int, seed: int, frames: int, pair: dict | None = None, odometry: str | None = None) -> dict:
     """Render, record, read back and track one session of the held-out design; its per-stage CPU times. ``pair``:
     TrackerConfig overrides of a second tracker run on the same frames in the same process (the two trackers take
     turns first on each frame), whose tracker CPU time is reported beside the default's (``tracker_pair``) with the
-    per-frame difference (``pair_diff``: default minus paired, mean and its standard error)."""
+    per-frame difference (``pair_diff``: default minus paired, mean and its standard error). ``odometry``: the
+    camera odometry mode of both (None: ``track``'s default)."""
     import cv2
 
     from app.commands.track import TrackSession
     from benchmarks.icp_baseline import ICPTracker
     from tracker.filter.tracker_config import TrackerConfig
+    from tracker.odometry.ego_motion import DEFAULT_MODE
     from tracker.sources.recording import RecordingSource, RecordingWriter
     from tracker.sources.simulator import SimOptions, SimulatedTable
 
@@ -96,6 +101,7 @@ def run_session(session: int, seed: int, frames: int, pair: dict | None = None) 
     opts = SimOptions(speed=speed, occlusion=occlusion, camera_motion=motion)
     src = SimulatedTable(scenario, seed=seed, options=opts, realtime=False, n_frames=frames)
     cfg = TrackerConfig.preset("default")
+    odometry = odometry or DEFAULT_MODE
     cpu: dict[str, list[float]] = {k: [] for k in STAGES}
     with tempfile.TemporaryDirectory() as tmp:
         rec_dir = Path(tmp) / "rec"
@@ -105,10 +111,11 @@ def run_session(session: int, seed: int, frames: int, pair: dict | None = None) 
                 writer.write(frame, frame.meta.get("groundtruth"))
         # decoded on demand in this thread (no prefetch thread): one core does the decoding, as the target counts
         rec = RecordingSource(rec_dir, prefetch=0)
-        ours = TrackSession(rec.parts, rec.intrinsics, rec.initial_poses, cfg, seed=0)
+        ours = TrackSession(rec.parts, rec.intrinsics, rec.initial_poses, cfg, seed=0, odometry=odometry)
         other = None
         if pair:
-            other = TrackSession(rec.parts, rec.intrinsics, rec.initial_poses, cfg.with_overrides(**pair), seed=0)
+            other = TrackSession(rec.parts, rec.intrinsics, rec.initial_poses, cfg.with_overrides(**pair), seed=0,
+                                 odometry=odometry)
             cpu["tracker_pair"] = []
         icp = ICPTracker(rec.parts, rec.intrinsics)
         icp.initialize(rec.initial_poses)
@@ -132,11 +139,12 @@ def run_session(session: int, seed: int, frames: int, pair: dict | None = None) 
             cpu["decode"].append(1e3 * (c1 - c0))
             cpu["tracker"].append(1e3 * ours.last_cpu)
             cpu["perception"].append(1e3 * (c2 - c1b - ours.last_cpu))
+            cpu["odometry"].append(1e3 * ours.last_ego_cpu)
             cpu["pipeline"].append(1e3 * (c1 - c0 + c2 - c1b))
             cpu["icp"].append(1e3 * (c3 - c2b))
     res = {"session": session, "scenario": scenario, "motion": motion, "occlusion": occlusion, "speed": speed,
            "seed": seed, "frames": len(cpu["tracker"]), "parts": len(rec.parts), "n_particles": cfg.n_particles,
-           "icp_backend": icp.backend}
+           "icp_backend": icp.backend, "odometry_mode": odometry}
     for k, v in cpu.items():
         res[k] = _stats(v)
     if other is not None:
@@ -151,6 +159,7 @@ def run_session(session: int, seed: int, frames: int, pair: dict | None = None) 
 
 def markdown(res: dict) -> str:
     m = res["machine"]
+    odo = (res["sessions"][0].get("odometry_mode") if res["sessions"] else None) or "off"
     backend = res["sessions"][0]["icp_backend"] if res["sessions"] else "?"
     icp_name = "Open3D point-to-plane ICP" if backend == "open3d" else "point-to-plane ICP (numpy/scipy fallback)"
     lines = [
@@ -166,18 +175,19 @@ def markdown(res: dict) -> str:
         "each, "
         "written as a recording (PNG colour, 16-bit PNG depth) and read back as `assembly-agent track` reads it. "
         "Median thread CPU ms per frame (mean in brackets) of: **decode** (reading the colour and depth images), "
-        "**perception** (table plane and colour detection), **tracker** (the tracker step, default preset, "
-        "N = 225), **pipeline** (the three; fps = 1000 / pipeline ms on one core). "
+        "**perception** (table plane, colour detection and the camera odometry; **odometry** is the odometry's "
+        f"share of it, mode `{odo}`), **tracker** (the tracker step, default preset, "
+        "N = 225), **pipeline** (decode, perception and tracker; fps = 1000 / pipeline ms on one core). "
         f"**ICP** = {icp_name} per part, frame to frame, on the same frames in the same run "
         "(`benchmarks/icp_baseline.py`).",
         "",
-        "| # | scenario | camera | seed | parts | decode | perception | tracker | pipeline | fps (pipeline) "
-        "| ICP | tracker / ICP |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| # | scenario | camera | seed | parts | decode | perception | odometry | tracker | pipeline "
+        "| fps (pipeline) | ICP | tracker / ICP |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in res["sessions"]:
-        cells = " | ".join(f"{s[k]['median']:.1f} ({s[k]['mean']:.1f})" for k in ("decode", "perception", "tracker",
-                                                                              "pipeline"))
+        cells = " | ".join(f"{s[k]['median']:.1f} ({s[k]['mean']:.1f})" if k in s else "—"
+                           for k in ("decode", "perception", "odometry", "tracker", "pipeline"))
         lines.append(f"| {s['session']} | {s['scenario']} | {s['motion']} | {s['seed']} | {s['parts']} | {cells} | "
                      f"{s['fps_pipeline']:.1f} | {s['icp']['median']:.1f} | {s['ratio_tracker_icp']:.2f} |")
     paired = [s for s in res["sessions"] if "pair" in s]
@@ -207,12 +217,15 @@ def markdown(res: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sessions", default="1,15", help="sessions of the held-out design (default 1,15)")
+    ap.add_argument("--sessions", default="0,1,15", help="sessions of the held-out design (default 0,1,15: static "
+                    "with a fixed and with a hand-held camera, learning-5 with a swaying one)")
     ap.add_argument("--frames", type=int, default=150, help="frames per session (default 150)")
     ap.add_argument("--seed-base", type=int, default=100, help="session k gets seed base + k (default 100)")
     ap.add_argument("--note", default="", help="a sentence added to the report")
     ap.add_argument("--pair", default="", help="KEY=VALUE[,KEY=VALUE] TrackerConfig overrides of a second tracker "
                     "run on the same frames in the same process (paired comparison, e.g. quiet_skip=true)")
+    ap.add_argument("--odometry", default=None, choices=("off", "default", "fused"),
+                    help="camera odometry of the tracked sessions (default: track's default, fused)")
     ap.add_argument("--no-write", action="store_true", help="print only; do not write benchmarks/results")
     ap.add_argument("--rewrite", action="store_true", help="rebuild the .md from the .json and exit")
     args = ap.parse_args(argv)
@@ -225,7 +238,7 @@ def main(argv=None) -> int:
     res = {"machine": machine_info(), "commit": git_commit(), "frames": args.frames, "note": args.note,
            "sessions": []}
     for k, seed in zip(sessions, seeds, strict=True):
-        s = run_session(k, seed, args.frames, parse_overrides(args.pair) if args.pair else None)
+        s = run_session(k, seed, args.frames, parse_overrides(args.pair) if args.pair else None, args.odometry)
         res["sessions"].append(s)
         print(f"session {k} ({s['scenario']}, {s['parts']} parts, seed {seed}): "
               + ", ".join(f"{st} {s[st]['median']:.1f} ms" for st in STAGES)
