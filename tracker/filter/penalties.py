@@ -54,6 +54,35 @@ def _obb_overlap(Ra, ca, ha, Rb, cb, hb, tol):
     return True
 
 
+@nb.njit(cache=True, inline="always")
+def bounding_radii(half):
+    """Radius (metres) of each part's bounding sphere about its box centre, from ``half`` (K, 3) half extents: (K,)."""
+    k = half.shape[0]
+    rad = np.empty(k)
+    for o in range(k):
+        rad[o] = np.sqrt(half[o, 0] ** 2 + half[o, 1] ** 2 + half[o, 2] ** 2)
+    return rad
+
+
+@nb.njit(cache=True, inline="always")
+def world_centres(R, t, j, center, cw):
+    """Particle ``j``'s box centres in the camera frame into ``cw`` (K, 3), from body-frame ``center`` (K, 3)."""
+    for o in range(cw.shape[0]):
+        for r in range(3):
+            cw[o, r] = (R[j, o, r, 0] * center[o, 0] + R[j, o, r, 1] * center[o, 1] + R[j, o, r, 2] * center[o, 2]
+                        + t[j, o, r])
+
+
+@nb.njit(cache=True, inline="always")
+def pair_overlaps(R, j, cw, rad, half, a, b, tol):
+    """Do parts ``a`` and ``b`` of particle ``j`` interpenetrate by more than ``tol`` metres? The bounding spheres
+    first (centres ``cw``, radii ``rad``), then the separating-axis test of the boxes."""
+    d2 = (cw[a, 0] - cw[b, 0]) ** 2 + (cw[a, 1] - cw[b, 1]) ** 2 + (cw[a, 2] - cw[b, 2]) ** 2
+    if d2 > (rad[a] + rad[b]) ** 2:  # bounding spheres apart
+        return False
+    return _obb_overlap(R[j, a], cw[a], half[a], R[j, b], cw[b], half[b], tol)
+
+
 @nb.njit(cache=True)
 def intersection_flags(R, t, center, half, pairs, tol):
     """Per particle: does any listed pair of parts interpenetrate by more than ``tol`` metres? (N,) bool.
@@ -62,24 +91,13 @@ def intersection_flags(R, t, center, half, pairs, tol):
     ``pairs`` (M, 2) object index pairs worth testing.
     """
     n = R.shape[0]
-    k = R.shape[1]
     out = np.zeros(n, np.bool_)
-    rad = np.empty(k)
-    for o in range(k):
-        rad[o] = np.sqrt(half[o, 0] ** 2 + half[o, 1] ** 2 + half[o, 2] ** 2)
-    cw = np.empty((k, 3))
+    rad = bounding_radii(half)
+    cw = np.empty((R.shape[1], 3))
     for j in range(n):
-        for o in range(k):
-            for r in range(3):
-                cw[o, r] = (R[j, o, r, 0] * center[o, 0] + R[j, o, r, 1] * center[o, 1] + R[j, o, r, 2] * center[o, 2]
-                            + t[j, o, r])
+        world_centres(R, t, j, center, cw)
         for m in range(pairs.shape[0]):
-            a = pairs[m, 0]
-            b = pairs[m, 1]
-            d2 = (cw[a, 0] - cw[b, 0]) ** 2 + (cw[a, 1] - cw[b, 1]) ** 2 + (cw[a, 2] - cw[b, 2]) ** 2
-            if d2 > (rad[a] + rad[b]) ** 2:  # bounding spheres apart
-                continue
-            if _obb_overlap(R[j, a], cw[a], half[a], R[j, b], cw[b], half[b], tol):
+            if pair_overlaps(R, j, cw, rad, half, pairs[m, 0], pairs[m, 1], tol):
                 out[j] = True
                 break
     return out

@@ -26,7 +26,14 @@ from tracker.filter.depth_likelihood import (
     update_log_likelihood,
 )
 from tracker.filter.frame_context import FrameContext, PassResult
-from tracker.filter.penalties import _obb_overlap, intersection_log_penalty, lowest_heights, table_log_penalty
+from tracker.filter.penalties import (
+    bounding_radii,
+    intersection_log_penalty,
+    lowest_heights,
+    pair_overlaps,
+    table_log_penalty,
+    world_centres,
+)
 from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, systematic_resample, take_rows_inplace
 
 if TYPE_CHECKING:
@@ -401,23 +408,10 @@ def _penalty_pass(p, R, moved, fresh, t_obj, t_uv, t_w, colour, t_done, center, 
 def pair_intersections(R, t, center, half, pairs, cols, tol, flags):
     """For the pairs ``pairs[cols]`` of parts: does the pair interpenetrate by more than ``tol`` metres, per particle,
     into ``flags[:, cols]`` ((N, M) bool); the test of :func:`tracker.filter.penalties.intersection_flags`."""
-    n = R.shape[0]
-    k = R.shape[1]
-    rad = np.empty(k)
-    for o in range(k):
-        rad[o] = np.sqrt(half[o, 0] ** 2 + half[o, 1] ** 2 + half[o, 2] ** 2)
-    cw = np.empty((k, 3))
-    for j in range(n):
-        for o in range(k):
-            for r in range(3):
-                cw[o, r] = (R[j, o, r, 0] * center[o, 0] + R[j, o, r, 1] * center[o, 1] + R[j, o, r, 2] * center[o, 2]
-                            + t[j, o, r])
+    rad = bounding_radii(half)
+    cw = np.empty((R.shape[1], 3))
+    for j in range(R.shape[0]):
+        world_centres(R, t, j, center, cw)
         for mm in range(cols.shape[0]):
             m = cols[mm]
-            a = pairs[m, 0]
-            b = pairs[m, 1]
-            d2 = (cw[a, 0] - cw[b, 0]) ** 2 + (cw[a, 1] - cw[b, 1]) ** 2 + (cw[a, 2] - cw[b, 2]) ** 2
-            if d2 > (rad[a] + rad[b]) ** 2:  # bounding spheres apart
-                flags[j, m] = False
-            else:
-                flags[j, m] = _obb_overlap(R[j, a], cw[a], half[a], R[j, b], cw[b], half[b], tol)
+            flags[j, m] = pair_overlaps(R, j, cw, rad, half, pairs[m, 0], pairs[m, 1], tol)
