@@ -48,7 +48,8 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
     trk._last_centers = {i: np.asarray(c, np.float64) + shifts.get(i, 0.0)
                          for i, c in getattr(trk, "_last_centers", {}).items()}
     trk.p = trk.p @ Rd.T + td
-    trk.R = np.einsum("ij,nkjl->nkil", Rd, trk.R)
+    Rc = np.ascontiguousarray(Rd)  # rotate_left: np.einsum's values at a seventh of its time (225 x 7 particles)
+    trk.R = rotate_left(Rc, trk.R.reshape(-1, 3, 3)).reshape(trk.R.shape)
     v = trk.v.copy()
     v[..., :3] = trk.v[..., :3] @ Rd.T
     v[..., 3:] = trk.v[..., 3:] @ Rd.T
@@ -63,7 +64,7 @@ def apply_camera_motion(trk, T_new_old: np.ndarray) -> None:
         vel[:, 3:] = trk._est_vel[:, 3:] @ Rd.T
         trk._est_vel = vel
     trk._rest_t = trk._rest_t @ Rd.T + td
-    trk._rest_R = np.einsum("ij,kjl->kil", Rd, trk._rest_R)
+    trk._rest_R = rotate_left(Rc, trk._rest_R)
     trk._icp_last = [None if last is None else (D @ last[0], *last[1:]) for last in trk._icp_last]
     # scene motion's landmark poses of the last frame: unmoved, the camera's motion would show up as the landmarks'
     # consensus motion and be applied to the hidden parts a second time

