@@ -155,23 +155,27 @@ def part_silhouettes(shape: tuple[int, int], intrinsics: Intrinsics, parts: Sequ
         if pose is None or part is None:
             continue
         pts = pose.transform_points(_hull_vertices(part))
-        if np.any(pts[:, 2] <= 1e-3):
+        if (pts[:, 2] <= 1e-3).any():
             continue
         uv = intrinsics.project(pts)
-        if not np.all(np.isfinite(uv)):
+        if not np.isfinite(uv).all():
             continue
         hull = cv2.convexHull(np.round(uv).astype(np.int32))
         cv2.fillConvexPoly(out, hull, 1)
     return out
 
 
-_HULLS: dict[int, np.ndarray] = {}
+_HULLS: dict[int | tuple, np.ndarray] = {}
 
 
 def _hull_vertices(part: PartSpec) -> np.ndarray:
-    """The part's body-frame vertices (a box's 8 corners; a mesh's convex-hull vertices, cached)."""
+    """The part's body-frame vertices (a box's 8 corners; a mesh's convex-hull vertices), cached (boxes by their
+    size; read only)."""
     if part.box is not None:
-        return part.vertices()
+        key = ("box", *(float(x) for x in part.box))
+        if key not in _HULLS:
+            _HULLS[key] = part.vertices()
+        return _HULLS[key]
     key = id(part)
     if key not in _HULLS:
         import trimesh

@@ -143,6 +143,7 @@ class FusedOdometry:
         self._plane_normal: np.ndarray | None = None  # this frame's measured table normal (camera frame)
         self._rejected = 0  # dense steps rejected in a row
         self._frame: tuple | None = ()  # predict() → correct(): this frame's prior and how it was made
+        self._centres: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # name -> (corners, their mean)
 
     def set_table(self, normal: np.ndarray, offset: float) -> None:
         """The table plane (``normal · x + offset = 0``, camera frame of the current pose) as a constraint: from now
@@ -297,7 +298,7 @@ class FusedOdometry:
                 self._moving = True
         self._last = (timestamp, T)
         if len(used) >= cfg.pin_parts or len(self.world) < cfg.pin_parts:  # (only while the camera is pinned)
-            centres = {n: np.asarray(corners[n], np.float64).mean(axis=0) for n in observed}
+            centres = {n: self._centre(n, corners[n]) for n in observed}
             maintain_landmarks(self.world, self.pending, self.pose_world_camera, observed, centres, cfg.tolerance,
                                cfg.adopt_frames, keep=frozenset(used))
         return FusedStep(self.pose_world_camera, len(used), source)
@@ -310,7 +311,7 @@ class FusedOdometry:
         names = [n for n in observed if n in self.world]
         if not names:
             return prior, [], source
-        centres = {n: np.asarray(corners[n], np.float64).mean(axis=0) for n in names}
+        centres = {n: self._centre(n, corners[n]) for n in names}
         Rp, tp = prior[:3, :3], prior[:3, 3]
         with_prior = []
         for n in names:
@@ -356,6 +357,15 @@ class FusedOdometry:
                 T[:3, :3] = prior[:3, :3] @ exp_se3(np.r_[0.0, 0.0, 0.0, w])[:3, :3]
         g = cfg.gains[min(len(fit), len(cfg.gains)) - 1]
         return self._shift(T, fit, observed, centres, g), fit, "parts"
+
+    def _centre(self, name: str, corners: np.ndarray) -> np.ndarray:
+        """Part ``name``'s centre (the mean of its body-frame ``corners``, metres), kept while its corner array is the
+        same object (the tracker's, fixed for a session): read only."""
+        kept = self._centres.get(name)
+        if kept is None or kept[0] is not corners:
+            kept = (corners, np.asarray(corners, np.float64).mean(axis=0))
+            self._centres[name] = kept
+        return kept[1]
 
     def _cluster(self, T: np.ndarray, names: list[str], observed: dict[str, Pose],
                  centres: dict[str, np.ndarray]) -> list[str]:
