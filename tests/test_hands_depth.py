@@ -141,8 +141,10 @@ def _under_the_arm(t: int, z_sleeve: float) -> tuple[np.ndarray, np.ndarray, lis
 
 
 def _arm_run(z_sleeve: float) -> list[bool]:
-    """Whether A's track is alive at each of frames 1–35 with ``coast`` and ``coast_depth`` on."""
-    tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0, coast=True, coast_depth=True))
+    """Whether A's track is alive at each of frames 1–35 with ``coast`` and ``coast_depth`` on (``collapse_reacquire``
+    off: its restart would keep a track that does not coast alive too, and this is about coasting)."""
+    tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0, coast=True, coast_depth=True,
+                                       collapse_reacquire=False))  # fmt: skip
     tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE), np.full((240, 320), Z_TABLE))
     img, depth, box_a = _under_the_arm(0, z_sleeve)
     tr.process(img, depth)
