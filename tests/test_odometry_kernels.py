@@ -1,12 +1,15 @@
 """Odometry kernels made faster give exactly the values of what they replace: the mask's foreground test and blob boxes
 (tracker/odometry/foreground.py) those of numpy / OpenCV, the pyramid's 2x2 depth and mask halving
-(rgbd_pyramid._half_depth_mask) those of its rules written out in plain Python."""
+(rgbd_pyramid._half_depth_mask) those of its rules written out in plain Python, a keyframe's points and normals
+(keyframe.points_and_normals) those of Intrinsics.backproject and rgbd_pyramid.depth_normals."""
 
 import cv2
 import numpy as np
 
+from tracker.geometry.camera import Intrinsics
 from tracker.odometry.foreground import fill_large_blobs, foreground
-from tracker.odometry.rgbd_pyramid import MAX_BLOCK_SPREAD, _half_depth_mask
+from tracker.odometry.keyframe import points_and_normals
+from tracker.odometry.rgbd_pyramid import MAX_BLOCK_SPREAD, _half_depth_mask, depth_normals
 
 
 def _scene(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.float32]:
@@ -87,3 +90,21 @@ def test_half_depth_mask_keeps_the_block_rules() -> None:
         assert np.isfinite(out).any() and np.isnan(out).any() and m.any()
         np.testing.assert_array_equal(out, ref)
         np.testing.assert_array_equal(m, ref_m)
+
+
+def test_points_and_normals_match_backproject_and_depth_normals() -> None:
+    intr = Intrinsics.default(320, 240).scaled(0.5)
+    rng = np.random.default_rng(5)
+    v, u = np.mgrid[0:120, 0:160]
+    for k in range(4):
+        depth = (0.5 + 0.2 * rng.random((120, 160)) + np.linspace(0, 0.3, 160)[None, :]).astype(np.float32)
+        if k == 1:  # a plane with a hole: normals defined and equal along it
+            depth[:] = np.float32(0.7) + np.linspace(0, 0.1, 120, dtype=np.float32)[:, None]
+        depth[rng.random(depth.shape) < 0.1] = np.nan
+        pts = intr.backproject(u, v, depth).astype(np.float32)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ref = depth_normals(pts)
+        got_pts, got = points_and_normals(depth, float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy))
+        assert np.isfinite(ref).any() and np.isnan(ref).any()
+        np.testing.assert_array_equal(got_pts, pts)
+        np.testing.assert_array_equal(got, ref)

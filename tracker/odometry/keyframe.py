@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
-from tracker.odometry.rgbd_pyramid import PyramidLevel, depth_normals, image_gradients
+from tracker.odometry.rgbd_pyramid import PyramidLevel, image_gradients
 
 
 @dataclass
@@ -42,6 +43,45 @@ class Keyframe:
     frame_index: int
 
 
+@nb.njit(cache=True, nogil=True)
+def points_and_normals(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> tuple[np.ndarray, np.ndarray]:
+    """The point image (H×W×3 float32, metres, camera frame) of a depth image (float32 metres, NaN invalid) and its
+    unit normals (:func:`~tracker.odometry.rgbd_pyramid.depth_normals`: cross product of central differences, oriented
+    towards the camera; NaN on the border and where undefined), in one pass: exactly the values of
+    ``Intrinsics.backproject(...).astype(float32)`` and ``depth_normals`` (float64 back-projection rounded to float32;
+    float32 products, differences and sums in numpy's order), at a tenth of their time (a keyframe's 320×240 level
+    cost 37 ms of numpy, most of a keyframe's 60)."""
+    h, w = depth.shape
+    pts = np.empty((h, w, 3), np.float32)
+    for i in range(h):
+        for j in range(w):
+            z = np.float64(depth[i, j])
+            pts[i, j, 0] = np.float32((j - cx) * z / fx)
+            pts[i, j, 1] = np.float32((i - cy) * z / fy)
+            pts[i, j, 2] = np.float32(z)
+    nrm = np.full((h, w, 3), np.nan, np.float32)
+    minus = np.float32(-1.0)
+    for i in range(1, h - 1):
+        for j in range(1, w - 1):
+            a0 = pts[i, j + 1, 0] - pts[i, j - 1, 0]
+            a1 = pts[i, j + 1, 1] - pts[i, j - 1, 1]
+            a2 = pts[i, j + 1, 2] - pts[i, j - 1, 2]
+            b0 = pts[i + 1, j, 0] - pts[i - 1, j, 0]
+            b1 = pts[i + 1, j, 1] - pts[i - 1, j, 1]
+            b2 = pts[i + 1, j, 2] - pts[i - 1, j, 2]
+            c0 = a1 * b2 - a2 * b1
+            c1 = a2 * b0 - a0 * b2
+            c2 = a0 * b1 - a1 * b0
+            norm = np.sqrt((c0 * c0 + c1 * c1) + c2 * c2)
+            c0, c1, c2 = c0 / norm, c1 / norm, c2 / norm
+            if (c0 * pts[i, j, 0] + c1 * pts[i, j, 1]) + c2 * pts[i, j, 2] > 0:
+                c0, c1, c2 = c0 * minus, c1 * minus, c2 * minus
+            nrm[i, j, 0] = c0
+            nrm[i, j, 1] = c1
+            nrm[i, j, 2] = c2
+    return pts, nrm
+
+
 def _subsample(idx: np.ndarray, n_max: int, rng: np.random.Generator) -> np.ndarray:
     if idx.size <= n_max:
         return idx
@@ -53,10 +93,8 @@ def make_keyframe_level(level: PyramidLevel, n_photo: int, n_geo: int, min_gradi
     """Sample a pyramid level (see the module docstring): at most ``n_photo`` photometric points with gradient
     magnitude ≥ ``min_gradient`` grey levels per pixel and at most ``n_geo`` geometric points."""
     intr = level.intrinsics
-    h, w = level.depth.shape
-    v, u = np.mgrid[0:h, 0:w]
-    pts = intr.backproject(u, v, level.depth).astype(np.float32)
-    normals = depth_normals(pts)
+    pts, normals = points_and_normals(np.ascontiguousarray(level.depth, np.float32), float(intr.fx), float(intr.fy),
+                                      float(intr.cx), float(intr.cy))
     gx, gy = image_gradients(level.gray)
     usable = np.isfinite(level.depth) & ~level.mask
     usable[:2, :] = usable[-2:, :] = False
