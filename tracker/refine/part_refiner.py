@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from tracker.filter.motion_model import rotate_left
@@ -216,11 +217,22 @@ class PartRefiner:
 def _sampled_silhouette(render: SurfaceRender, obj: int, u0: int, v0: int, w: int, h: int) -> np.ndarray:
     """Part ``obj``'s visible silhouette over the image window ``(u0, v0)`` + ``(w, h)`` (bool (h, w)) from a strided
     render: each pixel takes the render's nearest sample (outside the render: not the part)."""
-    nv, nu = render.label.shape
     i = np.rint((np.arange(u0, u0 + w) - render.u0) / render.stride).astype(np.int64)
     j = np.rint((np.arange(v0, v0 + h) - render.v0) / render.stride).astype(np.int64)
-    iv = (i >= 0) & (i < nu)
-    jv = (j >= 0) & (j < nv)
-    own = np.zeros((h, w), bool)
-    own[np.ix_(jv, iv)] = render.label[np.ix_(j[jv], i[iv])] == obj
-    return own
+    return _gather_label(render.label, j, i, obj)
+
+
+@nb.njit(cache=True)
+def _gather_label(label: np.ndarray, rows: np.ndarray, cols: np.ndarray, obj: int) -> np.ndarray:
+    """``label[rows[y], cols[x]] == obj`` for every ``(y, x)`` (False where an index falls outside ``label``)."""
+    nv, nu = label.shape
+    out = np.zeros((rows.shape[0], cols.shape[0]), np.bool_)
+    for y in range(rows.shape[0]):
+        r = rows[y]
+        if r < 0 or r >= nv:
+            continue
+        for x in range(cols.shape[0]):
+            c = cols[x]
+            if 0 <= c < nu and label[r, c] == obj:
+                out[y, x] = True
+    return out

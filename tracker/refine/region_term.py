@@ -808,6 +808,32 @@ NORMAL_BLUR_PX = 2.0
 """Standard deviation (px) of the Gaussian that smooths the own silhouette before its gradient gives the outline's
 normals (:meth:`RegionTerm.set_own_silhouette`)."""
 
+
+@nb.njit(cache=True)
+def _outward_normals(soft):
+    """``(nu, nv)``: the negated gradient (per px, float64, H×W each) of the blurred silhouette ``soft`` (float32 H×W,
+    both sides >= 2): central differences inside, one-sided at the borders — the values of ``-numpy.gradient``."""
+    h, w = soft.shape
+    nu = np.empty((h, w))
+    nv = np.empty((h, w))
+    for j in range(h):
+        for i in range(w):
+            if i == 0:
+                du = np.float64(soft[j, 1]) - np.float64(soft[j, 0])
+            elif i == w - 1:
+                du = np.float64(soft[j, w - 1]) - np.float64(soft[j, w - 2])
+            else:
+                du = (np.float64(soft[j, i + 1]) - np.float64(soft[j, i - 1])) / 2.0
+            if j == 0:
+                dv = np.float64(soft[1, i]) - np.float64(soft[0, i])
+            elif j == h - 1:
+                dv = np.float64(soft[h - 1, i]) - np.float64(soft[h - 2, i])
+            else:
+                dv = (np.float64(soft[j + 1, i]) - np.float64(soft[j - 1, i])) / 2.0
+            nu[j, i] = -du
+            nv[j, i] = -dv
+    return nu, nv
+
 _NO_FIELD = np.zeros((0, 0))
 """An empty normal field: :func:`_accumulate` without the normal test."""
 
@@ -850,9 +876,7 @@ class RegionTerm:
         if n_in == 0 or n_in == mask.size or min(mask.shape) < 2:
             self.own_normal = None
         elif self.settings.lines > 0.0:
-            soft = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), NORMAL_BLUR_PX)
-            gv, gu = np.gradient(soft.astype(np.float64))
-            self.own_normal = (-gu, -gv)
+            self.own_normal = _outward_normals(cv2.GaussianBlur(mask.astype(np.float32), (0, 0), NORMAL_BLUR_PX))
         else:
             f = SignedDistance._of_crop(mask, self.sdf.u0, self.sdf.v0)
             self.own_normal = None if f is None else (f.gu, f.gv)
