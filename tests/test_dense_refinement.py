@@ -237,3 +237,36 @@ def test_surface_points_kernel_matches_the_numpy_reference():
             assert np.array_equal(pts, ref) and np.array_equal(nrm, render.normal[jj, ii])
             total += len(pts)
     assert total > 1000
+
+
+def test_few_points_position_moves_a_partly_hidden_part_without_turning_it():
+    """A cube seen only through a fifth of its blob (a hand over the rest) matches 41 model points: all it can show,
+    but fewer than twice ``min_points`` (50), so the full refinement is rejected (its rotation is not pinned by so
+    few points). ``few_points_position`` refines its position alone: healthy, within ~1 mm from 5.4 mm off, the
+    rotation exactly the start's. Where most of the patch shows a surface that is not the part (4 cm behind it),
+    the refinement stays rejected with it."""
+    truth = cube_pose()
+    depth = depth_of([truth], noise=0.0005, seed=3)
+    hit = np.isfinite(depth)
+    us = np.nonzero(hit)[1]
+    u = np.arange(INTR.width)[None, :]
+    start = Pose.from_rt(truth.R, truth.t + np.array([0.003, -0.002, 0.004]))
+    pts, nrm = model_points(start)
+
+    def run(d, allowed, on):
+        return refine_pose(d, INTR, pts, nrm, start.R, start.t, np.zeros(3),
+                           RefineSettings(few_points_position=on, max_points=250), allowed=allowed)
+
+    fifth = hit & (u < np.quantile(us, 0.2))
+    off, on = run(depth, fifth, False), run(depth, fifth, True)
+    assert not off.healthy and 25 <= off.n_valid < 50 and off.n_valid == off.n_observable
+    assert on.healthy and on.position_only and not off.position_only
+    t_err, r_err = errors(on.R, on.t, truth)
+    assert t_err < 1.5 and errors(start.R, start.t, truth)[0] > 5.0, t_err
+    assert np.array_equal(on.R, start.R)
+
+    third = hit & (u < np.quantile(us, 0.3))
+    moved = depth.copy()
+    moved[third & (u < np.quantile(us, 0.15))] += 0.04  # most of the patch: a surface 4 cm behind the part
+    res = run(moved, third, True)
+    assert not res.healthy and not res.position_only and res.n_valid < 0.7 * res.n_observable

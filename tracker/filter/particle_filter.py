@@ -294,7 +294,9 @@ class MultiObjectTracker:
         if self.config.carry_follow:
             self._carry.record(ctx.now, np.array([state.poses[nm].t for nm in self.names]))
             if self.config.carry_backtrack > 0:
-                placed = np.array([scene_motion.placed_by_depth(self, i) for i in range(len(self.names))], bool)
+                # (a position-only refinement left the rotation unmeasured: not a pose for a carry to start from)
+                placed = np.array([scene_motion.placed_by_depth(self, i) and not self._refiner.last[i].position_only
+                                   for i in range(len(self.names))], bool)
                 self._carry.note_placed(placed, np.array([state.poses[nm].R for nm in self.names]),
                                         np.array([state.poses[nm].t for nm in self.names]))
             state.carried = [nm for nm, c in zip(self.names, self._carry.carried, strict=True) if c]

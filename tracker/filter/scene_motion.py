@@ -44,7 +44,7 @@ def landmarks(trk: MultiObjectTracker) -> dict[int, tuple[np.ndarray, np.ndarray
     carried = trk._carry.carried
     for i, name in enumerate(trk.names):
         res = trk._refiner.last[i]
-        if (res is None or not res.healthy or carried[i] or trk._blob_moved[i]
+        if (res is None or not res.healthy or res.position_only or carried[i] or trk._blob_moved[i]
                 or trk.visibility[i] < cfg.visible_fraction_full):
             continue
         est = trk.estimates[name]

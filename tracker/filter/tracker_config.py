@@ -486,6 +486,13 @@ class TrackerConfig(BaseModel):
     )
     refine_lambda_rot: float = Field(25.0, ge=0.0, description="Tikhonov weight on each rotation update, 1/rad^2.")
     refine_lambda_trans: float = Field(2500.0, ge=0.0, description="Tikhonov weight on each translation update, 1/m^2.")
+    refine_few_points_position: bool = Field(
+        False, description="A partly hidden part whose refinement matched most of its observable model points but "
+        "fewer than twice the minimum (25) is refined again with its rotation held and moved to that position (its "
+        "rotation kept): such refinements put the centre within 1-2 mm but turned it 3-12 deg on the tuning traces, "
+        "and were rejected whole (tracker/refine/dense_depth.py). Off: better on both tuning sets (session 20), "
+        "but five seeded carry tests fail with it on.",
+    )
     refine_min_valid_fraction: float = Field(
         0.35, ge=0.0, le=1.0, description="Share of visible model points that must find a valid depth pair for the "
         "refinement to count as healthy (else the filter's estimate is kept).",

@@ -101,6 +101,7 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
         thresholds=tuple(cfg.refine_thresholds), updates_per_iteration=cfg.refine_updates,
         occlusion_m=cfg.refine_occlusion, lambda_rot=cfg.refine_lambda_rot, lambda_trans=cfg.refine_lambda_trans,
         min_valid_fraction=cfg.refine_min_valid_fraction, max_points=cfg.refine_max_points,
+        few_points_position=cfg.refine_few_points_position,
         converged_step=cfg.refine_converged_step,
     )
     region = (RegionSettings(weight=cfg.refine_region_weight, depth_agree_m=cfg.refine_region_depth_agree,
