@@ -128,6 +128,22 @@ def test_a_dying_hand_process_is_reported_and_restarted():
         loop.close()
 
 
+def test_a_new_childs_first_step_is_given_the_start_time():
+    """A new child's first step loads the compiled kernels (after an upgrade it compiles them: minutes on a busy
+    machine), so it is given the start's time, not a step's: with a step timeout far below any step's time the first
+    step still answers (before, every new child was ended mid-compile and the hands given up)."""
+    close_parked()  # a parked child has stepped already
+    cfg = HandLoopConfig(tracker=HandTrackerConfig(seed=3), occluder_prior=True, overlap="wait", worker="process",
+                         step_timeout_s=1e-3)  # fmt: skip
+    loop = HandLoop([], Intrinsics.default(), cfg)
+    try:
+        loop.start(_entering_palm(0), None, None, {})
+        loop.wait()
+        assert loop._process.restarts == 0 and loop._process._stepped  # later steps: the step's timeout
+    finally:
+        loop.close()
+
+
 def _same_hands(a: HandLoop, b: HandLoop) -> None:
     assert [e.box for e in a.estimates] == [e.box for e in b.estimates]
     assert [e.id for e in a.estimates] == [e.id for e in b.estimates]

@@ -16,7 +16,8 @@ thread (``overlap`` "off") and runs :meth:`HandLoop.step` on the frames it is se
   to those of the step run in the caller's process.
 * Errors: an exception of the step (a bad frame) comes back and is raised again by :meth:`HandProcess.result` with
   its type (built-in types; others as RuntimeError), and the child keeps running. A child that dies (crash, killed)
-  or does not answer within ``step_timeout`` seconds is reported by :class:`HandProcessError` from
+  or does not answer within ``step_timeout`` seconds (a new child's first step: ``start_timeout``, as it loads the
+  compiled kernels) is reported by :class:`HandProcessError` from
   :meth:`HandProcess.result` and a new child is started at once; until it is ready (imports, a few seconds), steps
   are refused with a :class:`HandProcessError` that says so, without waiting. The new child is first given the
   session's first frame again (kept by the parent; the skin model's session background is fitted on it, and it is
@@ -216,6 +217,7 @@ class HandProcess:
         self._res = _Resources()
         self._finalizer = weakref.finalize(self, _Resources.free, self._res)
         self._ready = False
+        self._stepped = False  # the current child has answered a step (its compiled kernels are loaded)
         self._started_once = False
         self._deaths = 0  # deaths in a row without a completed step
         self._given_up: str | None = None
@@ -246,6 +248,7 @@ class HandProcess:
         child_conn.close()
         self._res.proc, self._res.conn = proc, conn
         self._ready = False
+        self._stepped = False
         if self._started_once:
             self.restarts += 1
         self._started_once = True
@@ -364,15 +367,19 @@ class HandProcess:
             return None
         conn = self._res.conn
         assert conn is not None
+        # a child's first step loads (after an upgrade: compiles) the hand step's kernels, which can take minutes
+        # on a busy machine: it gets the start's time, not a step's, or every new child would be ended mid-compile
+        timeout = self.step_timeout if self._stepped else max(self.step_timeout, self.start_timeout)
         try:
-            answered = conn.poll(self.step_timeout)
+            answered = conn.poll(timeout)
             msg = conn.recv() if answered else None
         except (EOFError, OSError):
             self._died(f"the hand process ended during the step (exit code {self._exitcode()})")
         if msg is None:
-            self._died(f"the hand process did not answer within {self.step_timeout:.0f} s and was ended")
+            self._died(f"the hand process did not answer within {timeout:.0f} s and was ended")
         self._pending = False
         self._deaths = 0
+        self._stepped = True
         if msg[0] == "done":
             return msg[1]
         _, kind, text = msg
