@@ -1,7 +1,7 @@
 """Odometry kernels made faster give exactly the values of what they replace: the mask's foreground test and blob boxes
 (tracker/odometry/foreground.py) those of numpy / OpenCV, the pyramid's 2x2 depth and mask halving
 (rgbd_pyramid._half_depth_mask) those of its rules written out in plain Python, a keyframe's points and normals
-(keyframe.points_and_normals) those of Intrinsics.backproject and rgbd_pyramid.depth_normals."""
+(keyframe.points_and_normals) those of Intrinsics.backproject and the numpy normals it replaced."""
 
 import cv2
 import numpy as np
@@ -9,7 +9,7 @@ import numpy as np
 from tracker.geometry.camera import Intrinsics
 from tracker.odometry.foreground import fill_large_blobs, foreground
 from tracker.odometry.keyframe import points_and_normals
-from tracker.odometry.rgbd_pyramid import MAX_BLOCK_SPREAD, _half_depth_mask, depth_normals
+from tracker.odometry.rgbd_pyramid import MAX_BLOCK_SPREAD, _half_depth_mask
 
 
 def _scene(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.float32]:
@@ -90,6 +90,22 @@ def test_half_depth_mask_keeps_the_block_rules() -> None:
         assert np.isfinite(out).any() and np.isnan(out).any() and m.any()
         np.testing.assert_array_equal(out, ref)
         np.testing.assert_array_equal(m, ref_m)
+
+
+def depth_normals(points: np.ndarray) -> np.ndarray:
+    """The numpy code keyframe.points_and_normals replaced (the reference): unit normals (H×W×3, NaN where
+    undefined) of a point image by the cross product of central differences, oriented towards the camera."""
+    n = np.full(points.shape, np.nan, np.float32)
+    dx = points[1:-1, 2:] - points[1:-1, :-2]
+    dy = points[2:, 1:-1] - points[:-2, 1:-1]
+    c = np.cross(dx, dy)
+    norm = np.linalg.norm(c, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = c / norm
+    flip = np.sum(c * points[1:-1, 1:-1], axis=-1) > 0
+    c[flip] *= -1.0
+    n[1:-1, 1:-1] = c
+    return n
 
 
 def test_points_and_normals_match_backproject_and_depth_normals() -> None:

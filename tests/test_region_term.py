@@ -123,28 +123,40 @@ def test_numba_outline_matches_the_render_and_contour_reference():
         assert np.allclose(got, ref, rtol=0.0, atol=1e-12)
 
 
-def test_numba_region_loop_matches_the_python_loop():
-    """The refinement with the silhouette term gives the same pose whether its Gauss-Newton loop runs in numba
-    (the term carries an :class:`OutlineScene`) or in Python (the term's ``outline_at`` callable only)."""
-    rng = np.random.default_rng(3)
+def _face_on_scene(rng: np.random.Generator) -> tuple[Pose, np.ndarray, np.ndarray]:
+    """``(truth, depth, outline)``: the cube face-on at 12° yaw in front of a wall at 0.62 m, depth with 0.5 mm noise,
+    the truth's outline as the colour blob."""
     truth = face_on(12.0)
     depth = render_box_depth(INTR, [truth], [(EDGE, EDGE, EDGE)]).astype(np.float32)
     depth[~np.isfinite(depth)] = 0.62
     depth += rng.normal(0.0, 0.0005, depth.shape).astype(np.float32)
-    outline = outline_of(truth)
+    return truth, depth, outline_of(truth)
+
+
+def _refined_in_both_loops(ref: PartRefiner, start: Pose, outline: np.ndarray, depth: np.ndarray):
+    """``(region, fast, slow)``: the silhouette term of ``ref`` at ``start`` and the refinements from ``start`` with
+    the Gauss-Newton loop in numba (the term carries its :class:`OutlineScene`) and in Python (``outline_at`` only)."""
+    region = ref._region([(start.R, start.t)], 0, outline, depth)
+    assert region is not None and region.scene is not None
+    render = render_surfaces(INTR, [SHAPE], [(start.R, start.t)], ref._rect([(start.R, start.t)]), ref.stride)
+    pts, nrm = render.points_of(0, INTR)
+    body, nbody = (pts - start.t) @ start.R, nrm @ start.R
+    fast = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region)
+    region_py = ref._region([(start.R, start.t)], 0, outline, depth)
+    region_py.scene = None
+    slow = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region_py)
+    return region, fast, slow
+
+
+def test_numba_region_loop_matches_the_python_loop():
+    """The refinement with the silhouette term gives the same pose whether its Gauss-Newton loop runs in numba
+    (the term carries an :class:`OutlineScene`) or in Python (the term's ``outline_at`` callable only)."""
+    rng = np.random.default_rng(3)
+    truth, depth, outline = _face_on_scene(rng)
     for yaw in (4.0, 9.0, 15.0):
         start = face_on(yaw)
         start = Pose.from_rt(start.R, start.t + rng.normal(0.0, 0.002, 3))
-        ref = refiner(True)
-        region = ref._region([(start.R, start.t)], 0, outline, depth)
-        assert region is not None and region.scene is not None
-        render = render_surfaces(INTR, [SHAPE], [(start.R, start.t)], ref._rect([(start.R, start.t)]), ref.stride)
-        pts, nrm = render.points_of(0, INTR)
-        body, nbody = (pts - start.t) @ start.R, nrm @ start.R
-        fast = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region)
-        region_py = ref._region([(start.R, start.t)], 0, outline, depth)
-        region_py.scene = None
-        slow = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region_py)
+        _, fast, slow = _refined_in_both_loops(refiner(True), start, outline, depth)
         assert fast.healthy and slow.healthy
         assert fast.n_valid == slow.n_valid
         assert np.allclose(fast.t, slow.t, rtol=0.0, atol=1e-10)
@@ -392,25 +404,12 @@ def test_correspondence_lines_hold_a_part_whose_blob_misses_a_face():
 def test_correspondence_lines_recover_a_turn_in_both_loops():
     """With the correspondence lines on (1 px), the numba and the Python Gauss-Newton loops give the same pose, and it
     recovers a turn about the view axis that depth alone cannot see."""
-    rng = np.random.default_rng(5)
-    truth = face_on(12.0)
-    depth = render_box_depth(INTR, [truth], [(EDGE, EDGE, EDGE)]).astype(np.float32)
-    depth[~np.isfinite(depth)] = 0.62
-    depth += rng.normal(0.0, 0.0005, depth.shape).astype(np.float32)
-    outline = outline_of(truth)
+    truth, depth, outline = _face_on_scene(np.random.default_rng(5))
     for yaw in (6.0, 17.0):
-        start = face_on(yaw)
         ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(), stride=2,
                           region=RegionSettings(lines=1.0))
-        region = ref._region([(start.R, start.t)], 0, outline, depth)
-        assert region is not None and region.scene is not None and region.own_normal is not None
-        render = render_surfaces(INTR, [SHAPE], [(start.R, start.t)], ref._rect([(start.R, start.t)]), ref.stride)
-        pts, nrm = render.points_of(0, INTR)
-        body, nbody = (pts - start.t) @ start.R, nrm @ start.R
-        fast = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region)
-        region_py = ref._region([(start.R, start.t)], 0, outline, depth)
-        region_py.scene = None
-        slow = refine_pose(depth, INTR, body, nbody, start.R, start.t, np.zeros(3), ref.settings, None, region_py)
+        region, fast, slow = _refined_in_both_loops(ref, face_on(yaw), outline, depth)
+        assert region.own_normal is not None
         assert fast.healthy and slow.healthy
         assert np.allclose(fast.R, slow.R, rtol=0.0, atol=1e-10) and np.allclose(fast.t, slow.t, rtol=0.0, atol=1e-10)
         assert yaw_error(fast.R, truth) < 1.0, (yaw, yaw_error(fast.R, truth))

@@ -274,17 +274,13 @@ class EgoMotion:
                 u, v = self.intrinsics.project(pose.t[None])[0]
                 if any(b[0] - 30 <= u < b[2] + 30 and b[1] - 30 <= v < b[3] + 30 for b in hand_boxes):
                     moving.add(name)
-        if len(self._history) >= 2 and self._history[-1][1]:
-            now = self._history[-1][1]
-            names = list(now)
-            x_now = np.array([now[n] for n in names])
-            for _, past in list(self._history)[:-1]:  # (one array operation per remembered frame)
-                if past.keys() >= now.keys():
-                    d = x_now - np.array([past[n] for n in names])
-                    far = np.sqrt(np.sum(d * d, axis=1)) > MOVING_MIN_M
-                    moving.update(n for n, f in zip(names, far, strict=True) if f)
-                else:
-                    moving.update(n for n, x in now.items() if n in past and np.linalg.norm(x - past[n]) > MOVING_MIN_M)
+        now = self._history[-1][1] if self._history else {}
+        for _, past in list(self._history)[:-1]:  # (one array operation per remembered frame)
+            names = [n for n in now if n in past]
+            if names:
+                d = np.array([now[n] for n in names]) - np.array([past[n] for n in names])
+                far = np.sqrt(np.sum(d * d, axis=1)) > MOVING_MIN_M
+                moving.update(n for n, f in zip(names, far, strict=True) if f)
         return moving
 
     def step(self, frame: Frame, table=None, poses: Mapping[str, Pose] | None = None, carried: Iterable[str] = (),

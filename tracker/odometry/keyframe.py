@@ -46,11 +46,11 @@ class Keyframe:
 @nb.njit(cache=True, nogil=True)
 def points_and_normals(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> tuple[np.ndarray, np.ndarray]:
     """The point image (H×W×3 float32, metres, camera frame) of a depth image (float32 metres, NaN invalid) and its
-    unit normals (:func:`~tracker.odometry.rgbd_pyramid.depth_normals`: cross product of central differences, oriented
-    towards the camera; NaN on the border and where undefined), in one pass: exactly the values of
-    ``Intrinsics.backproject(...).astype(float32)`` and ``depth_normals`` (float64 back-projection rounded to float32;
-    float32 products, differences and sums in numpy's order), at a tenth of their time (a keyframe's 320×240 level
-    cost 37 ms of numpy, most of a keyframe's 60)."""
+    unit normals (cross product of central differences, oriented towards the camera; NaN on the border and where
+    undefined), in one pass: exactly the values of ``Intrinsics.backproject(...).astype(float32)`` and of the numpy
+    normals it replaced (float64 back-projection rounded to float32; float32 products, differences and sums in
+    numpy's order; ``tests/test_odometry_kernels.py`` keeps that code as the reference), at a tenth of their time
+    (a keyframe's 320×240 level cost 37 ms of numpy, most of a keyframe's 60)."""
     h, w = depth.shape
     pts = np.empty((h, w, 3), np.float32)
     for i in range(h):

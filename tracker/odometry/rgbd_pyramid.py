@@ -101,22 +101,6 @@ def build_pyramid(rgb: np.ndarray, depth: np.ndarray, intrinsics: Intrinsics, n_
     return levels
 
 
-def depth_normals(points: np.ndarray) -> np.ndarray:
-    """Unit normals (H×W×3, NaN where undefined) of a point image by the cross product of central differences,
-    oriented towards the camera."""
-    n = np.full(points.shape, np.nan, np.float32)
-    dx = points[1:-1, 2:] - points[1:-1, :-2]
-    dy = points[2:, 1:-1] - points[:-2, 1:-1]
-    c = np.cross(dx, dy)
-    norm = np.linalg.norm(c, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        c = c / norm
-    flip = np.sum(c * points[1:-1, 1:-1], axis=-1) > 0
-    c[flip] *= -1.0
-    n[1:-1, 1:-1] = c
-    return n
-
-
 def image_gradients(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Central-difference gradients ``(d/du, d/dv)`` of a grey image (grey levels per pixel)."""
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)

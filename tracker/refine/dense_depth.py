@@ -361,14 +361,12 @@ def refine_pose(
     settings: RefineSettings | None = None,
     allowed: np.ndarray | None = None,
     region: RegionTerm | None = None,
-    rotation_held: bool = False,
 ) -> RefineResult:
     """Refine the pose ``(R, t)`` of a part whose visible model points are ``points`` with ``normals`` (body frame,
     (M, 3) each) against ``depth`` (H×W float metres, NaN or 0 = none). ``center``: the body-frame point the
     rotation update turns about. ``allowed``: optional H×W bool mask of pixels the part may claim (its colour blob;
     pixels of hands or other parts left out). ``region``: optional silhouette term
-    (:mod:`tracker.refine.region_term`) added to every update's normal equations. ``rotation_held``: internal (the
-    position-only pass of ``few_points_position`` does not start another)."""
+    (:mod:`tracker.refine.region_term`) added to every update's normal equations."""
     cfg = settings or RefineSettings()
     R0, t0 = R, t
     R = np.asarray(R, np.float64).copy()
@@ -426,7 +424,7 @@ def refine_pose(
     res = RefineResult(R, t, healthy, m_total, n_valid, frac, med, info,
                        "" if healthy else f"only {frac:.0%} of the visible model points matched the depth", n_behind,
                        n_observable)
-    if not healthy and cfg.few_points_position and most_seen and not rotation_held:
+    if not healthy and cfg.few_points_position and most_seen:
         return _position_only(depth, intrinsics, points, normals, R0, t0, center, cfg, allowed, region, res)
     return res
 
@@ -436,8 +434,8 @@ def _position_only(depth, intrinsics, points, normals, R0, t0, center, cfg: Refi
     """``few_points_position``: the refinement of a partly hidden part from ``(R0, t0)`` with its rotation held
     (a rotation prior a million times the usual), healthy when it matches at least ``min_points`` and
     ``min_observed_fraction`` of its observable model points; else ``full``, the unhealthy full refinement."""
-    held = replace(cfg, lambda_rot=cfg.lambda_rot * 1e6)
-    res = refine_pose(depth, intrinsics, points, normals, R0, t0, center, held, allowed, region, rotation_held=True)
+    held = replace(cfg, lambda_rot=cfg.lambda_rot * 1e6, few_points_position=False)  # (no second position-only pass)
+    res = refine_pose(depth, intrinsics, points, normals, R0, t0, center, held, allowed, region)
     if res.n_valid < cfg.min_points or res.n_valid < cfg.min_observed_fraction * max(res.n_observable, 1):
         return full
     R0 = np.asarray(R0, np.float64)

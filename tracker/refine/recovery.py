@@ -107,6 +107,6 @@ def reacquire(refiner: PartRefiner, depth: np.ndarray, obj: int, R: np.ndarray, 
         Rs = S @ R
         ts = c - Rs @ refiner.centers[obj]
         res = refiner.refine_one(depth, obj, Rs, ts, allowed, outline, frame_depth)
-        if res.healthy and not res.position_only and res.score > best_score + margin:  # (held at a turned start)
+        if res.healthy and not res.position_only and res.score > best_score + margin:  # (keeps the turned start)
             best, best_score = res, res.score
     return best

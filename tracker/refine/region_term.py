@@ -521,6 +521,7 @@ def _accumulate(pts, R, t, c, sd, gu, gv, u0, v0, depth, fx, fy, cx, cy, inset, 
             H[p, q] = H[q, p]
     return H, g, n
 
+
 @nb.njit(cache=True, inline="always")
 def _own_normal(ogu, ogv, fu, fv):
     """The own silhouette's normal field at its nearest cell to the sub-pixel position ``(fu, fv)`` (not unit)."""
@@ -568,7 +569,6 @@ def _line_pair(sd, ogu, ogv, depth, fu, fv, u, v, x2, r, du, dv, inset, max_px, 
         if em > 0.0 and np.isfinite(em) and em < x2 - EDGE_OCCLUDER_M:
             return False, r, du, dv
     return True, r, du, dv
-
 
 
 EDGE_BEYOND_PX = 1.5
@@ -833,6 +833,7 @@ def _outward_normals(soft):
             nu[j, i] = -du
             nv[j, i] = -dv
     return nu, nv
+
 
 _NO_FIELD = np.zeros((0, 0))
 """An empty normal field: :func:`_accumulate` without the normal test."""
