@@ -115,6 +115,35 @@ def test_predicted_occlusion_matches_the_numpy_reference(p10, p11):
     assert np.array_equal(got, np.maximum(want, prior.astype(np.float32)[None, :]))
 
 
+def test_occlusion_posterior_goes_straight_into_the_stored_rows():
+    """:func:`finish_occlusion_into` writes what the (N, P) posterior and its transposed scatter
+    ``occ[pix] = post.T`` wrote (ô of the particle's ancestor where nothing covers the pixel, else the cached
+    posterior), leaves the other grid rows alone, and returns the same visible fractions."""
+    from tracker.filter.depth_likelihood import finish_occlusion_into
+
+    rng = np.random.default_rng(11)
+    n, p, k, grid = 30, 80, 4, 300
+    Q = np.where(rng.random((n, p)) < 0.4, np.float32(-1.0), rng.random((n, p)).astype(np.float32))
+    F = np.where(Q < 0, -1, rng.integers(0, k - 1, (n, p))).astype(np.int8)  # part k - 1 is front-most nowhere
+    o_hat = rng.random((n, p)).astype(np.float32)
+    anc = np.sort(rng.integers(0, n, n)).astype(np.int64)
+    pix = np.sort(rng.choice(grid, p, replace=False)).astype(np.int64)
+    occ = rng.random((grid, n)).astype(np.float32)
+    # the replaced form: the posterior (N, P), then numpy's scatter; the visible fractions by their definition
+    post = np.where(Q < 0, o_hat[anc], Q)
+    want = occ.copy()
+    want[pix] = post.T
+    vis_want = np.zeros((n, k))
+    for j in range(n):
+        for o in range(k):
+            sel = F[j] == o
+            vis_want[j, o] = np.sum(1.0 - Q[j, sel].astype(np.float64)) / sel.sum() if sel.any() else 0.0
+    got = occ.copy()
+    vis = finish_occlusion_into(Q, F, o_hat, anc, k, got, pix)
+    assert np.array_equal(got, want)
+    assert np.allclose(vis, vis_want, rtol=1e-12, atol=0) and np.all(vis[:, k - 1] == 0.0)
+
+
 def _close_to_ulps(got: np.ndarray, want: np.ndarray, scale: np.ndarray | None = None, ulps: float = 8.0) -> bool:
     """Whether ``got`` equals ``want`` to within ``ulps`` machine epsilons of ``scale`` (default: the larger of the
     two magnitudes; for a sum of products, the sum of their magnitudes, which bounds its rounding error). The numba

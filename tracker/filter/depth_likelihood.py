@@ -262,13 +262,23 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
         ell[j] += acc
 
 
-@nb.njit(cache=True)
 def finish_occlusion(Q, F, o_hat, anc, k):
     """Occlusion posterior (N, P) from the cached per-pixel values of :func:`update_log_likelihood` (ô where no
     part covers the pixel) and each part's visible fraction (N, K): mean of 1 − o' over the pixels where the part
-    is front-most (0 when it is front-most nowhere)."""
+    is front-most (0 when it is front-most nowhere). (:func:`finish_occlusion_into` into a new pixel-major array.)"""
     n, p = Q.shape
-    post = np.empty((n, p), np.float32)
+    post = np.empty((p, n), np.float32)
+    vis = finish_occlusion_into(Q, F, o_hat, anc, k, post, np.arange(p, dtype=np.int64))
+    return post.T, vis
+
+
+@nb.njit(cache=True)
+def finish_occlusion_into(Q, F, o_hat, anc, k, occ, rows):
+    """:func:`finish_occlusion` written straight into the pixel-major store ``occ`` (P_grid, N) float32: the
+    posterior of particle j at evaluated pixel i goes to ``occ[rows[i], j]`` (the tracker's stored posteriors at the
+    evaluated grid pixels ``rows``, without the (N, P) array and its transposed scatter). Returns the visible
+    fractions (N, K)."""
+    n, p = Q.shape
     vis = np.zeros((n, k))
     cnt = np.zeros((n, k))
     for j in range(n):
@@ -276,12 +286,12 @@ def finish_occlusion(Q, F, o_hat, anc, k):
         for i in range(p):
             q = Q[j, i]
             if q < 0.0:
-                post[j, i] = o_hat[a, i]
+                occ[rows[i], j] = o_hat[a, i]
             else:
-                post[j, i] = q
+                occ[rows[i], j] = q
                 f = F[j, i]
                 cnt[j, f] += 1.0
                 vis[j, f] += 1.0 - q
         for o in range(k):
             vis[j, o] = vis[j, o] / cnt[j, o] if cnt[j, o] > 0 else 0.0
-    return post, vis
+    return vis

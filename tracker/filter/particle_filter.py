@@ -50,6 +50,7 @@ from tracker.filter.connection_particles import ResolvedConnection, resolve_hint
 from tracker.filter.depth_likelihood import (
     LikelihoodParams,
     finish_occlusion,
+    finish_occlusion_into,
     pixel_constants,
     update_log_likelihood,
 )
@@ -323,10 +324,11 @@ class MultiObjectTracker:
         cfg = self.config
         tf = time.perf_counter()
         if cfg.use_occlusion_model:
-            post, vis_all = finish_occlusion(passes.Q, passes.F, passes.o_hat, passes.anc, len(self.parts))
-            # post is already in the particles' final order (ancestors applied); grid pixels outside this frame's
-            # evaluated set keep their stored values without re-indexing (no part can cover them this frame)
-            self.occ[passes.pix] = post.T
+            # the posterior goes straight into the stored rows of the evaluated pixels, in the particles' final order
+            # (ancestors applied); grid pixels outside this frame's evaluated set keep their stored values without
+            # re-indexing (no part can cover them this frame)
+            vis_all = finish_occlusion_into(passes.Q, passes.F, passes.o_hat, passes.anc, len(self.parts), self.occ,
+                                            passes.pix)
             self.occ_time[passes.pix] = ctx.now
             vis = normalize_log_weights(passes.log_w) @ vis_all
             self.visibility = vis

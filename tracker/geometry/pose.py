@@ -38,8 +38,12 @@ def _normalize_quat_one(x: float, y: float, z: float, w: float) -> np.ndarray:
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product ``a ⊗ b`` of ``[x, y, z, w]`` quaternions (rotate by b first, then a)."""
-    ax, ay, az, aw = np.moveaxis(np.asarray(a, dtype=np.float64), -1, 0)
-    bx, by, bz, bw = np.moveaxis(np.asarray(b, dtype=np.float64), -1, 0)
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape == (4,) and b.shape == (4,):  # one pair (a pose composition): the same products in plain floats
+        return _quat_multiply_one(*a.tolist(), *b.tolist())
+    ax, ay, az, aw = np.moveaxis(a, -1, 0)
+    bx, by, bz, bw = np.moveaxis(b, -1, 0)
     return np.stack(
         [
             aw * bx + ax * bw + ay * bz - az * by,
@@ -49,6 +53,14 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         ],
         axis=-1,
     )
+
+
+def _quat_multiply_one(ax: float, ay: float, az: float, aw: float, bx: float, by: float, bz: float,
+                       bw: float) -> np.ndarray:
+    """:func:`quat_multiply` of one pair of quaternions in plain floats (the same operations in the same order,
+    bit-identical, at a twentieth of the array form's time)."""
+    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -100,6 +112,11 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     its per-call overhead)."""
     R = np.asarray(R, dtype=np.float64)
     if R.shape == (3, 3):
+        # the compiled kernel (same operations) for an orthonormal matrix; the Python form projects any other one
+        # and raises for a non-positive determinant
+        q, status = _matrices_to_quats(np.ascontiguousarray(R).reshape(1, 3, 3), True)
+        if status[0] == 0:
+            return q[0]
         return normalize_quat(_matrix_to_quat_one(R))
     if R.shape[-2:] != (3, 3):
         raise ValueError(f"expected rotation matrices of shape (..., 3, 3), got {R.shape}")
