@@ -1,7 +1,8 @@
 """Odometry kernels made faster give exactly the values of what they replace: the mask's foreground test and blob boxes
 (tracker/odometry/foreground.py) those of numpy / OpenCV, the pyramid's 2x2 depth and mask halving
 (rgbd_pyramid._half_depth_mask) those of its rules written out in plain Python, a keyframe's points and normals
-(keyframe.points_and_normals) those of Intrinsics.backproject and the numpy normals it replaced."""
+(keyframe.points_and_normals) those of Intrinsics.backproject and the numpy normals it replaced, se3.motion_size on
+Python floats the numpy form's."""
 
 import cv2
 import numpy as np
@@ -124,3 +125,20 @@ def test_points_and_normals_match_backproject_and_depth_normals() -> None:
         assert np.isfinite(ref).any() and np.isnan(ref).any()
         np.testing.assert_array_equal(got_pts, pts)
         np.testing.assert_array_equal(got, ref)
+
+
+def test_motion_size_matches_the_numpy_form() -> None:
+    """``motion_size`` on Python floats gives ``(norm(t), arccos(clip((trace(R) − 1) / 2, −1, 1)))`` of numpy bit for
+    bit: random motions, no motion, half turns and a rotation a little off orthonormal (clipped at both ends)."""
+    from tracker.filter.motion_model import rotvec_to_matrix
+    from tracker.odometry.se3 import motion_size
+
+    rng = np.random.default_rng(12)
+    mats = list(rotvec_to_matrix(rng.normal(0.0, 10 ** rng.uniform(-5, 0.4, (400, 1)), (400, 3))))
+    mats += [np.eye(3), np.diag([1.0, -1.0, -1.0]), np.eye(3) * (1.0 + 1e-12), -np.eye(3) * (1.0 + 1e-12)]
+    for R in mats:
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, rng.normal(0.0, 0.01, 3)
+        cos = np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+        want = (float(np.linalg.norm(T[:3, 3])), float(np.arccos(cos)))
+        assert motion_size(T) == want

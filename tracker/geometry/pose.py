@@ -231,7 +231,7 @@ class Pose:
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=np.float64).reshape(3)
         q = normalize_quat(np.asarray(self.q, dtype=np.float64).reshape(4))
-        if not all(math.isfinite(v) for v in (*t.tolist(), *q.tolist())):
+        if not all(map(math.isfinite, t.tolist() + q.tolist())):
             raise ValueError("pose has non-finite values")
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "q", q)

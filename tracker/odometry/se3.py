@@ -87,6 +87,8 @@ def invert(T) -> np.ndarray:
 
 
 def motion_size(T: np.ndarray) -> tuple[float, float]:
-    """``(translation in metres, rotation angle in radians)`` of a rigid transform."""
-    cos = np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    return float(np.linalg.norm(T[:3, 3])), float(np.arccos(cos))
+    """``(translation in metres, rotation angle in radians)`` of a rigid transform. The trace is summed and clipped on
+    Python floats as ``np.trace`` and ``np.clip`` form them (the same values, without their per-call overhead)."""
+    T = np.asarray(T)
+    cos = ((float(T[0, 0]) + float(T[1, 1]) + float(T[2, 2])) - 1.0) / 2.0
+    return float(np.linalg.norm(T[:3, 3])), float(np.arccos(min(max(cos, -1.0), 1.0)))
