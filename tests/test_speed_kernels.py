@@ -95,6 +95,38 @@ def test_evaluated_pixels_match_the_numpy_reference(budget):
             assert trk._lattice.max() > 1  # the thinning to a coarser lattice is exercised
 
 
+@pytest.mark.parametrize("budget", [0, 30])
+def test_evaluated_pixel_kernel_visits_only_the_rectangles(budget):
+    """The rectangles' rows and columns alone give the selection of the whole-grid test (numpy over every grid pixel):
+    unbounded, empty, NaN, off-image and overlapping rectangles, with and without a budget."""
+    rng = np.random.default_rng(13)
+    trk = MultiObjectTracker([PartSpec.cube("red", "red")], INTR, TrackerConfig.preset("default"), seed=0)
+    us, vs, pu, pv, gi, gj = trk._us, trk._vs, trk._pu, trk._pv, trk._gi, trk._gj
+    depth = rng.uniform(0.2, 7.0, (INTR.height, INTR.width)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.3] = np.nan
+    inf, nan = np.inf, np.nan
+    bounds = np.array([[100.0, 260.5, 40.0, 200.0], [-inf, inf, -inf, inf], [inf, -inf, inf, -inf],
+                       [nan, 300.0, 0.0, 100.0], [600.0, 900.0, -50.0, 30.0], [150.0, 400.0, 120.0, 470.0]])
+    k = bounds.shape[0]
+    budgets = np.full(k, budget, np.int64)
+    lattice = np.ones(k, np.int64)
+    pix, regions, any_valid = render._evaluated(depth, vs, us, 6.0, pu, pv, gi, gj, bounds, budgets, lattice)
+    z = depth[np.ix_(vs, us)].reshape(-1)
+    valid = np.isfinite(z) & (z > 0) & (z < 6.0)
+    inside = np.array([(pu >= b[0]) & (pu <= b[1]) & (pv >= b[2]) & (pv <= b[3]) for b in bounds])
+    keep = np.zeros(pu.size, bool)
+    for i in range(k):
+        sel = inside[i] & valid
+        count = int(sel.sum())
+        c = max(int(np.ceil(np.sqrt(count / budget))), 1) if budget > 0 and count > budget else 1
+        if budget > 0:
+            assert lattice[i] == c
+        keep |= sel & ((gi % c == 0) & (gj % c == 0) if c > 1 else True)
+    assert any_valid
+    assert np.array_equal(pix, np.flatnonzero(keep)) and np.array_equal(regions, inside[:, keep])
+    assert not inside[2].any() and not inside[3].any() and inside[1].all()
+
+
 @pytest.mark.parametrize("p10,p11", [(0.1, 0.8), (0.2, 0.2), (0.0, 1.0)])
 def test_predicted_occlusion_matches_the_numpy_reference(p10, p11):
     """ô of the coordinate passes (numba, transposed, with a hand's occluder prior as a floor) equals the numpy form:

@@ -139,27 +139,49 @@ def _evaluated(depth, vs, us, max_depth, pu, pv, gi, gj, bounds, budgets, lattic
     depth (finite, > 0, < ``max_depth``; when none, nothing else is done). A pixel is evaluated when its depth is
     valid and it lies in a part's rectangle ``bounds[k] = (umin, umax, vmin, vmax)`` (inclusive), on the part's
     lattice ``lattice[k]``: every c-th grid pixel in each axis, c the smallest with at most ``budgets[k]`` of its
-    valid region pixels left (``budgets[k]`` 0: all pixels, ``lattice[k]`` not written)."""
+    valid region pixels left (``budgets[k]`` 0: all pixels, ``lattice[k]`` not written).
+
+    The grid is row-major (pixel g = row ``gj[g]``, column ``gi[g]``, full-resolution ``(pu[g], pv[g])`` =
+    ``(us[gi], vs[gj])``), so a rectangle holds the grid pixels of a range of columns and a range of rows: each part
+    visits only those, and the depth is read only where a rectangle needs it (and until the first valid pixel, for
+    the test of the whole grid)."""
     nu = us.shape[0]
+    nv = vs.shape[0]
     ng = pu.shape[0]
     k = bounds.shape[0]
-    valid = np.empty(ng, np.bool_)
+    valid = np.full(ng, -1, np.int8)  # -1: not read yet
     any_valid = False
     for g in range(ng):
-        z = depth[vs[g // nu], us[g % nu]]
-        valid[g] = np.isfinite(z) and z > 0 and z < max_depth
-        any_valid = any_valid or valid[g]
+        valid[g] = _valid_depth(depth, vs, us, g, nu, max_depth)
+        if valid[g]:
+            any_valid = True
+            break
     if not any_valid:
         return np.empty(0, np.int64), np.empty((k, 0), np.bool_), False
     inside = np.zeros((k, ng), np.bool_)
     keep = np.zeros(ng, np.bool_)
+    cols = np.empty(nu, np.int64)
+    rows = np.empty(nv, np.int64)
     for i in range(k):
         budget = budgets[i]
         umin, umax, vmin, vmax = bounds[i, 0], bounds[i, 1], bounds[i, 2], bounds[i, 3]
+        n_cols = 0
+        for c in range(nu):  # the first grid row holds every column's u
+            if pu[c] >= umin and pu[c] <= umax:
+                cols[n_cols] = c
+                n_cols += 1
+        n_rows = 0
+        for r in range(nv):
+            if pv[r * nu] >= vmin and pv[r * nu] <= vmax:
+                rows[n_rows] = r
+                n_rows += 1
         count = 0
-        for g in range(ng):
-            if pu[g] >= umin and pu[g] <= umax and pv[g] >= vmin and pv[g] <= vmax:
+        for rr in range(n_rows):
+            for cc in range(n_cols):
+                g = rows[rr] * nu + cols[cc]
                 inside[i, g] = True
+                if valid[g] < 0:
+                    valid[g] = _valid_depth(depth, vs, us, g, nu, max_depth)
                 if valid[g]:
                     count += 1
         c = 1
@@ -167,9 +189,11 @@ def _evaluated(depth, vs, us, max_depth, pu, pv, gi, gj, bounds, budgets, lattic
             if count > budget:
                 c = max(int(np.ceil(np.sqrt(count / budget))), 1)
             lattice[i] = c
-        for g in range(ng):
-            if inside[i, g] and valid[g] and (budget <= 0 or c == 1 or (gi[g] % c == 0 and gj[g] % c == 0)):
-                keep[g] = True
+        for rr in range(n_rows):
+            for cc in range(n_cols):
+                g = rows[rr] * nu + cols[cc]
+                if valid[g] and (budget <= 0 or c == 1 or (gi[g] % c == 0 and gj[g] % c == 0)):
+                    keep[g] = True
     n = 0
     for g in range(ng):
         n += keep[g]
@@ -183,6 +207,13 @@ def _evaluated(depth, vs, us, max_depth, pu, pv, gi, gj, bounds, budgets, lattic
                 regions[i, m] = inside[i, g]
             m += 1
     return pix, regions, any_valid
+
+
+@nb.njit(cache=True, inline="always")
+def _valid_depth(depth, vs, us, g, nu, max_depth):
+    """1 when grid pixel ``g``'s depth is finite, > 0 and < ``max_depth``, else 0."""
+    z = depth[vs[g // nu], us[g % nu]]
+    return 1 if (np.isfinite(z) and z > 0 and z < max_depth) else 0
 
 
 def union(a, b):
