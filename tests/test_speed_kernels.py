@@ -127,6 +127,29 @@ def test_evaluated_pixel_kernel_visits_only_the_rectangles(budget):
     assert not inside[2].any() and not inside[3].any() and inside[1].all()
 
 
+def test_surface_points_of_a_part_come_from_its_own_rows_and_columns():
+    """A part's visible surface points, taken from the rows and columns its labels span, equal those of the scan of the
+    whole strided render (every cell labelled with it, row-major, back-projected with numpy), for parts hiding each
+    other, a part off the render and a label no part has."""
+    from tracker.refine.surface_render import render_surfaces
+
+    rng = np.random.default_rng(14)
+    shapes = [("box", np.zeros(3), np.array([0.02, 0.025, 0.02])) for _ in range(4)]
+    poses = [(rotvec_to_matrix(rng.normal(0.0, 0.5, (1, 3)))[0], np.array([x, y, z]))
+             for x, y, z in ((-0.03, 0.0, 0.40), (0.0, 0.01, 0.43), (0.05, -0.02, 0.5), (2.0, 0.0, 0.5))]
+    render = render_surfaces(INTR, shapes, poses, (150, 120, 500, 380), 2)
+    assert len({int(v) for v in np.unique(render.label)} - {-1}) == 3  # the fourth part lies off the render
+    for obj in range(6):
+        jj, ii = np.nonzero(render.label == obj)
+        u = (render.u0 + ii * render.stride).astype(np.float64)
+        v = (render.v0 + jj * render.stride).astype(np.float64)
+        z = render.depth[jj, ii]
+        want = np.stack([(u - INTR.cx) / INTR.fx * z, (v - INTR.cy) / INTR.fy * z, z], axis=1).reshape(-1, 3)
+        pts, nrm = render.points_of(obj, INTR)
+        assert np.array_equal(pts, want) and np.array_equal(nrm, render.normal[jj, ii].reshape(-1, 3))
+        assert (pts.shape[0] > 100) == (obj < 3)
+
+
 @pytest.mark.parametrize("p10,p11", [(0.1, 0.8), (0.2, 0.2), (0.0, 1.0)])
 def test_predicted_occlusion_matches_the_numpy_reference(p10, p11):
     """ô of the coordinate passes (numba, transposed, with a hand's occluder prior as a floor) equals the numpy form:

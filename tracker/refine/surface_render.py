@@ -17,7 +17,7 @@ a hit's ray parameter is its depth ``z``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba as nb
 import numpy as np
@@ -224,30 +224,63 @@ class SurfaceRender:
     depth: np.ndarray
     label: np.ndarray
     normal: np.ndarray
+    boxes: np.ndarray | None = field(default=None, repr=False)
+    """Per label (part index) the grid rows and columns ``(j0, j1, i0, i1)`` (inclusive) its cells span (j0 > j1:
+    none), made on the first :meth:`points_of` (the labels are not changed after the render)."""
 
     def points_of(self, obj: int, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
         """Visible surface points (camera frame, (M, 3)) of part ``obj`` and their normals (M, 3), in row-major
         order of their pixels."""
+        if self.boxes is None:
+            self.boxes = _label_boxes(self.label)
+        if obj < 0 or obj >= self.boxes.shape[0]:
+            return np.empty((0, 3)), np.empty((0, 3))
+        j0, j1, i0, i1 = (int(x) for x in self.boxes[obj])
         return _points_of(self.label, np.asarray(self.depth, np.float64), np.asarray(self.normal, np.float64), obj,
-                          self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy)
+                          self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy,
+                          j0, j1, i0, i1)
 
 
 @nb.njit(cache=True)
-def _points_of(label, depth, normal, obj, u0, v0, stride, fx, fy, cx, cy):
-    """:meth:`SurfaceRender.points_of` in one pass: the cells labelled ``obj``, back-projected
-    (``x = (u − cx)/fx · z``, ``y = (v − cy)/fy · z``), and their normals."""
+def _label_boxes(label):
+    """Per label 0 … max(label) the rows and columns ``(j0, j1, i0, i1)`` its cells span (j0 > j1 for a label with no
+    cell), in one pass over the grid."""
     nv, nu = label.shape
-    n = 0
+    top = -1
     for j in range(nv):
         for i in range(nu):
+            if label[j, i] > top:
+                top = label[j, i]
+    out = np.empty((top + 1, 4), np.int64)
+    for o in range(top + 1):
+        out[o, 0], out[o, 1], out[o, 2], out[o, 3] = nv, -1, nu, -1
+    for j in range(nv):
+        for i in range(nu):
+            o = label[j, i]
+            if o >= 0:
+                out[o, 0] = min(out[o, 0], j)
+                out[o, 1] = max(out[o, 1], j)
+                out[o, 2] = min(out[o, 2], i)
+                out[o, 3] = max(out[o, 3], i)
+    return out
+
+
+@nb.njit(cache=True)
+def _points_of(label, depth, normal, obj, u0, v0, stride, fx, fy, cx, cy, j0, j1, i0, i1):
+    """:meth:`SurfaceRender.points_of` in one pass: the cells labelled ``obj``, back-projected
+    (``x = (u − cx)/fx · z``, ``y = (v − cy)/fy · z``), and their normals; only the rows ``j0 … j1`` and columns
+    ``i0 … i1`` (inclusive) are visited, which hold all of them."""
+    n = 0
+    for j in range(j0, j1 + 1):
+        for i in range(i0, i1 + 1):
             if label[j, i] == obj:
                 n += 1
     pts = np.empty((n, 3))
     nrm = np.empty((n, 3))
     m = 0
-    for j in range(nv):
+    for j in range(j0, j1 + 1):
         v = v0 + j * stride
-        for i in range(nu):
+        for i in range(i0, i1 + 1):
             if label[j, i] != obj:
                 continue
             u = u0 + i * stride
