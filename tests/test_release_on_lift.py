@@ -88,7 +88,8 @@ def frames():
     return sequence()
 
 
-def run(frames, release_on_lift: int, above_table: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def run(frames, release_on_lift: int, above_table: bool = False,
+        set_down_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """The cube's translation error (mm) and the height of its estimate's lowest corner above the table (mm) per
     frame. ``carry_anchor_start`` (on in the default preset since session 16) is off here, as when these settings
     were measured: with it the carried cube's rest anchor moves with the hand from the carry's start and the put-down
@@ -99,7 +100,7 @@ def run(frames, release_on_lift: int, above_table: bool = False) -> tuple[np.nda
     part = PartSpec.cube("red", "red", edge=EDGE)
     cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, carry_release_on_lift=release_on_lift,
                                                          carry_above_table=above_table, carry_anchor_start=False,
-                                                         carry_backtrack=0)
+                                                         carry_backtrack=0, carry_set_down_m=set_down_m)
     trk = MultiObjectTracker([part], INTR, cfg, seed=0)
     trk.initialize({"red": frames[0][1]})
     det = ColorDetector.from_parts([part])

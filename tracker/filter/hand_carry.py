@@ -113,6 +113,11 @@ class HandCarry:
         self.shadows: list[Shadow | None] = [None] * n_parts  # hidden resting parts' would-be carries
         self.was_in_air = np.zeros(n_parts, bool)  # the carried part has been in the air during this carry
         self.set_down = np.zeros(n_parts, np.int64)  # frames in a row it has then been on the table (note_heights)
+        # carry_set_down_m: frames in a row the hand has stood still with the part near the table, whether the part
+        # is held where the hand put it down, and the hand's motion since (camera frame, m)
+        self.still = np.zeros(n_parts, np.int64)
+        self.put_down = np.zeros(n_parts, bool)
+        self.slide = np.zeros((n_parts, 3))
         # carry_backtrack: the last depth images (oldest first) with the camera motion since each (4×4, old camera
         # frame → current; None: the camera stayed), and per part the pose the refinement last placed it at
         # (current camera frame) and the frames completed since (-1: never placed)
@@ -132,6 +137,11 @@ class HandCarry:
         self.patches[obj] = None
         self.keys[obj] = None
         self.was_in_air[obj], self.set_down[obj] = False, 0
+        self._clear_put_down(obj)
+
+    def _clear_put_down(self, obj: int) -> None:
+        self.still[obj], self.put_down[obj] = 0, False
+        self.slide[obj] = 0.0
 
     def start(self, obj: int, patch: np.ndarray) -> None:
         """Carry part ``obj`` from now on with the hand points ``patch`` (M, 3) around it (camera frame, m)."""
@@ -140,6 +150,7 @@ class HandCarry:
         self.last_step[obj] = 0.0
         self.last_turn[obj] = 0.0
         self.was_in_air[obj], self.set_down[obj] = False, 0
+        self._clear_put_down(obj)
 
     def note_heights(self, heights: np.ndarray, min_height: float) -> None:
         """After the frame's motion decisions: per carried part, whether it has been in the air during this carry and

@@ -130,7 +130,10 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
                     cfg.carry_blob_depth and carry_onto_blob(trk, i, rot[i], delta[i], det)):
                 continue
         else:
-            if lifted_off(trk, i, pos[i], new_pos, heights[i], plane):
+            put = held_where_put(trk, i, pos[i], new_pos, heights[i], plane)
+            if put == "hold":
+                continue
+            if put == "release" or lifted_off(trk, i, pos[i], new_pos, heights[i], plane):
                 trk._carry.release(i)  # the hand rises from a part it has put down: it lets go
                 trk._carry.forget(i)  # its motion with the hand is over: the motion test must not take it up again
                 continue
@@ -235,6 +238,51 @@ def lifted_off(trk, obj: int, position: np.ndarray, new_position: np.ndarray, he
     if trk._carry.set_down[obj] < cfg.carry_release_on_lift:
         return False
     return float((new_position - position) @ plane[0]) > cfg.carry_lift_m
+
+
+STILL_STEP_M = 0.002
+"""Largest step (m) of the hand's motion in a frame that counts as the hand standing still (carry_set_down_m)."""
+STILL_FRAMES = 2
+"""Frames in a row the hand stands still with the part near the table before the part counts as put down."""
+
+
+def held_where_put(trk, obj: int, position: np.ndarray, new_position: np.ndarray, height: float, plane) -> str:
+    """Has the hand put carried part ``obj`` down (``carry_set_down_m``)? ``"hold"``: it stays where it was put (not
+    moved with the hand this frame), ``"release"``: the hand rises from it (let go), ``"follow"``: it moves with the
+    hand as before. ``position`` → ``new_position``: where the hand's motion this frame would take it (camera frame,
+    m); ``height``: its lowest point above the table before this motion (m); ``plane``: the table's (normal, offset).
+
+    A hand that has carried a part through the air and then stands still (steps of at most ``STILL_STEP_M``) for
+    ``STILL_FRAMES`` frames with the part's lowest point within ``carry_set_down_m`` of the table has put it down: the
+    part is moved along the normal onto the table (a carried part rides as high as its offset from the hand was
+    wrong; by up to a centimetre here, which kept ``carry_release_on_lift``'s height test from ever counting it set
+    down) and held there while the hand opens, whose fingers moving apart the hand's registration reads as a slide.
+    The hand rising by more than ``carry_lift_m`` in a frame lets go of it; the hand moving on along the table by more
+    than ``carry_set_down_slide_m`` since takes it along again (a part pushed along the table)."""
+    cfg = trk.config
+    carry = trk._carry
+    if cfg.carry_set_down_m <= 0 or plane is None or not np.isfinite(height):
+        return "follow"
+    n = np.asarray(plane[0], np.float64)
+    step = np.asarray(new_position, np.float64) - np.asarray(position, np.float64)
+    if carry.put_down[obj]:
+        if float(step @ n) > cfg.carry_lift_m:
+            return "release"
+        carry.slide[obj] += step
+        along = carry.slide[obj] - float(carry.slide[obj] @ n) * n
+        if float(np.linalg.norm(along)) <= cfg.carry_set_down_slide_m:
+            return "hold"
+        carry._clear_put_down(obj)
+        return "follow"
+    still = carry.was_in_air[obj] and height <= cfg.carry_set_down_m and float(np.linalg.norm(step)) <= STILL_STEP_M
+    carry.still[obj] = carry.still[obj] + 1 if still else 0
+    if carry.still[obj] < STILL_FRAMES:
+        return "follow"
+    move_part(trk, obj, np.eye(3), -height * n)  # its lowest point onto the table
+    if cfg.table_upright and trk.meshes[obj] is None:
+        set_down_upright(trk, obj, plane)
+    carry.put_down[obj] = True
+    return "hold"
 
 
 def estimate_rect(trk, obj: int, shape: tuple[int, ...], pose: Pose | None = None) -> tuple[int, int, int, int] | None:

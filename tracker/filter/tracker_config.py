@@ -584,7 +584,18 @@ class TrackerConfig(BaseModel):
         False, description="A carried part the hand's motion takes below the table top is moved up onto it.",
     )
     carry_lift_m: float = Field(0.003, gt=0.0, description="Rise (m) of the hand in one frame that lets go of a part "
-                                "set down (carry_release_on_lift).")
+                                "set down (carry_release_on_lift, carry_set_down_m).")
+    carry_set_down_m: float = Field(
+        0.0, ge=0.0, description="A carried part that has been in the air is put down when the hand then stands still "
+        "for two frames with the part's lowest point within this many metres of the table: it is moved onto the table "
+        "and held there (not moved with the hand) until the hand rises by more than carry_lift_m in a frame (let go) "
+        "or moves on along the table by more than carry_set_down_slide_m (taken along). 0 = off "
+        "(filter/hidden_parts.py: held_where_put).",
+    )
+    carry_set_down_slide_m: float = Field(
+        0.02, gt=0.0, description="Motion (m) along the table of the hand since it put a part down (carry_set_down_m) "
+        "after which the part moves with the hand again.",
+    )
     refine_region_weight: float = Field(
         0.0, ge=0.0, description="Weight of the silhouette term of the refinement (the rendered outline on the colour "
         "blob's edge, refine/region_term.py); 0 = depth only.",
