@@ -96,3 +96,17 @@ def test_in_the_put_down_scene_the_rule_alone_keeps_the_part_where_the_hand_left
     put_down = RISE.start - 1
     assert with_rule[RISE].max() < with_rule[put_down] + 1.0, with_rule[RISE]
     assert without[RISE][-1] > without[put_down] + 5.0, without[RISE]
+
+
+def test_in_a_simulated_carry_the_cube_put_down_is_held_nearer_the_truth():
+    """The simulated carry of test_hand_carry (the default settings, a cube carried about 60 frames hidden and put down
+    beside another): with the rule its worst error in the hand falls from 17.8 to 11.8 mm (the last frames of the
+    carry, where the hand opens and rises), and it is found again once the hand has gone, as without."""
+    from test_hand_carry import _carry_run
+
+    on, hidden, carried, _ = _carry_run()
+    off, _, _, _ = _carry_run(carry_set_down_m=0.0)
+    assert carried > 30
+    assert TrackerConfig.preset("default").carry_set_down_m > 0 and TrackerConfig().carry_set_down_m == 0
+    assert on[hidden].max() < off[hidden].max() - 0.004, (on[hidden].max(), off[hidden].max())
+    assert on[-10:].mean() < 0.002 and off[-10:].mean() < 0.002

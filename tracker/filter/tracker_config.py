@@ -827,5 +827,6 @@ PRESETS["default"] = {
     "blob_follow_inside_px": 3.0,
     "blob_follow_inside_covered": True,
     "carry_backtrack": 3,
+    "carry_set_down_m": 0.02,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
