@@ -110,3 +110,21 @@ def test_in_a_simulated_carry_the_cube_put_down_is_held_nearer_the_truth():
     assert TrackerConfig.preset("default").carry_set_down_m > 0 and TrackerConfig().carry_set_down_m == 0
     assert on[hidden].max() < off[hidden].max() - 0.004, (on[hidden].max(), off[hidden].max())
     assert on[-10:].mean() < 0.002 and off[-10:].mean() < 0.002
+
+
+def test_a_part_put_on_top_of_another_is_put_down_on_its_top():
+    """The same on a cube resting on the table: the carried cube riding 9 mm above the other's top is put down on it
+    (surface_below), not pushed through it to the table; a cube beside the carried one is no support."""
+    red, green = PartSpec.cube("red", "red", edge=EDGE), PartSpec.cube("green", "green", edge=EDGE)
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=50, carry_set_down_m=0.02,
+                                                         carry_set_down_on_parts=True)
+    for beside, expected_mm in ((0.0, 1000.0 * EDGE), (EDGE, 0.0)):
+        trk = MultiObjectTracker([red, green], INTR, cfg, seed=0)
+        below = cube_on_table(beside)
+        above = cube_on_table(0.0)
+        start_h = EDGE + RIDING_HIGH if beside == 0.0 else RIDING_HIGH
+        trk.initialize({"red": Pose.from_rt(above.R, above.t + NORMAL * start_h), "green": below})
+        trk._carry.was_in_air[0] = True
+        step(trk, np.zeros(3))
+        assert step(trk, np.zeros(3)) == "hold"
+        assert abs(height_mm(trk) - expected_mm) < 0.3, (beside, height_mm(trk))

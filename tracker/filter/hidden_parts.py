@@ -258,12 +258,16 @@ def held_where_put(trk, obj: int, position: np.ndarray, new_position: np.ndarray
     wrong; by up to a centimetre here, which kept ``carry_release_on_lift``'s height test from ever counting it set
     down) and held there while the hand opens, whose fingers moving apart the hand's registration reads as a slide.
     The hand rising by more than ``carry_lift_m`` in a frame lets go of it; the hand moving on along the table by more
-    than ``carry_set_down_slide_m`` since takes it along again (a part pushed along the table)."""
+    than ``carry_set_down_slide_m`` since takes it along again (a part pushed along the table). With
+    ``carry_set_down_on_parts`` a part put on top of another is put down on that part's top (:func:`surface_below`)
+    the same way."""
     cfg = trk.config
     carry = trk._carry
     if cfg.carry_set_down_m <= 0 or plane is None or not np.isfinite(height):
         return "follow"
     n = np.asarray(plane[0], np.float64)
+    if cfg.carry_set_down_on_parts:
+        height = height - surface_below(trk, obj, plane)  # above the part it is put on, or the table
     step = np.asarray(new_position, np.float64) - np.asarray(position, np.float64)
     if carry.put_down[obj]:
         if float(step @ n) > cfg.carry_lift_m:
@@ -283,6 +287,30 @@ def held_where_put(trk, obj: int, position: np.ndarray, new_position: np.ndarray
         set_down_upright(trk, obj, plane)
     carry.put_down[obj] = True
     return "hold"
+
+
+def surface_below(trk, obj: int, plane) -> float:
+    """Height (m) above the table plane ``(n, d)`` of the surface part ``obj`` would be put down on: the highest top of
+    a part that is not carried, lies below ``obj``'s lowest point (within 1 cm) and whose centre is within 0.3 × the
+    sum of the two bounding radii of ``obj``'s along the table (a cube on top of another, not beside it); 0 (the
+    table) when there is none."""
+    n = np.asarray(plane[0], np.float64)
+    est = trk.estimates[trk.names[obj]]
+    low = lowest_height(trk, obj, est.R, est.t, plane)
+    carried = trk._carry.carried
+    top = 0.0
+    for o, name in enumerate(trk.names):
+        if o == obj or carried[o]:
+            continue
+        other = trk.estimates[name]
+        gap = est.t - other.t
+        along = gap - float(gap @ n) * n
+        if float(np.linalg.norm(along)) > 0.3 * (trk._carry.radii[obj] + trk._carry.radii[o]):
+            continue
+        h = highest_height(trk, o, other.R, other.t, plane)
+        if top < h <= low + 0.01:
+            top = h
+    return top
 
 
 def estimate_rect(trk, obj: int, shape: tuple[int, ...], pose: Pose | None = None) -> tuple[int, int, int, int] | None:
@@ -477,6 +505,12 @@ def lowest_height(trk, obj: int, R: np.ndarray, t: np.ndarray, plane) -> float:
     """Height (m) above the table plane ``(n, d)`` of part ``obj``'s lowest vertex at pose (R, t)."""
     n, d = plane
     return float((trk.hulls[obj] @ (R.T @ n)).min() + t @ n + d)
+
+
+def highest_height(trk, obj: int, R: np.ndarray, t: np.ndarray, plane) -> float:
+    """Height (m) above the table plane ``(n, d)`` of part ``obj``'s highest vertex at pose (R, t)."""
+    n, d = plane
+    return float((trk.hulls[obj] @ (R.T @ n)).max() + t @ n + d)
 
 
 def blob_left_rest(trk, obj: int, det) -> bool:

@@ -592,6 +592,10 @@ class TrackerConfig(BaseModel):
         "or moves on along the table by more than carry_set_down_slide_m (taken along). 0 = off "
         "(filter/hidden_parts.py: held_where_put).",
     )
+    carry_set_down_on_parts: bool = Field(
+        False, description="carry_set_down_m also puts a part down on top of a part below it (its height counted from "
+        "that part's top, filter/hidden_parts.py: surface_below), not only on the table.",
+    )
     carry_set_down_slide_m: float = Field(
         0.02, gt=0.0, description="Motion (m) along the table of the hand since it put a part down (carry_set_down_m) "
         "after which the part moves with the hand again.",
