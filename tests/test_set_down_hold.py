@@ -107,7 +107,9 @@ def test_in_a_simulated_carry_the_cube_put_down_is_held_nearer_the_truth():
     on, hidden, carried, _ = _carry_run()
     off, _, _, _ = _carry_run(carry_set_down_m=0.0)
     assert carried > 30
-    assert TrackerConfig.preset("default").carry_set_down_m > 0 and TrackerConfig().carry_set_down_m == 0
+    default = TrackerConfig.preset("default")
+    assert default.carry_set_down_m > 0 and TrackerConfig().carry_set_down_m == 0
+    assert default.carry_set_down_on_parts and not TrackerConfig().carry_set_down_on_parts
     assert on[hidden].max() < off[hidden].max() - 0.004, (on[hidden].max(), off[hidden].max())
     assert on[-10:].mean() < 0.002 and off[-10:].mean() < 0.002
 

@@ -832,5 +832,6 @@ PRESETS["default"] = {
     "blob_follow_inside_covered": True,
     "carry_backtrack": 3,
     "carry_set_down_m": 0.02,
+    "carry_set_down_on_parts": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
