@@ -204,6 +204,7 @@ class SimulatedTable(FrameSource):
         self._dirty: list[tuple[int, int, int, int]] = []  # rectangles drawn into by the last frame (every buffer)
         self._dirty_color: list[tuple[int, int, int, int]] = []  # … whose colour alone changed (shadows, blur)
         self._closed = False
+        self._blur_scratch: np.ndarray | None = None  # the colour sensor model's blurred colour, reused every frame
 
     # ---------------------------------------------------------------- FrameSource / public properties
     @property
@@ -607,7 +608,10 @@ class SimulatedTable(FrameSource):
         clean = self.render_clean(index)
         key = self.frame_key(index)
         depth = self.options.depth_model.apply(clean["depth"], clean["cosang"], key, fx=self._intr.fx, out=depth_out)
-        color = self.options.color_model.apply(clean["color"], key, clean["t"], self._phase, out=color_out)
+        if self._blur_scratch is None:
+            self._blur_scratch = np.empty_like(clean["color"])
+        color = self.options.color_model.apply(clean["color"], key, clean["t"], self._phase, out=color_out,
+                                               scratch=self._blur_scratch)  # fmt: skip
         n, d = clean["table_plane"]
         meta = {
             "groundtruth": {
