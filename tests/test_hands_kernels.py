@@ -374,3 +374,29 @@ def test_a_part_is_seen_only_inside_its_window():
         assert not np.isfinite(zr[~inside]).any()
         seen += bool(np.isfinite(zr).any())
     assert seen >= 10
+
+
+def test_order_statistics_equal_numpy_quantile_and_median():
+    """The palm anchors' quantile and median (one partition) return numpy's values bit for bit: ties, float32 depth,
+    distances from a non-integer entry point, every size from 1 and the quantiles the anchors use."""
+    from tracker.hands import order_stats
+
+    rng = np.random.default_rng(21)
+    for k in range(3000):
+        n = int(rng.integers(1, 300))
+        kind = k % 4
+        if kind == 0:
+            x = rng.normal(size=n)
+        elif kind == 1:
+            x = rng.integers(0, 4, n).astype(np.float64)  # many ties
+        elif kind == 2:
+            x = rng.uniform(0.3, 1.5, n).astype(np.float32)  # depth in metres
+        else:
+            e = rng.uniform(0.0, 40.0, 2)
+            x = np.hypot(rng.integers(0, 40, n) - e[0], rng.integers(0, 40, n) - e[1])
+        assert order_stats.median(x) == float(np.median(x))
+        if x.dtype == np.float64:
+            for q in (0.0, 0.37, 0.5, 0.75, 0.9, 1.0):
+                thr = order_stats.quantile(x, q)
+                assert thr == float(np.quantile(x, q))
+                np.testing.assert_array_equal(x >= thr, x >= np.quantile(x, q))

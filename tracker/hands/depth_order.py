@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tracker.hands import order_stats
+
 DEPTH_GAP = 0.02
 """Smallest difference (m) between the two tracks' remembered depths, and between the two parts' depths, for the
 depth order to decide."""
@@ -50,7 +52,7 @@ def median_depth(depth: np.ndarray | None, us: np.ndarray, vs: np.ndarray, scale
     v = np.minimum(np.asarray(vs)[::STEP].astype(np.int64) * scale, d.shape[0] - 1)
     z = d[v, u]
     z = z[np.isfinite(z) & (z > 0)]
-    return float(np.median(z)) if len(z) >= MIN_SAMPLES else float("nan")
+    return order_stats.median(z) if len(z) >= MIN_SAMPLES else float("nan")
 
 
 def box_skin_depth(depth: np.ndarray | None, mask: np.ndarray, box: tuple[int, int, int, int], scale: int,

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from tracker.hands import order_stats
+
 MIN_ARM_M = 0.15
 """A border component counts as hand + forearm when its extent from the entry point exceeds this length (m) at the
 far end's depth (an adult hand is about 0.19 m long)."""
@@ -88,12 +90,12 @@ def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: floa
     d = np.hypot(xs - e[0], ys - e[1])
     z = 0.75
     if depth is not None:
-        far = d >= np.quantile(d, 1.0 - far_frac)
+        far = d >= order_stats.quantile(d, 1.0 - far_frac)
         dmap = np.asarray(depth)
         dz = dmap[np.minimum(ys[far] * scale, dmap.shape[0] - 1), np.minimum(xs[far] * scale, dmap.shape[1] - 1)]
         dz = dz[np.isfinite(dz) & (dz > 0)]
         if len(dz):
-            z = float(np.median(dz))
+            z = order_stats.median(dz)
     l_hand = focal / scale * hand_length_m / z
     dmax = float(d.max())
     ppm = focal / scale / z
@@ -119,7 +121,7 @@ def tube_cut(xs: np.ndarray, ys: np.ndarray, e: np.ndarray, d: np.ndarray, reach
     line q = α·p + β through the middles of the slices with two or more pixels, radius r = the median half width.
     The palm is the pixels with p ≥ p_max − reach that lie outside the tube (distance to the line > r) or within
     ``tip`` of the far end (p ≥ p_max − tip)."""
-    far = d >= np.quantile(d, 0.9)
+    far = d >= order_stats.quantile(d, 0.9)
     a = np.array([xs[far].mean() - e[0], ys[far].mean() - e[1]])
     norm = float(np.hypot(a[0], a[1]))
     if norm < 1e-9:
@@ -153,7 +155,7 @@ def tube_cut(xs: np.ndarray, ys: np.ndarray, e: np.ndarray, d: np.ndarray, reach
     var = float(((pc - pm) ** 2).sum())
     slope = float(((pc - pm) * (mid - qm)).sum()) / var if var > 0 else 0.0
     icpt = qm - slope * pm
-    r = float(np.median(0.5 * (qmax[ok] - qmin[ok] + 1.0)))
+    r = order_stats.median(0.5 * (qmax[ok] - qmin[ok] + 1.0))
     dist = np.abs(q - (slope * p + icpt)) / np.sqrt(1.0 + slope * slope)
     sel = (p >= start) & ((dist > r) | (p >= pmax - tip))
     return sel if sel.any() else None

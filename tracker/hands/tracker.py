@@ -155,7 +155,7 @@ import cv2
 import numba as nb
 import numpy as np
 
-from tracker.hands import arm_anchor, depth_order, exclusion, group_box, identity, ownership
+from tracker.hands import arm_anchor, depth_order, exclusion, group_box, identity, order_stats, ownership
 from tracker.hands.blob_split import split_shared_components, two_means
 from tracker.hands.box_stats import box_area, box_observation, box_of, dominant_component, mask_count
 from tracker.hands.features import HandFeatures, compute_features
@@ -1175,7 +1175,7 @@ class HandTracker(TrackIdentity):
         d = np.asarray(self._depth)
         z = d[np.minimum(ys * self.s, d.shape[0] - 1), np.minimum(xs * self.s, d.shape[1] - 1)]
         z = z[np.isfinite(z) & (z > 0)]
-        return float(np.median(z)) if len(z) else 0.75
+        return order_stats.median(z) if len(z) else 0.75
 
     def _end(self, ending: list[bool]) -> None:
         """Tracks flagged in ``ending`` become lost tracks (re-acquirable with their ids) if ``reacquire``."""
