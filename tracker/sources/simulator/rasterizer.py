@@ -100,9 +100,27 @@ def render_box(depth, cosang, color, ids, hits, fx, fy, cx, cy, R, t, half, albe
 
 
 @nb.njit(cache=True, fastmath=_FM)
-def render_capsule(depth, cosang, color, ids, hits, fx, fy, cx, cy, pa, pb, radius, albedo, light, ambient, diffuse,
+def ray_directions(fx, fy, cx, cy, width, height):
+    """Unit viewing rays of every pixel, float64 [3, H, W] (x, y, z components), computed with the very
+    expressions ``render_capsule`` used per pixel (so its results stay bit-identical): a camera's table of them
+    is computed once, not per capsule and frame."""
+    rays = np.empty((3, height, width))
+    for v in range(height):
+        yv = (v - cy) / fy
+        for u in range(width):
+            xu = (u - cx) / fx
+            dn = np.sqrt(xu * xu + yv * yv + 1.0)
+            rays[0, v, u] = xu / dn
+            rays[1, v, u] = yv / dn
+            rays[2, v, u] = 1.0 / dn
+    return rays
+
+
+@nb.njit(cache=True, fastmath=_FM)
+def render_capsule(depth, cosang, color, ids, hits, rays, pa, pb, radius, albedo, light, ambient, diffuse,
                    pid, u0, v0, u1, v1):  # fmt: skip
-    """Ray-cast a capsule (segment ``pa``–``pb`` swept by a sphere of ``radius``)."""
+    """Ray-cast a capsule (segment ``pa``–``pb`` swept by a sphere of ``radius``); ``rays``: the camera's
+    :func:`ray_directions`."""
     ba0 = pb[0] - pa[0]
     ba1 = pb[1] - pa[1]
     ba2 = pb[2] - pa[2]
@@ -115,13 +133,10 @@ def render_capsule(depth, cosang, color, ids, hits, fx, fy, cx, cy, pa, pb, radi
     oaoa = oa0 * oa0 + oa1 * oa1 + oa2 * oa2
     r2 = radius * radius
     for v in range(v0, v1):
-        yv = (v - cy) / fy
         for u in range(u0, u1):
-            xu = (u - cx) / fx
-            dn = np.sqrt(xu * xu + yv * yv + 1.0)
-            r0 = xu / dn
-            r1 = yv / dn
-            rz = 1.0 / dn
+            r0 = rays[0, v, u]
+            r1 = rays[1, v, u]
+            rz = rays[2, v, u]
             bard = ba0 * r0 + ba1 * r1 + ba2 * rz
             rdoa = r0 * oa0 + r1 * oa1 + rz * oa2
             a = baba - bard * bard
