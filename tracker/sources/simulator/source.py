@@ -205,7 +205,6 @@ class SimulatedTable(FrameSource):
         self._dirty_color: list[tuple[int, int, int, int]] = []  # … whose colour alone changed (shadows, blur)
         self._closed = False
         self._blur_scratch: np.ndarray | None = None  # the colour sensor model's blurred colour, reused every frame
-        self._rays_table: np.ndarray | None = None  # unit viewing rays [3, H, W], made when a capsule is first drawn
 
     # ---------------------------------------------------------------- FrameSource / public properties
     @property
@@ -404,7 +403,7 @@ class SimulatedTable(FrameSource):
                     pts = np.concatenate([corners + p.a, corners + p.b])
                     rect = rz.points_rect(pts, fx, fy, cx, cy, W, H)
                     if rect is not None:
-                        rz.render_capsule(self._depth, self._cos, self._color, self._ids, hits, self._rays, p.a,
+                        rz.render_capsule(self._depth, self._cos, self._color, self._ids, hits, fx, fy, cx, cy, p.a,
                                           p.b, p.radius, albedo, light, AMBIENT, DIFFUSE, hand_id, *rect)  # fmt: skip
                     shapes.append((pts, 0.5))
                 else:
@@ -496,7 +495,7 @@ class SimulatedTable(FrameSource):
                 pts = np.concatenate([corners + p.a, corners + p.b])
                 rect = rz.points_rect(pts, fx, fy, cx, cy, W, H)
                 if rect is not None:
-                    rz.render_capsule(self._depth, self._cos, self._color, self._ids, hits, self._rays, p.a,
+                    rz.render_capsule(self._depth, self._cos, self._color, self._ids, hits, fx, fy, cx, cy, p.a,
                                       p.b, p.radius, np.asarray(p.albedo, float), light, AMBIENT, DIFFUSE, pid,
                                       *rect)  # fmt: skip
                     rects.append(rect)
@@ -595,14 +594,6 @@ class SimulatedTable(FrameSource):
         mask = cv2.GaussianBlur(mask, (0, 0), 2.5 / step + 0.3)
         cu0, cv0, cu1, cv1 = rz.apply_shadow(self._color, self._ids, self._bg_table, mask, step, u0, v0, u1, v1)
         return (cu0, cv0, cu1, cv1) if cu0 < cu1 else None
-
-    @property
-    def _rays(self) -> np.ndarray:
-        """The camera's unit viewing rays [3, H, W] (:func:`rasterizer.ray_directions`), computed once."""
-        if self._rays_table is None:
-            i = self._intr
-            self._rays_table = rz.ray_directions(i.fx, i.fy, i.cx, i.cy, i.width, i.height)
-        return self._rays_table
 
     renders_into = True
     """:meth:`render` takes ``out`` buffers (the server's source process renders into its shared memory)."""
