@@ -137,9 +137,11 @@ class HandCarry:
         self.patches[obj] = None
         self.keys[obj] = None
         self.was_in_air[obj], self.set_down[obj] = False, 0
-        self._clear_put_down(obj)
+        self.end_put_down(obj)
 
-    def _clear_put_down(self, obj: int) -> None:
+    def end_put_down(self, obj: int) -> None:
+        """Part ``obj`` is no longer held where the hand put it down (``carry_set_down_m``): it follows the hand
+        again, or its carry ended."""
         self.still[obj], self.put_down[obj] = 0, False
         self.slide[obj] = 0.0
 
@@ -150,7 +152,7 @@ class HandCarry:
         self.last_step[obj] = 0.0
         self.last_turn[obj] = 0.0
         self.was_in_air[obj], self.set_down[obj] = False, 0
-        self._clear_put_down(obj)
+        self.end_put_down(obj)
 
     def note_heights(self, heights: np.ndarray, min_height: float) -> None:
         """After the frame's motion decisions: per carried part, whether it has been in the air during this carry and

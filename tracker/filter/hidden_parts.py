@@ -276,7 +276,7 @@ def held_where_put(trk, obj: int, position: np.ndarray, new_position: np.ndarray
         along = carry.slide[obj] - float(carry.slide[obj] @ n) * n
         if float(np.linalg.norm(along)) <= cfg.carry_set_down_slide_m:
             return "hold"
-        carry._clear_put_down(obj)
+        carry.end_put_down(obj)
         return "follow"
     still = carry.was_in_air[obj] and height <= cfg.carry_set_down_m and float(np.linalg.norm(step)) <= STILL_STEP_M
     carry.still[obj] = carry.still[obj] + 1 if still else 0

@@ -184,10 +184,8 @@ class ColorSensorModel:
         fresh 3.7 MB costs ~0.4 ms of page faults)."""
         g, ru, rv = self.lighting(t, phase)
         if self.blur_sigma > 0:
-            if scratch is None or scratch.shape != color.shape or scratch.dtype != color.dtype:
-                color = cv2.GaussianBlur(color, (3, 3), float(self.blur_sigma))
-            else:
-                color = cv2.GaussianBlur(color, (3, 3), float(self.blur_sigma), dst=scratch)
+            # OpenCV writes into ``scratch`` when it fits and returns a new array otherwise (or without one)
+            color = cv2.GaussianBlur(color, (3, 3), float(self.blur_sigma), dst=scratch)
         if out is None:
             out = np.empty(color.shape, np.uint8)
         _color_kernel(color, out, np.uint64(key), g, ru, rv, float(self.vignetting), float(self.noise_sigma))
