@@ -1,6 +1,7 @@
 """Decode a recording's next frames in a background thread while the current one is processed.
 
-A 640×480 frame's colour and depth PNGs take 8–12 ms of CPU to decode (``cv2.imdecode``, which releases the GIL).
+A 640×480 frame's colour and depth PNGs take about 5 ms of CPU to decode (:mod:`tracker.sources.png_decode`, whose
+inflate and filter loop release the GIL; 8–12 ms with ``cv2.imdecode``).
 Read sequentially, as ``track``, ``odometry`` and ``hands`` read a recording, that decoding adds to every frame's
 wall time; on a machine with a second core, decoding the next frames while the tracker works on this one takes it
 off the critical path.
