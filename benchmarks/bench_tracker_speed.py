@@ -9,7 +9,9 @@ back and tracked frame by frame exactly as ``assembly-agent track`` does it
 (:class:`app.commands.track.TrackSession`: table plane followed, colour detection, one tracker step; default
 preset, N = 225). Per frame, thread CPU time (``time.thread_time``; OpenCV, numba and BLAS held to one thread) of
 
-* **decode**: reading the frame's colour and depth images (:meth:`RecordingSource.read`);
+* **decode**: reading the frame's colour and depth images (:meth:`RecordingSource.read`; the PNGs by
+  :mod:`tracker.sources.png_decode`); beside it, **decode (OpenCV)**: the same two files read the way the reader did
+  before that decoder (``cv2.imdecode``, BGR → RGB, the depth units → metres table), same pixels, as the baseline;
 * **perception**: the table plane, the colour detection and the camera odometry (``TrackSession.step`` minus the
   tracker step; the odometry is ``track``'s default, ``fused``, unless ``--odometry`` says otherwise; its own share
   is reported as **odometry**);
@@ -56,7 +58,7 @@ TARGET_FPS_5 = 30.0
 """Issue 11: 5 cubes, N = 225, at least this many frames per second including decoding and perception."""
 TARGET_TRACKER_MS_7 = 15.0
 """Issue 11: 7 cubes, N = 225, at most this tracker time per frame (ms)."""
-STAGES = ("decode", "perception", "odometry", "tracker", "pipeline", "icp")
+STAGES = ("decode", "perception", "odometry", "tracker", "pipeline", "icp", "decode_opencv")
 
 
 def _stats(values: list[float]) -> dict:
@@ -79,6 +81,19 @@ def parse_overrides(text: str) -> dict:
         except json.JSONDecodeError:
             out[key] = value
     return out
+
+
+def _decode_opencv(rec, position: int) -> tuple:
+    """A recording frame's colour and depth read as :class:`RecordingSource` read them before
+    :mod:`tracker.sources.png_decode` (``cv2.imdecode``; the decode baseline, same pixels)."""
+    import cv2
+
+    from tracker.sources.recording import depth_units_to_metres
+
+    e = rec._entries[position]
+    bgr = cv2.imdecode(np.frombuffer((rec.root / e["color"]).read_bytes(), np.uint8), cv2.IMREAD_UNCHANGED)
+    raw = cv2.imdecode(np.frombuffer((rec.root / e["depth"]).read_bytes(), np.uint8), cv2.IMREAD_UNCHANGED)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), depth_units_to_metres(raw, rec.depth_scale)
 
 
 def run_session(session: int, seed: int, frames: int, pair: dict | None = None, odometry: str | None = None) -> dict:
@@ -136,6 +151,12 @@ def run_session(session: int, seed: int, frames: int, pair: dict | None = None, 
             plane = (ours.table.normal, ours.table.offset) if ours.table is not None else None
             icp.step(frame.depth, plane)
             c3 = time.thread_time()
+            colour_cv, depth_cv = _decode_opencv(rec, i)
+            c4 = time.thread_time()
+            if i < 3 and not (np.array_equal(colour_cv, frame.color)
+                              and np.array_equal(depth_cv, frame.depth, equal_nan=True)):
+                raise AssertionError(f"frame {i}: the decoders' pixels differ")
+            cpu["decode_opencv"].append(1e3 * (c4 - c3))
             cpu["decode"].append(1e3 * (c1 - c0))
             cpu["tracker"].append(1e3 * ours.last_cpu)
             cpu["perception"].append(1e3 * (c2 - c1b - ours.last_cpu))
@@ -179,17 +200,20 @@ def markdown(res: dict) -> str:
         f"share of it, mode `{odo}`), **tracker** (the tracker step, default preset, "
         "N = 225), **pipeline** (decode, perception and tracker; fps = 1000 / pipeline ms on one core). "
         f"**ICP** = {icp_name} per part, frame to frame, on the same frames in the same run "
-        "(`benchmarks/icp_baseline.py`).",
+        "(`benchmarks/icp_baseline.py`). **decode (OpenCV)**: the same two files decoded as the reader did before "
+        "its own PNG decoder (`cv2.imdecode`; the pixels checked equal), the decode column's baseline.",
         "",
         "| # | scenario | camera | seed | parts | decode | perception | odometry | tracker | pipeline "
-        "| fps (pipeline) | ICP | tracker / ICP |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| fps (pipeline) | ICP | tracker / ICP | decode (OpenCV) | decode / OpenCV's |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in res["sessions"]:
         cells = " | ".join(f"{s[k]['median']:.1f} ({s[k]['mean']:.1f})" if k in s else "—"
                            for k in ("decode", "perception", "odometry", "tracker", "pipeline"))
+        dec_cv = (f"{s['decode_opencv']['median']:.1f} ({s['decode_opencv']['mean']:.1f}) | "
+                  f"{s['decode']['median'] / s['decode_opencv']['median']:.2f}") if "decode_opencv" in s else "— | —"
         lines.append(f"| {s['session']} | {s['scenario']} | {s['motion']} | {s['seed']} | {s['parts']} | {cells} | "
-                     f"{s['fps_pipeline']:.1f} | {s['icp']['median']:.1f} | {s['ratio_tracker_icp']:.2f} |")
+                     f"{s['fps_pipeline']:.1f} | {s['icp']['median']:.1f} | {s['ratio_tracker_icp']:.2f} | {dec_cv} |")
     paired = [s for s in res["sessions"] if "pair" in s]
     if paired:
         lines += ["", "Paired in the same run (a second tracker on the same frames, the two taking turns first): "
