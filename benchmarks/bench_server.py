@@ -55,14 +55,30 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of a process (its threads) and its live child processes, from /proc."""
+def _stat_fields(pid: int) -> list[str] | None:
+    """The fields of /proc/<pid>/stat after the command name (index 0 = state), None once the process is gone."""
     try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     except OSError:
+        return None
+
+
+def ended_children_cpu(pid: int) -> float:
+    """User + system CPU seconds of the child processes of ``pid`` that ended and were waited for (cutime + cstime):
+    a hand process ended and replaced during a run took its CPU time out of the live processes' sum."""
+    fields = _stat_fields(pid)
+    return 0.0 if fields is None else (int(fields[13]) + int(fields[14])) / os.sysconf("SC_CLK_TCK")
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a process (its threads), of its live child processes and of the children that
+    ended and were waited for, from /proc (never decreasing while ``pid`` lives: a child replaced between two
+    readings keeps its CPU time in the sum)."""
+    fields = _stat_fields(pid)
+    if fields is None:
         return 0.0
     ticks = os.sysconf("SC_CLK_TCK")
-    total = (int(fields[11]) + int(fields[12])) / ticks
+    total = (int(fields[11]) + int(fields[12]) + int(fields[13]) + int(fields[14])) / ticks
     children: set[int] = set()
     for task in Path(f"/proc/{pid}/task").glob("*"):
         try:
@@ -113,8 +129,9 @@ def _threads(pid: int) -> dict[int, tuple[str, Path]]:
 
 def cpu_by_thread(pid: int) -> dict[str, float]:
     """CPU seconds (user + system) of the server ``pid`` and its live child processes, by ``"<process>/<thread>"``
-    (:func:`_threads`). Threads that ended are missing."""
-    out: dict[str, float] = {}
+    (:func:`_threads`), and of its child processes that ended and were waited for as ``"ended/children"``. Threads that
+    ended are missing."""
+    out: dict[str, float] = {"ended/children": ended_children_cpu(pid)}
     for key, task in _threads(pid).values():
         try:
             cpu = _task_cpu(task / "stat")
@@ -174,8 +191,36 @@ def frame_steps(indices: list[int]) -> dict[str, float] | None:
     return {"mean": round(sum(steps) / len(steps), 2), "max": max(steps)}
 
 
+def child_pids(pid: int) -> dict[int, str]:
+    """The labelled child processes of the server ``pid`` (``simulator``, ``hands``: :data:`PROCESS_LABELS`): process
+    id → label."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            children = [int(c) for c in (task / "children").read_text().split()]
+        except (OSError, ValueError):
+            continue
+        for c in children:
+            try:
+                name = Path(f"/proc/{c}/comm").read_text().strip()
+            except OSError:
+                continue
+            if name in PROCESS_LABELS:
+                out[c] = PROCESS_LABELS[name]
+    return out
+
+
+def replaced_children(before: dict[int, str], after: dict[int, str]) -> list[str]:
+    """Labels of the child processes (:func:`child_pids`) alive at the first reading and gone at the second (ended,
+    and usually replaced by a new one: a hand process that hung or died): the run's figures are then not those of
+    one steady process."""
+    return sorted(label for c, label in before.items() if c not in after)
+
+
 def cpu_split(before: dict[str, float], after: dict[str, float], frames: int) -> tuple[dict, dict]:
-    """CPU ms per frame by process and by ``process/thread`` between two :func:`cpu_by_thread` readings."""
+    """CPU ms per frame by process and by ``process/thread`` between two :func:`cpu_by_thread` readings (a process or
+    thread that ended between them drops out of its key; its CPU time is under ``ended/children``, counted once it has
+    been waited for)."""
     by_thread = {k: 1000.0 * (v - before.get(k, 0.0)) / max(frames, 1) for k, v in sorted(after.items())}
     by_process: dict[str, float] = {}
     for k, v in by_thread.items():
@@ -276,14 +321,16 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        wait_until_processing(proc, base)
+        # with hands, past the first hand of guidance-demo (frame 39): the hand path's kernels load from numba's cache
+        # on the first frame with a hand, and after a change of their source compile there (20 s of CPU)
+        wait_until_processing(proc, base, frames=60 if hands else 10)
         load = os.getloadavg()[0]
         cpu0, threads0, w0 = cpu_seconds(proc.pid), cpu_by_thread(proc.pid), time.time()
-        sched0 = sched_by_thread(proc.pid)
+        sched0, children0 = sched_by_thread(proc.pid), child_pids(proc.pid)
         st0 = httpx.get(f"{base}/api/status").json()["worker"]
         msgs, n_jpeg = asyncio.run(read_ws(f"ws://127.0.0.1:{port}/ws", seconds, jpeg))
         cpu1, threads1, w1 = cpu_seconds(proc.pid), cpu_by_thread(proc.pid), time.time()
-        sched1 = sched_by_thread(proc.pid)
+        sched1, children1 = sched_by_thread(proc.pid), child_pids(proc.pid)
         st1 = httpx.get(f"{base}/api/status").json()["worker"]
         n0, n1 = st0["frames_processed"], st1["frames_processed"]
     finally:
@@ -326,6 +373,7 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
         "sched_percent_by_thread": sched_split(sched0, sched1, w1 - w0),
         "frame_step": frame_steps([m["index"] for m in msgs]),
         "frame_errors": sorted({e for m in msgs for e in m["errors"]})[:5],
+        "children_replaced": replaced_children(children0, children1),
     }
 
 
@@ -590,6 +638,11 @@ def main() -> int:
               "load average when the run's measurement started (above 1, other jobs shared the 2 cores). Scheduler "
               "states (from /proc/…/schedstat): a thread that waits for a core is starved of CPU (other threads or "
               "jobs hold the cores); one that is blocked waits for a lock, a queue, a pipe or a timer."]
+    for c in cases:
+        problems = [*c.get("frame_errors", [])] + [f"the {p} process ended during the run (replaced)"
+                                                  for p in c.get("children_replaced", [])]
+        if "error" not in c and problems:
+            lines += ["", f"**Not a steady run** ({c['case']}): " + "; ".join(problems)]
     for c in cases:
         if "error" in c or "cpu_ms_per_frame_by_thread" not in c:
             continue

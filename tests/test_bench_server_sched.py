@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import threading
 from pathlib import Path
@@ -10,7 +11,14 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from bench_server import frame_steps, sched_by_thread, sched_split  # noqa: E402
+from bench_server import (  # noqa: E402
+    cpu_seconds,
+    cpu_split,
+    frame_steps,
+    replaced_children,
+    sched_by_thread,
+    sched_split,
+)
 
 
 def test_sched_split_shares_of_the_wall_time():
@@ -52,3 +60,24 @@ def test_sched_by_thread_reads_this_process_threads():
     assert t.native_id in s1 and threading.get_native_id() in s1
     key, run, wait = s1[t.native_id]
     assert key.startswith("server/") and run >= s0[t.native_id][1] >= 0.0 and wait >= s0[t.native_id][2] >= 0.0
+
+
+@pytest.mark.skipif(not Path(f"/proc/{os.getpid()}/stat").exists(), reason="no /proc")
+def test_cpu_seconds_keeps_the_cpu_of_a_child_that_ended():
+    """A child that burns CPU and ends between two readings (session 20: the server's hand process, ended and replaced
+    mid-run, gave negative CPU per frame) keeps its CPU time in the sum: the second reading exceeds the first by at
+    least the child's CPU, though the child is gone."""
+    before = cpu_seconds(os.getpid())
+    child = subprocess.run([sys.executable, "-c", "import time\nt = time.process_time()\n"
+                            "while time.process_time() - t < 0.5: pass"], check=True)  # fmt: skip
+    assert child.returncode == 0
+    assert cpu_seconds(os.getpid()) - before >= 0.45
+
+
+def test_cpu_split_and_replaced_children():
+    before = {"server/pipeline-worker": 1.0, "hands/main": 3.0, "ended/children": 0.0}
+    after = {"server/pipeline-worker": 2.0, "hands/main": 0.5, "ended/children": 4.0}  # a new hand process
+    by_process, by_thread = cpu_split(before, after, 10)
+    assert by_thread["ended/children"] == 400.0 and by_process["server"] == 100.0
+    assert replaced_children({11: "simulator", 12: "hands"}, {11: "simulator", 13: "hands"}) == ["hands"]
+    assert replaced_children({11: "simulator"}, {11: "simulator", 13: "hands"}) == []

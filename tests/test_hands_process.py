@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 
 import numpy as np
 import pytest
 
 from tracker.geometry.camera import Intrinsics
 from tracker.hands.loop import HandLoop, HandLoopConfig
-from tracker.hands.process import HandProcessError, close_parked
+from tracker.hands.process import HandProcess, HandProcessError, _CompileReporter, close_parked
 from tracker.hands.tracker import HandTrackerConfig
 
 
@@ -142,6 +143,77 @@ def test_a_new_childs_first_step_is_given_the_start_time():
         assert loop._process.restarts == 0 and loop._process._stepped  # later steps: the step's timeout
     finally:
         loop.close()
+
+
+class _Pipe:
+    """A stand-in for the parent's end of the pipe: ``poll`` answers from a script of messages and records the
+    timeouts it was asked to wait."""
+
+    def __init__(self, messages: list[tuple]) -> None:
+        self.messages = list(messages)
+        self.timeouts: list[float] = []
+        self.sent: list = []
+
+    def poll(self, timeout: float) -> bool:
+        self.timeouts.append(timeout)
+        return bool(self.messages)
+
+    def recv(self) -> tuple:
+        return self.messages.pop(0)
+
+    def send(self, msg) -> None:
+        self.sent.append(msg)
+
+
+def test_a_step_during_which_the_child_compiles_is_given_the_start_time():
+    """The child's first frame with a hand compiles the hand path's kernels after an upgrade (20 s of CPU; session 20's
+    server run ended the child at the step timeout, again in every new child): each "compiling" message gives the rest
+    of the step the start's time; without one the step's own timeout applies."""
+    proc = HandProcess([], Intrinsics.default(), HandLoopConfig(), start_timeout=300.0, step_timeout=2.0)
+    try:
+        pipe = _Pipe([("compiling", "a"), ("compiling", "b"), ("done", {"estimates": []})])
+        proc._res.conn, proc._pending, proc._stepped = pipe, True, True
+        assert proc.result() == {"estimates": []}
+        assert pipe.timeouts == [2.0, 300.0, 300.0] and proc.compiles == 2 and proc.restarts == 0
+        pipe = _Pipe([("done", {"estimates": [1]})])
+        proc._res.conn, proc._pending = pipe, True
+        assert proc.result() == {"estimates": [1]} and pipe.timeouts == [2.0]
+        # a new session's loop that compiles before it says it is ready
+        pipe = _Pipe([("compiling", "c"), ("ready",)])
+        proc._res.conn, proc._ready = pipe, False
+        assert proc._check_ready(5.0)
+    finally:
+        proc._res.conn = None
+        proc.close()
+
+
+def test_the_child_reports_a_compile_but_not_a_cached_kernel():
+    """The child's listener sends ("compiling", the kernel's name) when numba compiles (a cache miss), at most once a
+    second; calling a compiled kernel again sends nothing."""
+    import numba as nb
+    from numba.core import event
+
+    @nb.njit
+    def _never_compiled_before(x):
+        return x * 3 + 1
+
+    pipe = _Pipe([])
+    reporter = _CompileReporter(pipe)
+    event.register("numba:compile", reporter)
+    try:
+        assert _never_compiled_before(2) == 7
+        assert pipe.sent == [("compiling", _never_compiled_before.py_func.__qualname__)]
+        reporter._last = -float("inf")
+        assert _never_compiled_before(3) == 10  # compiled for int64 already
+        assert len(pipe.sent) == 1
+        reporter._last = time.monotonic() + 1e3  # a message was just sent
+        _never_compiled_before(2.5)  # a new signature compiles, within the second since the last message: no message
+        assert len(pipe.sent) == 1
+        reporter._last = -float("inf")
+        _never_compiled_before(np.int8(1))
+        assert len(pipe.sent) == 2
+    finally:
+        event.unregister("numba:compile", reporter)
 
 
 def _same_hands(a: HandLoop, b: HandLoop) -> None:
