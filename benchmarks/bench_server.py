@@ -210,6 +210,20 @@ def child_pids(pid: int) -> dict[int, str]:
     return out
 
 
+def cached_kernels(directory: Path | None = None) -> int:
+    """Files in numba's cache directory of this checkout's kernel sources (:func:`tracker.numba_cache.cache_dir`, or
+    ``NUMBA_CACHE_DIR`` when set, as the server uses): more after a run than before it means kernels compiled during
+    it (after a change of any kernel's source every kernel compiles on its first call, seconds of CPU each on the
+    pipeline thread or in the hand process), and its figures are not those of the running server."""
+    from tracker.numba_cache import cache_dir
+
+    d = directory or Path(os.environ.get("NUMBA_CACHE_DIR") or cache_dir())
+    try:
+        return sum(1 for p in d.rglob("*") if p.suffix in (".nbi", ".nbc"))
+    except OSError:
+        return 0
+
+
 def replaced_children(before: dict[int, str], after: dict[int, str]) -> list[str]:
     """Labels of the child processes (:func:`child_pids`) alive at the first reading and gone at the second (ended,
     and usually replaced by a new one: a hand process that hung or died): the run's figures are then not those of
@@ -326,11 +340,11 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
         wait_until_processing(proc, base, frames=60 if hands else 10)
         load = os.getloadavg()[0]
         cpu0, threads0, w0 = cpu_seconds(proc.pid), cpu_by_thread(proc.pid), time.time()
-        sched0, children0 = sched_by_thread(proc.pid), child_pids(proc.pid)
+        sched0, children0, kernels0 = sched_by_thread(proc.pid), child_pids(proc.pid), cached_kernels()
         st0 = httpx.get(f"{base}/api/status").json()["worker"]
         msgs, n_jpeg = asyncio.run(read_ws(f"ws://127.0.0.1:{port}/ws", seconds, jpeg))
         cpu1, threads1, w1 = cpu_seconds(proc.pid), cpu_by_thread(proc.pid), time.time()
-        sched1, children1 = sched_by_thread(proc.pid), child_pids(proc.pid)
+        sched1, children1, kernels1 = sched_by_thread(proc.pid), child_pids(proc.pid), cached_kernels()
         st1 = httpx.get(f"{base}/api/status").json()["worker"]
         n0, n1 = st0["frames_processed"], st1["frames_processed"]
     finally:
@@ -374,6 +388,7 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
         "frame_step": frame_steps([m["index"] for m in msgs]),
         "frame_errors": sorted({e for m in msgs for e in m["errors"]})[:5],
         "children_replaced": replaced_children(children0, children1),
+        "kernels_compiled": kernels1 - kernels0,
     }
 
 
@@ -641,6 +656,9 @@ def main() -> int:
     for c in cases:
         problems = [*c.get("frame_errors", [])] + [f"the {p} process ended during the run (replaced)"
                                                   for p in c.get("children_replaced", [])]
+        if c.get("kernels_compiled"):
+            problems.append(f"{c['kernels_compiled']} files of compiled kernels written to numba's cache during the "
+                            "run (a cold cache after a kernel change: run the benchmark again)")
         if "error" not in c and problems:
             lines += ["", f"**Not a steady run** ({c['case']}): " + "; ".join(problems)]
     for c in cases:

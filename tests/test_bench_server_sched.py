@@ -12,6 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from bench_server import (  # noqa: E402
+    cached_kernels,
     cpu_seconds,
     cpu_split,
     frame_steps,
@@ -81,3 +82,15 @@ def test_cpu_split_and_replaced_children():
     assert by_thread["ended/children"] == 400.0 and by_process["server"] == 100.0
     assert replaced_children({11: "simulator", 12: "hands"}, {11: "simulator", 13: "hands"}) == ["hands"]
     assert replaced_children({11: "simulator"}, {11: "simulator", 13: "hands"}) == []
+
+
+def test_cached_kernels_counts_numba_cache_files(tmp_path):
+    """A kernel compiled with ``cache=True`` while the run is measured writes its index and object files: the count
+    grows (the benchmark then reports the run as not steady)."""
+    assert cached_kernels(tmp_path) == 0
+    sub = tmp_path / "a" / "b"
+    sub.mkdir(parents=True)
+    (sub / "mod.kernel-12.py311.nbi").write_bytes(b"")
+    (sub / "mod.kernel-12.py311.1.nbc").write_bytes(b"")
+    (sub / "notes.txt").write_text("x")
+    assert cached_kernels(tmp_path) == 2
