@@ -77,3 +77,51 @@ def test_a_cube_lifted_fast_is_carried_from_where_it_was_last_placed():
     on, off = _fast_lift_run(3), _fast_lift_run(0)
     assert on.max() < 0.005, on
     assert off.mean() > on.mean() + 0.004, (off.mean(), on.mean())
+
+
+def _rest_lift_start(rest_m: float, backtrack: int = 3, in_air: bool = False) -> float:
+    """A hidden part resting under a hand 3 cm high (never placed by the refinement) is taken in frame 2: the hand
+    moves 2 cm a frame along x from then on and the part with it, while its estimate lags (``lag`` m a frame) until
+    the motion test (1.5 cm in 0.4 s) starts its carry in frame 4; with ``in_air`` it lags 4 mm a frame (too little
+    for the motion test) and is estimated 2 cm above the table in frame 4 (the in-the-air test starts the carry).
+    Returns the part's x (m) after frame 4's carry (the truth: 6 cm)."""
+    lag = 0.004 if in_air else 0.008
+    intr = Intrinsics.default(320, 240)
+    cfg = CFG.with_overrides(carry_backtrack=backtrack, carry_backtrack_rest_m=rest_m)
+    carry = HandCarry(1, cfg, intr, np.array([0.031]))
+    rot_est = np.eye(3)[None]
+    hand = [0.0, 0.0, 0.02, 0.04, 0.06]
+    est = [0.0, 0.0, lag, 2 * lag, None]  # the estimate before each frame's carry (frame 4: where frame 3 left it)
+    x = 0.0
+    for k in range(5):
+        pos = np.array([[est[k] if est[k] is not None else x, 0.0, 0.65]])
+        hidden = np.array([True])
+        heights = np.array([0.02 if (in_air and k == 4) else 0.0])
+        rot, d = carry.update(_scene(intr, hand[k]), pos, hidden, ~hidden, heights, PLANE, None, rot_est)
+        new = np.einsum("kij,kj->ki", rot, pos) + d
+        x = float(new[0, 0])
+        carry.record(k / 30.0, new)
+        carry.note_placed(np.array([False]), rot_est, new)
+        assert carry.carried.tolist() == [k == 4]
+    return x
+
+
+def test_a_hidden_resting_part_taken_by_the_hand_is_carried_from_where_it_rested():
+    """With carry_backtrack_rest_m the carry starts from where the estimate still rested (frame 1), moved by the
+    hand's 6 cm since; without, from the lagging estimate (1.6 cm) moved by the last frame's 2 cm."""
+    assert _rest_lift_start(0.002) == pytest.approx(0.06, abs=0.003)
+    assert _rest_lift_start(0.0) == pytest.approx(0.036, abs=0.003)
+
+
+def test_a_hidden_resting_part_lifted_into_the_air_is_carried_from_where_it_rested():
+    """The same when the in-the-air test starts the carry: from where it rested (6 cm) instead of the lagging
+    estimate (8 mm) moved by the last frame's 2 cm."""
+    assert _rest_lift_start(0.002, in_air=True) == pytest.approx(0.06, abs=0.003)
+    assert _rest_lift_start(0.0, in_air=True) == pytest.approx(0.028, abs=0.003)
+
+
+def test_no_rest_backtrack_when_the_estimate_did_not_rest_within_reach():
+    """An estimate whose last still frame lies farther back than carry_backtrack frames before the previous one (here
+    2 > 1) starts from the estimate, as without the setting; within reach (2) it backtracks."""
+    assert _rest_lift_start(0.002, backtrack=1) == pytest.approx(0.036, abs=0.003)
+    assert _rest_lift_start(0.002, backtrack=2) == pytest.approx(0.06, abs=0.003)

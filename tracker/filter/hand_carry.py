@@ -220,20 +220,24 @@ class HandCarry:
         pts = self._points(depth, R.T @ (center - t), radius, old_plane, old_exclude)
         return pts @ R.T + t
 
-    def _backtrack(self, obj: int, plane, exclude) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    def _backtrack(self, obj: int, plane, exclude, age: int | None = None,
+                   start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """``carry_backtrack``: the hand's motion (x ↦ ``R`` x + ``t``, current camera frame, m) from the frame in
         which the refinement last placed part ``obj`` (1 to ``carry_backtrack`` frames before the previous one) to
         the previous frame, by registering the hand points around the part in each kept depth image to the next
         image's, together with the last of those registrations (rotation vector (rad), translation (m): the next
-        registration's first guess); None when that placement is too old, too recent or the hand points too few."""
+        registration's first guess); None when that placement is too old, too recent or the hand points too few.
+        ``age`` (frames before the previous one) and ``start`` (the part's position then, current camera frame, m)
+        replace the placement's (``carry_backtrack_rest_m``)."""
         cfg = self.config
-        age = int(self.placed_age[obj])
+        if age is None:
+            age = int(self.placed_age[obj])
         if age < 1 or age > cfg.carry_backtrack or len(self._ring) < age + 1:
             return None
         frames = list(self._ring)[-(age + 1):]
         axis = plane[0] if (plane is not None and cfg.carry_rotation_axis == "table") else None
         R, t = np.eye(3), np.zeros(3)
-        p = self.placed_t[obj].copy()
+        p = (self.placed_t[obj] if start is None else np.asarray(start, np.float64)).copy()
         w, step = np.zeros(3), np.zeros(3)
         for (d0, M0), (d1, M1) in zip(frames[:-1], frames[1:], strict=True):
             src = self._points_of(d0, M0, p, cfg.carry_radius, plane, exclude)
@@ -250,6 +254,21 @@ class HandCarry:
             d = c + step - Rw @ c
             R, t, p = Rw @ R, Rw @ t + d, Rw @ p + d
         return R, t, w, step
+
+    def rest_frame(self, obj: int) -> int | None:
+        """``carry_backtrack_rest_m``: how many frames before the previous one part ``obj``'s estimate was last still
+        (moved by at most ``carry_backtrack_rest_m`` since the frame before, by the remembered positions), when it has
+        moved by more than that in every frame since; None when it did not move in the previous frame, or was not
+        still within ``carry_backtrack`` frames (or its positions are not remembered)."""
+        cfg = self.config
+        h = [pos[obj] for _, pos in self.history]
+        for age in range(0, min(cfg.carry_backtrack, len(h) - 2) + 1):
+            step = h[-1 - age] - h[-2 - age]
+            if not np.all(np.isfinite(step)):
+                return None
+            if np.linalg.norm(step) <= cfg.carry_backtrack_rest_m:
+                return age if age >= 1 else None
+        return None
 
     def forget(self, obj: int) -> None:
         """Drop part ``obj``'s remembered positions (it was re-seeded: the jump is no motion of the part)."""
@@ -318,8 +337,10 @@ class HandCarry:
                         self._follow_shadow(i, depth, positions[i], plane, exclude)
                     continue
                 self.shadows[i] = None
+                lifted = moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights)
+                rest_start = cfg.carry_backtrack_rest_m > 0 and (lifted or grasped)
                 if (cfg.carry_backtrack > 0 and rotations is not None and self._prev_depth is not depth
-                        and (moved[i] > cfg.carry_min_motion or self.in_air(i, positions, heights))):
+                        and (lifted or rest_start)):
                     found = self._backtrack(i, plane, exclude)
                     if found is not None:
                         Rh, th, w0, t0 = found
@@ -328,6 +349,17 @@ class HandCarry:
                         back = (Rb, Rh @ self.placed_t[i] + th - Rb @ positions[i])
                         self.backtracked[i] = True
                         positions[i] = Rh @ self.placed_t[i] + th
+                    elif rest_start:
+                        # not placed lately (hidden at rest under the hand): from where it still rested
+                        age = self.rest_frame(i)
+                        if age is not None:
+                            p0 = self.history[-1 - age][1][i]
+                            found = self._backtrack(i, plane, exclude, age, p0)
+                        if found is not None:
+                            Rh, th, w0, t0 = found
+                            back = (Rh, Rh @ p0 + th - Rh @ positions[i])
+                            self.backtracked[i] = True
+                            positions[i] = Rh @ p0 + th
                 prev = None
                 if cfg.carry_start_register and self._prev_depth is not None and self._prev_depth is not depth:
                     prev = self._previous_points(positions[i], cfg.carry_radius, plane, exclude)

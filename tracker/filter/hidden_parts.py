@@ -78,14 +78,20 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     grasped = np.array([nm in touched for nm in trk.names], bool)
     if cfg.carry_revealed_fraction > 0 and depth is not None:
         for i in np.nonzero(hidden & ~trk._carry.carried & ~detected)[0]:
+            # carry_backtrack_rest_m: a part whose estimate has moved since it last rested, a few frames back, is
+            # carried from where it rested, moved by the hand's motion since then (the carry's start, HandCarry.update):
+            # the shadow counts the hand's motion over the part before it took it, the hand's centroid is not the part
+            rest = cfg.carry_backtrack_rest_m > 0 and trk._carry.rest_frame(i) is not None
             if revealed(trk, i, depth):
-                if not take_shadow(trk, i, pos):
+                if rest:
+                    grasped[i] = True
+                elif not take_shadow(trk, i, pos):
                     grab(trk, i, depth, pos, plane)
             elif cfg.carry_left_table > 0 and left_place(classify_footprint(trk, i, depth, plane),
                                                          cfg.carry_left_table):
                 # the table shows where it was (footprint_depth.py): picked up; carried from now on, moved by the
                 # hand's motion since it hid the part (its shadow) or, without one, by this frame's
-                grasped[i] = not take_shadow(trk, i, pos, 0.0)
+                grasped[i] = rest or not take_shadow(trk, i, pos, 0.0)
             elif cfg.carry_shadow_take_m > 0:
                 take_shadow(trk, i, pos, cfg.carry_shadow_take_m)
     held = hidden | (trk._carry.carried & (trk.visibility < cfg.carry_keep_visibility))  # carry_keep_visibility

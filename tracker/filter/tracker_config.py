@@ -167,6 +167,17 @@ class TrackerConfig(BaseModel):
         "prediction lags it, and the carry would keep that lag (1-3 cm, mostly along the viewing ray) to the end. "
         "0 = off (the carry starts from the current estimate).",
     )
+    carry_backtrack_rest_m: float = Field(
+        0.0, ge=0.0, description="With carry_backtrack: a carry started by the motion test (the estimate moving, or "
+        "in the air), the see-through test (carry_revealed_fraction) or the table showing through (carry_left_table) "
+        "of a part that the refinement has not placed within carry_backtrack frames (hidden at rest under the hand "
+        "that then takes it) starts from the position its estimate had in the last frame in which it moved by at "
+        "most this much (m) since the frame before (still at rest; 1 to carry_backtrack frames before the previous "
+        "one), moved by the hand's motion since, as carry_backtrack does from a placed pose (instead of the shadow's "
+        "shift, which counts the hand's motion over the part before it took it, or the hand points' centroid): the "
+        "estimate of a hidden part a hand lifts lags it, mostly along the viewing ray, until one of those tests fires "
+        "(14-23 mm on tuning traces), and the carry would keep that lag. 0 = off.",
+    )
     carry_turn_fallback: bool = Field(
         False, description="A hand-patch registration that turns more than carry_max_turn in one frame has failed "
         "(a fast move mismatched its point pairs): the carried part follows the translation-only registration, "
