@@ -190,7 +190,10 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
     if cfg.quiet_refine_skip and cfg.quiet_refine_hold and trk._settled.any():
         # where a quiet part is held this frame: its noise-free prediction's mean pose
         sel = np.flatnonzero(trk._settled)
-        trk._held_poses = dict(zip(sel.tolist(), mean_poses(pred[0][:, sel], pred[1][:, sel], w), strict=True))
+        if cfg.quiet_refine_hold_last:  # where it rests: last frame's estimate (moved with the camera)
+            trk._held_poses = {int(i): trk.estimates[trk.names[i]] for i in sel}
+        else:
+            trk._held_poses = dict(zip(sel.tolist(), mean_poses(pred[0][:, sel], pred[1][:, sel], w), strict=True))
     if cfg.quiet_skip:
         quiet |= trk._settled
         trk._quiet_skips = np.where(quiet, trk._quiet_skips + 1, 0)

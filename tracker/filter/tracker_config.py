@@ -564,6 +564,10 @@ class TrackerConfig(BaseModel):
         "(its particles moved there, as a refinement's correction moves them) instead of keeping the filter's "
         "estimate of the frame.",
     )
+    quiet_refine_hold_last: bool = Field(
+        False, description="With quiet_refine_skip and quiet_refine_hold: a quiet part is held at its last estimate "
+        "(moved with the camera by the odometry) instead of its constant-velocity prediction: it rests.",
+    )
     quiet_max_residual_m: float = Field(
         0.0, ge=0.0, description="With quiet_skip: a quiet part's depth must also be explained at its prediction "
         "this frame: of the sample points on its camera-facing box faces (last estimate moved by the prediction) at "
