@@ -567,8 +567,8 @@ class TrackerConfig(BaseModel):
     quiet_refine_hold_last: bool = Field(
         False, description="With quiet_refine_skip and quiet_refine_hold: a quiet part is held at its last estimate "
         "(moved with the camera by the odometry) instead of its constant-velocity prediction: it rests. Speed setting, "
-        "off: with the other two and quiet_max_residual_m 0.005 better on tuning sets 1 and 2 (session 22, README), "
-        "but 11 carry tests fail with them on by default.",
+        "off: with the other two and quiet_max_residual_m 0.005 better on tuning sets 1 and 2, worse on set 3 "
+        "(session 22, README), and 11 carry tests fail with them on by default.",
     )
     quiet_max_residual_m: float = Field(
         0.0, ge=0.0, description="With quiet_skip: a quiet part's depth must also be explained at its prediction "
