@@ -71,6 +71,11 @@ def main() -> int:
     seeds = tuple(int(s) for s in (args.seeds or ("100,101,102" if args.experiment == 1 else "100")).split(","))
     if min(seeds) < 100:
         raise SystemExit("report held-out seeds only (>= 100); seeds 0–4 are for tuning")
+    from tracker.sources.simulator.skin_tones import skin_source
+
+    if skin_source() != "uci-skin":  # built-in tones: other hands than the documented figures were measured on
+        raise SystemExit("the simulated hands need the shared skin data (../shared beside the checkout, or set "
+                         "ASSEMBLY_AGENT_SHARED); without it they are coloured from built-in tones")  # fmt: skip
     RESULTS.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         if args.experiment == 1:

@@ -230,3 +230,29 @@ def test_the_arm_detector_rests_while_two_agreeing_tracks_are_apart(monkeypatch)
     assert _arm_runs(APART, None, 1, 7, monkeypatch) == 7  # every frame
     assert _arm_runs(APART, 0.0, 3, 7, monkeypatch) == 3  # frames 1, 4, 7: the filters agree with their arms
     assert _arm_runs(STACKED, 0.0, 3, 7, monkeypatch) == 7  # overlapping boxes: every frame
+
+
+def test_a_track_whose_remembered_arm_entry_went_stale_takes_its_arm_again(monkeypatch):
+    """A track whose remembered arm entry lies far from every arm (its arm went round the image corner, or a split
+    sleeve gave it a piece of the arm) takes the unclaimed arm whose hand box matches its box again (ARM_RELEARN);
+    without the re-learning the stale entry stays and the track gets no arm for the rest of the session."""
+    import tracker.hands.tracker as hand_tracker
+
+    scene = _scene(TOUCHING)
+    for relearn in (True, False):
+        monkeypatch.setattr(hand_tracker, "ARM_RELEARN", relearn)
+        tr = _tracker(True)
+        tr.process(*scene)
+        a = tr.start_track(TOUCHING[0][0])
+        b = tr.start_track(TOUCHING[1][0])
+        tr.process(*scene)
+        learnt = tr._entries[a]
+        stale = (float(W - 1), 100.0)  # on the right border, far from both arms
+        tr._entries[a] = stale
+        ests = {e.id: e.box for e in tr.process(*scene)}
+        if relearn:
+            assert np.hypot(tr._entries[a][0] - learnt[0], tr._entries[a][1] - learnt[1]) < 2.0
+            assert dice(ests[a], TOUCHING[0][0]) > 0.9
+        else:
+            assert tr._entries[a] == stale
+        assert dice(ests[b], TOUCHING[1][0]) > 0.9

@@ -111,3 +111,22 @@ def test_same_seed_same_frames_and_recording_keeps_masks(tmp_path):
     mask = cv2.imread(str(tmp_path / "rec" / gt["skin_mask"]), cv2.IMREAD_UNCHANGED)
     assert np.array_equal(mask, src.render(1).meta["groundtruth"]["skin_mask"])
     assert gt["hand_boxes"] == src.render(1).meta["groundtruth"]["hand_boxes"]
+
+
+def test_the_builtin_skin_tones_warn_once(monkeypatch):
+    """Without the shared skin data the hands are coloured from the built-in tones, and the first draw says so (a
+    worktree without ``../shared`` otherwise renders other hands than the main checkout, silently)."""
+    import warnings
+
+    from tracker.sources.simulator import skin_tones
+
+    monkeypatch.setattr(skin_tones, "_skin_rgb", lambda: None)
+    skin_tones._warn_builtin.cache_clear()
+    rng = np.random.default_rng(0)
+    with pytest.warns(UserWarning, match="built-in skin tones"):
+        tone = skin_tones.draw_skin_tone(rng)
+    assert tone.shape == (3,) and skin_tones.skin_source() == "builtin"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        skin_tones.draw_skin_tone(rng)  # once per process
+    skin_tones._warn_builtin.cache_clear()

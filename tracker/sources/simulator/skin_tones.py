@@ -8,7 +8,11 @@ specular highlights of studio faces, not skin tones).
 Fallback when the shared folder is absent (fresh clone): :data:`BUILTIN_TONES`, six tones from light to dark
 (the first is the simulator's original palm colour), one drawn uniformly and jittered by ±6 % per channel.
 Frames of the hand scenarios therefore differ between a checkout with and without the shared data; the data
-source used is reported by :func:`skin_source`.
+source used is reported by :func:`skin_source`, and the first fallback draw warns (``UserWarning``, once per
+process): a checkout whose ``../shared`` does not exist (e.g. a git worktree elsewhere) renders other hands than the
+main checkout unless ``$ASSEMBLY_AGENT_SHARED`` is set. (In session 23 such a worktree's ``hands-s3`` tuning seed 0
+drew a jittered built-in tone at (Cr, Cb) ≈ (141, 104), outside the skin model at log τ = −2: no hand pixel in the
+colour mask; with the real data the same seed's hand is 97 % inside it.)
 """
 
 from __future__ import annotations
@@ -53,11 +57,21 @@ def skin_source() -> str:
     return "uci-skin" if _skin_rgb() is not None else "builtin"
 
 
+@lru_cache(maxsize=1)
+def _warn_builtin() -> None:
+    """Warn once that hands are coloured from the built-in tones."""
+    import warnings
+
+    warnings.warn(f"simulated hands: no skin data at {skin_data_path()}; using the built-in skin tones (the frames "
+                  "differ from a checkout with the shared data; set ASSEMBLY_AGENT_SHARED)", stacklevel=3)  # fmt: skip
+
+
 def draw_skin_tone(rng: np.random.Generator) -> np.ndarray:
     """One observed skin colour (RGB 0..255) drawn from the real data (or the built-in fallback)."""
     data = _skin_rgb()
     if data is not None and len(data):
         return data[int(rng.integers(len(data)))].copy()
+    _warn_builtin()
     tone = np.asarray(BUILTIN_TONES[int(rng.integers(len(BUILTIN_TONES)))], float)
     return np.clip(tone * rng.uniform(0.94, 1.06, size=3), 0.0, 255.0)
 
