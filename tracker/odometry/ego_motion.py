@@ -287,12 +287,20 @@ class EgoMotion:
                 if any(b[0] - 30 <= u < b[2] + 30 and b[1] - 30 <= v < b[3] + 30 for b in hand_boxes):
                     moving.add(name)
         now = self._history[-1][1] if self._history else {}
-        for _, past in list(self._history)[:-1]:  # (one array operation per remembered frame)
-            names = [n for n in now if n in past]
-            if names:
-                d = np.array([now[n] for n in names]) - np.array([past[n] for n in names])
-                far = np.sqrt(np.sum(d * d, axis=1)) > MOVING_MIN_M
-                moving.update(n for n, f in zip(names, far, strict=True) if f)
+        # (every remembered frame's positions against now's in one array operation instead of one per frame: the
+        # same differences and distances)
+        names, cur, past_pos = [], [], []
+        for _, past in list(self._history)[:-1]:
+            for n, p in now.items():
+                q = past.get(n)
+                if q is not None:
+                    names.append(n)
+                    cur.append(p)
+                    past_pos.append(q)
+        if names:
+            d = np.array(cur) - np.array(past_pos)
+            far = np.sqrt(np.sum(d * d, axis=1)) > MOVING_MIN_M
+            moving.update(n for n, f in zip(names, far.tolist(), strict=True) if f)
         return moving
 
     def step(self, frame: Frame, table=None, poses: Mapping[str, Pose] | None = None, carried: Iterable[str] = (),

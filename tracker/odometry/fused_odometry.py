@@ -311,21 +311,27 @@ class FusedOdometry:
         names = [n for n in observed if n in self.world]
         if not names:
             return prior, [], source
-        centres = {n: self._centre(n, corners[n]) for n in names}
+        # per landmark, once: its rotations (``Pose.R`` copies) and its centre in the camera frame and in the world
+        # frame, the same products as each test below took them (the values unchanged, a third of the stage's time)
+        marks = {}
+        for n in names:
+            P, W = observed[n], self.world[n]
+            c = self._centre(n, corners[n])
+            PR, WR = P.R, W.R
+            marks[n] = (PR, WR, PR @ c + P.t, WR @ c + W.t)
         Rp, tp = prior[:3, :3], prior[:3, 3]
         with_prior = []
         for n in names:
-            P, W = observed[n], self.world[n]
-            c = centres[n]
-            if (np.linalg.norm(Rp @ (P.R @ c + P.t) + tp - (W.R @ c + W.t)) < cfg.gate_m
-                    and np.degrees(rotation_angle(W.R.T @ Rp @ P.R)) < cfg.gate_deg):
+            PR, WR, cam, wld = marks[n]
+            if (np.linalg.norm(Rp @ cam + tp - wld) < cfg.gate_m
+                    and np.degrees(rotation_angle(WR.T @ Rp @ PR)) < cfg.gate_deg):
                 with_prior.append(n)
         # consensus of the landmarks among themselves (world → camera motions, as in part_landmarks)
         pairs = []
         for n in names:
-            P, W = observed[n], self.world[n]
-            R = P.R @ W.R.T
-            pairs.append((R, P.t - R @ W.t, W.R @ centres[n] + W.t))
+            PR, WR, _, wld = marks[n]
+            R = PR @ WR.T
+            pairs.append((R, observed[n].t - R @ self.world[n].t, wld))
         among: list[str] = []
         motion = consensus_motion(pairs, cfg.tolerance, min(2, len(pairs))) if len(pairs) >= 2 else None
         if motion is not None:
@@ -333,17 +339,17 @@ class FusedOdometry:
             among = [n for n, (R, t, c) in zip(names, pairs, strict=True)
                      if agrees(R_cw, t_cw, R, t, c, cfg.tolerance)]
         if len(among) >= cfg.override_parts and np.linalg.norm(
-                self._shift(prior, among, observed, centres, 1.0)[:3, 3] - prior[:3, 3]) > cfg.gate_m:
+                self._shift(prior, among, marks, 1.0)[:3, 3] - prior[:3, 3]) > cfg.gate_m:
             self.dense_overridden += 1
             fit = self._fit(among, observed, corners)
             if np.degrees(rotation_angle(prior[:3, :3].T @ fit[:3, :3])) > cfg.override_turn_deg:
                 return fit, among, "override"
-            return self._shift(prior, among, observed, centres, 1.0), among, "override"
+            return self._shift(prior, among, marks, 1.0), among, "override"
         if not with_prior:
             if among:
                 self.parts_rejected += 1
             return prior, [], source
-        fit = self._cluster(prior, with_prior, observed, centres)
+        fit = self._cluster(prior, with_prior, marks)
         T = prior
         if len(fit) >= cfg.override_parts and cfg.rotation_gain > 0:  # enough parts to pull the rotation too
             F = self._fit(fit, observed, corners)
@@ -356,7 +362,7 @@ class FusedOdometry:
                 w = cfg.rotation_gain * excess * w / np.linalg.norm(w)
                 T[:3, :3] = prior[:3, :3] @ exp_se3(np.r_[0.0, 0.0, 0.0, w])[:3, :3]
         g = cfg.gains[min(len(fit), len(cfg.gains)) - 1]
-        return self._shift(T, fit, observed, centres, g), fit, "parts"
+        return self._shift(T, fit, marks, g), fit, "parts"
 
     def _centre(self, name: str, corners: np.ndarray) -> np.ndarray:
         """Part ``name``'s centre (the mean of its body-frame ``corners``, metres), kept while its corner array is the
@@ -367,11 +373,11 @@ class FusedOdometry:
             self._centres[name] = kept
         return kept[1]
 
-    def _cluster(self, T: np.ndarray, names: list[str], observed: dict[str, Pose],
-                 centres: dict[str, np.ndarray]) -> list[str]:
+    def _cluster(self, T: np.ndarray, names: list[str], marks: dict[str, tuple]) -> list[str]:
         """The largest group of the named landmarks whose centre offsets under ``T`` agree within ``tolerance``
-        (ties: the group closest to ``T``): two parts a hand slides together must not pull the camera halfway."""
-        off = {n: self._offset(T, n, observed, centres) for n in names}
+        (ties: the group closest to ``T``): two parts a hand slides together must not pull the camera halfway.
+        ``marks``: per landmark ``(R camera, R world, centre camera, centre world)`` (:meth:`_correct`)."""
+        off = {n: self._offset(T, marks[n]) for n in names}
         best: list[str] = []
         best_norm = np.inf
         for a in names:
@@ -380,10 +386,11 @@ class FusedOdometry:
                 best, best_norm = group, float(np.linalg.norm(off[a]))
         return best
 
-    def _offset(self, T: np.ndarray, n: str, observed: dict[str, Pose], centres: dict[str, np.ndarray]) -> np.ndarray:
-        """World position of landmark ``n``'s centre minus where the camera pose ``T`` puts it (m)."""
-        W, P, c = self.world[n], observed[n], centres[n]
-        return W.R @ c + W.t - (T[:3, :3] @ (P.R @ c + P.t) + T[:3, 3])
+    @staticmethod
+    def _offset(T: np.ndarray, mark: tuple) -> np.ndarray:
+        """World position of a landmark's centre minus where the camera pose ``T`` puts it (m); ``mark`` as in
+        :meth:`_cluster`."""
+        return mark[3] - (T[:3, :3] @ mark[2] + T[:3, 3])
 
     def _residual(self, T: np.ndarray, observed: dict[str, Pose], corners: dict[str, np.ndarray]) -> float:
         """Median distance (m) between the landmarks' corners seen from the camera pose ``T`` and their world
@@ -396,12 +403,12 @@ class FusedOdometry:
                                                - (observed[n].transform_points(corners[n]) @ R.T + t), axis=1).mean()
                                 for n in names]))
 
-    def _shift(self, T: np.ndarray, names: list[str], observed: dict[str, Pose], centres: dict[str, np.ndarray],
-               gain: float) -> np.ndarray:
+    def _shift(self, T: np.ndarray, names: list[str], marks: dict[str, tuple], gain: float) -> np.ndarray:
         """``T`` (camera → world) moved by ``gain`` × the mean offset that puts the named landmarks' centres, seen
         from ``T``, on their world positions (the rotation is kept: the dense odometry's rotation is better than the
-        parts' fit, whose rotation error moves the camera by the lever arm to the parts)."""
-        off = np.mean([self._offset(T, n, observed, centres) for n in names], axis=0)
+        parts' fit, whose rotation error moves the camera by the lever arm to the parts); ``marks`` as in
+        :meth:`_cluster`."""
+        off = np.mean([self._offset(T, marks[n]) for n in names], axis=0)
         if self._plane_normal is not None:  # the table fixed the height: slide along it only
             n_w = self.table[0]
             off = off - (off @ n_w) * n_w
