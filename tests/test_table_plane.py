@@ -171,6 +171,21 @@ def test_dict_round_trip_and_sign_normalisation():
         TablePlane(np.zeros(3), 1.0)
 
 
+def test_centred_points_equal_numpys_mean():
+    """The compiled centring of fit_plane_svd gives numpy's mean and differences exactly (seeded point sets of
+    several sizes and scales, float32-rounded ones among them)."""
+    from tracker.perception.table_plane import _centred
+
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        n = int(rng.integers(3, 12000))
+        pts = rng.normal(size=(n, 3)) * rng.uniform(0.01, 3.0) + rng.normal(size=3)
+        if trial % 2:
+            pts = pts.astype(np.float32).astype(np.float64)
+        c, q = _centred(pts)
+        assert np.array_equal(c, pts.mean(axis=0)) and np.array_equal(q, pts - pts.mean(axis=0))
+
+
 def test_fit_plane_svd_exact():
     rng = np.random.default_rng(1)
     n = np.array([0.2, -0.9, -0.3])

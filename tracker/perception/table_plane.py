@@ -44,6 +44,7 @@ import math
 from dataclasses import dataclass, field
 
 import cv2
+import numba as nb
 import numpy as np
 
 from tracker.geometry.camera import Intrinsics
@@ -213,9 +214,32 @@ class TableMonitor:
 
 
 # ---------------------------------------------------------------------------------------------- fitting
+@nb.njit(cache=True, nogil=True)
+def _centred(points):
+    """``(points.mean(axis=0), points - mean)`` of float64 points ``[N, 3]``: the column sums in row order as numpy's
+    reduction over axis 0 of a C-contiguous array takes them (the same values), without its strided passes."""
+    n = points.shape[0]
+    s0 = s1 = s2 = 0.0
+    for i in range(n):
+        s0 += points[i, 0]
+        s1 += points[i, 1]
+        s2 += points[i, 2]
+    c = np.empty(3)
+    c[0], c[1], c[2] = s0 / n, s1 / n, s2 / n
+    q = np.empty((n, 3))
+    for i in range(n):
+        q[i, 0] = points[i, 0] - c[0]
+        q[i, 1] = points[i, 1] - c[1]
+        q[i, 2] = points[i, 2] - c[2]
+    return c, q
+
+
 def fit_plane_svd(points: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """Total-least-squares plane ``n·p + d = 0`` through points ``[N, 3]`` (N ≥ 3)."""
-    if weights is None:
+    if weights is None and points.dtype == np.float64 and points.ndim == 2 and points.shape[1] == 3 and \
+            points.flags.c_contiguous:  # (numpy's order of summation is the row order only for this layout)
+        c, q = _centred(points)
+    elif weights is None:
         c = points.mean(axis=0)
         q = points - c
     else:
