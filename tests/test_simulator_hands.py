@@ -130,3 +130,33 @@ def test_the_builtin_skin_tones_warn_once(monkeypatch):
         warnings.simplefilter("error")
         skin_tones.draw_skin_tone(rng)  # once per process
     skin_tones._warn_builtin.cache_clear()
+
+
+def test_bright_tones_keep_their_hue(monkeypatch):
+    """A tone brighter than 255·SHADE in a channel is scaled down as a whole, not clipped per channel: the albedo
+    keeps the tone's channel ratios (clipping the red channel rendered bright skin pale and yellow)."""
+    from tracker.sources.simulator import skin_tones
+
+    for tone in ((249.0, 196.0, 178.0), (120.0, 80.0, 70.0)):
+        monkeypatch.setattr(skin_tones, "draw_skin_tone", lambda rng, t=tone: np.array(t))
+        palm = np.array(skin_tones.hand_albedos(np.random.default_rng(0))[0])
+        assert palm.max() <= 255.0
+        assert np.allclose(palm / palm.max(), np.array(tone) / max(tone))
+        if max(tone) < 255.0 * skin_tones.SHADE:
+            assert np.allclose(palm, np.array(tone) / skin_tones.SHADE)
+
+
+@needs_shared
+def test_a_bright_hand_is_rendered_near_its_drawn_tone(monkeypatch):
+    """Tuning seed 2 of hands-s3 draws a bright tone; its palm pixels are rendered near the tone's chrominance."""
+    from tracker.sources.simulator import skin_tones
+
+    drawn = []
+    real = skin_tones.draw_skin_tone
+    monkeypatch.setattr(skin_tones, "draw_skin_tone", lambda rng: drawn.append(real(rng)) or drawn[-1])
+    f = SimulatedTable("hands-s3", seed=2, n_frames=40).render(30)
+    tone = cv2.cvtColor(np.uint8([[drawn[0]]]), cv2.COLOR_RGB2YCrCb)[0, 0, 1:].astype(int)
+    palm = f.meta["groundtruth"]["skin_mask"] == 1
+    crcb = np.median(cv2.cvtColor(f.color, cv2.COLOR_RGB2YCrCb)[palm][:, 1:], axis=0)
+    assert drawn[0].max() > 255 * skin_tones.SHADE  # a tone the per-channel clip changed
+    assert np.abs(crcb - tone).max() <= 6

@@ -77,6 +77,13 @@ def draw_skin_tone(rng: np.random.Generator) -> np.ndarray:
 
 
 def hand_albedos(rng: np.random.Generator) -> tuple[tuple[float, float, float], ...]:
-    """Albedos (palm, fingers, forearm) of one hand: a drawn skin tone, fingers and forearm slightly darker."""
-    base = np.clip(draw_skin_tone(rng) / SHADE, 0.0, 255.0)
+    """Albedos (palm, fingers, forearm) of one hand: a drawn skin tone, fingers and forearm slightly darker.
+
+    The palm albedo is the tone divided by :data:`SHADE`, scaled down as a whole where a channel would exceed 255 (so
+    that the rendered colour keeps the tone's hue; clipping each channel, as before session 23, cut the red channel of
+    half the real tones — 52 % have a channel above 255·SHADE — and rendered bright tones pale and yellow, outside the
+    skin region: tuning seed 2 of ``hands-s3`` drew (249, 196, 178), (Cr, Cb) (156, 110), and was rendered at (139,
+    116), where the skin model's log ratio lies below −2 for most of the hand)."""
+    base = draw_skin_tone(rng) / SHADE
+    base = base * min(1.0, 255.0 / max(float(base.max()), 1e-9))
     return tuple(tuple(float(c) for c in np.clip(base * f, 0.0, 255.0)) for f in (1.0, 0.965, 0.92))  # type: ignore[return-value]
