@@ -153,7 +153,7 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
             move_part(trk, i, rot[i], delta[i])
         trk._carry_moved[i] = True
         if cfg.table_upright and plane is not None and trk.meshes[i] is None:
-            set_down_upright(trk, i, plane)
+            set_down_upright(trk, i, plane, anywhere=cfg.carry_upright_air)
         if cfg.carry_above_table and plane is not None:
             out_of_table(trk, i, plane)
         recentre(trk, i)
@@ -480,14 +480,14 @@ def upright_resting(trk, state, plane) -> None:
             state.particles[name] = trk.p[:, i].astype(np.float32)
 
 
-def set_down_upright(trk, obj: int, plane) -> bool:
+def set_down_upright(trk, obj: int, plane, anywhere: bool = False) -> bool:
     """If box part ``obj`` would touch the table (``plane`` = (normal, offset), camera frame) when turned upright
-    about its centre (lowest point within ``carry_min_height``), turn it so (:func:`upright`); returns whether it
-    did."""
+    about its centre (lowest point within ``carry_min_height``; with ``anywhere`` at any height: a part carried in
+    the air, ``carry_upright_air``), turn it so (:func:`upright`); returns whether it did."""
     est = trk.estimates[trk.names[obj]]
     R_up = upright(est.R, plane[0])
     c = est.R @ trk.center[obj] + est.t
-    if lowest_height(trk, obj, R_up, c - R_up @ trk.center[obj], plane) > trk.config.carry_min_height:
+    if not anywhere and lowest_height(trk, obj, R_up, c - R_up @ trk.center[obj], plane) > trk.config.carry_min_height:
         return False
     Q = R_up @ est.R.T
     move_part(trk, obj, Q, c - Q @ c)

@@ -86,6 +86,13 @@ class TrackerConfig(BaseModel):
         "carry_min_height of it, not carried, not moving with its blob) whose estimate is tilted from lying on a "
         "face by less than this is turned upright about its centre after the refinement.",
     )
+    carry_upright_air: bool = Field(
+        False, description="With table_upright: a box part carried hidden is turned upright (its box axis nearest to "
+        "the table normal along the normal, about its centre) after each frame's hand motion in the air as well, not "
+        "only within carry_min_height of the table: a hand carries a part the way it picked it up from the table, and "
+        "a tilt it picked up (a refinement of the partly seen part as it vanished, the hand registration's noise) "
+        "would otherwise be carried to the end of the hidden carry.",
+    )
     contact_align_deg: float = Field(
         0.0, ge=0.0, le=45.0, description="Degrees (0 = off; tracker/refine/contact_align.py): a resting box part "
         "refined this frame that touches a resting box part face to face, whose refinement matched at least 1.5 "
