@@ -341,25 +341,21 @@ class HandCarry:
                 rest_start = cfg.carry_backtrack_rest_m > 0 and (lifted or grasped)
                 if (cfg.carry_backtrack > 0 and rotations is not None and self._prev_depth is not depth
                         and (lifted or rest_start)):
-                    found = self._backtrack(i, plane, exclude)
+                    # from where the refinement last placed it (its placed orientation), or, not placed lately
+                    # (hidden at rest under the hand), from where its estimate still rested (its orientation kept)
+                    found, p0 = self._backtrack(i, plane, exclude), self.placed_t[i]
+                    if found is not None:
+                        Rb = found[0] @ self.placed_R[i] @ np.asarray(rotations[i], np.float64).T
+                    elif rest_start and (age := self.rest_frame(i)) is not None:
+                        p0 = self.history[-1 - age][1][i]
+                        found = self._backtrack(i, plane, exclude, age, p0)
+                        Rb = None if found is None else found[0]
                     if found is not None:
                         Rh, th, w0, t0 = found
-                        R_new = Rh @ self.placed_R[i]
-                        Rb = R_new @ np.asarray(rotations[i], np.float64).T
-                        back = (Rb, Rh @ self.placed_t[i] + th - Rb @ positions[i])
+                        p_start = Rh @ p0 + th
+                        back = (Rb, p_start - Rb @ positions[i])
                         self.backtracked[i] = True
-                        positions[i] = Rh @ self.placed_t[i] + th
-                    elif rest_start:
-                        # not placed lately (hidden at rest under the hand): from where it still rested
-                        age = self.rest_frame(i)
-                        if age is not None:
-                            p0 = self.history[-1 - age][1][i]
-                            found = self._backtrack(i, plane, exclude, age, p0)
-                        if found is not None:
-                            Rh, th, w0, t0 = found
-                            back = (Rh, Rh @ p0 + th - Rh @ positions[i])
-                            self.backtracked[i] = True
-                            positions[i] = Rh @ p0 + th
+                        positions[i] = p_start
                 prev = None
                 if cfg.carry_start_register and self._prev_depth is not None and self._prev_depth is not depth:
                     prev = self._previous_points(positions[i], cfg.carry_radius, plane, exclude)
