@@ -283,3 +283,50 @@ def test_quiet_refine_hold_last_holds_a_quiet_part_where_it_rested():
     moves_off, _ = _held_moves(False)
     assert moves_off.size >= 10
     assert moves_off.max() > 1e-6
+
+
+HELD = {"quiet_skip": True, "quiet_refine_skip": True, "quiet_refine_hold": True, "quiet_refine_hold_last": True,
+        "quiet_max_residual_m": 0.005}
+"""A quiet part's pass skipped and the part held at its last estimate instead of refined."""
+
+
+def _skips(overrides: dict, frames: int = 24):
+    """The ``static`` scene of :func:`_run` with these overrides: per frame the parts whose pass is skipped and those
+    held (not refined), (frames, K) each; and the per-frame worst translation error (m)."""
+    from app.commands.track import TrackSession
+    from tracker.sources.simulator import SimulatedTable
+
+    src = SimulatedTable("static", seed=3, realtime=False, n_frames=frames)
+    ts = TrackSession(src.parts, src.intrinsics, src.initial_poses,
+                      TrackerConfig.preset("default").with_overrides(**overrides), seed=0)
+    skipped, held, t_err = [], [], []
+    for i in range(frames):
+        frame = src.render(i)
+        state, _ = ts.step(frame)
+        skipped.append(ts.tracker._quiet_now.copy())
+        held.append(ts.tracker._settled.copy())
+        truth = frame.meta["groundtruth"]["poses"]
+        t_err.append(max(float(np.linalg.norm(state.poses[n].t - truth[n].t)) for n in state.poses))
+    return np.array(skipped), np.array(held), np.array(t_err)
+
+
+def test_quiet_skip_held_skips_the_pass_of_a_held_part_next_frame_too():
+    """quiet_skip_held: a part held one frame (not refined) skips its pass the next frame as well, where it is
+    refined; without it a held part's pass runs on that frame (it has no fresh correction to be quiet on)."""
+    skip_on, held_on, t_on = _skips({**HELD, "quiet_skip_held": True})
+    skip_off, held_off, t_off = _skips({**HELD, "quiet_skip_held": False})
+    assert held_off.any() and held_on.any()
+    # off: a pass is skipped only on the frames the part is held, never on the frame after (where it is refined)
+    assert not (skip_off & ~held_off).any()
+    # on: the frame after a held one skips the pass too while the part is refined; never held two frames in a row
+    after = held_on[:-1] & skip_on[1:] & ~held_on[1:]
+    assert after.sum() >= 5
+    assert not (held_on[1:] & held_on[:-1]).any()
+    assert skip_on.sum() > skip_off.sum()
+    # at most quiet_max_skips (3) passes in a row
+    run = np.zeros(skip_on.shape[1], int)
+    for row in skip_on:
+        run = np.where(row, run + 1, 0)
+        assert run.max() <= 3
+    assert t_on[5:].max() < 0.004
+    assert np.median(t_on[5:]) <= np.median(t_off[5:]) + 0.0005

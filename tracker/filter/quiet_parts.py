@@ -151,6 +151,7 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
     trk._held_poses = {}
     memory = trk._quiet_memory
     trk._quiet_memory = None  # one frame old at most: set again after this frame's refinement
+    trk._quiet_memory_last = memory  # what this frame's quiet test read (quiet_skip_held: a held part's flag)
     if cfg.carry_hidden_skip > 0:
         # hidden in the hand that has just moved it: the depth shows the hand, not the part, and the pass would only
         # spread it over the hand's surface; the hand's registration is its motion
@@ -159,7 +160,11 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
         trk._quiet_skips[:] = 0
         trk._quiet_now = quiet
         return quiet
-    last_blob, last_px, small = memory
+    last_blob, last_px, small_fresh, small_held = memory
+    # quiet_skip_held: a part held last frame (not refined) keeps the small correction it was held on for its pass;
+    # the refinement still needs a fresh one (so a held part is refined at least every other frame)
+    small = small_fresh | small_held if (cfg.quiet_skip_held and cfg.quiet_refine_skip) else small_fresh
+    fresh = np.zeros(k, bool)
     w = normalize_log_weights(trk.log_w)
     carried = trk._carry.carried
     for i, name in enumerate(trk.names):
@@ -186,7 +191,9 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
                     ctx.depth, intr, _faces_of(trk, i), est.R, est.t + shift,
                     cfg.quiet_max_residual_m, cfg.quiet_min_inliers):
                 continue
-        trk._settled[i] = True
+        fresh[i] = True
+    quiet_pass = fresh
+    trk._settled = fresh & small_fresh
     if cfg.quiet_refine_skip and cfg.quiet_refine_hold and trk._settled.any():
         # where a quiet part is held this frame: its noise-free prediction's mean pose
         sel = np.flatnonzero(trk._settled)
@@ -195,7 +202,7 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
         else:
             trk._held_poses = dict(zip(sel.tolist(), mean_poses(pred[0][:, sel], pred[1][:, sel], w), strict=True))
     if cfg.quiet_skip:
-        quiet |= trk._settled
+        quiet |= quiet_pass
         trk._quiet_skips = np.where(quiet, trk._quiet_skips + 1, 0)
         trk.n_quiet_skipped += int(quiet.sum())
     else:
@@ -218,6 +225,7 @@ def remember(trk: MultiObjectTracker, detections, poses: dict, corrections: list
     cfg = trk.config
     if not detection_on(cfg):
         return
+    previous = trk._quiet_memory_last
     k = len(trk.parts)
     blobs = [confident_blob(trk, detections.get(n)) if detections else None for n in trk.names]
     px = np.zeros((k, 2))
@@ -233,4 +241,9 @@ def remember(trk: MultiObjectTracker, detections, poses: dict, corrections: list
         c_old = corr.Rd.T @ (c_new - corr.td)
         angle = float(np.arccos(np.clip((np.trace(corr.Rd) - 1.0) / 2.0, -1.0, 1.0)))
         small[i] = np.linalg.norm(c_new - c_old) <= cfg.quiet_max_correction_m and angle <= max_rad
-    trk._quiet_memory = (blobs, px, small)
+    # quiet_skip_held: a held part (no correction) remembers the small correction it was held on, until its next
+    # refinement; memory lost (a frame without it) forgets it
+    held = np.zeros(k, bool)
+    if cfg.quiet_skip_held and cfg.quiet_refine_skip and previous is not None:
+        held = np.asarray(trk._settled, bool) & (previous[2] | previous[3])
+    trk._quiet_memory = (blobs, px, small, held)

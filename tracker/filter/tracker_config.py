@@ -577,6 +577,12 @@ class TrackerConfig(BaseModel):
         "off: with the other two and quiet_max_residual_m 0.005 better on tuning sets 1 and 2, worse on set 3 "
         "(session 22, README), and 11 carry tests fail with them on by default.",
     )
+    quiet_skip_held: bool = Field(
+        False, description="With quiet_skip and quiet_refine_skip: a part held this frame (its refinement skipped) "
+        "stays quiet for next frame's coordinate pass (the small correction it was held on is remembered until its "
+        "next refinement): its pass is skipped on every quiet frame (up to quiet_max_skips in a row) and it is refined "
+        "every other frame (without it the pass is skipped only on the frames it is held). Speed setting, off.",
+    )
     quiet_max_residual_m: float = Field(
         0.0, ge=0.0, description="With quiet_skip: a quiet part's depth must also be explained at its prediction "
         "this frame: of the sample points on its camera-facing box faces (last estimate moved by the prediction) at "
