@@ -863,5 +863,6 @@ PRESETS["default"] = {
     "carry_backtrack": 3,
     "carry_set_down_m": 0.02,
     "carry_set_down_on_parts": True,
+    "carry_upright_air": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
