@@ -256,3 +256,28 @@ def test_a_track_whose_remembered_arm_entry_went_stale_takes_its_arm_again(monke
         else:
             assert tr._entries[a] == stale
         assert dice(ests[b], TOUCHING[1][0]) > 0.9
+
+
+def test_two_merged_tracks_that_each_have_their_own_arm_are_both_kept(monkeypatch):
+    """Two established tracks whose filters have shared one box for MERGED_KEEP frames lose the worse one, unless
+    the arm detector's last run gave each its own arm (ARM_KEEP_MERGED): the two hands lie on each other and are both
+    still found (traced on ``hands-s2`` tuning seed 3: a hand's track ended after 120 merged frames while its arm was
+    found, 49 hand-frames without a box and the other track's box over both hands)."""
+    import tracker.hands.tracker as hand_tracker
+
+    scene = _scene(TOUCHING)
+    for keep_merged in (True, False):
+        monkeypatch.setattr(hand_tracker, "ARM_KEEP_MERGED", keep_merged)
+        tr = _tracker(True)
+        tr.process(*scene)
+        a = tr.start_track(TOUCHING[0][0])
+        b = tr.start_track(TOUCHING[1][0])
+        tr.process(*scene)
+        assert tr._arm_own == {a, b}  # the detector found each track's arm
+        both = np.array([100.0, 129.5, 80.0, 40.0, 0.0, 0.0])  # one box over the two hands
+        for t in tr.tracks:
+            t.filt.set_state(both)
+            t.apart = hand_tracker.ESTABLISHED
+        tr.tracks[0].dup = {tr.tracks[1].id: hand_tracker.MERGED_KEEP - 1}
+        keep = tr._terminate((W, H))
+        assert sum(keep) == (2 if keep_merged else 1)

@@ -235,6 +235,9 @@ ARM_ENTRY_NEAR = 40.0
 ARM_RELEARN = True
 """A track whose remembered arm entry no arm lies near takes, after the entry matches, an arm no track took whose hand
 box matches its box (F-score ≥ ARM_MATCH_F), and remembers that arm's entry (_report_arms)."""
+ARM_KEEP_MERGED = True
+"""Two established tracks that share one box (duplicates, MERGED_KEEP) are both kept while the arm detector's last run
+gave each of them its own arm (_terminate): the two hands lie on top of each other and each is still found."""
 ARM_RESET_F = 0.3
 """Box F-score with its arm's hand box below which a filter restarts there (``arm_reset``)."""
 ARM_AGREE_F = 0.8
@@ -451,6 +454,7 @@ class HandTracker(TrackIdentity):
         self._entries: dict[int, tuple[float, float]] = {}  # track id -> where its arm enters the image (arm_anchor)
         self._arm_idle = 0  # frames since the arm detector last ran (arm_every)
         self._arm_agreed = False  # whether its last run found both tracks' arms and restarted no filter
+        self._arm_own: set[int] = set()  # ids of the tracks its last run gave an arm of their own
 
     # ------------------------------------------------------------------ resolution
     def to_full(self, state: np.ndarray) -> np.ndarray:
@@ -811,6 +815,7 @@ class HandTracker(TrackIdentity):
         assert self._depth is not None and self._arm_bg is not None and self.full_size is not None
         self._arm_idle = 0
         self._arm_agreed = False
+        self._arm_own = set()
         z = arm_anchor.working_depth(self._depth, self.s, rgb.shape[:2])
         hands = arm_anchor.arm_hands(self._frame_mask(rgb), z, self._arm_bg)
         if not hands:
@@ -855,6 +860,7 @@ class HandTracker(TrackIdentity):
                     e.state = full
                     e.box = clipped_box(full, self.full_size)
         self._arm_agreed = agreed and len(used_t) == 2
+        self._arm_own = {self.tracks[i].id for i in used_t} if len(used_t) == 2 else set()
 
     def _exclusion_boxes(self) -> np.ndarray:
         """Predicted inclusive boxes [n_tracks, 4] (working px) of the live tracks for the mutual exclusion
@@ -1245,7 +1251,8 @@ class HandTracker(TrackIdentity):
                     # both stay (ids frozen) until the hands part or a free hand turns up (_transfer)
                     two_hands = a.apart >= ESTABLISHED and b.apart >= ESTABLISHED
                     a.merged = b.merged = two_hands
-                    if a.dup[b.id] >= (MERGED_KEEP if two_hands else cfg.n_lost):
+                    both_found = ARM_KEEP_MERGED and two_hands and {a.id, b.id} <= self._arm_own
+                    if a.dup[b.id] >= (MERGED_KEEP if two_hands else cfg.n_lost) and not both_found:
                         keep[self._duplicate_loser(i, j)] = False
                 elif fs[i, j] < APART_F:
                     a.dup.pop(b.id, None)
