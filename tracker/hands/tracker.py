@@ -31,7 +31,15 @@ initialisation of new tracks:
   it better (else the one whose box lies more inside the other's, then the younger) restarts there with its id; the
   same when two tracks' boxes share a region (SHARED_FRAC) without being merged. A track that lands within one step
   on the box of a track it was apart from the frame before (a jump onto the other hand's colour component) is put
-  back and moved by its own velocity instead.
+  back and moved by its own velocity instead. Merged tracks are kept past MERGED_KEEP while the arm detector's last
+  run gave each its own arm (``ARM_KEEP_MERGED``, on, session 24; ``arm_anchor`` below): traced on ``hands-s2``
+  tuning seed 3 (ground-truth start, filter seed 0), the two filters shared one box for 120 frames while each track
+  reported its own arm's hand, then hand 0's track ended (frames 164–212 without a box, the other track's box over
+  both hands, as the arm detector runs only with two tracks). Tuning seeds 0–4, same frames (scratch script), off →
+  on: ground-truth start filter seed 0 F̄^b 0.8547 → 0.8699, ē^p 8.42 → 8.19 px (seed 3 0.8205 → 0.8966, the other
+  four identical); filter seeds 1, 2 identical (no merge lasts 120 frames); automatic start (filter seed 0)
+  identical; ``hands-s1`` (automatic start, seeds 0, 1) and ``hands-s3`` (automatic start seeds 0–2, ground truth
+  seeds 3, 4) identical.
 * A lost hand inside the other hand's colour component (product addition, ``merge_reacquire``): while a lost track
   waits and the one live track's box has grown to REACQ_GROWTH times its one-hand area (the two hands on top of each
   other, one box over both), the component under that box is split by 2-means on pixel positions and the lost track
