@@ -47,8 +47,9 @@ from tracker.evaluation.machine_info import machine_info  # noqa: E402
 from tracker.filter.tracker_config import TrackerConfig  # noqa: E402
 from tracker.geometry.pose import Pose  # noqa: E402
 from tracker.odometry.ego_motion import DEFAULT_MODE  # noqa: E402
+from tracker.shared_data import shared_root  # noqa: E402
 
-DEFAULT_DATA = ROOT.parent / "shared" / "data" / "external" / "castle-simu"
+DEFAULT_DATA = shared_root() / "data" / "external" / "castle-simu"
 VISP_T_MM = 2.0
 """ViSP's CI bound on this sequence (testGenericTrackerDepth): translation error, mm."""
 VISP_R_DEG = 0.4

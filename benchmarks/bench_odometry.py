@@ -40,10 +40,11 @@ from tracker.evaluation.trajectory_errors import trajectory_errors  # noqa: E402
 from tracker.geometry.pose import Pose  # noqa: E402
 from tracker.odometry import OdometryConfig, make_odometry  # noqa: E402
 from tracker.odometry.exclusion_mask import exclusion_mask  # noqa: E402
+from tracker.shared_data import shared_root  # noqa: E402
 from tracker.sources.simulator import SimOptions, SimulatedTable  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+SHARED = shared_root()
 METHODS = ("default", "fastslam", "opencv-rgb")
 IN_TRACKER = "in-tracker"
 PARTS = "parts"

@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from tracker.evaluation.machine_info import machine_info
+from tracker.shared_data import shared_root
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -43,7 +44,7 @@ from tracker.perception.hsv_range import preset_range, rgb_to_hsv_float  # noqa:
 from tracker.perception.same_color_tracking import SameColorSettings, SameColorTracker  # noqa: E402
 from tracker.perception.table_plane import detect_table  # noqa: E402
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL = shared_root() / "data" / "real"
 RESULTS = ROOT / "benchmarks" / "results"
 WRONG_PX = 12.0
 VISIBLE = 0.5

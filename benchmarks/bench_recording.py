@@ -17,11 +17,12 @@ from scipy.spatial.transform import Rotation
 from tracker.evaluation.machine_info import machine_info
 from tracker.frame import Frame
 from tracker.geometry.camera import Intrinsics
+from tracker.shared_data import shared_root
 from tracker.sources.depth_registration import register_depth
 from tracker.sources.recording import RecordingSource, RecordingWriter
 
 RESULTS = Path(__file__).resolve().parent / "results"
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "visp-cube-desk"
+REAL = shared_root() / "data" / "real" / "visp-cube-desk"
 
 
 
