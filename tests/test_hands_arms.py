@@ -232,6 +232,17 @@ def test_the_arm_detector_rests_while_two_agreeing_tracks_are_apart(monkeypatch)
     assert _arm_runs(STACKED, 0.0, 3, 7, monkeypatch) == 7  # overlapping boxes: every frame
 
 
+def _two_touching_tracks(scene):
+    """A tracker (arm detector on) that has seen ``scene`` once, with a track started on each of the two TOUCHING
+    hands' boxes and one more frame processed: (tracker, id of hand 0's track, id of hand 1's track)."""
+    tr = _tracker(True)
+    tr.process(*scene)
+    a = tr.start_track(TOUCHING[0][0])
+    b = tr.start_track(TOUCHING[1][0])
+    tr.process(*scene)
+    return tr, a, b
+
+
 def test_a_track_whose_remembered_arm_entry_went_stale_takes_its_arm_again(monkeypatch):
     """A track whose remembered arm entry lies far from every arm (its arm went round the image corner, or a split
     sleeve gave it a piece of the arm) takes the unclaimed arm whose hand box matches its box again (ARM_RELEARN);
@@ -241,11 +252,7 @@ def test_a_track_whose_remembered_arm_entry_went_stale_takes_its_arm_again(monke
     scene = _scene(TOUCHING)
     for relearn in (True, False):
         monkeypatch.setattr(hand_tracker, "ARM_RELEARN", relearn)
-        tr = _tracker(True)
-        tr.process(*scene)
-        a = tr.start_track(TOUCHING[0][0])
-        b = tr.start_track(TOUCHING[1][0])
-        tr.process(*scene)
+        tr, a, b = _two_touching_tracks(scene)
         learnt = tr._entries[a]
         stale = (float(W - 1), 100.0)  # on the right border, far from both arms
         tr._entries[a] = stale
@@ -268,11 +275,7 @@ def test_two_merged_tracks_that_each_have_their_own_arm_are_both_kept(monkeypatc
     scene = _scene(TOUCHING)
     for keep_merged in (True, False):
         monkeypatch.setattr(hand_tracker, "ARM_KEEP_MERGED", keep_merged)
-        tr = _tracker(True)
-        tr.process(*scene)
-        a = tr.start_track(TOUCHING[0][0])
-        b = tr.start_track(TOUCHING[1][0])
-        tr.process(*scene)
+        tr, a, b = _two_touching_tracks(scene)
         assert tr._arm_own == {a, b}  # the detector found each track's arm
         both = np.array([100.0, 129.5, 80.0, 40.0, 0.0, 0.0])  # one box over the two hands
         for t in tr.tracks:
