@@ -229,7 +229,6 @@ class MultiObjectTracker:
         self._blob_uv_target: dict[int, np.ndarray] = {}  # carried parts: image position their blob says
         self._last_time: float | None = None
         self._quiet_memory = None  # quiet parts: last frame's blobs, estimate centres, small corrections
-        self._quiet_memory_last = None  # the memory this frame's quiet test read (quiet_skip_held)
         self._quiet_skips = np.zeros(k, np.int64)  # passes skipped in a row per part
         self._quiet_now = np.zeros(k, bool)  # parts whose pass this frame skips
         self._settled = np.zeros(k, bool)  # quiet parts this frame (quiet_thin, quiet_refine_last; skipped or not)

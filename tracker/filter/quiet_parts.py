@@ -151,7 +151,6 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
     trk._held_poses = {}
     memory = trk._quiet_memory
     trk._quiet_memory = None  # one frame old at most: set again after this frame's refinement
-    trk._quiet_memory_last = memory  # what this frame's quiet test read (quiet_skip_held: a held part's flag)
     if cfg.carry_hidden_skip > 0:
         # hidden in the hand that has just moved it: the depth shows the hand, not the part, and the pass would only
         # spread it over the hand's surface; the hand's registration is its motion
@@ -192,8 +191,7 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
                     cfg.quiet_max_residual_m, cfg.quiet_min_inliers):
                 continue
         fresh[i] = True
-    quiet_pass = fresh
-    trk._settled = fresh & small_fresh
+    trk._settled = fresh & small_fresh  # held this frame: quiet on a fresh small correction
     if cfg.quiet_refine_skip and cfg.quiet_refine_hold and trk._settled.any():
         # where a quiet part is held this frame: its noise-free prediction's mean pose
         sel = np.flatnonzero(trk._settled)
@@ -202,7 +200,7 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
         else:
             trk._held_poses = dict(zip(sel.tolist(), mean_poses(pred[0][:, sel], pred[1][:, sel], w), strict=True))
     if cfg.quiet_skip:
-        quiet |= quiet_pass
+        quiet |= fresh
         trk._quiet_skips = np.where(quiet, trk._quiet_skips + 1, 0)
         trk.n_quiet_skipped += int(quiet.sum())
     else:
@@ -225,7 +223,6 @@ def remember(trk: MultiObjectTracker, detections, poses: dict, corrections: list
     cfg = trk.config
     if not detection_on(cfg):
         return
-    previous = trk._quiet_memory_last
     k = len(trk.parts)
     blobs = [confident_blob(trk, detections.get(n)) if detections else None for n in trk.names]
     px = np.zeros((k, 2))
@@ -241,9 +238,7 @@ def remember(trk: MultiObjectTracker, detections, poses: dict, corrections: list
         c_old = corr.Rd.T @ (c_new - corr.td)
         angle = float(np.arccos(np.clip((np.trace(corr.Rd) - 1.0) / 2.0, -1.0, 1.0)))
         small[i] = np.linalg.norm(c_new - c_old) <= cfg.quiet_max_correction_m and angle <= max_rad
-    # quiet_skip_held: a held part (no correction) remembers the small correction it was held on, until its next
-    # refinement; memory lost (a frame without it) forgets it
-    held = np.zeros(k, bool)
-    if cfg.quiet_skip_held and cfg.quiet_refine_skip and previous is not None:
-        held = np.asarray(trk._settled, bool) & (previous[2] | previous[3])
+    # quiet_skip_held: a part held this frame (no correction) was quiet on a small correction, which it remembers
+    # until its next refinement (quiet_parts reset _settled this frame: without memory no part is held)
+    held = trk._settled.copy() if (cfg.quiet_skip_held and cfg.quiet_refine_skip) else np.zeros(k, bool)
     trk._quiet_memory = (blobs, px, small, held)
