@@ -165,6 +165,26 @@ def test_the_blind_band_along_the_upper_hand_splits_it_from_the_lower_one(monkey
     assert dice(got[False], b_hand) < 0.9  # without it A's wrist takes B's left part
 
 
+def test_a_one_centimetre_step_splits_the_upper_hand_from_the_lower_one(monkeypatch):
+    """Hand B lies 1 cm above hand A (a flat hand on a flat hand), over A's upper right and reaching left, nearer A's
+    wrist than its own, no band without depth: the depth step (DEPTH_STEP 0.008 m, DEPTH_STEP_COST 40) keeps B's left
+    part with B's wrist; with session 24's 0.012 m / 20 the 1 cm edge is no step and A's wrist takes it."""
+    from tracker.hands import arm_anchor
+
+    a_hand, b_hand = [50, 110, 100, 150], [70, 80, 130, 130]
+    scene = _scene([(a_hand, [55, 150, 77, 240], 0.72), (b_hand, [110, 130, 132, 240], 0.71)])
+    assert arm_anchor.DEPTH_STEP == 0.008 and arm_anchor.DEPTH_STEP_COST == 40.0
+    got = {}
+    for step, cost in ((0.008, 40.0), (0.012, 20.0)):
+        monkeypatch.setattr(arm_anchor, "DEPTH_STEP", step)
+        monkeypatch.setattr(arm_anchor, "DEPTH_STEP_COST", cost)
+        hands = _hands(scene)
+        assert len(hands) == 2
+        got[step] = _inclusive_to_excl(hands[1].box)
+    assert dice(got[0.008], b_hand) > 0.95
+    assert dice(got[0.012], b_hand) < 0.9
+
+
 def test_no_depth_change_no_arms():
     rgb, depth = _scene(TOUCHING)
     skin = SkinModel.load().with_threshold(-2.0).mask(rgb)

@@ -60,10 +60,16 @@ in session 17). hands-s2 tuning seeds 0–4, ground-truth start, paired: 0.7 →
 and 0.8251 → 0.8337, 11.03 → 10.60 px, no run worse by 0.005 in either step; 0.95 on filter seeds 0, 1: 0.8397 →
 0.8431 but seed 2 worse in both runs (−0.014, −0.020), not kept. A sleeve that also touches skin nearer its entry
 (e.g. the other hand lying on it) seeds less of that hand."""
-DEPTH_STEP = 0.012
-"""Depth difference (m) between 4-neighbours that counts as a step (the edge of the upper hand)."""
-DEPTH_STEP_COST = 20.0
-"""Extra geodesic cost (working px) of crossing a depth step."""
+DEPTH_STEP = 0.008
+"""Depth difference (m) between 4-neighbours that counts as a step (the edge of the upper hand; 0.012 until session
+25, see :data:`DEPTH_STEP_COST`)."""
+DEPTH_STEP_COST = 40.0
+"""Extra geodesic cost (working px) of crossing a depth step (20 until session 25). Session 25, this detector alone on
+the inputs of its calls in ``hands-s2`` tuning seeds 0–4 (ground-truth start, filter seed 0; each hand box matched
+to a ground-truth box, per hand-frame F^b on frames where the two hands' boxes overlap by F ≥ 0.3): 0.012 m / 20
+0.8445, 0.012 / 40 0.8507, 0.008 / 20 0.8490, 0.008 / 40 0.8568, 0.006 / 40 0.8580, 0.008 / 30 0.8554, 0.008 / 60
+0.8542, 0.01 / 40 0.8517: a flat hand on a flat hand is about a centimetre above it. In the tracker see
+``benchmarks/history/issue-14-hands.md``."""
 MIN_HAND_PX = 20
 """Fewest skin pixels (working px) a hand must get to be reported."""
 HOLE_STEP = True
