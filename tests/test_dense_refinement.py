@@ -197,6 +197,31 @@ def test_reacquire_finds_a_cube_turned_far_beyond_the_refinement_basin():
     assert res.score > plain.score + 100
 
 
+class _ScriptedRefiner:
+    """Stands in for PartRefiner in :func:`reacquire`: the refinement from a start keeps its rotation and scores
+    ``n_valid`` = 60 when upright (the table normal, camera -y, kept), ``tilted_score`` when tilted."""
+
+    def __init__(self, tilted_score: int) -> None:
+        self.centers = [np.zeros(3)]
+        self.tilted_score = tilted_score
+
+    def refine_one(self, depth, obj, R, t, allowed=None, outline=None, frame_depth=None) -> RefineResult:
+        up = np.array([0.0, -1.0, 0.0])
+        upright = float(np.dot(R @ up, up)) > np.cos(np.radians(5.0))
+        n = 60 if upright else self.tilted_score
+        return RefineResult(R, t, True, 200, n, n / 200, 0.001)
+
+
+@pytest.mark.parametrize("tilted_score, gain, wins", [(72, 0.0, True), (72, 0.25, False), (80, 0.25, True)])
+def test_reacquire_tilt_gain_keeps_an_upright_sliver_against_a_tilted_start_winning_by_a_few_points(
+        tilted_score, gain, wins):
+    up = np.array([0.0, -1.0, 0.0])
+    res = reacquire(_ScriptedRefiner(tilted_score), np.zeros((4, 4)), 0, np.eye(3), np.zeros(3), None, CUBE_STARTS,
+                    up=up, tilt_gain=gain)
+    tilt = np.degrees(np.arccos(np.clip(np.dot(res.R @ up, up), -1.0, 1.0)))
+    assert (tilt > 5.0) == wins, (tilt, res.score)
+
+
 def test_loss_monitor_counts_bad_frames_and_rechecks_after_release_and_reappearance():
     good = RefineResult(np.eye(3), np.zeros(3), True, 100, 90, 0.9, 0.001)
     mon = LossMonitor(2, bad_frames=3)

@@ -603,6 +603,13 @@ class TrackerConfig(BaseModel):
         "which it is re-acquired from several starting rotations (tracker/refine/recovery.py).",
     )
     reacquire_cooldown: int = Field(5, ge=1, description="Fewest frames between two re-acquisitions of a part.")
+    reacquire_tilt_gain: float = Field(
+        0.0, ge=0.0, description="Re-acquisition of a box part with a table: a start rotation that tilts it (one not "
+        "reachable by turning about the table normal from its estimate) replaces the best upright refinement (its "
+        "own rotation or a turn about the normal) only when its score beats that one's by this fraction of it as well "
+        "as by the usual margin: a sliver of a mostly hidden part fits a tilted face by a few points more "
+        "(0 = off: the usual margin only).",
+    )
     carry_release_on_lift: int = Field(
         0, ge=0, description="A carried part set down (carried in the air, then with its lowest point within "
         "carry_min_height of the table for at least this many frames in a row) is let go, not lifted, when the hand "

@@ -92,21 +92,43 @@ class LossMonitor:
 def reacquire(refiner: PartRefiner, depth: np.ndarray, obj: int, R: np.ndarray, t: np.ndarray,
               allowed: np.ndarray | None, starts: np.ndarray, current: RefineResult | None = None,
               outline: np.ndarray | None = None, frame_depth: np.ndarray | None = None,
-              margin: float = 10.0) -> RefineResult | None:
+              margin: float = 10.0, up: np.ndarray | None = None, tilt_gain: float = 0.0) -> RefineResult | None:
     """Best-supported refinement of part ``obj`` over the starting rotations ``starts`` (about its centre, applied
     to ``(R, t)``; ``outline``: the blob's polygon for the silhouette term, ``frame_depth`` the depth on which it
     tests occlusion): the refinement from ``(R, t)`` itself (``current`` when the caller has it already) unless
-    another start's score beats it by ``margin``; None when no start gives a healthy refinement."""
+    another start's score beats it by ``margin``; None when no start gives a healthy refinement.
+
+    ``up`` (unit table normal, camera frame) with ``tilt_gain`` > 0: a start that tilts the part (moves ``up`` by
+    more than 5°, i.e. not a turn about the table normal) must beat the best upright refinement (own rotation or a
+    turn about ``up``) by ``tilt_gain`` × its score as well as by ``margin``."""
     R = np.asarray(R, np.float64)
     t = np.asarray(t, np.float64)
     c = R @ refiner.centers[obj] + t
     if current is None:
         current = refiner.refine_one(depth, obj, R, t, allowed, outline, frame_depth)
     best, best_score = (current, current.score) if current.healthy else (None, -np.inf)
-    for S in starts[1:]:
+    if up is None or tilt_gain <= 0.0:
+        for S in starts[1:]:
+            Rs = S @ R
+            ts = c - Rs @ refiner.centers[obj]
+            res = refiner.refine_one(depth, obj, Rs, ts, allowed, outline, frame_depth)
+            if res.healthy and not res.position_only and res.score > best_score + margin:  # (keeps the turned start)
+                best, best_score = res, res.score
+        return best
+    u = np.asarray(up, np.float64) / np.linalg.norm(up)
+    tilted = [float(np.dot(S @ u, u)) < np.cos(np.radians(5.0)) for S in starts[1:]]
+    found: list[tuple[RefineResult, bool]] = []
+    for S, tl in zip(starts[1:], tilted, strict=True):
         Rs = S @ R
         ts = c - Rs @ refiner.centers[obj]
         res = refiner.refine_one(depth, obj, Rs, ts, allowed, outline, frame_depth)
-        if res.healthy and not res.position_only and res.score > best_score + margin:  # (keeps the turned start)
+        if res.healthy and not res.position_only:
+            found.append((res, tl))
+    for res, tl in found:  # upright starts first: the usual rule
+        if not tl and res.score > best_score + margin:
+            best, best_score = res, res.score
+    bar = best_score + max(margin, tilt_gain * max(best_score, 0.0))
+    for res, tl in found:
+        if tl and res.score > bar and res.score > best_score + margin:
             best, best_score = res, res.score
     return best

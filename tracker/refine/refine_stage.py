@@ -187,8 +187,9 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
                 starts = np.concatenate([starts, turns_about(plane[0], CUBE_TURNS_DEG)])
             if carried[i] and trk.config.carry_reacquire_keep_turn:
                 starts = starts[:1]  # in the hand: the hand's motion has turned it, a sliver of it may not
+            up = plane[0] if plane is not None and trk.parts[i].box is not None else None
             found = reacquire(trk._refiner, depth, i, start[0], start[1], allowed[i], starts, current, outlines[i],
-                              frame_depth)
+                              frame_depth, up=up, tilt_gain=trk.config.reacquire_tilt_gain)
             if current is None and res is not None and res.healthy and (found is None or res.score >= found.score):
                 found = res
             res = found
