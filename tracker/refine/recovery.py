@@ -108,15 +108,10 @@ def reacquire(refiner: PartRefiner, depth: np.ndarray, obj: int, R: np.ndarray, 
         current = refiner.refine_one(depth, obj, R, t, allowed, outline, frame_depth)
     best, best_score = (current, current.score) if current.healthy else (None, -np.inf)
     if up is None or tilt_gain <= 0.0:
-        for S in starts[1:]:
-            Rs = S @ R
-            ts = c - Rs @ refiner.centers[obj]
-            res = refiner.refine_one(depth, obj, Rs, ts, allowed, outline, frame_depth)
-            if res.healthy and not res.position_only and res.score > best_score + margin:  # (keeps the turned start)
-                best, best_score = res, res.score
-        return best
-    u = np.asarray(up, np.float64) / np.linalg.norm(up)
-    tilted = [float(np.dot(S @ u, u)) < np.cos(np.radians(5.0)) for S in starts[1:]]
+        tilted = [False] * (len(starts) - 1)  # every start by the usual rule, in order
+    else:
+        u = np.asarray(up, np.float64) / np.linalg.norm(up)
+        tilted = [float(np.dot(S @ u, u)) < np.cos(np.radians(5.0)) for S in starts[1:]]
     found: list[tuple[RefineResult, bool]] = []
     for S, tl in zip(starts[1:], tilted, strict=True):
         Rs = S @ R
@@ -124,7 +119,7 @@ def reacquire(refiner: PartRefiner, depth: np.ndarray, obj: int, R: np.ndarray, 
         res = refiner.refine_one(depth, obj, Rs, ts, allowed, outline, frame_depth)
         if res.healthy and not res.position_only:
             found.append((res, tl))
-    for res, tl in found:  # upright starts first: the usual rule
+    for res, tl in found:  # upright starts first: the usual rule (keeps the turned start)
         if not tl and res.score > best_score + margin:
             best, best_score = res, res.score
     bar = best_score + max(margin, tilt_gain * max(best_score, 0.0))
