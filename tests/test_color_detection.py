@@ -275,3 +275,32 @@ def test_one_pass_range_bits_equal_per_range_masks():
     for n, d in eight.items():
         assert (d.center, d.score, d.area, d.bbox) == (many[n].center, many[n].score, many[n].area, many[n].bbox)
     assert many["blue0"].detected and many["blue0"].bbox == many["blue2"].bbox
+
+
+def test_rgb_table_bits_equal_hsv_bits():
+    """rgb_range_bits (one table read per RGB pixel) gives range_bits' bit image and rectangles of the image's
+    cv2.cvtColor HSV, on random pixels (odd width: OpenCV's row tails too) and every 8-bit grey and primary ramp;
+    the detector built on it finds what the per-range masks find."""
+    from tracker.perception.range_bits import range_bits, range_luts, rgb_bits_lut, rgb_range_bits
+
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (61, 257, 3), dtype=np.uint8)
+    ramp = np.arange(256, dtype=np.uint8)
+    img[0, :256] = ramp[:, None]
+    img[1, :256, 0], img[2, :256, 1], img[3, :256, 2] = ramp, ramp, ramp
+    img[20:40, 30:90] = PRESET_COLORS["red"]
+    ranges = [HSVRange(350.0, 10.0, 0.3, 1.0, 0.2, 1.0), HSVRange(0.0, 360.0, 0.9, 1.0, 0.0, 0.1),
+              HSVRange(100.0, 140.0, 0.5, 0.6, 0.5, 0.7), HSVRange(200.0, 201.0, 0.99, 1.0, 0.99, 1.0)]
+    luts = range_luts(ranges)
+    bits, boxes = rgb_range_bits(img, rgb_bits_lut(luts), len(ranges))
+    ref_bits, ref_boxes = range_bits(cv2.cvtColor(img, cv2.COLOR_RGB2HSV), luts, len(ranges))
+    assert np.array_equal(bits, ref_bits) and np.array_equal(boxes, ref_boxes)
+    assert bits.any() and boxes[3, 2] == -1
+    det = ColorDetector({n: preset_range(PRESET_COLORS[n]) for n in ("red", "blue", "yellow")})
+    fast = det.detect(img)
+    for n, m in det.masks(img).items():
+        from tracker.perception.color_detection import detect_in_mask
+
+        full = detect_in_mask(n, m)
+        assert (fast[n].center, fast[n].area, fast[n].bbox) == (full.center, full.area, full.bbox)
+    assert fast["red"].detected

@@ -19,7 +19,7 @@ import numpy as np
 
 from tracker.geometry.parts import PRESET_COLORS, PartSpec
 from tracker.perception.hsv_range import KAPPA, HSVRange, preset_range, rgb_to_hsv_float
-from tracker.perception.range_bits import mask_crop, range_bits, range_luts
+from tracker.perception.range_bits import mask_crop, range_luts, rgb_bits_lut, rgb_range_bits
 
 KERNEL_SIZE = 4
 """Side of the square structuring elements B1 (opening) and B2 (closing), pixels (thesis)."""
@@ -138,7 +138,8 @@ class ColorDetector:
                 raise ValueError(f"ColorDetector: range of {name!r} must be an HSVRange, got {type(r).__name__}")
         self.ranges: dict[str, HSVRange] = dict(ranges)
         self.kernel_size = int(kernel_size)
-        self._luts: tuple[tuple, np.ndarray | None] | None = None  # (ranges they were built for, range_luts)
+        # (ranges they were built for, range_luts, rgb_bits_lut or None)
+        self._luts: tuple[tuple, np.ndarray | None, np.ndarray | None] | None = None
 
     @staticmethod
     def from_parts(parts: Iterable[PartSpec | str], h_halfwidth_deg: float | None = None) -> ColorDetector:
@@ -184,18 +185,19 @@ class ColorDetector:
         pixels, with the same result as on the full image). All ranges' masks come from one pass over the image
         (:mod:`tracker.perception.range_bits`), equal to ``HSVRange.mask``'s."""
         _check_rgb(rgb, "ColorDetector")
-        hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
         key = tuple(self.ranges.items())
         if self._luts is None or self._luts[0] != key:  # the ranges may be replaced (calibration)
-            self._luts = (key, range_luts(list(self.ranges.values())))
-        luts = self._luts[1]
+            luts = range_luts(list(self.ranges.values()))
+            self._luts = (key, luts, None if luts is None else rgb_bits_lut(luts))
+        table = self._luts[2]
         out = {}
-        if luts is None:  # more than 8 ranges: one full-image mask per range
+        if table is None:  # more than 8 ranges: one full-image mask per range
+            hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
             for n, r in self.ranges.items():
                 crop, off = clean_mask_roi(r.mask(hsv), self.kernel_size)
                 out[n] = detect_in_mask(n, crop, off)
             return out
-        bits, boxes = range_bits(hsv, luts, len(key))
+        bits, boxes = rgb_range_bits(rgb, table, len(key))  # = range_bits of the HSV image
         for i, n in enumerate(self.ranges):
             crop, off = mask_crop(bits, i, boxes[i], 2 * self.kernel_size)  # = clean_mask_roi's window
             out[n] = detect_in_mask(n, clean_mask(crop, self.kernel_size) if crop.size else crop, off)

@@ -10,6 +10,11 @@ their S and V bounds (:meth:`HSVRange.opencv_bounds`), so their union is one hue
 and V entries. Up to 8 ranges (one byte); more, or bounds whose intervals differ in S or V, return None and the
 caller uses the per-range masks.
 
+:func:`rgb_bits_lut` and :func:`rgb_range_bits` take the RGB image straight to the bit image: a table of all
+2^24 RGB values' bytes (16 MB, built once per set of ranges, about 0.1 s, by converting every RGB value with the
+same ``cv2.cvtColor(·, COLOR_RGB2HSV)`` and the lookup tables above), so a frame needs one table read per pixel
+instead of the colour conversion and three reads (same bits, same rectangles).
+
 Units: 8-bit OpenCV HSV (H 0–179, S and V 0–255), pixel columns x and rows y.
 """
 
@@ -74,6 +79,89 @@ def _bits_kernel(hsv, luts, n, bits, boxes):  # pragma: no cover - numba
                 if boxes[i, 1] == H:
                     boxes[i, 1] = y
                 boxes[i, 3] = y
+
+
+@nb.njit(cache=True, nogil=True)
+def _lut_row(hsv, luts, out):  # pragma: no cover - numba
+    for j in range(hsv.shape[1]):
+        out[j] = luts[0, hsv[0, j, 0]] & luts[1, hsv[0, j, 1]] & luts[2, hsv[0, j, 2]]
+
+
+_RGB_LUTS: dict[bytes, np.ndarray] = {}
+"""The tables of :func:`rgb_bits_lut` by their lookup tables' bytes (the last few sets of ranges)."""
+_RGB_LUTS_KEEP = 2
+"""Tables kept (16 MB each)."""
+
+
+def rgb_bits_lut(luts: np.ndarray) -> np.ndarray:
+    """The (2^24,) uint8 table of every RGB value's bits (index ``r << 16 | g << 8 | b``) for the lookup tables
+    ``luts`` of :func:`range_luts`: each value converted by ``cv2.cvtColor(·, COLOR_RGB2HSV)`` (one image row per
+    red value) and looked up as :func:`range_bits` does. Kept for the last few sets of ranges."""
+    import cv2
+
+    key = np.ascontiguousarray(luts, np.uint8).tobytes()
+    table = _RGB_LUTS.get(key)
+    if table is not None:
+        return table
+    gb = np.arange(65536)
+    row = np.empty((1, 65536, 3), np.uint8)
+    row[0, :, 1] = (gb >> 8).astype(np.uint8)
+    row[0, :, 2] = (gb & 255).astype(np.uint8)
+    table = np.empty(1 << 24, np.uint8)
+    lut = np.ascontiguousarray(luts, np.uint8)
+    for r in range(256):
+        row[0, :, 0] = r
+        _lut_row(cv2.cvtColor(row, cv2.COLOR_RGB2HSV), lut, table[r << 16 : (r + 1) << 16])
+    while len(_RGB_LUTS) >= _RGB_LUTS_KEEP:
+        _RGB_LUTS.pop(next(iter(_RGB_LUTS)))
+    _RGB_LUTS[key] = table
+    return table
+
+
+@nb.njit(cache=True, nogil=True)
+def _rgb_bits_kernel(rgb, table, n, bits, boxes):  # pragma: no cover - numba
+    H, W = bits.shape
+    rows = np.zeros(H, np.uint8)  # OR of each row's bits
+    cols = np.zeros(W, np.uint8)  # OR of each column's bits
+    for y in range(H):
+        acc = np.uint8(0)
+        for x in range(W):
+            b = table[(np.int64(rgb[y, x, 0]) << 16) | (np.int64(rgb[y, x, 1]) << 8) | np.int64(rgb[y, x, 2])]
+            bits[y, x] = b
+            cols[x] |= b
+            acc |= b
+        rows[y] = acc
+    _boxes_of(rows, cols, n, boxes)
+
+
+@nb.njit(cache=True, nogil=True)
+def _boxes_of(rows, cols, n, boxes):  # pragma: no cover - numba
+    H, W = rows.shape[0], cols.shape[0]
+    for i in range(n):
+        boxes[i, 0] = W
+        boxes[i, 1] = H
+        boxes[i, 2] = -1
+        boxes[i, 3] = -1
+        for x in range(W):
+            if (cols[x] >> i) & 1:
+                if boxes[i, 0] == W:
+                    boxes[i, 0] = x
+                boxes[i, 2] = x
+        for y in range(H):
+            if (rows[y] >> i) & 1:
+                if boxes[i, 1] == H:
+                    boxes[i, 1] = y
+                boxes[i, 3] = y
+
+
+def rgb_range_bits(rgb_u8: np.ndarray, table: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`range_bits` of ``cv2.cvtColor(rgb_u8, COLOR_RGB2HSV)`` from the RGB uint8 H×W×3 image itself, through
+    the table of :func:`rgb_bits_lut` (the same bit image and rectangles)."""
+    H, W = rgb_u8.shape[:2]
+    bits = np.empty((H, W), np.uint8)
+    boxes = np.empty((n, 4), np.int64)
+    _rgb_bits_kernel(np.ascontiguousarray(rgb_u8), table, n, bits, boxes)
+    return bits, boxes
 
 
 def range_bits(hsv_u8: np.ndarray, luts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
