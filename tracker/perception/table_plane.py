@@ -93,6 +93,8 @@ class TablePlane:
     residual_rms: float = 0.0
     outline: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int32))
     n_points: int = 0
+    _t2c: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    """:meth:`table_to_camera`'s last result with the normal's bytes and the offset it was made for."""
 
     def __post_init__(self) -> None:
         n = np.asarray(self.normal, np.float64).reshape(3)
@@ -121,7 +123,16 @@ class TablePlane:
         return -self.offset * self.normal
 
     def table_to_camera(self) -> Pose:
-        """Pose of the table frame in the camera frame (maps table coordinates to camera coordinates)."""
+        """Pose of the table frame in the camera frame (maps table coordinates to camera coordinates); made once per
+        normal and offset (the pipeline asks for it several times a frame)."""
+        key = (np.asarray(self.normal, np.float64).tobytes(), float(self.offset))
+        if self._t2c is not None and self._t2c[0] == key:
+            return self._t2c[1]
+        pose = self._table_to_camera()
+        self._t2c = (key, pose)
+        return pose
+
+    def _table_to_camera(self) -> Pose:
         y = self.normal
         x = np.array([1.0, 0.0, 0.0]) - y[0] * y
         if np.linalg.norm(x) < 1e-6:  # camera x along the normal (camera rolled 90°): use camera z instead
