@@ -14,7 +14,7 @@ from tracker.geometry.pose import Pose
 from tracker.geometry.symmetry import cube_group, symmetric_rotation_error
 from tracker.refine.dense_depth import RefineResult, RefineSettings, refine_pose
 from tracker.refine.part_refiner import PartRefiner
-from tracker.refine.recovery import CUBE_STARTS, LossMonitor, reacquire
+from tracker.refine.recovery import CUBE_STARTS, LossMonitor, reacquire, tilt_from
 from tracker.refine.surface_render import render_surfaces
 
 INTR = Intrinsics(320, 240, 300.0, 300.0, 159.5, 119.5)
@@ -199,27 +199,40 @@ def test_reacquire_finds_a_cube_turned_far_beyond_the_refinement_basin():
 
 class _ScriptedRefiner:
     """Stands in for PartRefiner in :func:`reacquire`: the refinement from a start keeps its rotation and scores
-    ``n_valid`` = 60 when upright (the table normal, camera -y, kept), ``tilted_score`` when tilted."""
+    ``n_valid`` = ``flat_score`` when the box lies within 15° of flat on the table (normal camera -y),
+    ``tilted_score`` otherwise."""
 
-    def __init__(self, tilted_score: int) -> None:
+    def __init__(self, tilted_score: int, flat_score: int = 60) -> None:
         self.centers = [np.zeros(3)]
         self.tilted_score = tilted_score
+        self.flat_score = flat_score
 
     def refine_one(self, depth, obj, R, t, allowed=None, outline=None, frame_depth=None) -> RefineResult:
-        up = np.array([0.0, -1.0, 0.0])
-        upright = float(np.dot(R @ up, up)) > np.cos(np.radians(5.0))
-        n = 60 if upright else self.tilted_score
+        n = self.flat_score if tilt_from(R, UP) <= 15.0 else self.tilted_score
         return RefineResult(R, t, True, 200, n, n / 200, 0.001)
 
 
-@pytest.mark.parametrize("tilted_score, gain, wins", [(72, 0.0, True), (72, 0.25, False), (80, 0.25, True)])
-def test_reacquire_tilt_gain_keeps_an_upright_sliver_against_a_tilted_start_winning_by_a_few_points(
+UP = np.array([0.0, -1.0, 0.0])
+
+
+@pytest.mark.parametrize("tilted_score, gain, wins", [(72, 0.0, True), (72, 0.25, False), (90, 0.25, True)])
+def test_reacquire_tilt_gain_keeps_a_flat_sliver_against_a_tilted_candidate_winning_by_a_few_points(
         tilted_score, gain, wins):
-    up = np.array([0.0, -1.0, 0.0])
+    """A candidate tilted off lying flat replaces the flat estimate by the plain margin when the gain is off; with
+    0.25 it needs 1.25 × the best flat score + the margin (60 → 85)."""
     res = reacquire(_ScriptedRefiner(tilted_score), np.zeros((4, 4)), 0, np.eye(3), np.zeros(3), None, CUBE_STARTS,
-                    up=up, tilt_gain=gain)
-    tilt = np.degrees(np.arccos(np.clip(np.dot(res.R @ up, up), -1.0, 1.0)))
-    assert (tilt > 5.0) == wins, (tilt, res.score)
+                    up=UP, tilt_gain=gain)
+    assert (tilt_from(res.R, UP) > 15.0) == wins, (tilt_from(res.R, UP), res.score)
+
+
+def test_reacquire_tilt_gain_lets_a_flat_start_correct_a_carry_tilt_by_the_plain_margin():
+    """A cube a carry left 30° tilted: a start that lays it flat again is a tilting start, but its result is flat,
+    so it needs only the plain margin (72 > 60 + 10) — the bar applies to tilted results, not tilting starts."""
+    R0 = Rotation.from_rotvec([np.radians(30.0), 0.0, 0.0]).as_matrix()
+    assert tilt_from(R0, UP) == pytest.approx(30.0)
+    res = reacquire(_ScriptedRefiner(60, flat_score=72), np.zeros((4, 4)), 0, R0, np.zeros(3), None, CUBE_STARTS,
+                    up=UP, tilt_gain=0.25)
+    assert tilt_from(res.R, UP) <= 15.0 and res.score == 72
 
 
 def test_loss_monitor_counts_bad_frames_and_rechecks_after_release_and_reappearance():

@@ -604,11 +604,12 @@ class TrackerConfig(BaseModel):
     )
     reacquire_cooldown: int = Field(5, ge=1, description="Fewest frames between two re-acquisitions of a part.")
     reacquire_tilt_gain: float = Field(
-        0.0, ge=0.0, description="Re-acquisition of a box part with a table: a start rotation that tilts it (one not "
-        "reachable by turning about the table normal from its estimate) replaces the best upright refinement (its "
-        "own rotation or a turn about the normal) only when its score beats that one's by this fraction of it as well "
-        "as by the usual margin: a sliver of a mostly hidden part fits a tilted face by a few points more "
-        "(0 = off: the usual margin only).",
+        0.0, ge=0.0, description="Re-acquisition of a box part with a table: a candidate whose refined rotation is "
+        "tilted more than 15 deg off lying flat on the table replaces the estimate only when its score also beats the "
+        "best candidate within 15 deg of flat (the estimate's own refinement included) by this fraction of that "
+        "one's score plus the usual margin: a sliver of a mostly hidden part fits a tilted face by a few points more, "
+        "while a start that lays a carry-tilted part flat again keeps the usual margin (0 = off: the usual margin "
+        "only; tracker/refine/recovery.py).",
     )
     carry_release_on_lift: int = Field(
         0, ge=0, description="A carried part set down (carried in the air, then with its lowest point within "

@@ -89,41 +89,48 @@ class LossMonitor:
         self.health[obj] = PartHealth()
 
 
+def tilt_from(R: np.ndarray, up: np.ndarray) -> float:
+    """Degrees between the unit vector ``up`` (camera frame) and the nearest of the box axes ``±R[:, k]``
+    (``R``: part-to-camera rotation): 0 for a box lying flat on one of its faces on a plane with normal ``up``."""
+    cosines = np.abs(np.asarray(R, np.float64).T @ np.asarray(up, np.float64))
+    return float(np.degrees(np.arccos(np.clip(np.max(cosines), 0.0, 1.0))))
+
+
 def reacquire(refiner: PartRefiner, depth: np.ndarray, obj: int, R: np.ndarray, t: np.ndarray,
               allowed: np.ndarray | None, starts: np.ndarray, current: RefineResult | None = None,
               outline: np.ndarray | None = None, frame_depth: np.ndarray | None = None,
-              margin: float = 10.0, up: np.ndarray | None = None, tilt_gain: float = 0.0) -> RefineResult | None:
+              margin: float = 10.0, up: np.ndarray | None = None, tilt_gain: float = 0.0,
+              tilt_deg: float = 15.0) -> RefineResult | None:
     """Best-supported refinement of part ``obj`` over the starting rotations ``starts`` (about its centre, applied
     to ``(R, t)``; ``outline``: the blob's polygon for the silhouette term, ``frame_depth`` the depth on which it
     tests occlusion): the refinement from ``(R, t)`` itself (``current`` when the caller has it already) unless
     another start's score beats it by ``margin``; None when no start gives a healthy refinement.
 
-    ``up`` (unit table normal, camera frame) with ``tilt_gain`` > 0: a start that tilts the part (moves ``up`` by
-    more than 5°, i.e. not a turn about the table normal) must beat the best upright refinement (own rotation or a
-    turn about ``up``) by ``tilt_gain`` × its score as well as by ``margin``."""
+    ``up`` (unit table normal, camera frame, for a box part) with ``tilt_gain`` > 0: a candidate whose refined
+    rotation is tilted more than ``tilt_deg`` off lying flat on the table (:func:`tilt_from`) must also beat the
+    best candidate within ``tilt_deg`` of flat (the estimate's own refinement included) by ``tilt_gain`` × that
+    one's score plus ``margin``. A sliver of a mostly hidden cube fits a tilted face a few points better than the
+    right flat pose; a start that puts a cube tilted by a carry flat again is judged by the plain margin."""
     R = np.asarray(R, np.float64)
     t = np.asarray(t, np.float64)
     c = R @ refiner.centers[obj] + t
     if current is None:
         current = refiner.refine_one(depth, obj, R, t, allowed, outline, frame_depth)
-    best, best_score = (current, current.score) if current.healthy else (None, -np.inf)
-    if up is None or tilt_gain <= 0.0:
-        tilted = [False] * (len(starts) - 1)  # every start by the usual rule, in order
-    else:
-        u = np.asarray(up, np.float64) / np.linalg.norm(up)
-        tilted = [float(np.dot(S @ u, u)) < np.cos(np.radians(5.0)) for S in starts[1:]]
-    found: list[tuple[RefineResult, bool]] = []
-    for S, tl in zip(starts[1:], tilted, strict=True):
+    found: list[RefineResult] = []
+    for S in starts[1:]:
         Rs = S @ R
         ts = c - Rs @ refiner.centers[obj]
         res = refiner.refine_one(depth, obj, Rs, ts, allowed, outline, frame_depth)
         if res.healthy and not res.position_only:
-            found.append((res, tl))
-    for res, tl in found:  # upright starts first: the usual rule (keeps the turned start)
-        if not tl and res.score > best_score + margin:
-            best, best_score = res, res.score
-    bar = best_score + max(margin, tilt_gain * max(best_score, 0.0))
-    for res, tl in found:
-        if tl and res.score > bar and res.score > best_score + margin:
+            found.append(res)
+    judge_tilt = up is not None and tilt_gain > 0.0
+    tilted = [judge_tilt and tilt_from(res.R, up) > tilt_deg for res in found]
+    flat_scores = [res.score for res, tl in zip(found, tilted, strict=True) if not tl]
+    if judge_tilt and current.healthy and tilt_from(current.R, up) <= tilt_deg:
+        flat_scores.append(current.score)
+    tilt_bar = max(flat_scores, default=-np.inf) * (1.0 + tilt_gain) + margin
+    best, best_score = (current, current.score) if current.healthy else (None, -np.inf)
+    for res, tl in zip(found, tilted, strict=True):  # in start order (keeps the turned start)
+        if res.score > best_score + margin and (not tl or res.score > tilt_bar):
             best, best_score = res, res.score
     return best
