@@ -604,7 +604,7 @@ class TrackerConfig(BaseModel):
     )
     reacquire_cooldown: int = Field(5, ge=1, description="Fewest frames between two re-acquisitions of a part.")
     reacquire_tilt_gain: float = Field(
-        0.0, ge=0.0, description="Re-acquisition of a box part with a table: a candidate whose refined rotation is "
+        0.25, ge=0.0, description="Re-acquisition of a box part with a table: a candidate whose refined rotation is "
         "tilted more than 15 deg off lying flat on the table replaces the estimate only when its score also beats the "
         "best candidate within 15 deg of flat (the estimate's own refinement included) by this fraction of that "
         "one's score plus the usual margin: a sliver of a mostly hidden part fits a tilted face by a few points more, "
