@@ -10,10 +10,13 @@ from tracker.hands.arm_anchor import (
     BORDER_PX,
     MIN_RUN,
     RUN_GAP,
+    ArmSplit,
     _geodesic_buckets,
     _geodesic_heap,
     _one_border_run,
     arm_hands,
+    arm_split,
+    carried_labels,
     geodesic_labels,
     working_depth,
 )
@@ -120,12 +123,41 @@ def test_bucket_queue_geodesic_equals_the_heap_one():
         z = np.where(rng.random((h, w)) < 0.2, 0.6, 0.7) * (rng.random((h, w)) < 0.95)
         seeds = np.zeros((h, w), np.int32)
         seeds[rng.integers(0, h, 4), rng.integers(0, w, 4)] = rng.integers(1, 4, 4)
-        for cost in (20.0, 0.0, 3.0):
-            lab_h, dist_h = _geodesic_heap(mask, z, seeds, 0.012, cost)
-            lab_b, dist_b = _geodesic_buckets(mask, z, seeds, 0.012, cost)
+        prev = rng.integers(0, 4, (h, w)).astype(np.int32)
+        for cost, keep in ((20.0, 0.0), (0.0, 0.0), (3.0, 0.0), (20.0, 2.0), (0.0, 5.0)):
+            lab_h, dist_h = _geodesic_heap(mask, z, seeds, 0.012, cost, prev, keep)
+            lab_b, dist_b = _geodesic_buckets(mask, z, seeds, 0.012, cost, prev, keep)
             assert np.array_equal(lab_h, lab_b) and np.array_equal(dist_h, dist_b)
             reached += int(np.count_nonzero(lab_b))
     assert reached > 10000
+
+
+def test_the_previous_split_keeps_its_labels_where_two_touching_hands_meet(monkeypatch):
+    """Two hands side by side at one depth: afresh, the split falls where the two wrists are equally far (x ≈ 100);
+    with the previous frame's split giving the left arm 10 more columns, KEEP_COST per pixel keeps part of them, and
+    with KEEP_COST 0 (off) the previous split changes nothing."""
+    from tracker.hands import arm_anchor
+
+    rgb, depth = _scene(TOUCHING)
+    skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
+    z = working_depth(depth, 1, (H, W))
+    bg = working_depth(np.full((H, W), 0.8), 1, (H, W))
+    fresh, split = arm_split(skin, z, bg)
+    assert split is not None and len(fresh) == 2
+    left = int(np.argmin(split.entries[:, 0]))
+    assert abs(fresh[left].box[2] - 99) <= 2
+    # the previous split lists the same arms the other way round: there the left arm is label 2 - left
+    prev_labels = np.where(skin > 0, left + 1, 0).astype(np.int32)
+    prev_labels[:, :110][skin[:, :110] > 0] = 2 - left
+    prev = ArmSplit(prev_labels, split.entries[::-1].copy())
+    assert np.array_equal(carried_labels(prev, split.entries)[skin > 0], np.where(np.arange(W) < 110, left + 1,
+                                                                                  2 - left)[np.nonzero(skin)[1]])
+    monkeypatch.setattr(arm_anchor, "KEEP_COST", 0.0)
+    assert [h.box for h in arm_split(skin, z, bg, prev)[0]] == [h.box for h in fresh]
+    monkeypatch.setattr(arm_anchor, "KEEP_COST", 2.0)
+    kept = arm_split(skin, z, bg, prev)[0]
+    # the left arm's label spreads 1 px a step into those columns, the right arm's 1 + 2: the meeting moves to x ≈ 105
+    assert kept[left].box[2] >= fresh[left].box[2] + 4 and kept[1 - left].box[0] >= fresh[1 - left].box[0] + 4
 
 
 def test_two_touching_hands_are_split_at_the_ends_of_their_arms():
@@ -233,8 +265,8 @@ def _arm_runs(hands: list, near: float | None, every: int, frames: int, monkeypa
     from tracker.hands import arm_anchor
 
     calls = []
-    real = arm_anchor.arm_hands
-    monkeypatch.setattr(arm_anchor, "arm_hands", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = arm_anchor.arm_split
+    monkeypatch.setattr(arm_anchor, "arm_split", lambda *a, **k: calls.append(1) or real(*a, **k))
     tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0, arm_near_px=near, arm_every=every))
     scene = _scene(hands)
     tr.process(*_scene([]))

@@ -17,8 +17,9 @@ frame and without tracking, each arm and the skin pixels at its end:
 4. Hands: one multi-source geodesic distance over the skin mask from all arms' seeds at once (Dijkstra, 4-neighbour
    steps of cost 1, plus :data:`DEPTH_STEP_COST` across a depth step larger than :data:`DEPTH_STEP` m: the edge of
    the upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's
-   blind band along that edge); each skin pixel belongs to the arm whose wrist reaches it first. A hand's box
-   is the tight box of its pixels (at least :data:`MIN_HAND_PX`).
+   blind band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split
+   gave another arm, when the tracker ran this detector on the previous frame too); each skin pixel belongs to the
+   arm whose wrist reaches it first. A hand's box is the tight box of its pixels (at least :data:`MIN_HAND_PX`).
 
 Without depth nothing is found. Dev measurement (``hands-s2`` tuning seeds 0–4, this detector alone, no tracking,
 the left entry taken as one hand): per hand-frame F̄^b 0.76 / 0.85 / 0.66 / 0.83 / 0.55; used where it finds the
@@ -84,6 +85,16 @@ hands 1.6 % both, false boxes 0.0218 → 0.0224 per frame; ``hands-s1`` and ``ha
 HOLE_GROW = 1
 """Working px by which the pixels without depth are grown (a square) before :data:`HOLE_STEP` marks the skin pixels
 among them: at the working resolution a band of one or two full-resolution pixels has gaps."""
+KEEP_COST = 3.0
+"""Extra geodesic cost (working px per pixel) of spreading an arm's label into a skin pixel that the previous frame's
+split gave the other arm (``prev`` of :func:`arm_split`; 0: every frame split afresh, as until session 26): where two
+touching hands meet, the split keeps last frame's labels unless the wrists' distances clearly say otherwise. Session
+26, ``hands-s2`` tuning seeds 0–4, the same frames for both arms, 0 → 3: ground-truth start F̄^b 0.8778 → 0.8816, ē^p
+7.61 → 7.32 px (filter seed 0), 0.8758 → 0.8802, 7.94 → 7.60 px (filter seed 1); automatic start 0.8857 → 0.8892,
+6.78 → 6.49 px (filter seed 0), 0.8827 → 0.8861, 7.03 → 6.75 px (filter seed 1); 16 of 20 runs better, seed 1 worse
+by 0.001–0.003 in all four. 1: 0.8787, 2: 0.8803, 5: 0.8805 (ground-truth start, filter seeds 0 / 0 / 1)."""
+KEEP_ENTRY_NEAR = 24.0
+"""Working px an arm's entry point may lie from one of the previous frame's for its labels to carry over."""
 HOLE_DEPTH = 1e3
 """Depth (m) given to the skin pixels without depth when :data:`HOLE_STEP` is on: far from every measured depth."""
 
@@ -108,8 +119,8 @@ def _depth_step(z, y, x, yy, xx, step):
 
 
 @nb.njit(cache=True, nogil=True)
-def _geodesic_heap(mask, z, seeds, step, step_cost):
-    """:func:`geodesic_labels` with a binary heap (any ``step_cost``)."""
+def _geodesic_heap(mask, z, seeds, step, step_cost, prev, prev_cost):
+    """:func:`geodesic_labels` with a binary heap (any ``step_cost``, ``prev_cost``)."""
     h, w = mask.shape
     dist = np.full((h, w), 1e18)
     lab = np.zeros((h, w), np.int32)
@@ -134,6 +145,8 @@ def _geodesic_heap(mask, z, seeds, step, step_cost):
             if yy < 0 or xx < 0 or yy >= h or xx >= w or not mask[yy, xx]:
                 continue
             c = 1.0 + step_cost if _depth_step(z, y, x, yy, xx, step) else 1.0
+            if prev[yy, xx] > 0 and prev[yy, xx] != lab[y, x]:
+                c += prev_cost
             nd = d + c
             if nd < dist[yy, xx]:
                 dist[yy, xx] = nd
@@ -143,13 +156,14 @@ def _geodesic_heap(mask, z, seeds, step, step_cost):
 
 
 @nb.njit(cache=True, nogil=True)
-def _geodesic_buckets(mask, z, seeds, step, step_cost):
+def _geodesic_buckets(mask, z, seeds, step, step_cost, prev, prev_cost):
     """:func:`geodesic_labels` for a whole-number ``step_cost`` with a bucket queue (Dial's algorithm): every distance
     is a whole number, each bucket is complete when its turn comes (steps cost at least 1), and its pixels are taken
     in raster order, the heap's order on equal distances — the same labels and distances, without the heap."""
     h, w = mask.shape
     big = int(step_cost) + 1
-    k_ring = big + 1
+    other = int(prev_cost)
+    k_ring = big + other + 1
     dist = np.full((h, w), 1e18)
     lab = np.zeros((h, w), np.int32)
     ring = [np.empty(64, np.int64) for _ in range(k_ring)]
@@ -186,6 +200,8 @@ def _geodesic_buckets(mask, z, seeds, step, step_cost):
                 if yy < 0 or xx < 0 or yy >= h or xx >= w or not mask[yy, xx]:
                     continue
                 c = big if _depth_step(z, y, x, yy, xx, step) else 1
+                if prev[yy, xx] > 0 and prev[yy, xx] != lab[y, x]:
+                    c += other
                 nd = d + c
                 if nd < dist[yy, xx]:
                     dist[yy, xx] = nd
@@ -202,16 +218,21 @@ def _geodesic_buckets(mask, z, seeds, step, step_cost):
     return lab, dist
 
 
-def geodesic_labels(mask: np.ndarray, z: np.ndarray, seeds: np.ndarray, step: float,
-                    step_cost: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def geodesic_labels(mask: np.ndarray, z: np.ndarray, seeds: np.ndarray, step: float, step_cost: float,
+                    prev: np.ndarray | None = None,
+                    prev_cost: float = 0.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Multi-source geodesic labelling over ``mask`` (uint8 H×W) from ``seeds`` (int32 H×W, 0 = none, k > 0 the
     label; only seeds on the mask count): Dijkstra with 4-neighbour steps of cost 1 plus ``step_cost`` where both
-    depths ``z`` (float64 H×W, ≤ 0 unknown) are known and differ by more than ``step``; on equal distances the pixel
-    first in raster order spreads its label first. Returns (labels int32, distances float64; 1e18 where not
-    reached)."""
-    if step_cost >= 0 and float(step_cost).is_integer():
-        return _geodesic_buckets(mask, z, seeds, step, step_cost)
-    return _geodesic_heap(mask, z, seeds, step, step_cost)
+    depths ``z`` (float64 H×W, ≤ 0 unknown) are known and differ by more than ``step``, plus ``prev_cost`` into a
+    pixel that ``prev`` (int32 H×W, 0 = none; e.g. the last frame's labels) gives another label than the one
+    spreading; on equal distances the pixel first in raster order spreads its label first. Returns (labels int32,
+    distances float64; 1e18 where not reached)."""
+    if prev is None:
+        prev = np.zeros(mask.shape, np.int32)
+    prev = np.ascontiguousarray(prev, np.int32)
+    if step_cost >= 0 and float(step_cost).is_integer() and prev_cost >= 0 and float(prev_cost).is_integer():
+        return _geodesic_buckets(mask, z, seeds, step, step_cost, prev, prev_cost)
+    return _geodesic_heap(mask, z, seeds, step, step_cost, prev, float(prev_cost))
 
 
 def working_depth(depth: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarray:
@@ -413,33 +434,68 @@ def _label_boxes(labels, n):
     return boxes, counts
 
 
+@dataclass
+class ArmSplit:
+    """One frame's split of the skin between the arms: ``labels`` (int32 working H×W, k + 1 = the k-th arm, 0 = none)
+    and ``entries`` (float64 [n, 2], each arm's entry point (x, y), working px)."""
+
+    labels: np.ndarray
+    entries: np.ndarray
+
+
 def arm_hands(skin: np.ndarray, z: np.ndarray, background: np.ndarray) -> list[ArmHand]:
     """The hands at the ends of the arms of one frame (module docstring). ``skin``: the colour mask (uint8 0/1,
     working H×W); ``z``, ``background``: this frame's and the first frame's depth at the working resolution (m, 0 =
     unknown)."""
+    return arm_split(skin, z, background)[0]
+
+
+def carried_labels(prev: ArmSplit, entries: np.ndarray) -> np.ndarray:
+    """``prev``'s labels renumbered to this frame's arms (``entries`` [n, 2], working px): each previous arm takes the
+    label of the arm whose entry lies nearest its own within KEEP_ENTRY_NEAR (nearest pairs first, one to one); a
+    previous arm without one is dropped (0)."""
+    pairs = sorted((float(np.hypot(*(e - f))), j, k) for j, f in enumerate(prev.entries) for k, e in enumerate(entries))
+    remap = np.zeros(len(prev.entries) + 1, np.int32)
+    used_j: set[int] = set()
+    used_k: set[int] = set()
+    for dd, j, k in pairs:
+        if dd <= KEEP_ENTRY_NEAR and j not in used_j and k not in used_k:
+            used_j.add(j)
+            used_k.add(k)
+            remap[j + 1] = k + 1
+    return remap[np.clip(prev.labels, 0, len(prev.entries))]
+
+
+def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray,
+              prev: ArmSplit | None = None) -> tuple[list[ArmHand], ArmSplit | None]:  # fmt: skip
+    """:func:`arm_hands` and the split behind it (None when no arm is found). With ``prev`` (the previous frame's
+    split) and KEEP_COST > 0, a label spreading into a skin pixel the previous split gave another arm pays KEEP_COST
+    (the arms are matched by their entry points, :func:`carried_labels`)."""
     h, w = skin.shape
     sk = cv2.morphologyEx(np.ascontiguousarray(skin, np.uint8), cv2.MORPH_OPEN,
                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3)))  # fmt: skip
     if not sk.any():
-        return []
+        return [], None
     z = np.ascontiguousarray(z, np.float64)
     background = np.ascontiguousarray(background, np.float64)
     fg = cv2.morphologyEx(_foreground_raw(z, background, FG_GAP), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     if cv2.countNonZero(fg) > MAX_FG_FRAC * max(np.count_nonzero(background > 0), 1):
-        return []  # the background frame no longer fits (the camera moved, or a hand was in the first frame)
+        return [], None  # the background frame no longer fits (the camera moved, or a hand was in the first frame)
     sleeve = cv2.bitwise_and(fg, 1 - cv2.dilate(sk, np.ones((3, 3), np.uint8)))
     sleeve = cv2.morphologyEx(sleeve, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     near = cv2.dilate(sk, np.ones((5, 5), np.uint8))
     seeds, entries = _arm_seeds(sk, near, sleeve, BORDER_PX, MIN_ARM_FRAC * h * w, RUN_GAP, MIN_RUN, WRIST_FAR)
     if not len(entries):
-        return []
+        return [], None
     zg = z
     if HOLE_STEP:
         hole = (z <= 0).astype(np.uint8)
         if HOLE_GROW:
             hole = cv2.dilate(hole, np.ones((2 * HOLE_GROW + 1, 2 * HOLE_GROW + 1), np.uint8))
         zg = np.where((hole > 0) & (sk > 0), HOLE_DEPTH, z)
-    labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST)
+    carried = carried_labels(prev, entries) if prev is not None and KEEP_COST > 0 else None
+    labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, carried, KEEP_COST)
     boxes, counts = _label_boxes(labels, len(entries))
-    return [ArmHand((float(e[0]), float(e[1])), (int(b[0]), int(b[1]), int(b[2]), int(b[3])), int(c))
-            for e, b, c in zip(entries, boxes, counts, strict=True) if c >= MIN_HAND_PX]  # fmt: skip
+    hands = [ArmHand((float(e[0]), float(e[1])), (int(b[0]), int(b[1]), int(b[2]), int(b[3])), int(c))
+             for e, b, c in zip(entries, boxes, counts, strict=True) if c >= MIN_HAND_PX]  # fmt: skip
+    return hands, ArmSplit(labels, np.asarray(entries, np.float64))

@@ -95,7 +95,8 @@ initialisation of new tracks:
 * Each hand at the end of its own arm (product addition, ``arm_anchor``, on): while two tracks are live, the hands at
   the far ends of the sleeved arms that enter from the image border are found in every frame without tracking (the
   foreground against the first, hand-free depth frame; the sleeve's far end next to skin as the wrist; the skin split
-  between the wrists by a geodesic distance that pays for crossing a depth step, the upper hand's edge;
+  between the wrists by a geodesic distance that pays for crossing a depth step, the upper hand's edge, and, when it
+  ran on the previous frame too, for taking a pixel the previous split gave the other arm, ``arm_anchor.KEEP_COST``;
   :mod:`tracker.hands.arm_anchor`); each track id remembers where its arm enters the image and reports its arm's
   hand box when that arm is found (after the group box), and with ``arm_reset`` (on) a filter whose box scores below
   ARM_RESET_F against that box restarts on it (a filter on the other hand, or both on one hand, is put back on its
@@ -463,6 +464,7 @@ class HandTracker(TrackIdentity):
         self._arm_idle = 0  # frames since the arm detector last ran (arm_every)
         self._arm_agreed = False  # whether its last run found both tracks' arms and restarted no filter
         self._arm_own: set[int] = set()  # ids of the tracks its last run gave an arm of their own
+        self._arm_split: tuple[int, arm_anchor.ArmSplit] | None = None  # its last run's frame index and split
 
     # ------------------------------------------------------------------ resolution
     def to_full(self, state: np.ndarray) -> np.ndarray:
@@ -825,7 +827,10 @@ class HandTracker(TrackIdentity):
         self._arm_agreed = False
         self._arm_own = set()
         z = arm_anchor.working_depth(self._depth, self.s, rgb.shape[:2])
-        hands = arm_anchor.arm_hands(self._frame_mask(rgb), z, self._arm_bg)
+        last = self._arm_split
+        prev = last[1] if last is not None and last[0] == self.frame_index - 1 else None
+        hands, split = arm_anchor.arm_split(self._frame_mask(rgb), z, self._arm_bg, prev)
+        self._arm_split = (self.frame_index, split) if split is not None else None
         if not hands:
             return
         boxes = [state_box(tr.filt.estimate) for tr in self.tracks]
