@@ -64,21 +64,7 @@ def _bits_kernel(hsv, luts, n, bits, boxes):  # pragma: no cover - numba
             cols[x] |= b
             acc |= b
         rows[y] = acc
-    for i in range(n):
-        boxes[i, 0] = W
-        boxes[i, 1] = H
-        boxes[i, 2] = -1
-        boxes[i, 3] = -1
-        for x in range(W):
-            if (cols[x] >> i) & 1:
-                if boxes[i, 0] == W:
-                    boxes[i, 0] = x
-                boxes[i, 2] = x
-        for y in range(H):
-            if (rows[y] >> i) & 1:
-                if boxes[i, 1] == H:
-                    boxes[i, 1] = y
-                boxes[i, 3] = y
+    _boxes_of(rows, cols, n, boxes)
 
 
 @nb.njit(cache=True, nogil=True)
