@@ -463,6 +463,8 @@ def carried_labels(prev: ArmSplit, entries: np.ndarray) -> np.ndarray:
             used_j.add(j)
             used_k.add(k)
             remap[j + 1] = k + 1
+    if np.array_equal(remap, np.arange(len(remap))):
+        return prev.labels  # the same arms in the same order (the usual case)
     return remap[np.clip(prev.labels, 0, len(prev.entries))]
 
 
