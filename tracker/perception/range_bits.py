@@ -51,26 +51,10 @@ def range_luts(ranges: Sequence[HSVRange]) -> np.ndarray | None:
     return luts
 
 
-@nb.njit(cache=True, nogil=True)
-def _bits_kernel(hsv, luts, n, bits, boxes):  # pragma: no cover - numba
-    H, W = bits.shape
-    rows = np.zeros(H, np.uint8)  # OR of each row's bits
-    cols = np.zeros(W, np.uint8)  # OR of each column's bits
-    for y in range(H):
-        acc = np.uint8(0)
-        for x in range(W):
-            b = luts[0, hsv[y, x, 0]] & luts[1, hsv[y, x, 1]] & luts[2, hsv[y, x, 2]]
-            bits[y, x] = b
-            cols[x] |= b
-            acc |= b
-        rows[y] = acc
-    _boxes_of(rows, cols, n, boxes)
-
-
-@nb.njit(cache=True, nogil=True)
-def _lut_row(hsv, luts, out):  # pragma: no cover - numba
-    for j in range(hsv.shape[1]):
-        out[j] = luts[0, hsv[0, j, 0]] & luts[1, hsv[0, j, 1]] & luts[2, hsv[0, j, 2]]
+def hsv_bits(hsv_u8: np.ndarray, luts: np.ndarray) -> np.ndarray:
+    """The uint8 bit image (bit ``i``: in range ``i``) of an OpenCV 8-bit HSV image (any shape ×3) through the lookup
+    tables of :func:`range_luts`."""
+    return luts[0][hsv_u8[..., 0]] & luts[1][hsv_u8[..., 1]] & luts[2][hsv_u8[..., 2]]
 
 
 _RGB_LUTS: dict[bytes, np.ndarray] = {}
@@ -97,7 +81,7 @@ def rgb_bits_lut(luts: np.ndarray) -> np.ndarray:
     lut = np.ascontiguousarray(luts, np.uint8)
     for r in range(256):
         row[0, :, 0] = r
-        _lut_row(cv2.cvtColor(row, cv2.COLOR_RGB2HSV), lut, table[r << 16 : (r + 1) << 16])
+        table[r << 16 : (r + 1) << 16] = hsv_bits(cv2.cvtColor(row, cv2.COLOR_RGB2HSV)[0], lut)
     while len(_RGB_LUTS) >= _RGB_LUTS_KEEP:
         _RGB_LUTS.pop(next(iter(_RGB_LUTS)))
     _RGB_LUTS[key] = table
@@ -152,11 +136,11 @@ def rgb_range_bits(rgb_u8: np.ndarray, table: np.ndarray, n: int) -> tuple[np.nd
 
 def range_bits(hsv_u8: np.ndarray, luts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """The H×W uint8 bit image of an OpenCV 8-bit HSV image (bit ``i``: in range ``i``) and the ranges' bounding
-    rectangles as an (n, 4) int64 array of inclusive (x0, y0, x1, y1), x1 = -1 for a range with no pixel."""
-    H, W = hsv_u8.shape[:2]
-    bits = np.empty((H, W), np.uint8)
+    rectangles as an (n, 4) int64 array of inclusive (x0, y0, x1, y1), x1 = -1 for a range with no pixel (the
+    reference of :func:`rgb_range_bits`, which the detector runs)."""
+    bits = np.ascontiguousarray(hsv_bits(hsv_u8, luts))
     boxes = np.empty((n, 4), np.int64)
-    _bits_kernel(np.ascontiguousarray(hsv_u8), luts, n, bits, boxes)
+    _boxes_of(np.bitwise_or.reduce(bits, axis=1), np.bitwise_or.reduce(bits, axis=0), n, boxes)
     return bits, boxes
 
 
