@@ -1001,3 +1001,31 @@ def test_warm_up_loads_the_kernels_a_session_calls_later():
     w, t = hand_carry.register_rigid(pts, pts + np.array([0.002, 0.0, 0.0]), 5, 0.01, 0.2)
     assert np.isfinite(w).all() and np.isfinite(t).all()
     assert [list(k.signatures) for k in kernels] == before
+
+
+def test_refiner_corner_bounds_kernel_matches_numpy():
+    """:func:`tracker.refine.part_refiner._corner_bounds` gives the bounds of the numpy form it replaced
+    (``corners @ R.T + t``, projected, min / max) bit for bit, and its near-camera flag: random cube poses, boxes
+    with an offset centre, corners near and behind the camera plane."""
+    from scipy.spatial.transform import Rotation
+
+    from tracker.refine.part_refiner import _corner_bounds
+
+    rng = np.random.default_rng(17)
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    n_near = 0
+    for trial in range(3000):
+        corners = signs * rng.uniform(0.01, 0.05, 3) + rng.normal(0.0, 0.01, 3)
+        R = Rotation.from_rotvec(rng.normal(0.0, 1.5, 3)).as_matrix()
+        t = np.array([rng.normal(0.0, 0.2), rng.normal(0.0, 0.2), rng.uniform(-0.05, 0.8)])
+        pts = corners @ R.T + t
+        z = pts[:, 2]
+        u = INTR.fx * pts[:, 0] / z + INTR.cx
+        v = INTR.fy * pts[:, 1] / z + INTR.cy
+        got = _corner_bounds(corners, R, t, INTR.fx, INTR.fy, INTR.cx, INTR.cy)
+        assert got[4] == bool((z < 0.02).any())
+        n_near += got[4]
+        with np.errstate(all="ignore"):
+            ref = (float(u.min()), float(v.min()), float(u.max()), float(v.max()))
+        assert np.array_equal(np.array(got[:4]), np.array(ref), equal_nan=True), trial
+    assert 100 < n_near < 2900

@@ -9,6 +9,7 @@ it (:meth:`Correction.apply_to`). Camera frame, metres, radians.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba as nb
@@ -16,6 +17,7 @@ import numpy as np
 
 from tracker.filter.motion_model import rotate_left
 from tracker.geometry.camera import Intrinsics
+from tracker.geometry.fma import fma
 from tracker.refine.dense_depth import RefineResult, RefineSettings, refine_pose
 from tracker.refine.region_term import OutlineScene, RegionSettings, pack_shapes, region_term
 from tracker.refine.surface_render import SurfaceRender, render_surfaces
@@ -72,15 +74,12 @@ class PartRefiner:
 
     def _bounds(self, obj: int, pose: tuple) -> tuple[float, float, float, float] | None:
         """Image bounds ``(u_min, v_min, u_max, v_max)`` of part ``obj``'s box corners at ``pose``; None when a corner
-        lies closer than 2 cm to the camera plane."""
+        lies closer than 2 cm to the camera plane (:func:`_corner_bounds`)."""
         intr = self.intrinsics
-        pts = self.corners[obj] @ pose[0].T + pose[1]
-        z = pts[:, 2]
-        if (z < 0.02).any():
-            return None
-        u = intr.fx * pts[:, 0] / z + intr.cx
-        v = intr.fy * pts[:, 1] / z + intr.cy
-        return float(u.min()), float(v.min()), float(u.max()), float(v.max())
+        u0, v0, u1, v1, near = _corner_bounds(self.corners[obj], np.ascontiguousarray(pose[0], np.float64),
+                                              np.ascontiguousarray(pose[1], np.float64), intr.fx, intr.fy, intr.cx,
+                                              intr.cy)
+        return None if near else (u0, v0, u1, v1)
 
     def _rect(self, poses: list, bounds: list | None = None) -> tuple[int, int, int, int] | None:
         """Pixel rectangle ``(u0, v0, u1, v1)`` (end exclusive, one pixel of margin, two at the far end) covering
@@ -98,10 +97,10 @@ class PartRefiner:
             if b[0] != b[0] or b[1] != b[1] or b[2] != b[2] or b[3] != b[3]:
                 return None  # not a number: no rectangle
             lo0, lo1, hi0, hi1 = min(lo0, b[0]), min(lo1, b[1]), max(hi0, b[2]), max(hi1, b[3])
-        if not (np.isfinite(lo0) and np.isfinite(lo1)):
+        if not (math.isfinite(lo0) and math.isfinite(lo1)):
             return None
-        u0, v0 = max(int(np.floor(lo0)) - 1, 0), max(int(np.floor(lo1)) - 1, 0)
-        u1, v1 = min(int(np.ceil(hi0)) + 2, intr.width), min(int(np.ceil(hi1)) + 2, intr.height)
+        u0, v0 = max(math.floor(lo0) - 1, 0), max(math.floor(lo1) - 1, 0)
+        u1, v1 = min(math.ceil(hi0) + 2, intr.width), min(math.ceil(hi1) + 2, intr.height)
         if u0 >= u1 or v0 >= v1:
             return None
         return (u0, v0, u1, v1)
@@ -212,6 +211,40 @@ class PartRefiner:
                 continue
             out[i] = Correction(res.R, res.t, Rd, res.t - Rd @ t0, res)
         return out
+
+
+@nb.njit(cache=True)
+def _corner_bounds(corners: np.ndarray, R: np.ndarray, t: np.ndarray, fx: float, fy: float, cx: float,
+                   cy: float) -> tuple[float, float, float, float, bool]:
+    """``(u_min, v_min, u_max, v_max, near)``: the pixel bounds of the body-frame points ``corners`` (M, 3) moved by
+    ``(R, t)`` (body → camera, metres) and projected, and whether one lies closer than 2 cm to the camera plane.
+    The values of ``corners @ R.T + t`` (each coordinate ``fma(c2, r2, fma(c1, r1, c0·r0)) + t``, as numpy's BLAS
+    product of these shapes rounds here: :mod:`tracker.geometry.fma`), ``fx · x / z + cx`` and numpy's ``min`` /
+    ``max`` (NaN when a coordinate is NaN)."""
+    umin, vmin, umax, vmax = np.inf, np.inf, -np.inf, -np.inf
+    nan_u = nan_v = near = False
+    for i in range(corners.shape[0]):
+        c0, c1, c2 = corners[i, 0], corners[i, 1], corners[i, 2]
+        x = fma(c2, R[0, 2], fma(c1, R[0, 1], c0 * R[0, 0])) + t[0]
+        y = fma(c2, R[1, 2], fma(c1, R[1, 1], c0 * R[1, 0])) + t[1]
+        z = fma(c2, R[2, 2], fma(c1, R[2, 1], c0 * R[2, 0])) + t[2]
+        if z < 0.02:
+            near = True
+        u = fx * x / z + cx
+        v = fy * y / z + cy
+        if u != u:
+            nan_u = True
+        else:
+            umin, umax = min(umin, u), max(umax, u)
+        if v != v:
+            nan_v = True
+        else:
+            vmin, vmax = min(vmin, v), max(vmax, v)
+    if nan_u:
+        umin = umax = np.nan
+    if nan_v:
+        vmin = vmax = np.nan
+    return umin, vmin, umax, vmax, near
 
 
 def _sampled_silhouette(render: SurfaceRender, obj: int, u0: int, v0: int, w: int, h: int) -> np.ndarray:
