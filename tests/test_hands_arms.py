@@ -11,6 +11,7 @@ from tracker.hands.arm_anchor import (
     MIN_RUN,
     RUN_GAP,
     ArmSplit,
+    _border_runs,
     _geodesic_buckets,
     _geodesic_heap,
     _one_border_run,
@@ -74,21 +75,9 @@ def test_geodesic_labels_do_not_cross_a_depth_step_when_a_flat_way_round_exists(
     assert not lab2.any()
 
 
-def _border_runs(ys: np.ndarray, xs: np.ndarray, h: int, w: int) -> list[np.ndarray]:
-    """Reference: indices of border pixels grouped into runs along the image border (NumPy, as the detector did
-    before its compiled version)."""
-    b = BORDER_PX
-    bottom_left = np.where(ys >= h - b, w + h + (w - xs), 2 * w + h + (h - ys))
-    p = np.where(ys < b, xs, np.where(xs >= w - b, w + ys, bottom_left)).astype(np.float64)
-    order = np.argsort(p)
-    runs = np.split(order, np.nonzero(np.diff(p[order]) > RUN_GAP)[0] + 1)
-    if len(runs) > 1 and p[order[0]] + 2 * (w + h) - p[order[-1]] <= RUN_GAP:
-        runs = [np.concatenate([runs[-1], runs[0]])] + runs[1:-1]
-    return [r for r in runs if len(r) >= MIN_RUN]
-
-
 def test_one_border_run_agrees_with_the_runs_of_the_border_pixels():
-    """The compiled run test (used per arm) says "one run" exactly when the NumPy grouping finds one run, on random
+    """The compiled run test (used per arm) says "one run" exactly when the NumPy grouping (``_border_runs``, which
+    the split of crossing arms uses) finds one run, on random
     border pixel sets: runs along each edge, through corners and through the top-left corner where the perimeter
     coordinate wraps."""
     rng = np.random.default_rng(0)
@@ -215,6 +204,62 @@ def test_a_one_centimetre_step_splits_the_upper_hand_from_the_lower_one(monkeypa
         got[step] = _inclusive_to_excl(hands[1].box)
     assert dice(got[0.008], b_hand) > 0.95
     assert dice(got[0.012], b_hand) < 0.9
+
+
+def _crossing(hands_apart: bool = True) -> tuple[np.ndarray, np.ndarray, list[tuple[float, float]]]:
+    """RGB and depth of two sleeved forearms crossing in an X (arm A from the bottom-left corner up to the right, arm
+    B from the bottom-right up to the left, lying on A, 4 cm nearer the camera), one sleeve region that meets the
+    bottom border in two runs; each hand (a disc of radius 16 px) beyond its sleeve's end. Returns (rgb, depth,
+    [A's hand centre, B's hand centre]); ``hands_apart`` False: the hands' discs overlap (one skin region)."""
+    import cv2
+
+    rgb = np.zeros((H, W, 3), np.uint8) + np.uint8(TABLE)
+    depth = np.full((H, W), 0.8, np.float32)
+    ends = [((30, 239), (210, 90)), ((290, 239), (110, 90))] if hands_apart else [((30, 239), (170, 110)),
+                                                                                   ((290, 239), (150, 110))]
+    centres = []
+    for k, ((x0, y0), (x1, y1)) in enumerate(ends):
+        cv2.line(rgb, (x0, y0), (x1, y1), SLEEVES[k], 24)
+        cv2.line(depth, (x0, y0), (x1, y1), 0.70 - 0.04 * k, 24)
+        d = np.array([x1 - x0, y1 - y0], float)
+        c = np.array([x1, y1]) + 26 * d / np.hypot(*d) if hands_apart else np.array([174.0 - 28.0 * k, 84.0])
+        centres.append((float(c[0]), float(c[1])))
+    for c, z in zip(centres, (0.70, 0.66), strict=True):
+        cv2.circle(rgb, (round(c[0]), round(c[1])), 16, SKIN, -1)
+        cv2.circle(depth, (round(c[0]), round(c[1])), 16, z, -1)
+    return rgb, depth, centres
+
+
+def test_two_crossing_forearms_each_find_their_own_hand(monkeypatch):
+    """Two forearms crossing in an X form one sleeve region meeting the border in two runs; the tube per run
+    (``CROSS_SPLIT``) gives each arm the hand beyond its own sleeve's end (A, entering bottom-left, the right hand),
+    also across the crossing where A lies under B; without it the region is dropped and no arm is found."""
+    from tracker.hands import arm_anchor
+
+    rgb, depth, (ca, cb) = _crossing()
+    hands = _hands((rgb, depth))
+    assert len(hands) == 2
+    a, b = hands  # sorted by entry x: A enters at the left
+    assert a.entry[0] < 80 and b.entry[0] > 240 and a.entry[1] > H - 3 and b.entry[1] > H - 3
+    for hd, c in ((a, ca), (b, cb)):
+        assert dice(_inclusive_to_excl(hd.box), [c[0] - 16, c[1] - 16, c[0] + 17, c[1] + 17]) > 0.85
+    monkeypatch.setattr(arm_anchor, "CROSS_SPLIT", False)
+    assert _hands((rgb, depth)) == []
+
+
+def test_crossing_forearms_whose_hands_touch_are_not_split(monkeypatch):
+    """The same X with the two hands touching in one skin region: both tubes' wrists reach it, and which hand is
+    whose is not told by the tubes, so no arm is reported (``CROSS_TOUCH_DROP``); with it off both are."""
+    import cv2
+
+    from tracker.hands import arm_anchor
+
+    rgb, depth, _ = _crossing(hands_apart=False)
+    skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
+    assert cv2.connectedComponents(skin.astype(np.uint8), connectivity=8)[0] == 2  # background + one skin region
+    assert _hands((rgb, depth)) == []
+    monkeypatch.setattr(arm_anchor, "CROSS_TOUCH_DROP", False)
+    assert len(_hands((rgb, depth))) == 2
 
 
 def test_no_depth_change_no_arms():

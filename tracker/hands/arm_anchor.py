@@ -10,8 +10,10 @@ frame and without tracking, each arm and the skin pixels at its end:
    :data:`MAX_FG_FRAC` of the frame in front of the background: the camera has moved (or the first frame held a
    hand), and nothing is found.
 2. Arms: the 8-connected components of the foreground without the (dilated) skin mask — the sleeves — of at least
-   :data:`MIN_ARM_FRAC` of the image that touch the image border in one run (two runs: two arms crossing in one
-   component; no answer there). The entry point is the mean of its border pixels.
+   :data:`MIN_ARM_FRAC` of the image that touch the image border in one run. The entry point is the mean of its
+   border pixels. A component that meets the border in two runs is two forearms crossing (the sleeves touch where
+   one lies over the other): while the one-run components give fewer than two arms, it is split by a tube per run
+   (:data:`CROSS_SPLIT`, :func:`_crossed_seeds`), unless both tubes' wrists reach one skin region.
 3. Wrist: the sleeve pixels whose straight-line distance from the arm's entry point is at least :data:`WRIST_FAR`
    of the farthest and that lie next to skin; the skin pixels next to them seed the hand.
 4. Hands: one multi-source geodesic distance over the skin mask from all arms' seeds at once (Dijkstra, 4-neighbour
@@ -24,10 +26,11 @@ frame and without tracking, each arm and the skin pixels at its end:
 Without depth nothing is found. Dev measurement (``hands-s2`` tuning seeds 0–4, this detector alone, no tracking,
 the left entry taken as one hand): per hand-frame F̄^b 0.76 / 0.85 / 0.66 / 0.83 / 0.55; used where it finds the
 track's arm, the tracker's box otherwise, 0.714 → 0.814 over filter seeds 0–3 (every run but one better). In the
-tracker (:meth:`tracker.hands.tracker.HandTracker._report_arms`) see its module docstring. Not handled: two arms
-that cross in one sleeve component (a nearest-axis split of the X, tried, gave the far ends to the wrong arms),
-arms of the same colour as skin (bare forearms: no sleeve, nothing found), a moving camera (the first frame's
-depth is the background).
+tracker (:meth:`tracker.hands.tracker.HandTracker._report_arms`) see its module docstring. Not handled: crossing
+arms whose hands touch (a nearest-axis split of the whole X, tried in session 17, gave the far ends to the wrong
+arms; the tubes of session 27 fit each axis near its own entry), an arm entering through the top border while the
+other fills the bottom one, an arm mostly out of view (below :data:`MIN_ARM_FRAC`), arms of the same colour as skin
+(bare forearms: no sleeve, nothing found), a moving camera (the first frame's depth is the background).
 
 Images are at the tracker's working resolution; boxes inclusive working px [u0, v0, u1, v1]; depth in metres.
 """
@@ -41,6 +44,8 @@ from dataclasses import dataclass
 import cv2
 import numba as nb
 import numpy as np
+
+from tracker.hands import order_stats
 
 FG_GAP = 0.02
 """Metres a pixel must lie nearer the camera than the background depth to be foreground (arm, hand)."""
@@ -95,6 +100,25 @@ touching hands meet, the split keeps last frame's labels unless the wrists' dist
 by 0.001–0.003 in all four. 1: 0.8787, 2: 0.8803, 5: 0.8805 (ground-truth start, filter seeds 0 / 0 / 1)."""
 KEEP_ENTRY_NEAR = 24.0
 """Working px an arm's entry point may lie from one of the previous frame's for its labels to carry over."""
+CROSS_SPLIT = True
+"""Whether a sleeve component that meets the image border in two runs (two forearms crossing) is split into two arms
+by a tube per run (:func:`_crossed_seeds`), when the components with one run gave fewer than two arms (new in session
+27; before, no arm was found there: on ``hands-s2`` tuning seeds 0, 2, 4 most frames where the hands do not touch).
+This detector alone on the inputs of its calls in ground-truth-start runs of ``hands-s2`` tuning seeds 0–4 (filter
+seed 0), per hand-frame F^b on the frames whose two ground-truth boxes overlap by F < 0.05: 0.556 → 0.860 (seed 0
+0.583 → 0.941, 2 0.452 → 0.736, 4 0.262 → 0.853; seeds 1, 3 unchanged); touching (F ≥ 0.3) 0.839 → 0.843. In the
+tracker see ``benchmarks/history/issue-14-hands.md``."""
+CROSS_TOUCH_DROP = True
+"""Whether the two tubes of a crossing are dropped when their wrists seed one 8-connected skin region (touching
+hands; :func:`_crossed_seeds`)."""
+TUBE_R0 = 40.0
+"""Working px from a run's entry point where the pixels that give its tube's direction begin (the detector alone as
+for :data:`CROSS_SPLIT`, seeds 0, 2, 4, frames apart: 15 / 60 px 0.671, 15 / 40 0.543, 15 / 90 0.814, 15 / 120
+0.856, 15 / 160 0.811, 40 / 90 0.859; TUBE_GROW 1.0 / 1.7 at 15 / 60: 0.667 / 0.672)."""
+TUBE_R1 = 90.0
+"""Working px from a run's entry point where the pixels that give its tube's direction end."""
+TUBE_GROW = 1.3
+"""Factor on a tube's radius within which a pixel may belong to it (:func:`_crossed_seeds`)."""
 HOLE_DEPTH = 1e3
 """Depth (m) given to the skin pixels without depth when :data:`HOLE_STEP` is on: far from every measured depth."""
 
@@ -318,8 +342,9 @@ def _arm_seeds(sk, near, sleeve, b, min_area, gap, min_run, wrist_far):
     whose border pixels form one run; each one's wrist (its pixels at least ``wrist_far`` of the farthest
     straight-line distance from the entry point where ``near``, the skin ``sk`` dilated by 2 px, is set) and the skin
     pixels within 2 px of the wrist as seeds. Components in the order of their first 2 × 2 block in raster order (as
-    OpenCV's block-based labelling numbers them). Returns
-    (seeds int32 H×W, 0 = none, k + 1 = the k-th arm; entries float64 [n, 2] (x, y))."""
+    OpenCV's block-based labelling numbers them). Returns (seeds int32 H×W, 0 = none, k + 1 = the k-th arm; entries
+    float64 [n, 2] (x, y); the pixels of all border components, columns and rows int32; the [start, end) spans in
+    them of the components of at least ``min_area`` px whose border pixels do not form one run, int64 [m, 2])."""
     h, w = sleeve.shape
     w2 = w + 2
     pad = np.zeros((h + 2) * w2, np.uint8)  # the sleeve with a 1 px frame of zeros, flat; 255 = visited
@@ -361,6 +386,8 @@ def _arm_seeds(sk, near, sleeve, b, min_area, gap, min_run, wrist_far):
     seeds = np.zeros((h, w), np.int32)
     entries = np.zeros((len(firsts), 2))
     n_arms = 0
+    multi = [0]
+    multi.pop()
     dist = np.empty(h * w)
     for c in np.argsort(np.array(firsts)):
         s0 = starts[c]
@@ -384,6 +411,7 @@ def _arm_seeds(sk, near, sleeve, b, min_area, gap, min_run, wrist_far):
                 xs[k] = ox[i]
                 k += 1
         if not _one_border_run(ys, xs, h, w, b, gap, min_run):
+            multi.append(c)  # no run or several (crossing arms: _crossed_seeds)
             continue
         ex = float(np.sum(xs - x0)) / nb_
         ey = float(np.sum(ys - y0)) / nb_
@@ -409,7 +437,11 @@ def _arm_seeds(sk, near, sleeve, b, min_area, gap, min_run, wrist_far):
         entries[n_arms, 0] = ex + x0
         entries[n_arms, 1] = ey + y0
         n_arms += 1
-    return seeds, entries[:n_arms]
+    spans = np.empty((len(multi), 2), np.int64)
+    for i in range(len(multi)):
+        spans[i, 0] = starts[multi[i]]
+        spans[i, 1] = starts[multi[i] + 1]
+    return seeds, entries[:n_arms], ox[:top], oy[:top], spans
 
 
 @nb.njit(cache=True, nogil=True)
@@ -486,7 +518,10 @@ def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray,
     sleeve = cv2.bitwise_and(fg, 1 - cv2.dilate(sk, np.ones((3, 3), np.uint8)))
     sleeve = cv2.morphologyEx(sleeve, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     near = cv2.dilate(sk, np.ones((5, 5), np.uint8))
-    seeds, entries = _arm_seeds(sk, near, sleeve, BORDER_PX, MIN_ARM_FRAC * h * w, RUN_GAP, MIN_RUN, WRIST_FAR)
+    seeds, entries, ox, oy, spans = _arm_seeds(sk, near, sleeve, BORDER_PX, MIN_ARM_FRAC * h * w, RUN_GAP, MIN_RUN,
+                                               WRIST_FAR)  # fmt: skip
+    if CROSS_SPLIT and len(entries) < 2 and len(spans):
+        seeds, entries = _crossed_seeds(sk, near, [(ox[a:b], oy[a:b]) for a, b in spans], seeds, entries)
     if not len(entries):
         return [], None
     zg = z
@@ -501,3 +536,130 @@ def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray,
     hands = [ArmHand((float(e[0]), float(e[1])), (int(b[0]), int(b[1]), int(b[2]), int(b[3])), int(c))
              for e, b, c in zip(entries, boxes, counts, strict=True) if c >= MIN_HAND_PX]  # fmt: skip
     return hands, ArmSplit(labels, np.asarray(entries, np.float64))
+
+
+def _border_runs(ys: np.ndarray, xs: np.ndarray, h: int, w: int) -> list[np.ndarray]:
+    """The runs (index arrays into ``ys``, ``xs``) of border pixels along the image border, as
+    :func:`_one_border_run` finds them (at least MIN_RUN pixels each)."""
+    b = BORDER_PX
+    p = np.where(ys < b, xs, np.where(xs >= w - b, w + ys,
+                                      np.where(ys >= h - b, w + h + (w - xs), 2 * w + h + (h - ys))))  # fmt: skip
+    order = np.argsort(p, kind="stable")
+    ps = p[order].astype(np.float64)
+    cuts = np.nonzero(np.diff(ps) > RUN_GAP)[0] + 1
+    runs = np.split(order, cuts)
+    if len(runs) > 1 and ps[0] + 2 * (w + h) - ps[-1] <= RUN_GAP:
+        runs[0] = np.concatenate([runs[-1], runs[0]])
+        runs.pop()
+    return [r for r in runs if len(r) >= MIN_RUN]
+
+
+@nb.njit(cache=True, nogil=True)
+def _tube_fit(xs, ys, ents, r0, r1):
+    """Per run k of a crossing component (pixels ``xs``, ``ys``; entry points ``ents`` [2, 2] (x, y)): each pixel's
+    straight-line distance ``d[k]`` from the entry, the pixels ``sel[k]`` that give the tube's direction (``r0``–``r1``
+    px from its entry, nearer it than the other), and each pixel's distance ``perp[k]`` from the axis through the
+    entry and those pixels' centroid (behind the entry: ``d[k]``). Returns (d, perp, sel, counts of sel)."""
+    n = len(xs)
+    d = np.empty((2, n))
+    perp = np.empty((2, n))
+    sel = np.zeros((2, n), np.bool_)
+    cnt = np.zeros(2, np.int64)
+    for i in range(n):
+        for k in range(2):
+            d[k, i] = math.hypot(xs[i] - ents[k, 0], ys[i] - ents[k, 1])
+    for k in range(2):
+        sx = 0.0
+        sy = 0.0
+        for i in range(n):
+            if r0 <= d[k, i] <= r1 and d[k, i] < d[1 - k, i]:
+                sel[k, i] = True
+                cnt[k] += 1
+                sx += xs[i]
+                sy += ys[i]
+        ax = sx / max(cnt[k], 1) - ents[k, 0]
+        ay = sy / max(cnt[k], 1) - ents[k, 1]
+        norm = max(math.hypot(ax, ay), 1e-9)
+        ax /= norm
+        ay /= norm
+        for i in range(n):
+            rx = xs[i] - ents[k, 0]
+            ry = ys[i] - ents[k, 1]
+            perp[k, i] = d[k, i] if rx * ax + ry * ay < 0 else abs(rx * ay - ry * ax)
+    return d, perp, sel, cnt
+
+
+@nb.njit(cache=True, nogil=True)
+def _tube_wrists(xs, ys, d, perp, reach, near, wrist_far, min_px):
+    """Each tube's wrist pixels (bool [2, n]) of a crossing component: a pixel within ``reach[k]`` of tube k's axis
+    belongs to it (to the nearer axis if within both); the tube's pixels at least ``wrist_far`` of its farthest
+    distance ``d[k]`` from its entry with skin within 2 px (``near``) are its wrist. A tube of fewer than ``min_px``
+    pixels has none."""
+    n = len(xs)
+    far = np.zeros((2, n), np.bool_)
+    for k in range(2):
+        o = 1 - k
+        cnt = 0
+        dmax = 0.0
+        for i in range(n):
+            if perp[k, i] <= reach[k] and (perp[o, i] > reach[o] or perp[k, i] < perp[o, i]):
+                cnt += 1
+                dmax = max(dmax, d[k, i])
+        if cnt < min_px:
+            continue
+        thr = wrist_far * dmax
+        for i in range(n):
+            if perp[k, i] <= reach[k] and (perp[o, i] > reach[o] or perp[k, i] < perp[o, i]):
+                far[k, i] = d[k, i] >= thr and near[ys[i], xs[i]] > 0
+    return far
+
+
+def _crossed_seeds(sk: np.ndarray, near: np.ndarray, comps: list[tuple[np.ndarray, np.ndarray]], seeds: np.ndarray,
+                   entries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Two forearms that cross form one sleeve component that meets the image border in two runs (``CROSS_SPLIT``).
+    Each run's arm is a tube from its entry point (the mean of the run's pixels) along the direction to the centroid
+    of the component's pixels TUBE_R0–TUBE_R1 working px from that point and nearer it than the other run's (the
+    forearm before the crossing), of radius the 90th percentile of those pixels' distances from the axis (pixels
+    behind the entry: their distance from it). A component pixel within TUBE_GROW radii (+ 1 px) of a tube's axis
+    belongs to that tube, to the nearer axis if within both: the crossing is shared along both axes and each tube
+    runs on past it to its own far end, also where the lower arm's visible sleeve ends at the upper one. Each tube
+    then seeds its hand as an arm does: the skin within 2 px of its pixels at least WRIST_FAR of its farthest
+    distance from the entry that have skin within 2 px (``near``). Both are dropped when their seeds lie in one
+    8-connected skin region (``CROSS_TOUCH_DROP``: touching hands, the tubes do not tell which hand is whose).
+    ``comps``: the (columns, rows) of the border components whose border pixels do not form one run; ``seeds``
+    (int32 H×W) and ``entries`` ([n, 2] (x, y)) as :func:`_arm_seeds` returns them; returns them with these arms
+    appended."""
+    h, w = sk.shape
+    b = BORDER_PX
+    out = list(entries)
+    skin_lab = None
+    for xs, ys in comps:
+        on_b = (ys < b) | (ys >= h - b) | (xs < b) | (xs >= w - b)
+        bys, bxs = ys[on_b], xs[on_b]
+        runs = _border_runs(bys, bxs, h, w)
+        if len(runs) != 2:
+            continue
+        ents = np.array([[bxs[r].mean(), bys[r].mean()] for r in runs])
+        d, perp, sel, cnt = _tube_fit(xs, ys, ents, TUBE_R0, TUBE_R1)
+        if cnt.min() < MIN_HAND_PX:
+            continue
+        reach = np.array([TUBE_GROW * order_stats.quantile(perp[k][sel[k]], 0.9) + 1.0 for k in range(2)])
+        far = _tube_wrists(xs, ys, d, perp, reach, near, WRIST_FAR, MIN_HAND_PX)
+        found: list[np.ndarray | None] = []
+        for k in range(2):
+            if not far[k].any():
+                found.append(None)
+                continue
+            wrist = np.zeros((h, w), np.uint8)
+            wrist[ys[far[k]], xs[far[k]]] = 1
+            found.append((cv2.dilate(wrist, np.ones((5, 5), np.uint8)) > 0) & (sk > 0))
+        if CROSS_TOUCH_DROP and found[0] is not None and found[1] is not None:
+            if skin_lab is None:
+                skin_lab = cv2.connectedComponents(sk, connectivity=8)[1]
+            if set(np.unique(skin_lab[found[0]]).tolist()) & set(np.unique(skin_lab[found[1]]).tolist()):
+                continue  # both wrists reach one skin region: the tubes do not tell which hand is whose
+        for k in range(2):
+            if found[k] is not None:
+                seeds = np.where(found[k] & (seeds == 0), len(out) + 1, seeds).astype(np.int32)
+                out.append(ents[k])
+    return seeds, np.asarray(out, np.float64).reshape(-1, 2)
