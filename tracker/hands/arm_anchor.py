@@ -567,7 +567,9 @@ def _tube_fit(xs, ys, ents, r0, r1):
     cnt = np.zeros(2, np.int64)
     for i in range(n):
         for k in range(2):
-            d[k, i] = math.hypot(xs[i] - ents[k, 0], ys[i] - ents[k, 1])
+            dx = xs[i] - ents[k, 0]
+            dy = ys[i] - ents[k, 1]
+            d[k, i] = math.sqrt(dx * dx + dy * dy)
     for k in range(2):
         sx = 0.0
         sy = 0.0
@@ -627,8 +629,8 @@ def _crossed_seeds(sk: np.ndarray, near: np.ndarray, comps: list[tuple[np.ndarra
     distance from the entry that have skin within 2 px (``near``). Both are dropped when their seeds lie in one
     8-connected skin region (``CROSS_TOUCH_DROP``: touching hands, the tubes do not tell which hand is whose).
     ``comps``: the (columns, rows) of the border components whose border pixels do not form one run; ``seeds``
-    (int32 H×W) and ``entries`` ([n, 2] (x, y)) as :func:`_arm_seeds` returns them; returns them with these arms
-    appended."""
+    (int32 H×W, changed in place) and ``entries`` ([n, 2] (x, y)) as :func:`_arm_seeds` returns them; returns them
+    with these arms appended."""
     h, w = sk.shape
     b = BORDER_PX
     out = list(entries)
@@ -660,6 +662,6 @@ def _crossed_seeds(sk: np.ndarray, near: np.ndarray, comps: list[tuple[np.ndarra
                 continue  # both wrists reach one skin region: the tubes do not tell which hand is whose
         for k in range(2):
             if found[k] is not None:
-                seeds = np.where(found[k] & (seeds == 0), len(out) + 1, seeds).astype(np.int32)
+                seeds[found[k] & (seeds == 0)] = len(out) + 1
                 out.append(ents[k])
     return seeds, np.asarray(out, np.float64).reshape(-1, 2)
