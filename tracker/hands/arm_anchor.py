@@ -386,7 +386,7 @@ def _arm_seeds(sk, near, sleeve, b, min_area, gap, min_run, wrist_far):
     seeds = np.zeros((h, w), np.int32)
     entries = np.zeros((len(firsts), 2))
     n_arms = 0
-    multi = [0]
+    multi = [0]  # the components whose border pixels are not one run (an empty list of ints, as numba types it)
     multi.pop()
     dist = np.empty(h * w)
     for c in np.argsort(np.array(firsts)):
@@ -599,20 +599,21 @@ def _tube_wrists(xs, ys, d, perp, reach, near, wrist_far, min_px):
     pixels has none."""
     n = len(xs)
     far = np.zeros((2, n), np.bool_)
+    member = np.empty(n, np.bool_)
     for k in range(2):
         o = 1 - k
         cnt = 0
         dmax = 0.0
         for i in range(n):
-            if perp[k, i] <= reach[k] and (perp[o, i] > reach[o] or perp[k, i] < perp[o, i]):
+            member[i] = perp[k, i] <= reach[k] and (perp[o, i] > reach[o] or perp[k, i] < perp[o, i])
+            if member[i]:
                 cnt += 1
                 dmax = max(dmax, d[k, i])
         if cnt < min_px:
             continue
         thr = wrist_far * dmax
         for i in range(n):
-            if perp[k, i] <= reach[k] and (perp[o, i] > reach[o] or perp[k, i] < perp[o, i]):
-                far[k, i] = d[k, i] >= thr and near[ys[i], xs[i]] > 0
+            far[k, i] = member[i] and d[k, i] >= thr and near[ys[i], xs[i]] > 0
     return far
 
 
