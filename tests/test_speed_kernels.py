@@ -1029,3 +1029,47 @@ def test_refiner_corner_bounds_kernel_matches_numpy():
             ref = (float(u.min()), float(v.min()), float(u.max()), float(v.max()))
         assert np.array_equal(np.array(got[:4]), np.array(ref), equal_nan=True), trial
     assert 100 < n_near < 2900
+
+
+@pytest.mark.parametrize("n", [1, 5, 8, 9, 64, 128, 129, 225, 1000])
+def test_pairwise_sum_kernel_adds_as_numpy_sum(n):
+    from tracker.filter.resampling import pairwise_sum
+
+    rng = np.random.default_rng(n)
+    for _ in range(200):
+        x = rng.standard_normal(n) * 10.0 ** rng.uniform(-3, 3, n)
+        assert pairwise_sum(x, 0, n) == x.sum()
+    # a misordered sum (plain running total) differs on these inputs: the test can tell the orders apart
+    if n >= 9:
+        assert any(pairwise_sum(x, 0, n) != float(np.cumsum(x)[-1])
+                   for x in (rng.standard_normal(n) * 10.0 ** rng.uniform(-3, 3, n) for _ in range(200)))
+
+
+@pytest.mark.parametrize("case", ["random", "minus_inf", "nan", "all_minus_inf", "one_hot"])
+def test_reweigh_kernel_matches_the_numpy_weight_update(case):
+    from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, reweigh
+
+    rng = np.random.default_rng(7)
+    n = 225
+    for _ in range(50):
+        log_w = rng.normal(-5.4, 3.0, n)
+        ell_tot = rng.normal(0.0, 40.0, n)
+        ell_prev = rng.normal(0.0, 40.0, n)
+        if case == "minus_inf":
+            ell_tot[rng.integers(0, n, 20)] = -np.inf
+        elif case == "nan":
+            ell_tot[3] = np.nan
+        elif case == "all_minus_inf":
+            ell_tot[:] = -np.inf
+        elif case == "one_hot":
+            ell_tot[:] = -1e6
+            ell_tot[11] = 0.0
+        # the numpy form of coordinate_passes before the kernel
+        ref = log_w.copy()
+        ref += ell_tot - ell_prev
+        w_ref = normalize_log_weights(ref)
+        ref = np.log(np.maximum(w_ref, 1e-300))
+        kl_ref = kl_from_uniform(w_ref)
+        got, w = log_w.copy(), np.empty(n)
+        kl = reweigh(got, ell_tot, ell_prev, w)
+        assert np.array_equal(w, w_ref) and np.array_equal(got, ref) and kl == kl_ref

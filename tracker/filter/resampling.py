@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 
@@ -23,6 +25,109 @@ def kl_from_uniform(weights: np.ndarray) -> float:
     w = np.asarray(weights, np.float64)
     nz = w[w > 0]
     return float(np.sum(nz * np.log(nz)) + np.log(w.size))
+
+
+@nb.njit(cache=True)
+def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's sum of ``a[lo:lo + n]`` for n <= 128 (:func:`pairwise_sum`)."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    end = n - n % 8
+    while i < end:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@nb.njit(cache=True)
+def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """Sum of ``a[lo:lo + n]`` (float64) as numpy's ``sum`` forms it for a contiguous float64 array: in order below 8
+    terms, eight running sums (then combined as a tree, the rest added in order) up to 128 terms, above that the two
+    halves (the first a multiple of 8 long) summed alike and added. The same value bit for bit. (numpy's recursion
+    walked with an explicit stack: numba's cache does not take recursive functions.)"""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    seg_lo = np.empty(64, np.int64)
+    seg_n = np.empty(64, np.int64)
+    stage = np.empty(64, np.int64)
+    vals = np.empty(64)
+    top, nv = 0, 0
+    seg_lo[0], seg_n[0], stage[0] = lo, n, 0
+    while top >= 0:
+        m = seg_n[top]
+        if m <= 128:
+            vals[nv] = _block_sum(a, seg_lo[top], m)
+            nv += 1
+            top -= 1
+            continue
+        n2 = m // 2
+        n2 -= n2 % 8
+        if stage[top] == 0:  # the first half
+            stage[top] = 1
+            seg_lo[top + 1], seg_n[top + 1], stage[top + 1] = seg_lo[top], n2, 0
+            top += 1
+        elif stage[top] == 1:  # the second half
+            stage[top] = 2
+            seg_lo[top + 1], seg_n[top + 1], stage[top + 1] = seg_lo[top] + n2, m - n2, 0
+            top += 1
+        else:  # both done: their sum
+            vals[nv - 2] = vals[nv - 2] + vals[nv - 1]
+            nv -= 1
+            top -= 1
+    return vals[0]
+
+
+@nb.njit(cache=True)
+def reweigh(log_w: np.ndarray, ell_tot: np.ndarray, ell_prev: np.ndarray, w: np.ndarray) -> float:
+    """One coordinate pass's weight update in place (all (N,) float64): ``log_w += ell_tot − ell_prev``, the
+    normalised weights into ``w`` (:func:`normalize_log_weights`), ``log_w`` ← ``log(max(w, 1e-300))``; returns
+    D_KL(w‖U) (:func:`kl_from_uniform`). numpy's operations in its order (sums as :func:`pairwise_sum`): the same
+    values as that numpy form."""
+    n = log_w.shape[0]
+    m = -np.inf
+    nan = False
+    for j in range(n):
+        log_w[j] += ell_tot[j] - ell_prev[j]
+        x = log_w[j]
+        if x != x:
+            nan = True
+        elif x > m:
+            m = x
+    if nan or not np.isfinite(m):
+        for j in range(n):
+            w[j] = 1.0 / n
+    else:
+        for j in range(n):
+            w[j] = math.exp(log_w[j] - m)
+        total = pairwise_sum(w, 0, n)
+        for j in range(n):
+            w[j] = w[j] / total
+    terms = np.empty(n)
+    k = 0
+    for j in range(n):
+        wj = w[j]
+        log_w[j] = math.log(wj if wj >= 1e-300 else 1e-300)
+        if wj > 0.0:
+            terms[k] = wj * math.log(wj)
+            k += 1
+    return pairwise_sum(terms, 0, k) + math.log(n)
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -34,7 +34,7 @@ from tracker.filter.penalties import (
     table_log_penalty,
     world_centres,
 )
-from tracker.filter.resampling import kl_from_uniform, normalize_log_weights, systematic_resample, take_rows_inplace
+from tracker.filter.resampling import reweigh, systematic_resample, take_rows_inplace
 
 if TYPE_CHECKING:
     from tracker.filter.particle_filter import MultiObjectTracker
@@ -108,6 +108,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     t_pen = 0.0
     ell_prev = np.zeros(n)  # ℓ_0 = 0 at the start of each frame
     log_w = trk.log_w.copy()
+    w = np.empty(n)  # this pass's normalised weights (reweigh)
     n_resampled = 0
 
     # 3. coordinate passes (Algorithm 5); unlocked hints move only parts estimated visible enough
@@ -141,11 +142,10 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
         ell_tot = ell + penalties.total(p_cur, R_cur, None if first else changed_objs) + rest + support
         first = False
         td = time.perf_counter()
-        log_w += ell_tot - ell_prev
+        # log_w += ℓ − ℓ_prev, normalised into w, log_w = log w and D_KL(w‖U): one kernel (the numpy form's values)
+        kl = reweigh(log_w, ell_tot, ell_prev, w)
         ell_prev = ell_tot
-        w = normalize_log_weights(log_w)
-        log_w = np.log(np.maximum(w, 1e-300))
-        if kl_from_uniform(w) > cfg.kl_max:
+        if kl > cfg.kl_max:
             idx = systematic_resample(w, trk.rng)
             perm = idx if perm is None else perm[idx]
             p_cur, R_cur, v_cur = p_cur[idx], R_cur[idx], v_cur[idx]
