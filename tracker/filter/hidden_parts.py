@@ -561,13 +561,21 @@ class PriorTerms:
         n = trk.config.n_particles
         self.support_cols = np.zeros((k, n)) if self.support_parts.size else None  # per part, its support term
         self.done = np.zeros(k, bool)
+        # the parts under the rest prior, found once (log_rest_prior's tests, done here for the frame)
+        self.rest_parts = np.flatnonzero(trk._rest_on)
+        self.rest_sig2 = float(trk.config.rest_prior_sigma ** 2)
 
     def total(self, p: np.ndarray, R: np.ndarray,
               changed: set[int] | None = None) -> tuple[np.ndarray | float, np.ndarray | float]:
         """``(log_rest_prior(trk, p), log_support_prior(trk, p, R, plane))`` as the passes add them, where only the
         parts in ``changed`` moved since the last call (``None``: all)."""
         trk = self.trk
-        rest = log_rest_prior(trk, p)  # one kernel: cheaper from scratch
+        rest = 0.0  # log_rest_prior(trk, p), its tests done once in __init__; one kernel: cheaper from scratch
+        if self.rest_parts.size >= 8:
+            rest = log_rest_prior(trk, p)
+        elif self.rest_parts.size:
+            rest = _rest_prior(np.asarray(p, np.float64), self.rest_parts, np.asarray(trk._rest_t, np.float64),
+                               self.rest_sig2)
         support = 0.0
         if self.support_parts.size:
             for i in self.support_parts:
