@@ -796,7 +796,7 @@ def test_intersects_others_matches_the_stacked_form():
     """The refinement's interpenetration test of a corrected part against the others' estimates (arrays filled in
     place) answers as the form that stacked every pose's matrices did, on touching and overlapping cubes."""
     from tracker.filter.penalties import intersection_flags
-    from tracker.refine.refine_stage import intersects_others
+    from tracker.refine.refine_stage import intersects_others, pose_stack
 
     parts = [PartSpec(f"c{i}", box=(0.03, 0.03, 0.03)) for i in range(4)]
     trk = MultiObjectTracker(parts, INTR, TrackerConfig.preset("default").with_overrides(n_particles=8), seed=0)
@@ -813,6 +813,11 @@ def test_intersects_others_matches_the_stacked_form():
         pairs = np.array([(obj, o) for o in range(4) if o != obj], np.int64)
         want = bool(intersection_flags(R, t, trk.center, trk.half, pairs, trk.config.contact_tolerance)[0])
         assert intersects_others(trk, obj, pose, poses) == want
+        # with the estimates stacked once (the refinement stage's form): the same answer, the stack left as it was
+        stack = pose_stack(trk, poses)
+        kept = (stack[0].copy(), stack[1].copy())
+        assert intersects_others(trk, obj, pose, poses, stack) == want
+        assert np.array_equal(stack[0], kept[0]) and np.array_equal(stack[1], kept[1])
         hits += want
     assert 5 < hits < 60
 

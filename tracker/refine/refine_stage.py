@@ -200,6 +200,7 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
                 trk.v[:, i] = 0.0
                 trk._loss.reset(i)
     applied = [None] * k
+    stack = None  # the estimates stacked for intersects_others, made once and kept up to date
     for i, corr in enumerate(corrections):
         if corr is None:
             continue
@@ -207,10 +208,14 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         ref = Pose.from_rt(corr.R, corr.t)
         # (a held part stays where its last refinement, which passed this test, put it: not tested against the
         # filter's estimates of its neighbours, which may touch it)
-        if not held[i] and intersects_others(trk, i, ref, state.poses):
+        if stack is None and k > 1:
+            stack = pose_stack(trk, state.poses)
+        if not held[i] and intersects_others(trk, i, ref, state.poses, stack):
             continue
         trk.p[:, i], trk.R[:, i] = corr.apply_to(trk.p[:, i], trk.R[:, i])
         state.poses[name] = ref
+        if stack is not None:
+            stack[0][0, i], stack[1][0, i] = ref.R, ref.t
         state.particles[name] = trk.p[:, i].astype(np.float32)
         trk.estimates[name] = ref
         applied[i] = corr
@@ -241,18 +246,34 @@ def reuse_icp(trk: MultiObjectTracker, obj: int, est: Pose, det) -> Pose | None:
     return last[0]
 
 
-def intersects_others(trk: MultiObjectTracker, obj: int, pose: Pose, poses: dict[str, Pose]) -> bool:
-    """Would part ``obj`` at ``pose`` interpenetrate another part's estimate (beyond the contact tolerance)?"""
+def pose_stack(trk: MultiObjectTracker, poses: dict[str, Pose]) -> tuple[np.ndarray, np.ndarray]:
+    """The parts' estimates ``poses`` stacked as :func:`intersects_others` reads them: rotations (1, K, 3, 3) and
+    positions (1, K, 3), camera frame (m)."""
     k = len(trk.parts)
-    if k < 2:
-        return False
     R = np.empty((1, k, 3, 3))
     t = np.empty((1, k, 3))
     for i, n in enumerate(trk.names):
-        p = pose if i == obj else poses[n]
-        R[0, i] = p.R
-        t[0, i] = p.t
+        R[0, i] = poses[n].R
+        t[0, i] = poses[n].t
+    return R, t
+
+
+def intersects_others(trk: MultiObjectTracker, obj: int, pose: Pose, poses: dict[str, Pose],
+                      stack: tuple[np.ndarray, np.ndarray] | None = None) -> bool:
+    """Would part ``obj`` at ``pose`` interpenetrate another part's estimate (beyond the contact tolerance)?
+    ``stack``: :func:`pose_stack` of ``poses`` when already made (part ``obj``'s row is replaced during the test and
+    put back)."""
+    k = len(trk.parts)
+    if k < 2:
+        return False
+    R, t = pose_stack(trk, poses) if stack is None else stack
+    keep_R, keep_t = R[0, obj].copy(), t[0, obj].copy()
+    R[0, obj] = pose.R
+    t[0, obj] = pose.t
     pairs = np.empty((k - 1, 2), np.int64)
     pairs[:, 0] = obj
     pairs[:, 1] = [o for o in range(k) if o != obj]
-    return bool(intersection_flags(R, t, trk.center, trk.half, pairs, trk.config.contact_tolerance)[0])
+    try:
+        return bool(intersection_flags(R, t, trk.center, trk.half, pairs, trk.config.contact_tolerance)[0])
+    finally:
+        R[0, obj], t[0, obj] = keep_R, keep_t
