@@ -21,7 +21,8 @@ frame and without tracking, each arm and the skin pixels at its end:
    the upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's
    blind band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split
    gave another arm, when the tracker ran this detector on the previous frame too); each skin pixel belongs to the
-   arm whose wrist reaches it first. A hand's box is the tight box of its pixels (at least :data:`MIN_HAND_PX`).
+   arm whose wrist reaches it first. A hand's box is the tight box of its pixels (at least :data:`MIN_HAND_PX`) and of
+   the unopened mask's skin next to them (:data:`BOX_RIM`).
 
 Without depth nothing is found. Dev measurement (``hands-s2`` tuning seeds 0–4, this detector alone, no tracking,
 the left entry taken as one hand): per hand-frame F̄^b 0.76 / 0.85 / 0.66 / 0.83 / 0.55; used where it finds the
@@ -111,6 +112,13 @@ tracker see ``benchmarks/history/issue-14-hands.md``."""
 CROSS_TOUCH_DROP = True
 """Whether the two tubes of a crossing are dropped when their wrists seed one 8-connected skin region (touching
 hands; :func:`_crossed_seeds`)."""
+BOX_RIM = True
+"""Whether a hand's box also covers the skin pixels of the unopened colour mask next to its pixels (8-neighbours; new
+in session 28): the split runs on the mask opened by a 3 × 3 cross, which trims the hand's rim, and its tight box fell
+short of the rendered palm box (ground-truth start, ``hands-s2`` tuning seeds 0–4, filter seed 0, frames with F^b ≥
+0.85: its wrist and finger edges 0.9–1.0 full px inside the ground truth's on average). In the tracker, the same
+frames for both arms, off → on: F̄^b 0.8828 → 0.8877 ground-truth start (filter seeds 0–2), 0.8888 → 0.8928
+automatic start, KF 0.8852 → 0.8896; 35 of 35 runs better; ``hands-s1``, ``hands-s3`` identical."""
 TUBE_R0 = 40.0
 """Working px from a run's entry point where the pixels that give its tube's direction begin (the detector alone as
 for :data:`CROSS_SPLIT`, seeds 0, 2, 4, frames apart: 15 / 60 px 0.671, 15 / 40 0.543, 15 / 90 0.814, 15 / 120
@@ -466,6 +474,27 @@ def _label_boxes(labels, n):
     return boxes, counts
 
 
+@nb.njit(cache=True, nogil=True)
+def _rim_boxes(labels, skin, boxes):
+    """Grow the inclusive boxes [n, 4] of labels 1..n (in place) over the unlabelled pixels of ``skin`` (uint8, the
+    unopened colour mask) that have an 8-neighbour with that label."""
+    h, w = labels.shape
+    n = boxes.shape[0]
+    for y in range(h):
+        for x in range(w):
+            if skin[y, x] == 0 or labels[y, x] != 0:
+                continue
+            for yy in range(max(y - 1, 0), min(y + 2, h)):
+                for xx in range(max(x - 1, 0), min(x + 2, w)):
+                    k = labels[yy, xx] - 1
+                    if 0 <= k < n:
+                        boxes[k, 0] = min(boxes[k, 0], x)
+                        boxes[k, 1] = min(boxes[k, 1], y)
+                        boxes[k, 2] = max(boxes[k, 2], x)
+                        boxes[k, 3] = max(boxes[k, 3], y)
+    return boxes
+
+
 @dataclass
 class ArmSplit:
     """One frame's split of the skin between the arms: ``labels`` (int32 working H×W, k + 1 = the k-th arm, 0 = none)
@@ -533,6 +562,8 @@ def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray,
     carried = carried_labels(prev, entries) if prev is not None and KEEP_COST > 0 else None
     labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, carried, KEEP_COST)
     boxes, counts = _label_boxes(labels, len(entries))
+    if BOX_RIM:
+        _rim_boxes(labels, np.ascontiguousarray(skin, np.uint8), boxes)
     hands = [ArmHand((float(e[0]), float(e[1])), (int(b[0]), int(b[1]), int(b[2]), int(b[3])), int(c))
              for e, b, c in zip(entries, boxes, counts, strict=True) if c >= MIN_HAND_PX]  # fmt: skip
     return hands, ArmSplit(labels, np.asarray(entries, np.float64))
