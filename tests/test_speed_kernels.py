@@ -981,14 +981,15 @@ def test_warm_up_loads_the_kernels_a_session_calls_later():
     """A tracker's warm-up gives the rest and support priors' kernels and the hand carry's point and registration
     kernels the very signatures the session's calls use: calling them as the session does adds no new one (it would
     be compiled or loaded from the cache mid-session, tens of ms in one frame)."""
-    from tracker.filter import hand_carry, hidden_parts
+    from tracker.filter import footprint_depth, hand_carry, hidden_parts
     from tracker.geometry import depth_points, point_icp
 
     parts = [PartSpec(f"c{i}", box=(0.03, 0.03, 0.04)) for i in range(3)]
     cfg = TrackerConfig.preset("default").with_overrides(n_particles=30)
     trk = MultiObjectTracker(parts, INTR, cfg, seed=0)
     kernels = [hidden_parts._rest_prior, hidden_parts._support_kernel, depth_points.window_points,
-               point_icp.build_grid, point_icp.rigid_icp]
+               point_icp.build_grid, point_icp.rigid_icp, hidden_parts._behind_surface,
+               footprint_depth._footprint_counts]
     before = [list(k.signatures) for k in kernels]
     assert all(before)
     rng = np.random.default_rng(3)
@@ -1005,6 +1006,8 @@ def test_warm_up_loads_the_kernels_a_session_calls_later():
     assert pts.shape[0] > 6
     w, t = hand_carry.register_rigid(pts, pts + np.array([0.002, 0.0, 0.0]), 5, 0.01, 0.2)
     assert np.isfinite(w).all() and np.isfinite(t).all()
+    assert hidden_parts.revealed(trk, 1, depth) in (True, False)  # the depth shows the cube's surface: not revealed
+    assert footprint_depth.classify_footprint(trk, 1, depth, plane) is not None
     assert [list(k.signatures) for k in kernels] == before
 
 
@@ -1078,3 +1081,105 @@ def test_reweigh_kernel_matches_the_numpy_weight_update(case):
         got, w = log_w.copy(), np.empty(n)
         kl = reweigh(got, ell_tot, ell_prev, w)
         assert np.array_equal(w, w_ref) and np.array_equal(got, ref) and kl == kl_ref
+
+
+def _classify_footprint_reference(trk, obj, depth, plane, stride=2):
+    """The numpy form of :func:`tracker.filter.footprint_depth.classify_footprint` (before its compiled counts)."""
+    from tracker.filter.blob_follow import footprint
+    from tracker.filter.colour_input import box_surface_depth
+    from tracker.filter.footprint_depth import SURFACE_TOLERANCE_M, TABLE_TOLERANCE_M, FootprintDepth
+    from tracker.geometry.box_renderer import pixel_rays
+
+    fp = footprint(trk, obj)
+    if fp is None:
+        return None
+    h, w = depth.shape[:2]
+    u0, v0 = max(int(np.floor(fp[0])), 0), max(int(np.floor(fp[1])), 0)
+    u1, v1 = min(int(np.ceil(fp[2])) + 1, w), min(int(np.ceil(fp[3])) + 1, h)
+    if u1 <= u0 or v1 <= v0:
+        return None
+    vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
+    uu, vv = uu.ravel(), vv.ravel()
+    surface = box_surface_depth(trk, obj, uu, vv)
+    on = np.isfinite(surface)
+    if not on.any():
+        return None
+    uu, vv, surface = uu[on], vv[on], surface[on]
+    z = np.asarray(depth[vv, uu], np.float64)
+    valid = np.isfinite(z) & (z > 0)
+    diff = np.where(valid, z - surface, 0.0)
+    nearer = valid & (diff < -SURFACE_TOLERANCE_M)
+    shown = valid & (np.abs(diff) <= SURFACE_TOLERANCE_M)
+    behind = valid & (diff > SURFACE_TOLERANCE_M)
+    table = np.zeros_like(behind)
+    if plane is not None and behind.any():
+        normal, offset = np.asarray(plane[0], np.float64), float(plane[1])
+        pts = pixel_rays(trk.intrinsics, uu[behind].astype(np.float64), vv[behind].astype(np.float64))
+        pts = pts * z[behind][:, None]
+        table[behind] = np.abs(pts @ normal + offset) <= TABLE_TOLERANCE_M
+    return FootprintDepth(int(len(z)), float(1.0 - valid.mean()), float(nearer.mean()), float(shown.mean()),
+                          float(behind.mean()), float(table.mean()))
+
+
+def _revealed_reference(trk, obj, depth):
+    """The numpy form of :func:`tracker.filter.hidden_parts.revealed` with ``revealed_surface`` (before its
+    compiled surface test)."""
+    from tracker.filter.colour_input import box_surface_depth
+    from tracker.filter.hidden_parts import estimate_rect
+
+    rect = estimate_rect(trk, obj, depth.shape)
+    if rect is None:
+        return False
+    u0, v0, u1, v1 = rect
+    du, dv = (u1 - u0) // 4, (v1 - v0) // 4
+    patch = depth[v0 + dv : v1 - dv, u0 + du : u1 - du]
+    if patch.size < 16:
+        return False
+    valid = np.isfinite(patch) & (patch > 0)
+    if valid.mean() < trk.config.carry_revealed_fraction:
+        return False
+    vv, uu = np.nonzero(valid)
+    surface = box_surface_depth(trk, obj, uu + u0 + du, vv + v0 + dv)
+    on = np.isfinite(surface)
+    if on.mean() < 0.5:
+        return False
+    return bool((patch[valid][on] > surface[on] + 0.015).mean() > 0.9)
+
+
+def test_footprint_and_see_through_kernels_match_their_numpy_forms():
+    """The hidden-parts stage's footprint classification and see-through test (compiled counts) give the numpy
+    forms' results on cubes at seeded poses over seeded depth (the table, the cube itself, a hand in front, holes,
+    depth just behind the surface), every outcome of both tests occurring."""
+    from tracker.filter.footprint_depth import classify_footprint
+    from tracker.filter.hidden_parts import revealed
+
+    parts = [PartSpec("c0", box=(0.036, 0.036, 0.036)), PartSpec("c1", box=(0.03, 0.05, 0.04))]
+    cfg = TrackerConfig.preset("default").with_overrides(n_particles=8, revealed_surface=True)
+    trk = MultiObjectTracker(parts, INTR, cfg, seed=0)
+    rng = np.random.default_rng(21)
+    vv, uu = np.mgrid[0:INTR.height, 0:INTR.width]
+    outcomes, revealed_seen = set(), set()
+    for trial in range(120):
+        reach = 0.25 if trial % 4 else 0.9  # every fourth part may lie (partly) off the image
+        poses = {p.name: Pose.from_rt(rotvec_to_matrix(rng.normal(0.0, 0.8, 3))[0],
+                                      [rng.uniform(-reach, reach), rng.uniform(-0.2, 0.2), rng.uniform(0.3, 0.9)])
+                 for p in parts}
+        trk.initialize(poses)
+        obj = trial % 2
+        est = trk.estimates[trk.names[obj]]
+        table_z = float(est.t[2]) + rng.choice([-0.1, 0.012, 0.02, 0.2])  # in front, just behind, behind
+        tilt = rng.normal(0.0, 0.3, 2)
+        depth = (table_z + tilt[0] * (uu - 320) / 600.0 + tilt[1] * (vv - 240) / 600.0).astype(np.float32)
+        holes = rng.random(depth.shape) < rng.choice([0.0, 0.3, 0.7])
+        depth[holes] = rng.choice([np.nan, 0.0])
+        normal = np.array([0.0, -tilt[1], -1.0]) / np.linalg.norm([0.0, tilt[1], 1.0])
+        plane = None if trial % 5 == 0 else (normal, float(-normal @ np.array([0.0, 0.0, table_z])))
+        want = _classify_footprint_reference(trk, obj, depth, plane)
+        got = classify_footprint(trk, obj, depth, plane)
+        assert got == want
+        if want is not None:
+            outcomes.add((want.nearer > 0, want.shown > 0, want.behind > 0, want.table > 0))
+        r = revealed(trk, obj, depth)
+        assert r == _revealed_reference(trk, obj, depth)
+        revealed_seen.add(r)
+    assert len(outcomes) >= 4 and any(o[3] for o in outcomes) and revealed_seen == {True, False}

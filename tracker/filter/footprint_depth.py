@@ -16,11 +16,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
-from tracker.filter.blob_follow import footprint
-from tracker.filter.colour_input import box_surface_depth
-from tracker.geometry.box_renderer import pixel_rays
+from tracker.geometry.box_renderer import pixel_rays, render_boxes_at_pixels
+from tracker.geometry.fma import fma
 
 SURFACE_TOLERANCE_M = 0.01
 """Depth within this distance (m) of the estimate's rendered surface shows the part; nearer is in front of it,
@@ -58,39 +58,124 @@ def classify_footprint(trk, obj: int, depth: np.ndarray, plane, stride: int = 2)
     """Classify the depth over box part ``obj``'s silhouette at its estimate (every ``stride``-th pixel of its
     projected rectangle; ``depth`` in metres, NaN or 0 = no measurement; ``plane`` = the table's ``(normal, offset)``
     with the normal up, or None: nothing then counts as table). None for a mesh part or an estimate with no
-    silhouette pixel on the image."""
+    silhouette pixel on the image. The counts in one compiled call (:func:`_footprint_counts`), the table test on
+    the pixels behind the surface in numpy: the values of the numpy form (``footprint``, ``box_surface_depth`` and
+    the masks' means)."""
     if trk.meshes[obj] is not None:
         return None
-    fp = footprint(trk, obj)
-    if fp is None:
+    est = trk.estimates[trk.names[obj]]
+    intr = trk.intrinsics
+    n, n_valid, n_nearer, n_shown, n_behind, bu, bv, bz = _footprint_counts(
+        np.ascontiguousarray(trk.corners[obj], np.float64), np.ascontiguousarray(est.R, np.float64), est.t,
+        np.ascontiguousarray(trk.center[obj], np.float64), np.ascontiguousarray(trk.half[obj], np.float64),
+        float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), depth, int(stride))
+    if n == 0:
         return None
-    h, w = depth.shape[:2]
-    u0, v0 = max(int(np.floor(fp[0])), 0), max(int(np.floor(fp[1])), 0)
-    u1, v1 = min(int(np.ceil(fp[2])) + 1, w), min(int(np.ceil(fp[3])) + 1, h)
-    if u1 <= u0 or v1 <= v0:
-        return None
-    vv, uu = np.mgrid[v0:v1:stride, u0:u1:stride]
-    uu, vv = uu.ravel(), vv.ravel()
-    surface = box_surface_depth(trk, obj, uu, vv)
-    on = np.isfinite(surface)
-    if not on.any():
-        return None
-    uu, vv, surface = uu[on], vv[on], surface[on]
-    z = np.asarray(depth[vv, uu], np.float64)
-    valid = np.isfinite(z) & (z > 0)
-    diff = np.where(valid, z - surface, 0.0)
-    nearer = valid & (diff < -SURFACE_TOLERANCE_M)
-    shown = valid & (np.abs(diff) <= SURFACE_TOLERANCE_M)
-    behind = valid & (diff > SURFACE_TOLERANCE_M)
-    table = np.zeros_like(behind)
-    if plane is not None and behind.any():
+    n_table = 0
+    if plane is not None and n_behind > 0:
         normal, offset = np.asarray(plane[0], np.float64), float(plane[1])
-        pts = pixel_rays(trk.intrinsics, uu[behind].astype(np.float64), vv[behind].astype(np.float64))
-        pts = pts * z[behind][:, None]
-        table[behind] = np.abs(pts @ normal + offset) <= TABLE_TOLERANCE_M
-    n = int(len(z))
-    return FootprintDepth(n, float(1.0 - valid.mean()), float(nearer.mean()), float(shown.mean()),
-                          float(behind.mean()), float(table.mean()))
+        pts = pixel_rays(intr, bu, bv)
+        pts = pts * bz[:, None]
+        n_table = int(np.count_nonzero(np.abs(pts @ normal + offset) <= TABLE_TOLERANCE_M))
+    return FootprintDepth(n, float(1.0 - n_valid / n), n_nearer / n, n_shown / n, n_behind / n, n_table / n)
+
+
+@nb.njit(cache=True)
+def footprint_bounds(corners, R, t, fx, fy, cx, cy):
+    """``(ok, u_min, v_min, u_max, v_max)``: :func:`tracker.filter.blob_follow.footprint` of the box corners
+    ``corners`` (8, 3, body frame) at ``(R, t)`` (``corners @ R.T + t`` with the fused multiply-adds of numpy's
+    BLAS product of these shapes, :mod:`tracker.geometry.fma`; ``fx · x / z + cx``); ``ok`` False when a corner lies
+    closer than 5 cm to the camera plane."""
+    umin, vmin, umax, vmax = np.inf, np.inf, -np.inf, -np.inf
+    for i in range(corners.shape[0]):
+        c0, c1, c2 = corners[i, 0], corners[i, 1], corners[i, 2]
+        x = fma(c2, R[0, 2], fma(c1, R[0, 1], c0 * R[0, 0])) + t[0]
+        y = fma(c2, R[1, 2], fma(c1, R[1, 1], c0 * R[1, 0])) + t[1]
+        z = fma(c2, R[2, 2], fma(c1, R[2, 1], c0 * R[2, 0])) + t[2]
+        if z < 0.05:
+            return False, 0.0, 0.0, 0.0, 0.0
+        u = fx * x / z + cx
+        v = fy * y / z + cy
+        umin, umax = min(umin, u), max(umax, u)
+        vmin, vmax = min(vmin, v), max(vmax, v)
+    return True, umin, vmin, umax, vmax
+
+
+@nb.njit(cache=True)
+def box_depths(R, t, center, half, pu, pv, fx, fy, cx, cy):
+    """:func:`tracker.filter.colour_input.box_surface_depth` (float64 (P,)) of the box ``(center, half)`` at pose
+    ``(R, t)`` at the pixels ``(pu, pv)`` (float64 (P,)): the same renderer, rays and float32 depths."""
+    p = pu.shape[0]
+    rays = np.empty((p, 3))
+    for i in range(p):
+        rays[i, 0] = (pu[i] - cx) / fx
+        rays[i, 1] = (pv[i] - cy) / fy
+        rays[i, 2] = 1.0
+    Rs = np.empty((1, 1, 3, 3))
+    ts = np.empty((1, 1, 3))
+    for a in range(3):
+        ts[0, 0, a] = t[a]
+        for b in range(3):
+            Rs[0, 0, a, b] = R[a, b]
+    out = np.full((1, p), np.inf, np.float32)
+    idx = np.arange(p)
+    render_boxes_at_pixels(Rs, ts, center.reshape(1, 3), half.reshape(1, 3), 0, np.zeros(1, np.int64), rays, pu, pv,
+                           idx, fx, fy, cx, cy, out, idx.reshape(1, p), np.zeros((1, p), np.uint8))
+    res = np.empty(p)
+    for i in range(p):
+        res[i] = np.float64(out[0, i])
+    return res
+
+
+@nb.njit(cache=True)
+def _footprint_counts(corners, R, t, center, half, fx, fy, cx, cy, depth, stride):
+    """:func:`classify_footprint`'s pixel work: the silhouette pixels sampled (``n``; 0 = none, or no footprint), how
+    many have depth, are nearer than the surface, show it, lie behind it, and the behind ones' pixels and depths
+    (float64, for the table test)."""
+    empty = np.empty(0)
+    ok, fu0, fv0, fu1, fv1 = footprint_bounds(corners, R, t, fx, fy, cx, cy)
+    if not ok:
+        return 0, 0, 0, 0, 0, empty, empty, empty
+    h, w = depth.shape
+    u0, v0 = max(int(np.floor(fu0)), 0), max(int(np.floor(fv0)), 0)
+    u1, v1 = min(int(np.ceil(fu1)) + 1, w), min(int(np.ceil(fv1)) + 1, h)
+    if u1 <= u0 or v1 <= v0:
+        return 0, 0, 0, 0, 0, empty, empty, empty
+    nu = (u1 - u0 + stride - 1) // stride
+    nv = (v1 - v0 + stride - 1) // stride
+    pu = np.empty(nu * nv)
+    pv = np.empty(nu * nv)
+    m = 0
+    for v in range(v0, v1, stride):  # np.mgrid's order, raveled
+        for u in range(u0, u1, stride):
+            pu[m] = u
+            pv[m] = v
+            m += 1
+    surface = box_depths(R, t, center, half, pu, pv, fx, fy, cx, cy)
+    n = n_valid = n_nearer = n_shown = n_behind = 0
+    bu = np.empty(m)
+    bv = np.empty(m)
+    bz = np.empty(m)
+    for i in range(m):
+        s = surface[i]
+        if not np.isfinite(s):
+            continue
+        n += 1
+        z = np.float64(depth[int(pv[i]), int(pu[i])])
+        if not (np.isfinite(z) and z > 0):
+            continue
+        n_valid += 1
+        diff = z - s
+        if diff < -SURFACE_TOLERANCE_M:
+            n_nearer += 1
+        if abs(diff) <= SURFACE_TOLERANCE_M:
+            n_shown += 1
+        if diff > SURFACE_TOLERANCE_M:
+            bu[n_behind] = pu[i]
+            bv[n_behind] = pv[i]
+            bz[n_behind] = z
+            n_behind += 1
+    return n, n_valid, n_nearer, n_shown, n_behind, bu[:n_behind], bv[:n_behind], bz[:n_behind]
 
 
 def left_place(fp: FootprintDepth | None, min_table: float, min_valid: float = 0.25) -> bool:

@@ -13,7 +13,13 @@ import numpy as np
 from tracker.filter.blob_follow import centre, footprint, recentre
 from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import box_surface_depth, reseed
-from tracker.filter.footprint_depth import classify_footprint, left_place
+from tracker.filter.footprint_depth import (
+    _footprint_counts,
+    box_depths,
+    classify_footprint,
+    footprint_bounds,
+    left_place,
+)
 from tracker.filter.hand_carry import carry_over_sliver, supported_by_other
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.filter.predict import adaptive_noise
@@ -363,6 +369,21 @@ def revealed(trk, obj: int, depth: np.ndarray) -> bool:
     1.5 cm behind the part (behind its far side; with ``revealed_surface``, behind the estimate's rendered surface at
     each pixel, so that the table right under a resting box counts)? Then the part is not where it was (a hand
     snatched it while hiding it, or it was pushed away)."""
+    if trk.config.revealed_surface and trk.meshes[obj] is None:
+        # the rectangle, the valid pixels and the surface behind them in one compiled call (_behind_surface: the
+        # values of estimate_rect, of box_surface_depth at np.nonzero(valid)'s pixels and of the masks' means)
+        est = trk.estimates[trk.names[obj]]
+        intr = trk.intrinsics
+        size, n_valid, n_on, n_behind = _behind_surface(
+            np.ascontiguousarray(trk.corners[obj], np.float64), np.ascontiguousarray(est.R, np.float64), est.t,
+            np.ascontiguousarray(trk.center[obj], np.float64), np.ascontiguousarray(trk.half[obj], np.float64),
+            float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), depth)
+        if size >= 0:
+            if size < 16 or n_valid / size < trk.config.carry_revealed_fraction:
+                return False
+            if n_valid == 0 or n_on / n_valid < 0.5:  # (no valid pixel: the numpy form's NaN means said False)
+                return False
+            return bool(n_behind / n_on > 0.9)
     rect = estimate_rect(trk, obj, depth.shape)
     if rect is None:
         return False
@@ -386,6 +407,55 @@ def revealed(trk, obj: int, depth: np.ndarray) -> bool:
         est = trk.estimates[trk.names[obj]]
         behind = patch[valid] > (trk.corners[obj] @ est.R.T + est.t)[:, 2].max() + 0.015  # its far side
     return bool(behind.mean() > 0.9)
+
+
+@nb.njit(cache=True)
+def _behind_surface(corners, R, t, center, half, fx, fy, cx, cy, depth):
+    """:func:`revealed`'s surface test for the box ``(center, half)`` with bounding-box corners ``corners`` at
+    ``(R, t)``: over the middle half of its :func:`estimate_rect` (the footprint of
+    :func:`~tracker.filter.footprint_depth.footprint_bounds`) in ``depth``, the pixels (``size``; 0: no rectangle,
+    -1: one off the image), the valid ones (finite, > 0), those on the box's silhouette and those among them more
+    than 1.5 cm behind its rendered surface (:func:`~tracker.filter.footprint_depth.box_depths`, row-major pixel
+    order)."""
+    ok, fu0, fv0, fu1, fv1 = footprint_bounds(corners, R, t, fx, fy, cx, cy)
+    if not ok:
+        return 0, 0, 0, 0
+    h, w = depth.shape
+    u0, v0 = max(int(np.floor(fu0)), 0), max(int(np.floor(fv0)), 0)
+    u1, v1 = min(int(np.ceil(fu1)) + 1, w), min(int(np.ceil(fv1)) + 1, h)
+    if u1 <= u0 or v1 <= v0:
+        return -1, 0, 0, 0  # a rectangle off the image: numpy's slices of it are left to the numpy form
+    du, dv = (u1 - u0) // 4, (v1 - v0) // 4
+    a0, a1, b0, b1 = u0 + du, u1 - du, v0 + dv, v1 - dv
+    if a1 <= a0 or b1 <= b0:
+        return 0, 0, 0, 0
+    m = 0
+    for v in range(b0, b1):
+        for u in range(a0, a1):
+            z = depth[v, u]
+            if np.isfinite(z) and z > 0:
+                m += 1
+    pu = np.empty(m)
+    pv = np.empty(m)
+    zs = np.empty(m)
+    m = 0
+    for v in range(b0, b1):
+        for u in range(a0, a1):
+            z = depth[v, u]
+            if np.isfinite(z) and z > 0:
+                pu[m] = u
+                pv[m] = v
+                zs[m] = z
+                m += 1
+    surface = box_depths(R, t, center, half, pu, pv, fx, fy, cx, cy)
+    n_on = 0
+    n_behind = 0
+    for i in range(m):
+        if np.isfinite(surface[i]):
+            n_on += 1
+            if zs[i] > surface[i] + 0.015:
+                n_behind += 1
+    return (a1 - a0) * (b1 - b0), m, n_on, n_behind
 
 
 def take_shadow(trk, obj: int, pos: np.ndarray, min_shift: float | None = None) -> bool:
@@ -635,13 +705,20 @@ def _support_kernel(p, R, n, d, hull, i, sig):
 
 
 def warm_up() -> None:
-    """Load (or compile) the kernels of the rest and support priors on tiny inputs of the types the passes give
-    them (they run only once a part rests hidden or is held to the table)."""
+    """Load (or compile) the kernels of the rest and support priors and of the see-through and footprint tests on
+    tiny inputs of the types the stage gives them (they run only once a part rests hidden or is held to the
+    table)."""
     p = np.zeros((2, 1, 3))
     p[..., 2] = 0.5
     R = np.tile(np.eye(3), (2, 1, 1, 1))
     _rest_prior(p, np.zeros(1, np.int64), np.zeros((1, 3)), 1e-4)
     _support_kernel(p, R, np.array([0.0, 0.0, -1.0]), 0.6, np.full((8, 3), 0.01), 0, 0.002)
+    # the see-through and footprint tests' kernels (a hidden part), on a float32 depth image as frames give it
+    corners = np.array([[x, y, z] for x in (-0.02, 0.02) for y in (-0.02, 0.02) for z in (-0.02, 0.02)])
+    depth = np.full((8, 8), 0.6, np.float32)
+    args = (corners, np.eye(3), np.array([0.0, 0.0, 0.5]), np.zeros(3), np.full(3, 0.02), 10.0, 10.0, 4.0, 4.0, depth)
+    _behind_surface(*args)
+    _footprint_counts(*args, 2)
 
 
 def log_rest_prior(trk, p) -> np.ndarray | float:
