@@ -386,8 +386,8 @@ def test_two_merged_tracks_that_each_have_their_own_arm_are_both_kept(monkeypatc
 def test_the_hand_box_covers_the_rim_that_the_opening_trims(monkeypatch):
     """A hand with a one-pixel-wide spike of skin sticking out of its left side (a finger's edge where the colour mask
     is one pixel wide): the split runs on the mask opened by a 3 × 3 cross, which keeps only the spike's first pixel;
-    with BOX_RIM the hand's box also takes the unopened skin next to its pixels (one more column), without it the box
-    starts at the spike's first pixel."""
+    with BOX_RIM the hand's box also takes the unopened skin within RIM_PX of its pixels (two more columns with RIM_PX
+    2, one with 1), without it the box starts at the spike's first pixel."""
     from tracker.hands import arm_anchor
 
     hand, sleeve = [60, 110, 100, 150], [64, 150, 86, 240]
@@ -395,10 +395,12 @@ def test_the_hand_box_covers_the_rim_that_the_opening_trims(monkeypatch):
     rgb[130, 52:60] = SKIN  # the spike, at the hand's depth
     depth[130, 52:60] = 0.72
     boxes = {}
-    for rim in (True, False):
+    for rim, px in ((True, 2), (True, 1), (False, 2)):
         monkeypatch.setattr(arm_anchor, "BOX_RIM", rim)
+        monkeypatch.setattr(arm_anchor, "RIM_PX", px)
         hands = _hands((rgb, depth))
         assert len(hands) == 1
-        boxes[rim] = hands[0].box
-    assert boxes[True] == (58, 110, 99, 149)
-    assert boxes[False] == (59, 110, 99, 149)
+        boxes[rim, px] = hands[0].box
+    assert boxes[True, 2] == (57, 110, 99, 149)
+    assert boxes[True, 1] == (58, 110, 99, 149)
+    assert boxes[False, 2] == (59, 110, 99, 149)

@@ -22,7 +22,7 @@ frame and without tracking, each arm and the skin pixels at its end:
    blind band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split
    gave another arm, when the tracker ran this detector on the previous frame too); each skin pixel belongs to the
    arm whose wrist reaches it first. A hand's box is the tight box of its pixels (at least :data:`MIN_HAND_PX`) and of
-   the unopened mask's skin next to them (:data:`BOX_RIM`).
+   the unopened mask's skin within :data:`RIM_PX` of them (:data:`BOX_RIM`).
 
 Without depth nothing is found. Dev measurement (``hands-s2`` tuning seeds 0–4, this detector alone, no tracking,
 the left entry taken as one hand): per hand-frame F̄^b 0.76 / 0.85 / 0.66 / 0.83 / 0.55; used where it finds the
@@ -113,12 +113,19 @@ CROSS_TOUCH_DROP = True
 """Whether the two tubes of a crossing are dropped when their wrists seed one 8-connected skin region (touching
 hands; :func:`_crossed_seeds`)."""
 BOX_RIM = True
-"""Whether a hand's box also covers the skin pixels of the unopened colour mask next to its pixels (8-neighbours; new
-in session 28): the split runs on the mask opened by a 3 × 3 cross, which trims the hand's rim, and its tight box fell
-short of the rendered palm box (ground-truth start, ``hands-s2`` tuning seeds 0–4, filter seed 0, frames with F^b ≥
-0.85: its wrist and finger edges 0.9–1.0 full px inside the ground truth's on average). In the tracker, the same
-frames for both arms, off → on: F̄^b 0.8828 → 0.8877 ground-truth start (filter seeds 0–2), 0.8888 → 0.8928
-automatic start, KF 0.8852 → 0.8896; 35 of 35 runs better; ``hands-s1``, ``hands-s3`` identical."""
+"""Whether a hand's box also covers the skin pixels of the unopened colour mask within :data:`RIM_PX` of its pixels
+(new in session 28): the split runs on the mask opened by a 3 × 3 cross, which trims the hand's rim and drops its
+parts narrower than 3 px, and its tight box fell short of the rendered palm box (ground-truth start, ``hands-s2``
+tuning seeds 0–4, filter seed 0, frames with F^b ≥ 0.85: its wrist and finger edges 0.9–1.0 full px inside the ground
+truth's on average). In the tracker, the same frames for both arms, off → on (with RIM_PX 1): F̄^b 0.8828 → 0.8877
+ground-truth start (filter seeds 0–2), 0.8888 → 0.8928 automatic start, KF 0.8852 → 0.8896; 35 of 35 runs better;
+``hands-s1``, ``hands-s3`` identical."""
+RIM_PX = 1
+"""Working px (Chebyshev distance) from a hand's pixels within which :data:`BOX_RIM` takes the unopened mask's skin.
+2 (session 28, paired against 1 as for :data:`BOX_RIM`): F̄^b 0.8877 → 0.8888 ground-truth start (filter seeds
+0–2), 0.8928 → 0.8940 automatic start, KF 0.8896 → 0.8901, but automatic start missed hands 0.06 % → 0.45 % (seed 3,
+filter seed 1: 5.9 % of its hand-frames) and false boxes 0.0034 → 0.0045 per frame, ē^p automatic start 6.44 → 6.48,
+KF 6.77 → 6.87 px: not taken."""
 TUBE_R0 = 40.0
 """Working px from a run's entry point where the pixels that give its tube's direction begin (the detector alone as
 for :data:`CROSS_SPLIT`, seeds 0, 2, 4, frames apart: 15 / 60 px 0.671, 15 / 40 0.543, 15 / 90 0.814, 15 / 120
@@ -475,17 +482,17 @@ def _label_boxes(labels, n):
 
 
 @nb.njit(cache=True, nogil=True)
-def _rim_boxes(labels, skin, boxes):
+def _rim_boxes(labels, skin, boxes, r):
     """Grow the inclusive boxes [n, 4] of labels 1..n (in place) over the unlabelled pixels of ``skin`` (uint8, the
-    unopened colour mask) that have an 8-neighbour with that label."""
+    unopened colour mask) that have a pixel with that label within ``r`` px (Chebyshev distance)."""
     h, w = labels.shape
     n = boxes.shape[0]
     for y in range(h):
         for x in range(w):
             if skin[y, x] == 0 or labels[y, x] != 0:
                 continue
-            for yy in range(max(y - 1, 0), min(y + 2, h)):
-                for xx in range(max(x - 1, 0), min(x + 2, w)):
+            for yy in range(max(y - r, 0), min(y + r + 1, h)):
+                for xx in range(max(x - r, 0), min(x + r + 1, w)):
                     k = labels[yy, xx] - 1
                     if 0 <= k < n:
                         boxes[k, 0] = min(boxes[k, 0], x)
@@ -563,7 +570,7 @@ def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray,
     labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, carried, KEEP_COST)
     boxes, counts = _label_boxes(labels, len(entries))
     if BOX_RIM:
-        _rim_boxes(labels, np.ascontiguousarray(skin, np.uint8), boxes)
+        _rim_boxes(labels, np.ascontiguousarray(skin, np.uint8), boxes, RIM_PX)
     hands = [ArmHand((float(e[0]), float(e[1])), (int(b[0]), int(b[1]), int(b[2]), int(b[3])), int(c))
              for e, b, c in zip(entries, boxes, counts, strict=True) if c >= MIN_HAND_PX]  # fmt: skip
     return hands, ArmSplit(labels, np.asarray(entries, np.float64))
