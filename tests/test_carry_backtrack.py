@@ -125,3 +125,41 @@ def test_no_rest_backtrack_when_the_estimate_did_not_rest_within_reach():
     2 > 1) starts from the estimate, as without the setting; within reach (2) it backtracks."""
     assert _rest_lift_start(0.002, backtrack=1) == pytest.approx(0.036, abs=0.003)
     assert _rest_lift_start(0.002, backtrack=2) == pytest.approx(0.06, abs=0.003)
+
+
+def _lifted_away_start(lookback: bool, hand: tuple[float, ...] = (0.0, 0.0, 0.04, 0.08, 0.12, 0.16)) -> float:
+    """A hidden part resting on the table under a hand (never placed by the refinement; its estimate held where it
+    rests) is taken in frame 2: the hand moves 4 cm a frame along x (``hand``: its x per frame) and the part with it,
+    while the estimate stays. In the last frame the table shows through its place (``carry_left_table``, passed as
+    ``touched``), when the hand points lie farther than ``carry_radius`` from the place in that frame and the one
+    before. Returns the part's x (m) after the last frame (the truth: its rest x plus the hand's travel)."""
+    intr = Intrinsics.default(320, 240)
+    cfg = CFG.with_overrides(carry_backtrack=3, carry_lift_lookback=lookback)
+    carry = HandCarry(1, cfg, intr, np.array([0.031]))
+    rot_est = np.eye(3)[None]
+    place = np.array([[-0.02, 0.0, 0.682]])
+    heights, hidden = np.array([0.0]), np.array([True])
+    last = len(hand) - 1
+    x = float(place[0, 0])
+    for k, hx in enumerate(hand):
+        rot, d = carry.update(_scene(intr, hx), place, hidden, ~hidden, heights, PLANE, np.array([k == last]), rot_est)
+        x = float((np.einsum("kij,kj->ki", rot, place) + d)[0, 0])
+        carry.record(k / 30.0, place)
+        carry.note_placed(np.array([False]), rot_est, place)
+        assert carry.carried.tolist() == [k == last and lookback]
+    return x
+
+
+def test_a_hidden_resting_part_lifted_away_before_the_table_showed_is_carried_from_its_place():
+    """With carry_lift_lookback the carry starts from the part's place moved by the hand's motion since the oldest
+    kept frame in which the hand covered it (frame 1 at x = 0: 16 cm); without, it cannot start (no hand points
+    within carry_radius of the place) and the part stays behind (-2 cm)."""
+    assert _lifted_away_start(True) == pytest.approx(0.14, abs=0.004)
+    assert _lifted_away_start(False) == pytest.approx(-0.02, abs=1e-9)
+
+
+def test_no_lookback_when_the_hand_is_still_over_the_place():
+    """A hand still within carry_radius of the place: the carry starts from the place as without the setting
+    (moved by this frame's motion only)."""
+    hand = (0.0, 0.0, 0.0, 0.0, 0.0, 0.02)
+    assert _lifted_away_start(True, hand) == pytest.approx(0.0, abs=0.003)

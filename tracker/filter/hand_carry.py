@@ -255,6 +255,28 @@ class HandCarry:
             R, t, p = Rw @ R, Rw @ t + d, Rw @ p + d
         return R, t, w, step
 
+    def _lookback(self, obj: int, depth: np.ndarray, place: np.ndarray, plane,
+                  exclude) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """``carry_lift_lookback``: when fewer than ``carry_min_points`` hand points lie within ``carry_radius`` of
+        part ``obj``'s ``place`` (current camera frame, m) in this frame's ``depth`` and in the previous frame's, the
+        hand's motion (as :meth:`_backtrack` returns it) from the oldest kept frame, 1 to ``carry_backtrack`` frames
+        before the previous one, with that many hand points around the place, to the previous frame; None when the
+        place has hand points now or in the previous frame, or no kept frame gives a registration."""
+        cfg = self.config
+        if self._points(depth, place, cfg.carry_radius, plane, exclude).shape[0] >= cfg.carry_min_points:
+            return None
+        if self._previous_points(place, cfg.carry_radius, plane, exclude).shape[0] >= cfg.carry_min_points:
+            return None
+        frames = list(self._ring)
+        for age in range(min(cfg.carry_backtrack, len(frames) - 1), 0, -1):
+            d0, M0 = frames[-(age + 1)]
+            if self._points_of(d0, M0, place, cfg.carry_radius, plane, exclude).shape[0] < cfg.carry_min_points:
+                continue
+            found = self._backtrack(obj, plane, exclude, age, place)
+            if found is not None:
+                return found
+        return None
+
     def rest_frame(self, obj: int) -> int | None:
         """``carry_backtrack_rest_m``: how many frames before the previous one part ``obj``'s estimate was last still
         (moved by at most ``carry_backtrack_rest_m`` since the frame before, by the remembered positions), when it has
@@ -356,6 +378,14 @@ class HandCarry:
                         back = (Rb, p_start - Rb @ positions[i])
                         self.backtracked[i] = True
                         positions[i] = p_start
+                if (back is None and grasped and cfg.carry_lift_lookback and cfg.carry_backtrack > 0
+                        and self._prev_depth is not None and self._prev_depth is not depth):
+                    found = self._lookback(i, depth, positions[i], plane, exclude)
+                    if found is not None:  # from its place, moved by the hand's motion since it last covered it
+                        Rh, th, w0, t0 = found
+                        back = (Rh, th)
+                        self.backtracked[i] = True
+                        positions[i] = Rh @ positions[i] + th
                 prev = None
                 if cfg.carry_start_register and self._prev_depth is not None and self._prev_depth is not depth:
                     prev = self._previous_points(positions[i], cfg.carry_radius, plane, exclude)
