@@ -14,6 +14,7 @@ import numpy as np
 from tracker.filter import render
 from tracker.filter.motion_model import color_input
 from tracker.geometry.box_renderer import _slab_depth, pixel_rays, render_boxes_at_pixels
+from tracker.geometry.fma import fma
 from tracker.geometry.pose import Pose
 
 if TYPE_CHECKING:
@@ -241,16 +242,40 @@ def area_ratio(trk, obj: int, area) -> float:
     if area is None or not np.isfinite(area) or area <= 0:
         return 1.0
     est = trk.estimates[trk.names[obj]]
-    pts = est.transform_points(trk.hulls[obj])
-    if np.any(pts[:, 2] < 0.01):
+    intr = trk.intrinsics
+    ok, uv = _hull_pixels(np.ascontiguousarray(trk.hulls[obj], np.float64), np.ascontiguousarray(est.R, np.float64),
+                          est.t, float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy))
+    if not ok:
         return 1.0
-    uv = trk.intrinsics.project(pts).astype(np.float32)
     import cv2
 
     expected = float(cv2.contourArea(cv2.convexHull(uv)))
     if expected <= 1.0:
         return 1.0
     return float(min(1.0, area / expected))
+
+
+@nb.njit(cache=True)
+def _hull_pixels(hull, R, t, fx, fy, cx, cy):
+    """``(ok, uv)``: the hull points ``hull`` (V, 3, body frame) at ``(R, t)`` projected to pixels, float32 (V, 2), as
+    ``intrinsics.project(pose.transform_points(hull)).astype(np.float32)`` gives them (``hull @ R.T + t`` with the
+    fused multiply-adds of numpy's BLAS product of these shapes, :mod:`tracker.geometry.fma`; ``fx · x / z + cx``);
+    ``ok`` False when a point lies closer than 1 cm to the camera plane."""
+    n = hull.shape[0]
+    uv = np.empty((n, 2), np.float32)
+    for i in range(n):
+        c0, c1, c2 = hull[i, 0], hull[i, 1], hull[i, 2]
+        z = fma(c2, R[2, 2], fma(c1, R[2, 1], c0 * R[2, 0])) + t[2]
+        if z < 0.01:
+            return False, uv
+    for i in range(n):
+        c0, c1, c2 = hull[i, 0], hull[i, 1], hull[i, 2]
+        x = fma(c2, R[0, 2], fma(c1, R[0, 1], c0 * R[0, 0])) + t[0]
+        y = fma(c2, R[1, 2], fma(c1, R[1, 1], c0 * R[1, 0])) + t[1]
+        z = fma(c2, R[2, 2], fma(c1, R[2, 1], c0 * R[2, 0])) + t[2]
+        uv[i, 0] = np.float32(fx * x / z + cx)
+        uv[i, 1] = np.float32(fy * y / z + cy)
+    return True, uv
 
 
 def far_sliver(trk, obj: int, score: float, area, center) -> bool:
