@@ -13,7 +13,7 @@ import numpy as np
 
 from tracker.filter import render
 from tracker.filter.motion_model import color_input
-from tracker.geometry.box_renderer import _slab_depth, pixel_rays, render_boxes_at_pixels
+from tracker.geometry.box_renderer import _slab_depth, box_depths, pixel_rays, render_boxes_at_pixels
 from tracker.geometry.fma import fma
 from tracker.geometry.pose import Pose
 
@@ -318,23 +318,7 @@ def surface_depth(trk, obj: int, center) -> float:
 def _box_depth_at(R, t, center, half, u, v, fx, fy, cx, cy):
     """:func:`box_surface_depth` at one pixel ``(u, v)`` in one compiled call (the same renderer and float32 depth,
     without its per-call arrays): ``R`` (3, 3), ``t`` (3,) the pose, ``center``, ``half`` (3,) the box."""
-    Rs = np.empty((1, 1, 3, 3))
-    ts = np.empty((1, 1, 3))
-    for a in range(3):
-        ts[0, 0, a] = t[a]
-        for b in range(3):
-            Rs[0, 0, a, b] = R[a, b]
-    pu = np.array([u])
-    pv = np.array([v])
-    rays = np.empty((1, 3))
-    rays[0, 0] = (u - cx) / fx
-    rays[0, 1] = (v - cy) / fy
-    rays[0, 2] = 1.0
-    out = np.full((1, 1), np.inf, np.float32)
-    zero = np.zeros(1, np.int64)
-    render_boxes_at_pixels(Rs, ts, center.reshape(1, 3), half.reshape(1, 3), 0, zero, rays, pu, pv, zero, fx, fy, cx,
-                           cy, out, zero.reshape(1, 1), np.zeros((1, 1), np.uint8))
-    return float(out[0, 0])
+    return box_depths(R, t, center, half, np.array([u]), np.array([v]), fx, fy, cx, cy)[0]
 
 
 def box_surface_depth(trk, obj: int, pu: np.ndarray, pv: np.ndarray, pose: Pose | None = None) -> np.ndarray:

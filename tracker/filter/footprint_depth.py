@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from tracker.geometry.box_renderer import pixel_rays, render_boxes_at_pixels
-from tracker.geometry.fma import fma
+from tracker.geometry.box_renderer import box_depths, pixel_rays
+from tracker.geometry.fma import rigid_point
 
 SURFACE_TOLERANCE_M = 0.01
 """Depth within this distance (m) of the estimate's rendered surface shows the part; nearer is in front of it,
@@ -88,10 +88,7 @@ def footprint_bounds(corners, R, t, fx, fy, cx, cy):
     closer than 5 cm to the camera plane."""
     umin, vmin, umax, vmax = np.inf, np.inf, -np.inf, -np.inf
     for i in range(corners.shape[0]):
-        c0, c1, c2 = corners[i, 0], corners[i, 1], corners[i, 2]
-        x = fma(c2, R[0, 2], fma(c1, R[0, 1], c0 * R[0, 0])) + t[0]
-        y = fma(c2, R[1, 2], fma(c1, R[1, 1], c0 * R[1, 0])) + t[1]
-        z = fma(c2, R[2, 2], fma(c1, R[2, 1], c0 * R[2, 0])) + t[2]
+        x, y, z = rigid_point(R, t, corners[i, 0], corners[i, 1], corners[i, 2])
         if z < 0.05:
             return False, 0.0, 0.0, 0.0, 0.0
         u = fx * x / z + cx
@@ -99,32 +96,6 @@ def footprint_bounds(corners, R, t, fx, fy, cx, cy):
         umin, umax = min(umin, u), max(umax, u)
         vmin, vmax = min(vmin, v), max(vmax, v)
     return True, umin, vmin, umax, vmax
-
-
-@nb.njit(cache=True)
-def box_depths(R, t, center, half, pu, pv, fx, fy, cx, cy):
-    """:func:`tracker.filter.colour_input.box_surface_depth` (float64 (P,)) of the box ``(center, half)`` at pose
-    ``(R, t)`` at the pixels ``(pu, pv)`` (float64 (P,)): the same renderer, rays and float32 depths."""
-    p = pu.shape[0]
-    rays = np.empty((p, 3))
-    for i in range(p):
-        rays[i, 0] = (pu[i] - cx) / fx
-        rays[i, 1] = (pv[i] - cy) / fy
-        rays[i, 2] = 1.0
-    Rs = np.empty((1, 1, 3, 3))
-    ts = np.empty((1, 1, 3))
-    for a in range(3):
-        ts[0, 0, a] = t[a]
-        for b in range(3):
-            Rs[0, 0, a, b] = R[a, b]
-    out = np.full((1, p), np.inf, np.float32)
-    idx = np.arange(p)
-    render_boxes_at_pixels(Rs, ts, center.reshape(1, 3), half.reshape(1, 3), 0, np.zeros(1, np.int64), rays, pu, pv,
-                           idx, fx, fy, cx, cy, out, idx.reshape(1, p), np.zeros((1, p), np.uint8))
-    res = np.empty(p)
-    for i in range(p):
-        res[i] = np.float64(out[0, i])
-    return res
 
 
 @nb.njit(cache=True)

@@ -15,7 +15,6 @@ from tracker.filter.camera_motion import move_part
 from tracker.filter.colour_input import box_surface_depth, reseed
 from tracker.filter.footprint_depth import (
     _footprint_counts,
-    box_depths,
     classify_footprint,
     footprint_bounds,
     left_place,
@@ -24,7 +23,7 @@ from tracker.filter.hand_carry import carry_over_sliver, supported_by_other
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.filter.predict import adaptive_noise
 from tracker.filter.scene_motion import placed_by_depth
-from tracker.geometry.box_renderer import pixel_rays
+from tracker.geometry.box_renderer import box_depths, pixel_rays
 from tracker.geometry.fma import fma
 from tracker.geometry.pose import Pose
 
@@ -415,7 +414,7 @@ def _behind_surface(corners, R, t, center, half, fx, fy, cx, cy, depth):
     ``(R, t)``: over the middle half of its :func:`estimate_rect` (the footprint of
     :func:`~tracker.filter.footprint_depth.footprint_bounds`) in ``depth``, the pixels (``size``; 0: no rectangle,
     -1: one off the image), the valid ones (finite, > 0), those on the box's silhouette and those among them more
-    than 1.5 cm behind its rendered surface (:func:`~tracker.filter.footprint_depth.box_depths`, row-major pixel
+    than 1.5 cm behind its rendered surface (:func:`~tracker.geometry.box_renderer.box_depths`, row-major pixel
     order)."""
     ok, fu0, fv0, fu1, fv1 = footprint_bounds(corners, R, t, fx, fy, cx, cy)
     if not ok:

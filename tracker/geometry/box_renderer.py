@@ -206,3 +206,30 @@ def render_box_depth(
             intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, out, loc, dirty,
         )
     return out[0].reshape(k, pu.size).min(axis=0).reshape(uu.shape)
+
+
+@nb.njit(cache=True)
+def box_depths(R, t, center, half, pu, pv, fx, fy, cx, cy):
+    """Depth (m, float64 (P,); inf off the silhouette) of the box ``(center, half)`` at pose ``(R, t)`` at the pixels
+    ``(pu, pv)`` (float64 (P,)), as :func:`tracker.filter.colour_input.box_surface_depth` gives it: the same renderer
+    (:func:`render_boxes_at_pixels`), rays and float32 depths."""
+    p = pu.shape[0]
+    rays = np.empty((p, 3))
+    for i in range(p):
+        rays[i, 0] = (pu[i] - cx) / fx
+        rays[i, 1] = (pv[i] - cy) / fy
+        rays[i, 2] = 1.0
+    Rs = np.empty((1, 1, 3, 3))
+    ts = np.empty((1, 1, 3))
+    for a in range(3):
+        ts[0, 0, a] = t[a]
+        for b in range(3):
+            Rs[0, 0, a, b] = R[a, b]
+    out = np.full((1, p), np.inf, np.float32)
+    idx = np.arange(p)
+    render_boxes_at_pixels(Rs, ts, center.reshape(1, 3), half.reshape(1, 3), 0, np.zeros(1, np.int64), rays, pu, pv,
+                           idx, fx, fy, cx, cy, out, idx.reshape(1, p), np.zeros((1, p), np.uint8))
+    res = np.empty(p)
+    for i in range(p):
+        res[i] = np.float64(out[0, i])
+    return res

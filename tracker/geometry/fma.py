@@ -35,3 +35,13 @@ def matmul33(A, B, out):
     for a in range(3):
         for c in range(3):
             out[a, c] = fma(A[a, 2], B[2, c], fma(A[a, 1], B[1, c], A[a, 0] * B[0, c]))
+
+
+@nb.njit(cache=True, inline="always")
+def rigid_point(R, t, c0, c1, c2):
+    """``R @ (c0, c1, c2) + t`` (``R`` (3, 3), ``t`` (3,)), each coordinate ``fma(c2, r2, fma(c1, r1, c0·r0)) + t``:
+    one row of ``corners @ R.T + t`` as numpy's BLAS product of a corner stack rounds it here."""
+    x = fma(c2, R[0, 2], fma(c1, R[0, 1], c0 * R[0, 0])) + t[0]
+    y = fma(c2, R[1, 2], fma(c1, R[1, 1], c0 * R[1, 0])) + t[1]
+    z = fma(c2, R[2, 2], fma(c1, R[2, 1], c0 * R[2, 0])) + t[2]
+    return x, y, z

@@ -17,7 +17,7 @@ import numpy as np
 
 from tracker.filter.motion_model import rotate_left
 from tracker.geometry.camera import Intrinsics
-from tracker.geometry.fma import fma
+from tracker.geometry.fma import rigid_point
 from tracker.refine.dense_depth import RefineResult, RefineSettings, refine_pose
 from tracker.refine.region_term import OutlineScene, RegionSettings, pack_shapes, region_term
 from tracker.refine.surface_render import SurfaceRender, render_surfaces
@@ -224,10 +224,7 @@ def _corner_bounds(corners: np.ndarray, R: np.ndarray, t: np.ndarray, fx: float,
     umin, vmin, umax, vmax = np.inf, np.inf, -np.inf, -np.inf
     nan_u = nan_v = near = False
     for i in range(corners.shape[0]):
-        c0, c1, c2 = corners[i, 0], corners[i, 1], corners[i, 2]
-        x = fma(c2, R[0, 2], fma(c1, R[0, 1], c0 * R[0, 0])) + t[0]
-        y = fma(c2, R[1, 2], fma(c1, R[1, 1], c0 * R[1, 0])) + t[1]
-        z = fma(c2, R[2, 2], fma(c1, R[2, 1], c0 * R[2, 0])) + t[2]
+        x, y, z = rigid_point(R, t, corners[i, 0], corners[i, 1], corners[i, 2])
         if z < 0.02:
             near = True
         u = fx * x / z + cx
