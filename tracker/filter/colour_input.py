@@ -14,7 +14,7 @@ import numpy as np
 from tracker.filter import render
 from tracker.filter.motion_model import color_input
 from tracker.geometry.box_renderer import _slab_depth, box_depths, pixel_rays, render_boxes_at_pixels
-from tracker.geometry.fma import fma
+from tracker.geometry.fma import rigid_point
 from tracker.geometry.pose import Pose
 
 if TYPE_CHECKING:
@@ -264,15 +264,9 @@ def _hull_pixels(hull, R, t, fx, fy, cx, cy):
     n = hull.shape[0]
     uv = np.empty((n, 2), np.float32)
     for i in range(n):
-        c0, c1, c2 = hull[i, 0], hull[i, 1], hull[i, 2]
-        z = fma(c2, R[2, 2], fma(c1, R[2, 1], c0 * R[2, 0])) + t[2]
+        x, y, z = rigid_point(R, t, hull[i, 0], hull[i, 1], hull[i, 2])
         if z < 0.01:
             return False, uv
-    for i in range(n):
-        c0, c1, c2 = hull[i, 0], hull[i, 1], hull[i, 2]
-        x = fma(c2, R[0, 2], fma(c1, R[0, 1], c0 * R[0, 0])) + t[0]
-        y = fma(c2, R[1, 2], fma(c1, R[1, 1], c0 * R[1, 0])) + t[1]
-        z = fma(c2, R[2, 2], fma(c1, R[2, 1], c0 * R[2, 0])) + t[2]
         uv[i, 0] = np.float32(fx * x / z + cx)
         uv[i, 1] = np.float32(fy * y / z + cy)
     return True, uv

@@ -99,18 +99,25 @@ def footprint_bounds(corners, R, t, fx, fy, cx, cy):
 
 
 @nb.njit(cache=True)
+def footprint_rect(corners, R, t, fx, fy, cx, cy, h, w):
+    """``(ok, u0, v0, u1, v1)``: the pixel rectangle (end-exclusive, clipped to an ``h`` × ``w`` image; may be empty)
+    of :func:`footprint_bounds`, as :func:`tracker.filter.hidden_parts.estimate_rect` forms it; ``ok`` False as
+    there."""
+    ok, fu0, fv0, fu1, fv1 = footprint_bounds(corners, R, t, fx, fy, cx, cy)
+    if not ok:
+        return False, 0, 0, 0, 0
+    return (True, max(int(np.floor(fu0)), 0), max(int(np.floor(fv0)), 0), min(int(np.ceil(fu1)) + 1, w),
+            min(int(np.ceil(fv1)) + 1, h))
+
+
+@nb.njit(cache=True)
 def _footprint_counts(corners, R, t, center, half, fx, fy, cx, cy, depth, stride):
     """:func:`classify_footprint`'s pixel work: the silhouette pixels sampled (``n``; 0 = none, or no footprint), how
     many have depth, are nearer than the surface, show it, lie behind it, and the behind ones' pixels and depths
     (float64, for the table test)."""
     empty = np.empty(0)
-    ok, fu0, fv0, fu1, fv1 = footprint_bounds(corners, R, t, fx, fy, cx, cy)
-    if not ok:
-        return 0, 0, 0, 0, 0, empty, empty, empty
-    h, w = depth.shape
-    u0, v0 = max(int(np.floor(fu0)), 0), max(int(np.floor(fv0)), 0)
-    u1, v1 = min(int(np.ceil(fu1)) + 1, w), min(int(np.ceil(fv1)) + 1, h)
-    if u1 <= u0 or v1 <= v0:
+    ok, u0, v0, u1, v1 = footprint_rect(corners, R, t, fx, fy, cx, cy, depth.shape[0], depth.shape[1])
+    if not ok or u1 <= u0 or v1 <= v0:
         return 0, 0, 0, 0, 0, empty, empty, empty
     nu = (u1 - u0 + stride - 1) // stride
     nv = (v1 - v0 + stride - 1) // stride

@@ -16,7 +16,7 @@ from tracker.filter.colour_input import box_surface_depth, reseed
 from tracker.filter.footprint_depth import (
     _footprint_counts,
     classify_footprint,
-    footprint_bounds,
+    footprint_rect,
     left_place,
 )
 from tracker.filter.hand_carry import carry_over_sliver, supported_by_other
@@ -412,16 +412,13 @@ def revealed(trk, obj: int, depth: np.ndarray) -> bool:
 def _behind_surface(corners, R, t, center, half, fx, fy, cx, cy, depth):
     """:func:`revealed`'s surface test for the box ``(center, half)`` with bounding-box corners ``corners`` at
     ``(R, t)``: over the middle half of its :func:`estimate_rect` (the footprint of
-    :func:`~tracker.filter.footprint_depth.footprint_bounds`) in ``depth``, the pixels (``size``; 0: no rectangle,
+    :func:`~tracker.filter.footprint_depth.footprint_rect`) in ``depth``, the pixels (``size``; 0: no rectangle,
     -1: one off the image), the valid ones (finite, > 0), those on the box's silhouette and those among them more
     than 1.5 cm behind its rendered surface (:func:`~tracker.geometry.box_renderer.box_depths`, row-major pixel
     order)."""
-    ok, fu0, fv0, fu1, fv1 = footprint_bounds(corners, R, t, fx, fy, cx, cy)
+    ok, u0, v0, u1, v1 = footprint_rect(corners, R, t, fx, fy, cx, cy, depth.shape[0], depth.shape[1])
     if not ok:
         return 0, 0, 0, 0
-    h, w = depth.shape
-    u0, v0 = max(int(np.floor(fu0)), 0), max(int(np.floor(fv0)), 0)
-    u1, v1 = min(int(np.ceil(fu1)) + 1, w), min(int(np.ceil(fv1)) + 1, h)
     if u1 <= u0 or v1 <= v0:
         return -1, 0, 0, 0  # a rectangle off the image: numpy's slices of it are left to the numpy form
     du, dv = (u1 - u0) // 4, (v1 - v0) // 4
@@ -632,19 +629,13 @@ class PriorTerms:
         self.done = np.zeros(k, bool)
         # the parts under the rest prior, found once (log_rest_prior's tests, done here for the frame)
         self.rest_parts = np.flatnonzero(trk._rest_on)
-        self.rest_sig2 = float(trk.config.rest_prior_sigma ** 2)
 
     def total(self, p: np.ndarray, R: np.ndarray,
               changed: set[int] | None = None) -> tuple[np.ndarray | float, np.ndarray | float]:
         """``(log_rest_prior(trk, p), log_support_prior(trk, p, R, plane))`` as the passes add them, where only the
         parts in ``changed`` moved since the last call (``None``: all)."""
         trk = self.trk
-        rest = 0.0  # log_rest_prior(trk, p), its tests done once in __init__; one kernel: cheaper from scratch
-        if self.rest_parts.size >= 8:
-            rest = log_rest_prior(trk, p)
-        elif self.rest_parts.size:
-            rest = _rest_prior(np.asarray(p, np.float64), self.rest_parts, np.asarray(trk._rest_t, np.float64),
-                               self.rest_sig2)
+        rest = log_rest_prior(trk, p, self.rest_parts)  # its parts found once in __init__; cheaper from scratch
         support = 0.0
         if self.support_parts.size:
             for i in self.support_parts:
@@ -720,15 +711,17 @@ def warm_up() -> None:
     _footprint_counts(*args, 2)
 
 
-def log_rest_prior(trk, p) -> np.ndarray | float:
-    """Rest prior (TrackerConfig.rest_prior_sigma): Gaussian pull of resting hidden parts to their anchors."""
-    if not trk._rest_on.any():
+def log_rest_prior(trk, p, parts: np.ndarray | None = None) -> np.ndarray | float:
+    """Rest prior (TrackerConfig.rest_prior_sigma): Gaussian pull of resting hidden parts to their anchors.
+    ``parts``: ``np.flatnonzero(trk._rest_on)`` when the caller has it (:class:`PriorTerms`, once a frame)."""
+    if parts is None:
+        parts = np.flatnonzero(trk._rest_on)
+    if not parts.size:
         return 0.0
     sig2 = trk.config.rest_prior_sigma ** 2
-    parts = np.flatnonzero(trk._rest_on)
     if parts.size < 8:  # numpy sums fewer than 8 terms in order (from 8 on, pairwise): the kernel's sums
         return _rest_prior(np.asarray(p, np.float64), parts, np.asarray(trk._rest_t, np.float64), float(sig2))
-    d2 = ((p[:, trk._rest_on] - trk._rest_t[trk._rest_on]) ** 2).sum(-1)
+    d2 = ((p[:, parts] - trk._rest_t[parts]) ** 2).sum(-1)
     return -0.5 * np.minimum(d2, 9.0 * sig2).sum(-1) / sig2
 
 
