@@ -94,9 +94,12 @@ class _RandomAccess:
 class _FramePrefetcher:
     """Reads a source on its own thread so producing the next frame overlaps with processing this one.
 
-    Items are ``("frame", Frame, produce_s, capture_wall, ready_wall)``, ``("error", exception, ...)`` or
+    Items are ``("frame", Frame, produce_s, capture_wall, ready_wall, prepared)``, ``("error", exception, ...)`` or
     ``("end", None, ...)``; ``capture_wall`` is the frame's capture time (``time.time()``), ``ready_wall`` when
-    it was produced. Three ways of reading:
+    it was produced, ``prepared`` what ``prepare(frame)`` returned (None without ``prepare``, for errors and the end):
+    work on the frame done on this thread before its turn (the pipeline's :meth:`AssemblyPipeline.prepare`, its colour
+    detection), so that it overlaps the processing of the previous frame; not with ``drop_stale``, where most frames
+    read are dropped. Its time counts as production time for the just-in-time start below. Three ways of reading:
 
     * ``drop_stale`` (live cameras): the source is read continuously and a full queue drops its oldest
       frame, so the pipeline always gets the newest one; capture time = when the source returned it.
@@ -113,8 +116,10 @@ class _FramePrefetcher:
     so the frame is ready when the worker is, instead of waiting (and ageing) in the queue.
     """
 
-    def __init__(self, source: FrameSource, maxsize: int = 1, drop_stale: bool = False, realtime: bool = False) -> None:
+    def __init__(self, source: FrameSource, maxsize: int = 1, drop_stale: bool = False, realtime: bool = False,
+                 prepare: Callable[[Frame], Any] | None = None) -> None:  # fmt: skip
         self.source = source
+        self.prepare = None if drop_stale else prepare
         self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
         self.drop_stale = drop_stale
         self.access = _RandomAccess.of(source) if realtime and not drop_stale else None
@@ -147,8 +152,8 @@ class _FramePrefetcher:
             it = iter(self.source)
         except Exception as exc:  # noqa: BLE001 - handed to the worker
             now = time.time()
-            self._put(("error", exc, 0.0, now, now))
-            self._put(("end", None, 0.0, now, now))
+            self._put(("error", exc, 0.0, now, now, None))
+            self._put(("end", None, 0.0, now, now, None))
             return
         while not self._stop.is_set():
             if not self.drop_stale:
@@ -160,16 +165,18 @@ class _FramePrefetcher:
                 frame = next(it)
             except StopIteration:
                 now = time.time()
-                self._put(("end", None, 0.0, now, now))
+                self._put(("end", None, 0.0, now, now, None))
                 return
             except Exception as exc:  # noqa: BLE001 - a corrupt frame or a failing device: the worker decides
                 now = time.time()
-                self._put(("error", exc, time.perf_counter() - t0, now, now))
+                self._put(("error", exc, time.perf_counter() - t0, now, now, None))
                 continue
-            took, now = time.perf_counter() - t0, time.time()
+            took = time.perf_counter() - t0
+            prepared = self._prepare(frame)
+            now = time.time()
             if not self.drop_stale:
-                self._produced.append(took)
-            self._put(("frame", frame, took, now if self.drop_stale else started, now))
+                self._produced.append(time.perf_counter() - t0)
+            self._put(("frame", frame, took, now if self.drop_stale else started, now, prepared))
 
     def _run_paced(self, access: _RandomAccess) -> None:
         clock0: float | None = None
@@ -184,7 +191,7 @@ class _FramePrefetcher:
             index = max(last + 1, access.due(time.perf_counter() - clock0))
             if index >= access.count:
                 now = time.time()
-                self._put(("end", None, 0.0, now, now))
+                self._put(("end", None, 0.0, now, now, None))
                 return
             self._wait_until(clock0 + access.offset(index))  # not due yet: the pipeline is faster than the source
             if self._stop.is_set():
@@ -196,11 +203,21 @@ class _FramePrefetcher:
                 frame = access.produce(index)
             except Exception as exc:  # noqa: BLE001 - a corrupt frame: the worker decides
                 now = time.time()
-                self._put(("error", exc, time.perf_counter() - t0, now, now))
+                self._put(("error", exc, time.perf_counter() - t0, now, now, None))
                 continue
             took = time.perf_counter() - t0
-            self._produced.append(took)
-            self._put(("frame", frame, took, wall0 + access.offset(index), time.time()))
+            prepared = self._prepare(frame)
+            self._produced.append(time.perf_counter() - t0)
+            self._put(("frame", frame, took, wall0 + access.offset(index), time.time(), prepared))
+
+    def _prepare(self, frame: Any) -> Any:
+        """``prepare(frame)`` (None without it or if it raises: the pipeline then does the work itself)."""
+        if self.prepare is None:
+            return None
+        try:
+            return self.prepare(frame)
+        except Exception:  # noqa: BLE001 - the pipeline does the work on its own thread instead
+            return None
 
     def _put(self, item: tuple) -> None:
         while not self._stop.is_set():
@@ -269,6 +286,9 @@ class PipelineWorker:
       was busy.
     * ``realtime``: pace sources with random access (simulator, recordings; open them *unpaced*) at their
       own frame rate, always processing the newest due frame and skipping stale ones.
+    * ``prepare_ahead``: the frame reader runs the pipeline's :meth:`~AssemblyPipeline.prepare` (the colour
+      detection) on each frame it produces, so that work overlaps the previous frame's processing instead of
+      lengthening the pipeline thread's cycle (the snapshots are the same; not with ``drop_stale``).
 
     Frames are read on a second thread (:class:`_FramePrefetcher`), so the source's work overlaps the
     pipeline's; ``Snapshot.wall_time`` is the frame's capture time (see there), so ``time.time() -
@@ -285,6 +305,7 @@ class PipelineWorker:
         reopen_delay_s: float = 0.5,
         drop_stale: bool = False,
         realtime: bool = False,
+        prepare_ahead: bool = True,
     ) -> None:
         self._open_source = open_source
         self._make_pipeline = make_pipeline
@@ -294,6 +315,7 @@ class PipelineWorker:
         self.reopen_delay_s = float(reopen_delay_s)
         self.drop_stale = bool(drop_stale)
         self.realtime = bool(realtime)
+        self.prepare_ahead = bool(prepare_ahead)
 
         self.source: FrameSource | None = None
         self.pipeline: AssemblyPipeline | None = None
@@ -514,7 +536,8 @@ class PipelineWorker:
                 pass
             return False
         self.source, self.pipeline = src, pipeline
-        self._reader = _FramePrefetcher(src, drop_stale=self.drop_stale, realtime=self.realtime)
+        self._reader = _FramePrefetcher(src, drop_stale=self.drop_stale, realtime=self.realtime,
+                                        prepare=getattr(pipeline, "prepare", None) if self.prepare_ahead else None)
         self.source_opens += 1
         self.state = "running"
         return True
@@ -573,7 +596,7 @@ class PipelineWorker:
             item = self._reader.get(timeout=0.2)
             if item is None:
                 continue  # no frame yet: look at commands and pause again
-            kind, payload, read_s, captured, ready = item
+            kind, payload, read_s, captured, ready, prepared = item
             if kind == "end":
                 if consecutive:
                     self.report("source", "source stopped after an error; reopening")
@@ -603,7 +626,10 @@ class PipelineWorker:
                 if not isinstance(frame, Frame):
                     raise FrameError(f"source yielded {type(frame).__name__}, not a Frame")
                 frame.validate()
-                snap = self.pipeline.process(frame, wall_time=captured)
+                if prepared is not None:
+                    snap = self.pipeline.process(frame, wall_time=captured, prepared=prepared)
+                else:
+                    snap = self.pipeline.process(frame, wall_time=captured)
                 snap.timings["source"] = read_s  # producing the frame (overlapped with the previous frame)
                 snap.timings["wait"] = waited  # from the end of the frame's production to the start of its processing
                 snap.timings["starved"] = self._reader.starved_s  # the worker waited this long for the frame

@@ -45,6 +45,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -95,6 +96,19 @@ def _json_safe(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
+
+
+@dataclass
+class PreparedFrame:
+    """Work on a frame done before its turn, outside the pipeline's thread (:meth:`AssemblyPipeline.prepare`): the
+    colour detections of ``frame`` by ``detector`` with its ranges ``ranges`` (the detector's ``ranges.items()`` as a
+    tuple, read before and after detecting), and the thread CPU seconds they took."""
+
+    frame: Frame
+    detector: Any
+    ranges: tuple
+    detections: dict
+    cpu_s: float
 
 
 def resolve_task(task: Any) -> Any:
@@ -480,8 +494,29 @@ class AssemblyPipeline:
             ]
         return out
 
-    def process(self, frame: Frame, wall_time: float | None = None) -> Snapshot:
-        """Run every stage on ``frame``; ``wall_time`` is its capture time, ``time.time()`` (default: now).
+    def prepare(self, frame: Frame) -> PreparedFrame | None:
+        """The colour detections of ``frame``, made ahead of its turn in another thread (the server's frame reader
+        runs this on the next frame while this pipeline processes the current one, so the detection leaves the
+        pipeline's thread): :meth:`process` given the result uses them while the detector and its ranges are still
+        those they were made with, and detects again otherwise, so a snapshot is the same either way. None without a
+        detector, or if detecting fails (:meth:`process` then detects and reports the error). Reads only the
+        detector and the frame, so it may run beside :meth:`process` of an earlier frame."""
+        detector = self.detector
+        if detector is None:
+            return None
+        c0 = time.thread_time()
+        try:
+            ranges = tuple(detector.ranges.items())
+            detections = detector.detect(frame.color)
+            if tuple(detector.ranges.items()) != ranges:  # changed meanwhile: process() detects
+                return None
+        except Exception:  # noqa: BLE001 - process() detects again and reports the error
+            return None
+        return PreparedFrame(frame, detector, ranges, detections, time.thread_time() - c0)
+
+    def process(self, frame: Frame, wall_time: float | None = None, prepared: PreparedFrame | None = None) -> Snapshot:
+        """Run every stage on ``frame``; ``wall_time`` is its capture time, ``time.time()`` (default: now);
+        ``prepared``: :meth:`prepare` of this frame, if it was run (its detections are used when still valid).
 
         perceive (table plane, colour detections, automatic placement) → estimate (the tracker) → monitor (the
         assembly mode) → snapshot. A stage that fails is reported in ``Snapshot.errors``; the frame goes on."""
@@ -490,7 +525,7 @@ class AssemblyPipeline:
         timings: dict[str, float] = {}
         if self.ego is not None:
             self._follow_camera(frame, errors, timings)
-        detections = self._perceive(frame, errors, timings)
+        detections = self._perceive(frame, errors, timings, prepared)
         particles = self._estimate(frame, detections, errors, timings)
         self._hand_contacts(frame, errors, timings)
         mode_state = self._monitor(frame, errors, timings)
@@ -528,8 +563,11 @@ class AssemblyPipeline:
         tracked = [] if self.hands is None else [e.box for e in self.hands.estimates]
         return frame_hand_boxes(frame, tracked)
 
-    def _perceive(self, frame: Frame, errors: list[str], timings: dict[str, float]) -> dict:
-        """Table plane (found, re-checked), colour detections and, when on, automatic placement of missing parts."""
+    def _perceive(self, frame: Frame, errors: list[str], timings: dict[str, float],
+                  prepared: PreparedFrame | None = None) -> dict:  # fmt: skip
+        """Table plane (found, re-checked), colour detections (``prepared``'s when made for this frame by the current
+        detector with its current ranges; their thread CPU time goes to ``timings["detection_ahead"]``) and, when on,
+        automatic placement of missing parts."""
         t0 = time.perf_counter()
         try:
             self._update_table(frame, errors)
@@ -541,7 +579,11 @@ class AssemblyPipeline:
 
         t0 = time.perf_counter()
         detections: dict = {}
-        if self.detector is not None:
+        if (prepared is not None and self.detector is not None and prepared.frame is frame
+                and prepared.detector is self.detector and tuple(self.detector.ranges.items()) == prepared.ranges):
+            detections = prepared.detections
+            timings["detection_ahead"] = prepared.cpu_s
+        elif self.detector is not None:
             try:
                 detections = self.detector.detect(frame.color)
             except Exception as exc:  # noqa: BLE001

@@ -20,6 +20,7 @@ Units: 8-bit OpenCV HSV (H 0–179, S and V 0–255), pixel columns x and rows y
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 
 import numba as nb
@@ -61,18 +62,28 @@ _RGB_LUTS: dict[bytes, np.ndarray] = {}
 """The tables of :func:`rgb_bits_lut` by their lookup tables' bytes (the last few sets of ranges)."""
 _RGB_LUTS_KEEP = 2
 """Tables kept (16 MB each)."""
+_RGB_LUTS_LOCK = threading.Lock()
+"""Held while a table is looked up or built: the server's frame reader and its pipeline thread may both detect
+(:meth:`tracker.pipeline.AssemblyPipeline.prepare`); the second waits for the first's table instead of building it
+again."""
 
 
 def rgb_bits_lut(luts: np.ndarray) -> np.ndarray:
     """The (2^24,) uint8 table of every RGB value's bits (index ``r << 16 | g << 8 | b``) for the lookup tables
     ``luts`` of :func:`range_luts`: each value converted by ``cv2.cvtColor(·, COLOR_RGB2HSV)`` (one image row per
     red value) and looked up as :func:`range_bits` does. Kept for the last few sets of ranges."""
+    key = np.ascontiguousarray(luts, np.uint8).tobytes()
+    with _RGB_LUTS_LOCK:
+        table = _RGB_LUTS.get(key)
+        if table is None:
+            table = _RGB_LUTS[key] = _build_rgb_bits_lut(luts)
+    return table
+
+
+def _build_rgb_bits_lut(luts: np.ndarray) -> np.ndarray:
+    """The table of :func:`rgb_bits_lut` (built; made room for in the cache, which the caller fills)."""
     import cv2
 
-    key = np.ascontiguousarray(luts, np.uint8).tobytes()
-    table = _RGB_LUTS.get(key)
-    if table is not None:
-        return table
     gb = np.arange(65536)
     row = np.empty((1, 65536, 3), np.uint8)
     row[0, :, 1] = (gb >> 8).astype(np.uint8)
@@ -84,7 +95,6 @@ def rgb_bits_lut(luts: np.ndarray) -> np.ndarray:
         table[r << 16 : (r + 1) << 16] = hsv_bits(cv2.cvtColor(row, cv2.COLOR_RGB2HSV)[0], lut)
     while len(_RGB_LUTS) >= _RGB_LUTS_KEEP:
         _RGB_LUTS.pop(next(iter(_RGB_LUTS)))
-    _RGB_LUTS[key] = table
     return table
 
 
