@@ -195,6 +195,7 @@ class AssemblyPipeline:
         self.detector = self._make_detector()
         self.ego = self._make_ego_motion(odometry)
         self._tracked_names: list[str] = []
+        self._corners: dict[str, tuple[PartSpec, np.ndarray]] = {}  # name -> (part, body-frame corners) for _boxes
         self._hand_config = hand_config
         self.hands = self._make_hands() if hands else None
         self._hands_joined = True  # the hand step of the current frame has been waited for (or none was started)
@@ -477,21 +478,22 @@ class AssemblyPipeline:
             self.ego.anchor_table(self.table)
 
     def _boxes(self) -> dict[str, list[float]]:
+        """Per box part with a pose: the pixel box ``[u0, v0, u1, v1]`` of its projected corners (none when a corner
+        is within 1 mm of the camera plane)."""
         out: dict[str, list[float]] = {}
         for part in self.parts:
             pose = self.poses.get(part.name)
             if pose is None or part.box is None:
                 continue
-            pts = pose.transform_points(part.vertices())
+            corners = self._corners.get(part.name)
+            if corners is None or corners[0] is not part:  # body-frame corners, made once per (frozen) part
+                corners = self._corners[part.name] = (part, part.vertices())
+            pts = pose.transform_points(corners[1])
             if np.any(pts[:, 2] <= 1e-3):
                 continue
             uv = self.intrinsics.project(pts)
-            out[part.name] = [
-                float(uv[:, 0].min()),
-                float(uv[:, 1].min()),
-                float(uv[:, 0].max()),
-                float(uv[:, 1].max()),
-            ]
+            lo, hi = uv.min(axis=0).tolist(), uv.max(axis=0).tolist()
+            out[part.name] = [lo[0], lo[1], hi[0], hi[1]]
         return out
 
     def prepare(self, frame: Frame) -> PreparedFrame | None:

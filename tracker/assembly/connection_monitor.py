@@ -30,6 +30,7 @@ from tracker.assembly.connection_score import allocate_particles, connection_sco
 from tracker.assembly.cube_symmetry import Option, SymmetryState
 from tracker.assembly.relations import (
     margins,
+    norm3,
     normalised_position_error,
     relative_pose,
     relative_position_table,
@@ -222,8 +223,8 @@ class ConnectionMonitor:
         """True when the parts are so far from the desired distance that the score is below 0.5 / N_max
         whatever the symmetry choice (|‖d‖ − ‖p_des‖| bounds every per-axis error from below)."""
         prm = self.params
-        dist = float(np.linalg.norm(pb.t - pa.t))
-        gap = abs(dist - float(np.linalg.norm(spec.p_des))) / float(margins(prm.m_p).max())
+        dist = norm3(pb.t - pa.t)
+        gap = abs(dist - norm3(spec.p_des)) / float(margins(prm.m_p).max())
         e_min = ((2.0 * max(prm.N_max, 1)) ** 2 - 1.0) / max(prm.K, 1e-9) + 3.0
         return gap * gap > max(e_min, 3.0 * prm.break_factor**2 * 3.0)
 

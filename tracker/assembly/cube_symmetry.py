@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker.assembly.relations import cross3
+from tracker.assembly.relations import cross3, norm3
 from tracker.geometry.symmetry import cube_group, nearest_in_group
 
 UP_TIE_TOL = 1e-3
@@ -67,7 +67,7 @@ def case1_first_rotations(p_ab: np.ndarray, p_des: np.ndarray, R_a: np.ndarray, 
     if up is not None:
         cand = cand[up >= up.max() - UP_TIE_TOL]
     dots = np.einsum("nij,j->ni", G[cand], p_ab) @ np.asarray(p_des, float)
-    tol = DOT_TIE_TOL * (np.linalg.norm(p_ab) * np.linalg.norm(p_des) + 1e-12)
+    tol = DOT_TIE_TOL * (norm3(p_ab) * norm3(p_des) + 1e-12)
     best = cand[dots >= dots.max() - tol]
     return [int(i) for i in best]
 
@@ -75,12 +75,12 @@ def case1_first_rotations(p_ab: np.ndarray, p_des: np.ndarray, R_a: np.ndarray, 
 def _rotation_onto(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Smallest rotation taking unit vector ``u`` onto unit vector ``v``."""
     axis = cross3(u, v)
-    s, c = float(np.linalg.norm(axis)), min(max(float(u @ v), -1.0), 1.0)  # = np.clip, NaN too
+    s, c = norm3(axis), min(max(float(u @ v), -1.0), 1.0)  # = np.clip, NaN too
     if s < 1e-12:
         if c > 0:
             return np.eye(3)
         w = cross3(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
-        w /= np.linalg.norm(w)
+        w /= norm3(w)
         return 2.0 * np.outer(w, w) - np.eye(3)  # 180° about an axis perpendicular to u
     k = axis / s
     K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
@@ -98,14 +98,14 @@ def levelled_frames(F_a: np.ndarray, F_b: np.ndarray | None, normal: np.ndarray,
     ``L_b`` does not. The tolerance stays below 45° so that the four horizontal directions (90° apart)
     remain distinct.
     """
-    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    n = np.asarray(normal, float) / norm3(normal)
     La = _rotation_onto(F_a[:, 1], n) @ F_a
     Lb = None if F_b is None else _rotation_onto(F_b[:, 1], n) @ F_b
     u = La @ p_des
     u_h = u - (u @ n) * n
     v_h = d - (d @ n) * n
     Rz = np.eye(3)
-    if np.linalg.norm(u_h) > 0.5 * np.linalg.norm(p_des) and np.linalg.norm(v_h) > 1e-6:
+    if norm3(u_h) > 0.5 * norm3(p_des) and norm3(v_h) > 1e-6:
         phi = float(np.arctan2(n @ cross3(u_h, v_h), u_h @ v_h))
         if abs(phi) <= yaw_tolerance:
             K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
@@ -372,7 +372,7 @@ def _heading_turn(F_from: np.ndarray, F_to: np.ndarray, normal: np.ndarray, modu
     """Rotation about ``normal`` taking the heading of ``F_from`` onto that of ``F_to`` (both levelled: their
     y axes along the normal), the angle reduced into ``[−modulo/2, modulo/2]`` when given; None when either is
     not level."""
-    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    n = np.asarray(normal, float) / norm3(normal)
     if F_from[:, 1] @ n < 0.99 or F_to[:, 1] @ n < 0.99:
         return None
     u, v = F_from[:, 0] - (F_from[:, 0] @ n) * n, F_to[:, 0] - (F_to[:, 0] @ n) * n

@@ -61,18 +61,41 @@ def cross3(u, v) -> np.ndarray:
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
+def norm3(v) -> float:
+    """``np.linalg.norm(v)`` of a float64 vector, the same bits (numpy's own steps: the vector flattened in memory
+    order, its dot product with itself, the square root), without its general-case overhead (about 3 us a call; the
+    connection checks make dozens a frame); other dtypes go to ``np.linalg.norm``."""
+    x = np.asarray(v)
+    if x.dtype != np.float64:
+        return float(np.linalg.norm(x))
+    x = x.ravel(order="K")
+    return math.sqrt(x.dot(x))
+
+
 def relative_pose(pose_a: Pose, pose_b: Pose) -> tuple[np.ndarray, np.ndarray]:
     """``(p_ab, R_ab)``: b's position and rotation in a's body frame (eqs 5.1–5.3)."""
     R_a = pose_a.R
     return R_a.T @ (pose_b.t - pose_a.t), R_a.T @ pose_b.R
 
 
+_MARGINS: dict[float, np.ndarray] = {}
+"""Read-only margins of a single float (:func:`margins`), by its value: the connection checks ask for them about 20
+times a frame."""
+
+
 def margins(m_p: float | tuple[float, float, float]) -> np.ndarray:
-    """Per-axis position margins ``(m_p,x, m_p,y, m_p,z)`` in metres."""
+    """Per-axis position margins ``(m_p,x, m_p,y, m_p,z)`` in metres (read-only for a single number)."""
     if isinstance(m_p, float | int) and not isinstance(m_p, bool):  # the usual case, without broadcasting
+        m = _MARGINS.get(m_p)
+        if m is not None:
+            return m
         if m_p <= 0:
             raise ValueError(f"position margins must be positive, got {m_p}")
-        return np.full(3, float(m_p))
+        m = np.full(3, float(m_p))
+        m.setflags(write=False)
+        if len(_MARGINS) < 64:
+            _MARGINS[m_p] = m
+        return m
     m = np.broadcast_to(np.asarray(m_p, float), (3,)).copy()
     if np.any(m <= 0):
         raise ValueError(f"position margins must be positive, got {m_p}")
