@@ -409,3 +409,22 @@ def test_cross3_and_scalar_margins_equal_numpy_bit_for_bit():
     assert np.array_equal(margins(2), [2.0, 2.0, 2.0]) and margins(2).dtype == np.float64
     with pytest.raises(ValueError):
         margins(0.0)
+
+
+def test_norm3_equals_numpy_norm_bit_for_bit_and_scalar_margins_are_shared_read_only():
+    """norm3 is np.linalg.norm's value exactly (contiguous vectors, a matrix's column, float32 and lists); the margins
+    of a number are one read-only array, so a caller cannot change them for the others."""
+    from tracker.assembly.relations import margins, norm3
+
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        v = rng.normal(size=3) * 10.0 ** rng.integers(-8, 8)
+        R = rng.normal(size=(3, 3))
+        assert norm3(v) == np.linalg.norm(v) and norm3(R[:, 1]) == np.linalg.norm(R[:, 1])
+        assert norm3(v.astype(np.float32)) == np.linalg.norm(v.astype(np.float32))
+    assert norm3([3.0, 4.0, 0.0]) == 5.0 and norm3(np.zeros(3)) == 0.0
+    m = margins(0.007)
+    assert margins(0.007) is m and not m.flags.writeable
+    with pytest.raises(ValueError):
+        m[0] = 1.0
+    assert np.array_equal(2.0 * margins(0.007), [0.014, 0.014, 0.014])
