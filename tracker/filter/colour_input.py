@@ -33,6 +33,7 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
     detected = np.zeros(k, bool)
     trk._blob_off = np.zeros(k, bool)  # reliable blob off the estimate's silhouette (re-acquisition looks at it)
     trk._pre_reseed = {}  # part index -> its estimate before this frame's re-seed at its blob (the hand carry's)
+    trk._pre_reseed_p = {}  # part index -> its particles' positions (N, 3) before that re-seed (carry_sliver_particles)
     if cfg.use_color_input and detections:
         for i, name in enumerate(trk.names):
             det = detections.get(name)
@@ -57,6 +58,7 @@ def control_inputs(trk: MultiObjectTracker, ctx: FrameContext, detections) -> tu
                 score *= area_ratio(trk, i, area) if ratio is None else ratio
             if off_silhouette and cfg.reseed_fraction > 0 and depth is not None:
                 trk._pre_reseed[i] = trk.estimates[name]
+                trk._pre_reseed_p[i] = trk.p[:, i].copy()
                 reseed(trk, i, det, depth)
                 hit = surface_depth(trk, i, center)
             if cfg.color_likelihood_px > 0:

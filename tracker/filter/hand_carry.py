@@ -530,6 +530,14 @@ def carry_over_sliver(trk, obj: int, R: np.ndarray, t: np.ndarray, centroid: np.
     radius_px = trk._radius[obj] * trk.intrinsics.fx / float(c[2])
     if trk.config.carry_blob_radii > 0 and np.hypot(*(uv - centroid)) > trk.config.carry_blob_radii * radius_px:
         return False
+    pre_p = trk._pre_reseed_p.get(obj) if trk.config.carry_sliver_particles else None
+    if pre_p is not None:
+        # carry_sliver_particles: the re-seed is undone (its particles drawn around the sliver's centroid and the
+        # estimate put there) and the hand's motion moves the particles and the estimate from where they were
+        trk.p[:, obj] = pre_p
+        trk.estimates[trk.names[obj]] = pre
+        move_part(trk, obj, R, t)
+        return True
     est = trk.estimates[trk.names[obj]]
     Q = R_new @ est.R.T
     move_part(trk, obj, Q, t_new - Q @ est.t)

@@ -223,6 +223,7 @@ class MultiObjectTracker:
         self._blob_moved = np.zeros(k, bool)
         self._carry_moved = np.zeros(k, bool)  # parts the hand carry moved this frame (hidden_parts.follow_hands)
         self._pre_reseed: dict = {}  # part index -> estimate before this frame's re-seed at its blob (colour_input)
+        self._pre_reseed_p: dict = {}  # part index -> its particles' positions (N, 3) before that re-seed
         self._blob_reappeared = np.zeros(k, bool)  # confident blob this frame but not in the last
         self._landmarks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # scene motion: last frame's landmark poses
         self._scene_keyframes: dict = {}  # scene motion: unplaced part → (landmarks, its R, t) at its keyframe

@@ -286,6 +286,12 @@ class TrackerConfig(BaseModel):
         "cube carried 3 cm a frame 2 cm off for the rest of its hidden carry. The hand's registration also starts "
         "from the hand points around the part's place before the re-seed.",
     )
+    carry_sliver_particles: bool = Field(
+        False, description="With carry_over_sliver: the part's particles move with the hand from where they were "
+        "before the re-seed on its sliver, which is undone (without it the particles are moved rigidly with the "
+        "estimate, so the 70 % not re-drawn around the sliver's centroid land the re-seed's jump, 3-5 cm on tuning "
+        "traces, away from where the hand takes the part, and the coordinate passes pull the estimate toward them).",
+    )
     carry_keyframe: bool = Field(
         False, description="Each frame's hand motion is corrected by registering the carry's first hand patch, moved "
         "by every motion since, to the current hand points (at most 5 mm and 0.05 rad): the frame-to-frame errors of "
