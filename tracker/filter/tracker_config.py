@@ -888,5 +888,8 @@ PRESETS["default"] = {
     "carry_set_down_m": 0.02,
     "carry_set_down_on_parts": True,
     "carry_upright_air": True,
+    "carry_over_sliver": True,
+    "carry_sliver_particles": True,
+    "carry_lift_lookback": True,
 }
 """Preset name -> field values. Seed presets: spec section 15; "default": this product's tuned values."""
