@@ -404,3 +404,47 @@ def test_the_hand_box_covers_the_rim_that_the_opening_trims(monkeypatch):
     assert boxes[True, 2] == (57, 110, 99, 149)
     assert boxes[True, 1] == (58, 110, 99, 149)
     assert boxes[False, 2] == (59, 110, 99, 149)
+
+
+def test_the_flow_moves_the_split_to_where_the_two_motions_meet(monkeypatch):
+    """Two hands side by side at one depth, split afresh where the two wrists are equally far (x ≈ 100). A flow in which
+    the left hand's motion (1, 0) px per frame reaches on to x = 112 and the right hand stands still: with
+    MOTION_SPLIT the left arm keeps the columns that move with it; with MOTION_SPLIT off (explicitly), or with two
+    motions closer than MOTION_SEP, the flow changes nothing."""
+    from tracker.hands import arm_anchor
+
+    rgb, depth = _scene(TOUCHING)
+    skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
+    z = working_depth(depth, 1, (H, W))
+    bg = working_depth(np.full((H, W), 0.8), 1, (H, W))
+    fresh, split = arm_split(skin, z, bg)
+    assert split is not None and len(fresh) == 2
+    left = int(np.argmin(split.entries[:, 0]))
+    x0, y0 = 40, 90  # the flow covers a region of the image (the tracker's ROI)
+    f = np.zeros((100, 130, 2), np.float32)
+    f[:, : 112 - x0, 0] = 1.0
+    monkeypatch.setattr(arm_anchor, "MOTION_SPLIT", False)
+    assert [h.box for h in arm_split(skin, z, bg, None, (f, x0, y0))[0]] == [h.box for h in fresh]
+    monkeypatch.setattr(arm_anchor, "MOTION_SPLIT", True)
+    moved = arm_split(skin, z, bg, None, (f, x0, y0))[0]
+    # the right arm pays 1 + MOTION_COST a column into x < 112, the left 1: they meet ≈ 6 columns further right
+    assert moved[left].box[2] >= fresh[left].box[2] + 5 and moved[1 - left].box[0] >= fresh[1 - left].box[0] + 5
+    assert moved[left].box[2] <= 112 and moved[1 - left].box[0] <= 113
+    alike = f * np.float32(0.5 * arm_anchor.MOTION_SEP)
+    assert [h.box for h in arm_split(skin, z, bg, None, (alike, x0, y0))[0]] == [h.box for h in fresh]
+
+
+def test_the_tracker_gives_the_arm_detector_its_frame_flow(monkeypatch):
+    """The tracker passes the arm detector the backward flow of its ROI with the ROI's top-left working px (what
+    MOTION_SPLIT clusters): the flow array of the frame's features, at the features' ROI origin."""
+    from tracker.hands import arm_anchor
+
+    seen = []
+    real = arm_anchor.arm_split
+    monkeypatch.setattr(arm_anchor, "arm_split", lambda *a, **k: seen.append(a[4]) or real(*a, **k))
+    tr, _, _ = _two_touching_tracks(_scene(TOUCHING))
+    assert seen and seen[-1] is not None
+    f, x0, y0 = seen[-1]
+    ft = tr.last_features
+    assert ft is not None and f is ft.fb[0] and (x0, y0) == (ft.roi[0], ft.roi[1])
+    assert f.shape[:2] == (ft.roi[3] - ft.roi[1], ft.roi[2] - ft.roi[0]) and f.shape[2] == 2

@@ -21,8 +21,11 @@ frame and without tracking, each arm and the skin pixels at its end:
    the upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's
    blind band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split
    gave another arm, when the tracker ran this detector on the previous frame too); each skin pixel belongs to the
-   arm whose wrist reaches it first. A hand's box is the tight box of its pixels (at least :data:`MIN_HAND_PX`) and of
-   the unopened mask's skin within :data:`RIM_PX` of them (:data:`BOX_RIM`).
+   arm whose wrist reaches it first. With the frame's optical flow (:data:`MOTION_SPLIT`, off) two arms' split is run
+   again with the two hands' motions as a prior: a skin pixel whose flow clearly follows one hand's motion costs
+   the other arm's label :data:`MOTION_COST` per pixel (:func:`motion_prior`). A hand's box is the tight box of its
+   pixels (at least :data:`MIN_HAND_PX`) and of the unopened mask's skin within :data:`RIM_PX` of them
+   (:data:`BOX_RIM`).
 
 Without depth nothing is found. Dev measurement (``hands-s2`` tuning seeds 0–4, this detector alone, no tracking,
 the left entry taken as one hand): per hand-frame F̄^b 0.76 / 0.85 / 0.66 / 0.83 / 0.55; used where it finds the
@@ -136,6 +139,38 @@ TUBE_GROW = 1.3
 """Factor on a tube's radius within which a pixel may belong to it (:func:`_crossed_seeds`)."""
 HOLE_DEPTH = 1e3
 """Depth (m) given to the skin pixels without depth when :data:`HOLE_STEP` is on: far from every measured depth."""
+MOTION_SPLIT = False
+"""Whether the split of two arms' skin is redone with each pixel's optical flow as a prior (:func:`motion_prior`;
+``flow`` of :func:`arm_split`): the two hands move differently even where they touch, so the skin pixels whose flow
+clearly follows one hand's motion cost the other arm's label :data:`MOTION_COST` per pixel to spread into (new in
+session 29; off: F̄^b better, but missed hands a little more often with automatic start). On the detector's calls in
+``hands-s2`` tuning seeds 0–4 (ground-truth start, filter seed 0) the skin of each hand's box outside the other's
+follows its own hand's median flow rather than the other's in 94–98 % of the pixels, also where the two motions
+differ by only 0.2–0.5 working px a frame (flow spread within a hand 0.05–0.1 px). In the tracker, ``hands-s2``
+tuning seeds 0–4, the same frames for both arms, off → on: ground-truth start F̄^b 0.8887 → 0.8925, ē^p 6.85 → 6.56
+px (filter seed 0), 0.8872 → 0.8917, 6.96 → 6.56 px (filter seeds 1, 2); automatic start 0.8937 → 0.8967 (filter
+seed 0), 0.8924 → 0.8970 (1, 2), 0.8933 → 0.8965 (3, 4), over filter seeds 0–4 missed hands 0.059 % → 0.073 % (about
+2 of 14 500 hand-frames, seed 4), false boxes 0.0037 → 0.0034 per frame; KF 0.8896 → 0.8917; seed 4 worse in 3 of 7
+runs of filter seeds 0–2 (by up to 0.005); ``hands-s1``, ``hands-s3`` identical (the prior never acts there). The
+detector's call 2.4 → 4.1 ms thread CPU where it finds two arms (the second geodesic pass);
+``benchmarks/history/issue-14-hands.md``."""
+MOTION_SEP = 0.15
+"""Least distance (working px per frame) between the two hands' motions (the two flow clusters' centres) for
+:data:`MOTION_SPLIT` to act."""
+MOTION_MARGIN = 0.2
+"""Share of the distance between the two motions by which a pixel's flow must lie nearer one of them (projected on
+the line between them: below 0.5 − margin or above 0.5 + margin) to be given to that hand."""
+MOTION_COST = 3.0
+"""Extra geodesic cost (working px per pixel) of spreading an arm's label into a skin pixel whose flow follows the
+other arm's hand (:data:`MOTION_SPLIT`); in that second pass the previous split's labels count where the flow does
+not decide, at this cost too. 8 with the previous split left out of the second pass (session 29, ``hands-s2`` tuning
+seeds 0–4, ground-truth start, filter seed 0): F̄^b 0.8923 against 0.8925 at 3."""
+MOTION_ITERS = 5
+"""Lloyd iterations of the two-means clustering of the labelled skin pixels' flow (started from each arm's median)."""
+MOTION_MEDIAN_GATE = True
+"""Whether :data:`MOTION_SPLIT` acts only when the two arms' labelled pixels' median flows already lie
+:data:`MOTION_SEP` apart (without it, two-means also splits one hand's flow field — a hand turning or moving in
+depth — when both hands move alike)."""
 
 
 @dataclass
@@ -536,11 +571,95 @@ def carried_labels(prev: ArmSplit, entries: np.ndarray) -> np.ndarray:
     return remap[np.clip(prev.labels, 0, len(prev.entries))]
 
 
-def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray,
-              prev: ArmSplit | None = None) -> tuple[list[ArmHand], ArmSplit | None]:  # fmt: skip
+@nb.njit(cache=True, nogil=True)
+def _motion_prior(labels, f, x0, y0, min_px, sep, margin, iters, median_gate):
+    """:func:`motion_prior`'s work: (int32 H×W prior, whether it acts)."""
+    h, w = labels.shape
+    out = np.zeros((h, w), np.int32)
+    x1 = min(x0 + f.shape[1], w)
+    y1 = min(y0 + f.shape[0], h)
+    n = 0
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            if labels[y, x] > 0:
+                n += 1
+    if n == 0:
+        return out, False
+    v = np.empty((n, 2))
+    lv = np.empty(n, np.int32)
+    i = 0
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            if labels[y, x] > 0:
+                v[i, 0] = f[y - y0, x - x0, 0]
+                v[i, 1] = f[y - y0, x - x0, 1]
+                lv[i] = labels[y, x]
+                i += 1
+    a = lv == 1
+    b = lv == 2
+    if a.sum() < min_px or b.sum() < min_px:
+        return out, False
+    c = np.empty((2, 2))
+    c[0, 0] = np.median(v[a, 0])
+    c[0, 1] = np.median(v[a, 1])
+    c[1, 0] = np.median(v[b, 0])
+    c[1, 1] = np.median(v[b, 1])
+    if median_gate and (c[1, 0] - c[0, 0]) ** 2 + (c[1, 1] - c[0, 1]) ** 2 < sep * sep:
+        return out, False
+    for _ in range(iters):
+        s = np.zeros((2, 2))
+        k = np.zeros(2)
+        for j in range(n):
+            d0 = (v[j, 0] - c[0, 0]) ** 2 + (v[j, 1] - c[0, 1]) ** 2
+            d1 = (v[j, 0] - c[1, 0]) ** 2 + (v[j, 1] - c[1, 1]) ** 2
+            q = 1 if d1 < d0 else 0
+            s[q, 0] += v[j, 0]
+            s[q, 1] += v[j, 1]
+            k[q] += 1
+        if k[0] == 0 or k[1] == 0:
+            return out, False
+        for q in range(2):
+            c[q, 0] = s[q, 0] / k[q]
+            c[q, 1] = s[q, 1] / k[q]
+    dx = c[1, 0] - c[0, 0]
+    dy = c[1, 1] - c[0, 1]
+    sep2 = dx * dx + dy * dy
+    if sep2 < sep * sep:
+        return out, False
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            if labels[y, x] > 0:
+                t = ((f[y - y0, x - x0, 0] - c[0, 0]) * dx + (f[y - y0, x - x0, 1] - c[0, 1]) * dy) / sep2
+                if t < 0.5 - margin:
+                    out[y, x] = 1
+                elif t > 0.5 + margin:
+                    out[y, x] = 2
+    return out, True
+
+
+def motion_prior(labels: np.ndarray, flow: tuple[np.ndarray, int, int]) -> np.ndarray | None:
+    """Each skin pixel's hand by its optical flow, for two arms (:data:`MOTION_SPLIT`): ``labels`` the split (int32
+    working H×W, 1 and 2 the arms), ``flow`` (f, x0, y0): a flow [h, w, 2] (working px per frame) on the region whose
+    top-left working px is (x0, y0). Unless the two labels' median flows lie less than :data:`MOTION_SEP` apart
+    (:data:`MOTION_MEDIAN_GATE`), the flows of the labelled pixels in the region are clustered by two-means started
+    from those medians (:data:`MOTION_ITERS` iterations); when the two centres lie at least :data:`MOTION_SEP` apart, a
+    pixel whose flow projects onto the line between them below 0.5 − :data:`MOTION_MARGIN` (towards label 1's centre)
+    gets 1, above 0.5 + :data:`MOTION_MARGIN` 2, others 0. Returns int32 H×W (0 outside the region), or None (fewer
+    than MIN_HAND_PX pixels of a label in the region, or motions too alike)."""
+    f, x0, y0 = flow
+    out, ok = _motion_prior(np.ascontiguousarray(labels, np.int32), np.ascontiguousarray(f, np.float32), int(x0),
+                            int(y0), MIN_HAND_PX, float(MOTION_SEP), float(MOTION_MARGIN), int(MOTION_ITERS),
+                            bool(MOTION_MEDIAN_GATE))  # fmt: skip
+    return out if ok else None
+
+
+def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray, prev: ArmSplit | None = None,
+              flow: tuple[np.ndarray, int, int] | None = None) -> tuple[list[ArmHand], ArmSplit | None]:  # fmt: skip
     """:func:`arm_hands` and the split behind it (None when no arm is found). With ``prev`` (the previous frame's
     split) and KEEP_COST > 0, a label spreading into a skin pixel the previous split gave another arm pays KEEP_COST
-    (the arms are matched by their entry points, :func:`carried_labels`)."""
+    (the arms are matched by their entry points, :func:`carried_labels`). With ``flow`` (f [h, w, 2] working px per
+    frame, x0, y0: the working px of its top-left pixel; the backward flow of this frame is fine, only differences
+    count) and :data:`MOTION_SPLIT`, two arms' split is redone with :func:`motion_prior`."""
     h, w = skin.shape
     sk = cv2.morphologyEx(np.ascontiguousarray(skin, np.uint8), cv2.MORPH_OPEN,
                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3)))  # fmt: skip
@@ -568,6 +687,12 @@ def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray,
         zg = np.where((hole > 0) & (sk > 0), HOLE_DEPTH, z)
     carried = carried_labels(prev, entries) if prev is not None and KEEP_COST > 0 else None
     labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, carried, KEEP_COST)
+    if MOTION_SPLIT and flow is not None and len(entries) == 2:
+        moved = motion_prior(labels, flow)
+        if moved is not None:
+            if carried is not None:  # where the flow does not decide, the previous split's labels still count
+                moved = np.where(moved > 0, moved, carried).astype(np.int32)
+            labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, moved, MOTION_COST)
     boxes, counts = _label_boxes(labels, len(entries))
     if BOX_RIM:
         _rim_boxes(labels, np.ascontiguousarray(skin, np.uint8), boxes, RIM_PX)

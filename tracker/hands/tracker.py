@@ -829,7 +829,9 @@ class HandTracker(TrackIdentity):
         z = arm_anchor.working_depth(self._depth, self.s, rgb.shape[:2])
         last = self._arm_split
         prev = last[1] if last is not None and last[0] == self.frame_index - 1 else None
-        hands, split = arm_anchor.arm_split(self._frame_mask(rgb), z, self._arm_bg, prev)
+        ft = self.last_features  # this frame's: its ROI's backward flow for arm_anchor.MOTION_SPLIT
+        flow = (ft.fb[0], ft.roi[0], ft.roi[1]) if ft is not None else None
+        hands, split = arm_anchor.arm_split(self._frame_mask(rgb), z, self._arm_bg, prev, flow)
         self._arm_split = (self.frame_index, split) if split is not None else None
         if not hands:
             return
