@@ -127,6 +127,36 @@ def test_refinement_ends_once_converged():
     assert settled.healthy and full.healthy
 
 
+def test_refinement_ends_once_an_update_is_small():
+    """converged_rotation / converged_translation: the iterations end at the first update after the coarsest
+    threshold that turns by less than the one and moves by less than the other. With bounds every update meets, the
+    coarsest threshold's two updates still run (not the one-update stop of converged_step 1.0) and one more; with
+    0.1° / 0.05 mm the run ends early (not the full run's bits) within 0.1 mm and 0.1° of the full run; 0 (the
+    default) is the full run bit for bit."""
+    truth = cube_pose()
+    depth = depth_of([truth], noise=0.0005, seed=3)
+    start = perturb(truth, 4.0, 3.0)
+    pts, nrm = model_points(start)
+
+    def run(**kw):
+        return refine_pose(depth, INTR, pts, nrm, start.R, start.t, np.zeros(3), RefineSettings(**kw))
+
+    full = run()
+    off = run(converged_rotation=0.0, converged_translation=0.0)
+    assert np.array_equal(off.R, full.R) and np.array_equal(off.t, full.t)
+    once = run(converged_step=1.0)
+    early = run(converged_rotation=1.0, converged_translation=1.0)
+    two = run(thresholds=(0.03,))  # the coarsest threshold's two updates only
+    assert not np.array_equal(early.t, once.t) and not np.array_equal(early.t, two.t)
+    assert not np.array_equal(early.t, full.t)
+    settled = run(converged_rotation=np.radians(0.1), converged_translation=5e-5)
+    assert not (np.array_equal(settled.t, full.t) and np.array_equal(settled.R, full.R))
+    assert np.linalg.norm(settled.t - full.t) < 1e-4
+    assert np.degrees(symmetric_rotation_error(settled.R, full.R, cube_group())) < 0.1
+    t_err, r_err = errors(settled.R, settled.t, truth)
+    assert settled.healthy and t_err < 0.6 and r_err < 0.5, (t_err, r_err)
+
+
 def test_refinement_ignores_an_occluder_in_front():
     truth = cube_pose()
     depth = depth_of([truth])

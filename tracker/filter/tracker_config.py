@@ -515,6 +515,16 @@ class TrackerConfig(BaseModel):
         "norm (rad and m together) falls below this: its pose has converged (a speed setting; 0 = all thresholds "
         "run; 5e-5 saved no measurable CPU on the tuning seeds, session 18).",
     )
+    refine_converged_rotation: float = Field(
+        0.0, ge=0.0, description="With refine_converged_translation: end a part's Gauss-Newton iterations, the finer "
+        "thresholds' too, once an update after the coarsest threshold turns it by less than this (rad) and moves its "
+        "centre by less than refine_converged_translation (m): the updates after the first few circle at 0.01-0.1 deg "
+        "and mm instead of vanishing (a speed setting; 0 = all thresholds run; 0.001745 rad / 5e-5 m: -1.6 ms a "
+        "7-cube frame, worse on tuning set 2, session 29).",
+    )
+    refine_converged_translation: float = Field(
+        0.0, ge=0.0, description="See refine_converged_rotation (m).",
+    )
     refine_occlusion: float = Field(
         0.03, gt=0.0, description="A measurement this far (m) in front of a model point means it is occluded.",
     )

@@ -70,6 +70,14 @@ class RefineSettings:
     converged_step: float = 0.0
     """End all correspondence iterations (the finer thresholds too) when an update's norm (rad and m) falls below
     this: the pose has converged (0 = never; only ``stop_step`` ends an iteration's updates)."""
+    converged_rotation: float = 0.0
+    """With ``converged_translation``: end all correspondence iterations (the finer thresholds too) once an update
+    after the first (coarsest) correspondence iteration turns the part by less than this (rad) and moves its centre by
+    less than ``converged_translation`` (m); 0 = never.
+    A speed setting: on the tuning traces the updates after the first few circle at 0.01–0.1° and 0.01–0.1 mm (the
+    nearest-pixel depth reads and the re-extracted outline make the cost piecewise constant) instead of vanishing."""
+    converged_translation: float = 0.0
+    """See ``converged_rotation`` (m)."""
 
 
 @dataclass
@@ -200,19 +208,31 @@ def _solve_spd6(A, b):
 
 
 @nb.njit(cache=True)
+def _small_update(xi, max_rot, max_trans):
+    """Does the twist ``xi`` = (ω, v) turn by less than ``max_rot`` (rad, ``‖ω‖``) and move by less than
+    ``max_trans`` (m, ``‖v‖``)?"""
+    rot = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
+    trans = np.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
+    return rot < max_rot and trans < max_trans
+
+
+@nb.njit(cache=True)
 def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy, cx, cy,
                   sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step,
-                  converged_step=0.0):
+                  converged_step=0.0, converged_rot=0.0, converged_trans=0.0):
     """The correspondence iterations of :func:`refine_pose` (coarse to fine thresholds, ``updates`` Gauss-Newton
     steps each, the inner loop ends early when the step's norm is below ``stop_step``, all of them when it is below
-    ``converged_step``). Updates ``R``, ``t`` in
+    ``converged_step`` or, after the first threshold, turns by less than ``converged_rot`` (rad) and moves the centre
+    by less than ``converged_trans`` (m), when that is > 0). Updates ``R``, ``t`` in
     place; returns (status: 0 done, 1 too few valid pairs, 2 singular system; the last pass's ``H``, ``n_valid``,
     ``n_obs``, and its median |r| when the status is 1 or 2 — NaN when done: the caller measures the final pose)."""
     c = np.empty(3)
     H = np.zeros((6, 6))
     n_valid, n_obs, med = 0, 0, np.nan
     absr = np.empty(pts.shape[0])
+    ti = -1  # index of the correspondence iteration (threshold)
     for thr in thresholds:
+        ti += 1
         for _ in range(updates):
             for a in range(3):
                 c[a] = R[a, 0] * center[0] + R[a, 1] * center[1] + R[a, 2] * center[2] + t[a]
@@ -242,6 +262,8 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
             step = np.sqrt(np.sum(xi * xi))
             if step < converged_step:
                 return 0, H, n_valid, n_obs, med
+            if converged_rot > 0.0 and ti > 0 and _small_update(xi, converged_rot, converged_trans):
+                return 0, H, n_valid, n_obs, med
             if step < stop_step:
                 break
     return 0, H, n_valid, n_obs, med
@@ -250,8 +272,8 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
 @nb.njit(cache=True)
 def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy,
                          cx, cy, sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step,
-                         converged_step, rpts, rR, rt, sd, gu, gv, su0, sv0, fdepth, inset, r_occ, r_agree, r_max_px,
-                         r_sigma, r_huber, r_weight, ogu, ogv, r_min_cos, r_lines,
+                         converged_step, converged_rot, converged_trans, rpts, rR, rt, sd, gu, gv, su0, sv0, fdepth,
+                         inset, r_occ, r_agree, r_max_px, r_sigma, r_huber, r_weight, ogu, ogv, r_min_cos, r_lines,
                          kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, rect, r_max_points):
     """:func:`_gauss_newton_with_region` in numba for a silhouette term whose outline comes from an
     :class:`~tracker.refine.region_term.OutlineScene` (its arrays, then the term's: contour points ``rpts`` extracted
@@ -260,7 +282,8 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
     is re-extracted whenever the pose differs from the one its points came from (kept when fewer than 8 points; for a
     box :func:`~tracker.refine.region_term._scene_outline` ray-casts only near its projected outline, same points),
     the update solves ``(H + H_r + Λ) ξ = −(g + g_r)`` and turns by Rodrigues' formula of
-    :func:`~tracker.filter.motion_model.rotvec_to_matrix`. Updates ``R``, ``t`` in place; same return values as
+    :func:`~tracker.filter.motion_model.rotvec_to_matrix`; the same early ends (``converged_rot`` / ``converged_trans``
+    as in :func:`_gauss_newton`). Updates ``R``, ``t`` in place; same return values as
     :func:`_gauss_newton`."""
     c = np.empty(3)
     H = np.zeros((6, 6))
@@ -271,7 +294,9 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
     cur = rpts
     Rw = np.empty((3, 3))
     K = np.empty((3, 3))
+    ti = -1  # index of the correspondence iteration (threshold)
     for thr in thresholds:
+        ti += 1
         for _ in range(updates):
             for a in range(3):
                 c[a] = R[a, 0] * center[0] + R[a, 1] * center[1] + R[a, 2] * center[2] + t[a]
@@ -317,6 +342,8 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
             step = np.sqrt(np.sum(xi * xi))
             if step < converged_step:
                 return 0, H, n_valid, n_obs, med
+            if converged_rot > 0.0 and ti > 0 and _small_update(xi, converged_rot, converged_trans):
+                return 0, H, n_valid, n_obs, med
             if step < stop_step:
                 break
     return 0, H, n_valid, n_obs, med
@@ -329,7 +356,7 @@ def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: 
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     prior = np.diag([cfg.lambda_rot] * 3 + [cfg.lambda_trans] * 3)
     info, n_valid, n_obs, med = np.zeros((6, 6)), 0, 0, float("nan")
-    for thr in cfg.thresholds:
+    for ti, thr in enumerate(cfg.thresholds):
         for _ in range(cfg.updates_per_iteration):
             c = R @ center + t
             info, g, n_valid, n_obs, med, _ = _accumulate(pts, nrm, R, t, c, dep, mask, use_mask, float(thr),
@@ -344,6 +371,9 @@ def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: 
             R[:] = Rw @ R
             step = np.linalg.norm(xi)
             if step < cfg.converged_step:
+                return 0, info, n_valid, n_obs, med
+            if (cfg.converged_rotation > 0.0 and ti > 0
+                    and _small_update(xi, cfg.converged_rotation, cfg.converged_translation)):
                 return 0, info, n_valid, n_obs, med
             if step < cfg.stop_step:
                 break
@@ -391,7 +421,8 @@ def refine_pose(
         status, info, n_valid, n_observable, med = _gauss_newton(
             pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
             int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k,
-            behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step, float(cfg.converged_step))
+            behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step, float(cfg.converged_step),
+            float(cfg.converged_rotation), float(cfg.converged_translation))
     elif region.scene is not None:
         sc, f, rs = region.scene, region.sdf, region.settings
         if not (region.pose is not None and region.outline_at is not None):
@@ -400,6 +431,7 @@ def refine_pose(
             pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
             int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k,
             behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step, float(cfg.converged_step),
+            float(cfg.converged_rotation), float(cfg.converged_translation),
             np.ascontiguousarray(region.points, np.float64), np.ascontiguousarray(region.pose[0], np.float64),
             np.ascontiguousarray(region.pose[1], np.float64), f.d, f.gu, f.gv, float(f.u0), float(f.v0),
             dep if region.frame_depth is None else region.frame_depth, float(region.inset), rs.occlusion_m,

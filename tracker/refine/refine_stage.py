@@ -102,7 +102,8 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
         occlusion_m=cfg.refine_occlusion, lambda_rot=cfg.refine_lambda_rot, lambda_trans=cfg.refine_lambda_trans,
         min_valid_fraction=cfg.refine_min_valid_fraction, max_points=cfg.refine_max_points,
         few_points_position=cfg.refine_few_points_position,
-        converged_step=cfg.refine_converged_step,
+        converged_step=cfg.refine_converged_step, converged_rotation=cfg.refine_converged_rotation,
+        converged_translation=cfg.refine_converged_translation,
     )
     region = (RegionSettings(weight=cfg.refine_region_weight, depth_agree_m=cfg.refine_region_depth_agree,
                              normal_cos=cfg.refine_region_normal_cos, lines=cfg.refine_region_lines)
