@@ -21,7 +21,7 @@ frame and without tracking, each arm and the skin pixels at its end:
    the upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's
    blind band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split
    gave another arm, when the tracker ran this detector on the previous frame too); each skin pixel belongs to the
-   arm whose wrist reaches it first. With the frame's optical flow (:data:`MOTION_SPLIT`, off) two arms' split is run
+   arm whose wrist reaches it first. With the frame's optical flow (:data:`MOTION_SPLIT`, on) two arms' split is run
    again with the two hands' motions as a prior: a skin pixel whose flow clearly follows one hand's motion costs
    the other arm's label :data:`MOTION_COST` per pixel (:func:`motion_prior`). A hand's box is the tight box of its
    pixels (at least :data:`MIN_HAND_PX`) and of the unopened mask's skin within :data:`RIM_PX` of them
@@ -139,11 +139,12 @@ TUBE_GROW = 1.3
 """Factor on a tube's radius within which a pixel may belong to it (:func:`_crossed_seeds`)."""
 HOLE_DEPTH = 1e3
 """Depth (m) given to the skin pixels without depth when :data:`HOLE_STEP` is on: far from every measured depth."""
-MOTION_SPLIT = False
+MOTION_SPLIT = True
 """Whether the split of two arms' skin is redone with each pixel's optical flow as a prior (:func:`motion_prior`;
 ``flow`` of :func:`arm_split`): the two hands move differently even where they touch, so the skin pixels whose flow
 clearly follows one hand's motion cost the other arm's label :data:`MOTION_COST` per pixel to spread into (new in
-session 29; off: F̄^b better, but missed hands a little more often with automatic start). On the detector's calls in
+session 29; on: F̄^b, ē^p and false boxes better, missed hands by about 2 hand-frames of 14 500 more often with
+automatic start, 27 times below the target's 2 %). On the detector's calls in
 ``hands-s2`` tuning seeds 0–4 (ground-truth start, filter seed 0) the skin of each hand's box outside the other's
 follows its own hand's median flow rather than the other's in 94–98 % of the pixels, also where the two motions
 differ by only 0.2–0.5 working px a frame (flow spread within a hand 0.05–0.1 px). In the tracker, ``hands-s2``
