@@ -121,19 +121,25 @@ def test_bucket_queue_geodesic_equals_the_heap_one():
     assert reached > 10000
 
 
-def test_the_previous_split_keeps_its_labels_where_two_touching_hands_meet(monkeypatch):
-    """Two hands side by side at one depth: afresh, the split falls where the two wrists are equally far (x ≈ 100);
-    with the previous frame's split giving the left arm 10 more columns, KEEP_COST per pixel keeps part of them, and
-    with KEEP_COST 0 (off) the previous split changes nothing."""
-    from tracker.hands import arm_anchor
-
+def _touching_split():
+    """The TOUCHING scene's skin mask, working depth and background, its fresh two-arm split (hands and the split) and
+    the index of the left arm."""
     rgb, depth = _scene(TOUCHING)
     skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
     z = working_depth(depth, 1, (H, W))
     bg = working_depth(np.full((H, W), 0.8), 1, (H, W))
     fresh, split = arm_split(skin, z, bg)
     assert split is not None and len(fresh) == 2
-    left = int(np.argmin(split.entries[:, 0]))
+    return skin, z, bg, fresh, split, int(np.argmin(split.entries[:, 0]))
+
+
+def test_the_previous_split_keeps_its_labels_where_two_touching_hands_meet(monkeypatch):
+    """Two hands side by side at one depth: afresh, the split falls where the two wrists are equally far (x ≈ 100);
+    with the previous frame's split giving the left arm 10 more columns, KEEP_COST per pixel keeps part of them, and
+    with KEEP_COST 0 (off) the previous split changes nothing."""
+    from tracker.hands import arm_anchor
+
+    skin, z, bg, fresh, split, left = _touching_split()
     assert abs(fresh[left].box[2] - 99) <= 2
     # the previous split lists the same arms the other way round: there the left arm is label 2 - left
     prev_labels = np.where(skin > 0, left + 1, 0).astype(np.int32)
@@ -413,13 +419,7 @@ def test_the_flow_moves_the_split_to_where_the_two_motions_meet(monkeypatch):
     motions closer than MOTION_SEP, the flow changes nothing."""
     from tracker.hands import arm_anchor
 
-    rgb, depth = _scene(TOUCHING)
-    skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
-    z = working_depth(depth, 1, (H, W))
-    bg = working_depth(np.full((H, W), 0.8), 1, (H, W))
-    fresh, split = arm_split(skin, z, bg)
-    assert split is not None and len(fresh) == 2
-    left = int(np.argmin(split.entries[:, 0]))
+    skin, z, bg, fresh, split, left = _touching_split()
     x0, y0 = 40, 90  # the flow covers a region of the image (the tracker's ROI)
     f = np.zeros((100, 130, 2), np.float32)
     f[:, : 112 - x0, 0] = 1.0
