@@ -110,6 +110,11 @@ class PreparedFrame:
     detections: dict
     cpu_s: float
 
+    def valid_for(self, frame: Frame, detector: Any) -> bool:
+        """Whether these detections are ``frame``'s by ``detector`` with its current ranges."""
+        return (detector is not None and self.frame is frame and self.detector is detector
+                and tuple(detector.ranges.items()) == self.ranges)  # fmt: skip
+
 
 def resolve_task(task: Any) -> Any:
     """A task object from a preset id or a task-file path; objects (TaskModel, SentenceTask) pass through."""
@@ -581,8 +586,7 @@ class AssemblyPipeline:
 
         t0 = time.perf_counter()
         detections: dict = {}
-        if (prepared is not None and self.detector is not None and prepared.frame is frame
-                and prepared.detector is self.detector and tuple(self.detector.ranges.items()) == prepared.ranges):
+        if prepared is not None and prepared.valid_for(frame, self.detector):
             detections = prepared.detections
             timings["detection_ahead"] = prepared.cpu_s
         elif self.detector is not None:

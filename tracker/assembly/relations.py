@@ -7,6 +7,7 @@ z = x × y (pointing towards the user for a camera looking down at the table).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -78,24 +79,20 @@ def relative_pose(pose_a: Pose, pose_b: Pose) -> tuple[np.ndarray, np.ndarray]:
     return R_a.T @ (pose_b.t - pose_a.t), R_a.T @ pose_b.R
 
 
-_MARGINS: dict[float, np.ndarray] = {}
-"""Read-only margins of a single float (:func:`margins`), by its value: the connection checks ask for them about 20
-times a frame."""
+@functools.lru_cache(maxsize=64)
+def _scalar_margins(m_p: float) -> np.ndarray:
+    """Read-only ``(m_p, m_p, m_p)`` (m), made once per value: the connection checks ask about 20 times a frame."""
+    if m_p <= 0:
+        raise ValueError(f"position margins must be positive, got {m_p}")
+    m = np.full(3, float(m_p))
+    m.setflags(write=False)
+    return m
 
 
 def margins(m_p: float | tuple[float, float, float]) -> np.ndarray:
     """Per-axis position margins ``(m_p,x, m_p,y, m_p,z)`` in metres (read-only for a single number)."""
     if isinstance(m_p, float | int) and not isinstance(m_p, bool):  # the usual case, without broadcasting
-        m = _MARGINS.get(m_p)
-        if m is not None:
-            return m
-        if m_p <= 0:
-            raise ValueError(f"position margins must be positive, got {m_p}")
-        m = np.full(3, float(m_p))
-        m.setflags(write=False)
-        if len(_MARGINS) < 64:
-            _MARGINS[m_p] = m
-        return m
+        return _scalar_margins(m_p)
     m = np.broadcast_to(np.asarray(m_p, float), (3,)).copy()
     if np.any(m <= 0):
         raise ValueError(f"position margins must be positive, got {m_p}")
