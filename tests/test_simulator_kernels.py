@@ -155,6 +155,8 @@ def test_colour_kernel_equals_the_one_loop_reference(noise_sigma, vignetting):
     sm.DepthSensorModel(),
     sm.DepthSensorModel(noise_on="disparity", quantization="disparity"),
     sm.DepthSensorModel(quantization="none", shift_u=-1, shift_v=1, projector_baseline=-0.05),
+    sm.DepthSensorModel(shift_u=-1, shift_v=1),  # the branch-free loop (noise on depth, mm) with other shifts
+    sm.DepthSensorModel(shift_u=0, shift_v=-1, edge_missing=0.2, edge_flying=0.5, dropout=0.05),
 ])  # fmt: skip
 def test_depth_kernel_equals_the_one_loop_reference(model):
     for clean, cosang, _, key in INPUTS:
