@@ -172,3 +172,21 @@ def test_depth_kernel_equals_the_one_loop_reference(model):
         _depth_reference(clean, cosang, b, *args)
         assert np.array_equal(a, b, equal_nan=True)
         assert np.isnan(a).any() and np.isfinite(a).any()
+
+
+def test_projector_shadow_of_some_rows_computes_those_restores_the_marked_and_keeps_the_rest():
+    model = sm.DepthSensorModel()
+    clean, _, _, _ = INPUTS[1]  # a frame with the hand
+    full = model.projector_shadow(clean)
+    base = np.zeros_like(full)
+    base[::7] = True
+    out = np.ones_like(full)  # stands for the last frame's mask
+    h = clean.shape[0]
+    compute, restore = np.zeros(h, np.bool_), np.zeros(h, np.bool_)
+    compute[100:300] = True
+    restore[250:400] = True
+    model.projector_shadow(clean, out=out, rows=(compute, restore, base))
+    assert np.array_equal(out[100:300], full[100:300])
+    assert np.array_equal(out[300:400], base[300:400])
+    assert out[:100].all() and out[400:].all()
+    assert full[100:300].any() and not full[100:300].all()  # the computed rows have shadow and lit pixels

@@ -105,19 +105,36 @@ class DepthSensorModel:
         """Standard deviation (metres) of the depth noise at depth ``z`` metres (before quantisation)."""
         return self.noise_coeff * np.asarray(z, dtype=float) ** 2
 
+    def projector_shadow(self, clean: np.ndarray, fx: float = 525.0, out: np.ndarray | None = None,
+                         rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:  # fmt: skip
+        """Bool H×W: the pixels of ``clean`` depth (metres, inf where nothing) the pattern projector cannot reach
+        (all False without a projector); ``fx`` the focal length in pixels. ``out``: a bool array to write into
+        (returned). ``rows`` = ``(compute, restore, base)``: only the rows ``compute`` marks (bool per row) are
+        computed, those ``restore`` marks (and not ``compute``) are copied from ``base`` (bool H×W), the others of
+        ``out`` are kept — for a caller that knows which rows of ``clean`` changed since ``out`` was made."""
+        if out is None:
+            out = np.empty(clean.shape, np.bool_)
+        if self.projector_baseline == 0.0:
+            out[...] = False
+            return out
+        fxb, right = float(fx) * abs(self.projector_baseline), self.projector_baseline > 0
+        if rows is None:
+            _projector_shadow(clean, fxb, right, out)
+        else:
+            _projector_shadow_rows(clean, fxb, right, out, *rows)
+        return out
+
     def apply(self, clean: np.ndarray, cosang: np.ndarray, key: int, fx: float = 525.0,
-              out: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+              out: np.ndarray | None = None, shadow: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
         """Noisy float32 depth (NaN missing) from noise-free ``clean`` depth (inf where nothing) and
         ``cosang`` = |cos(incidence)|, with the randomness of per-frame ``key`` (uint64); ``fx`` is the focal
         length in pixels (for the projector shadows). ``out``: a float32 array of ``clean``'s shape to write into
-        (returned), else a new one."""
+        (returned), else a new one. ``shadow``: :meth:`projector_shadow` of ``clean`` when the caller has it (else it
+        is computed here)."""
         if out is None:
             out = np.empty(clean.shape, np.float32)
-        if self.projector_baseline != 0.0:
-            shadow = np.empty(clean.shape, np.bool_)  # every pixel is written
-            _projector_shadow(clean, float(fx) * abs(self.projector_baseline), self.projector_baseline > 0, shadow)
-        else:
-            shadow = np.zeros(clean.shape, np.bool_)
+        if shadow is None:
+            shadow = self.projector_shadow(clean, fx)
         quant = {"none": 0, "mm": 1, "disparity": 2}[self.quantization]
         _depth_kernel(
             clean,
@@ -353,6 +370,27 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
                                          hashes[u])  # fmt: skip
 
 
+@nb.njit(cache=True, inline="always", fastmath=_FM)
+def _shadow_row(clean, v, fxb, right, shadow, c):
+    """Row ``v`` of :func:`_projector_shadow` (``c``: scratch of the row's length)."""
+    w = clean.shape[1]
+    # projector column of every pixel (inf depth → disparity 0); branch-free so that it vectorises
+    if right:
+        for u in range(w):
+            c[u] = u - fxb / clean[v, u]
+        m = 1e30
+        for u in range(w - 1, -1, -1):
+            shadow[v, u] = m < c[u] - 0.5
+            m = min(m, c[u])
+    else:
+        for u in range(w):
+            c[u] = u + fxb / clean[v, u]
+        m = -1e30
+        for u in range(w):
+            shadow[v, u] = m > c[u] + 0.5
+            m = max(m, c[u])
+
+
 @nb.njit(cache=True, fastmath=_FM)
 def _projector_shadow(clean, fxb, right, shadow):
     """Mark pixels hidden from a projector ``fxb / fx`` metres to the right (``right``) or left of the camera.
@@ -364,21 +402,21 @@ def _projector_shadow(clean, fxb, right, shadow):
     h, w = clean.shape
     c = np.empty(w)
     for v in range(h):
-        # projector column of every pixel (inf depth → disparity 0); branch-free so that it vectorises
-        if right:
+        _shadow_row(clean, v, fxb, right, shadow, c)
+
+
+@nb.njit(cache=True, fastmath=_FM)
+def _projector_shadow_rows(clean, fxb, right, shadow, compute, restore, base):
+    """:func:`_projector_shadow` of the rows ``compute`` marks (bool per row); the rows ``restore`` marks (and not
+    ``compute``) are copied from ``base``; the others are left as they are."""
+    h, w = clean.shape
+    c = np.empty(w)
+    for v in range(h):
+        if compute[v]:
+            _shadow_row(clean, v, fxb, right, shadow, c)
+        elif restore[v]:
             for u in range(w):
-                c[u] = u - fxb / clean[v, u]
-            m = 1e30
-            for u in range(w - 1, -1, -1):
-                shadow[v, u] = m < c[u] - 0.5
-                m = min(m, c[u])
-        else:
-            for u in range(w):
-                c[u] = u + fxb / clean[v, u]
-            m = -1e30
-            for u in range(w):
-                shadow[v, u] = m > c[u] + 0.5
-                m = max(m, c[u])
+                shadow[v, u] = base[v, u]
 
 
 @nb.njit(cache=True, fastmath=_FM)

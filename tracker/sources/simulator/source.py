@@ -205,6 +205,11 @@ class SimulatedTable(FrameSource):
         self._dirty_color: list[tuple[int, int, int, int]] = []  # … whose colour alone changed (shadows, blur)
         self._closed = False
         self._blur_scratch: np.ndarray | None = None  # the colour sensor model's blurred colour, reused every frame
+        # fixed camera: the projector shadow of the background, and the shadow of the last frame with the rows that
+        # differ from it (the rows of its geometry rectangles): only those rows are computed again (_projector_shadow)
+        self._proj_bg: np.ndarray | None = None
+        self._proj_shadow: np.ndarray | None = None
+        self._proj_rows = np.zeros(h, np.bool_)
 
     # ---------------------------------------------------------------- FrameSource / public properties
     @property
@@ -595,6 +600,24 @@ class SimulatedTable(FrameSource):
         cu0, cv0, cu1, cv1 = rz.apply_shadow(self._color, self._ids, self._bg_table, mask, step, u0, v0, u1, v1)
         return (cu0, cv0, cu1, cv1) if cu0 < cu1 else None
 
+    def _projector_shadow(self) -> np.ndarray | None:
+        """The depth model's projector shadow of the clean depth just rendered, or None (a moving camera: the depth
+        model computes it). With a fixed camera the clean depth equals the background's outside this frame's geometry
+        rectangles (:attr:`_dirty`), so only their rows are computed; the rows the last frame computed and this one
+        does not take the background's shadow again (the same mask as computed whole)."""
+        if self._caster is not None:
+            return None
+        model, fx = self.options.depth_model, self._intr.fx
+        if self._proj_bg is None:
+            self._proj_bg = model.projector_shadow(self._bg.depth, fx)
+            self._proj_shadow = self._proj_bg.copy()
+        rows = np.zeros_like(self._proj_rows)
+        for _u0, v0, _u1, v1 in self._dirty:
+            rows[max(v0, 0) : max(v1, 0)] = True
+        model.projector_shadow(self._depth, fx, out=self._proj_shadow, rows=(rows, self._proj_rows, self._proj_bg))
+        self._proj_rows = rows
+        return self._proj_shadow
+
     renders_into = True
     """:meth:`render` takes ``out`` buffers (the server's source process renders into its shared memory)."""
 
@@ -607,7 +630,8 @@ class SimulatedTable(FrameSource):
         color_out, depth_out = out if out is not None else (None, None)
         clean = self.render_clean(index)
         key = self.frame_key(index)
-        depth = self.options.depth_model.apply(clean["depth"], clean["cosang"], key, fx=self._intr.fx, out=depth_out)
+        depth = self.options.depth_model.apply(clean["depth"], clean["cosang"], key, fx=self._intr.fx, out=depth_out,
+                                               shadow=self._projector_shadow())  # fmt: skip
         if self._blur_scratch is None:
             self._blur_scratch = np.empty_like(clean["color"])
         color = self.options.color_model.apply(clean["color"], key, clean["t"], self._phase, out=color_out,
