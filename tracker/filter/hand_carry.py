@@ -405,9 +405,15 @@ class HandCarry:
                     continue
             # search the current points around where last frame's hand motion would take the part, in a window
             # widened by the largest hand motion per frame
-            pts = self._points(depth, positions[i] + self.last_step[i], cfg.carry_radius + cfg.carry_max_step, plane,
+            patch_radius = max(cfg.carry_patch_radius, cfg.carry_radius)  # carry_patch_radius (0: carry_radius)
+            pts = self._points(depth, positions[i] + self.last_step[i], patch_radius + cfg.carry_max_step, plane,
                                exclude)
-            if pts.shape[0] < cfg.carry_min_points:
+            if patch_radius > cfg.carry_radius:  # whether the hand is still there: carry_radius's window, as without
+                n_window = self._points(depth, positions[i] + self.last_step[i], cfg.carry_radius + cfg.carry_max_step,
+                                        plane, exclude).shape[0]
+            else:
+                n_window = pts.shape[0]
+            if n_window < cfg.carry_min_points:
                 self.patches[i] = None  # the hand left: the part stays where it was put down
                 self.keys[i] = None
                 continue
@@ -430,8 +436,10 @@ class HandCarry:
             new_pos = Rw @ positions[i] + delta[i]
             if back is not None:  # from the estimate to the backtracked pose, then with the hand to this frame
                 rot[i], delta[i] = rot[i] @ back[0], rot[i] @ back[1] + delta[i]
-            near = ((pts - new_pos) ** 2).sum(1) <= cfg.carry_radius**2
-            self.patches[i] = pts[near] if near.sum() >= cfg.carry_min_points else None
+            dist2 = ((pts - new_pos) ** 2).sum(1)
+            near = dist2 <= patch_radius**2
+            enough = near.sum() if patch_radius == cfg.carry_radius else (dist2 <= cfg.carry_radius**2).sum()
+            self.patches[i] = pts[near] if enough >= cfg.carry_min_points else None
             if cfg.carry_keyframe and self.keys[i] is None and self.patches[i] is not None:
                 self.keys[i] = self.patches[i].copy()
         if cfg.carry_backtrack > 0 and self._prev_depth is not depth:
