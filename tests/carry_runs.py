@@ -12,7 +12,7 @@ SNATCH_FRAMES = np.arange(200, 266)
 
 @cache
 def snatch_under_arm(hands: bool = False, take_m: float = 0.0,
-                     left_table: float = 0.0) -> tuple[np.ndarray, frozenset[str] | None]:
+                     left_table: float = 0.0, tracker_seed: int = 5) -> tuple[np.ndarray, frozenset[str] | None]:
     """Simulated guess-2 (tuning seed 0), frames 200-265 (``SNATCH_FRAMES``), tracked as ``track`` does
     (:class:`app.commands.track.TrackSession`, default preset, ``carry_shadow_take_m`` = ``take_m``,
     ``carry_left_table`` = ``left_table`` — on by default since session 18, off here unless given, so that the
@@ -31,7 +31,7 @@ def snatch_under_arm(hands: bool = False, take_m: float = 0.0,
         frame = src.render(int(i))
         truth = frame.meta["groundtruth"]["poses"]
         if session is None:
-            session = TrackSession(src.parts, src.intrinsics, truth, cfg, seed=5, hands=hands)
+            session = TrackSession(src.parts, src.intrinsics, truth, cfg, seed=tracker_seed, hands=hands)
         state, _ = session.step(frame)
         errs.append(state.poses["yellow"].translation_error(truth["yellow"]))
     touched = session.hands.touched_parts() if session.hands is not None else None

@@ -86,10 +86,10 @@ def frames():
     return sequence()
 
 
-def run(frames, reacquire: bool) -> tuple[list[float], list[float], int]:
+def run(frames, reacquire: bool, tracker_seed: int = 0) -> tuple[list[float], list[float], int]:
     part = PartSpec.cube("red", "red", edge=EDGE)
     cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, reacquire=reacquire)
-    trk = MultiObjectTracker([part], INTR, cfg, seed=0)
+    trk = MultiObjectTracker([part], INTR, cfg, seed=tracker_seed)
     trk.initialize({"red": frames[0][1]})
     det = ColorDetector.from_parts([part])
     t_mm, r_deg = [], []

@@ -89,7 +89,7 @@ def frames():
 
 
 def run(frames, release_on_lift: int, above_table: bool = False,
-        set_down_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        set_down_m: float = 0.0, tracker_seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The cube's translation error (mm) and the height of its estimate's lowest corner above the table (mm) per
     frame. ``carry_anchor_start`` (on in the default preset since session 16) is off here, as when these settings
     were measured: with it the carried cube's rest anchor moves with the hand from the carry's start and the put-down
@@ -101,7 +101,7 @@ def run(frames, release_on_lift: int, above_table: bool = False,
     cfg = TrackerConfig.preset("default").with_overrides(n_particles=100, carry_release_on_lift=release_on_lift,
                                                          carry_above_table=above_table, carry_anchor_start=False,
                                                          carry_backtrack=0, carry_set_down_m=set_down_m)
-    trk = MultiObjectTracker([part], INTR, cfg, seed=0)
+    trk = MultiObjectTracker([part], INTR, cfg, seed=tracker_seed)
     trk.initialize({"red": frames[0][1]})
     det = ColorDetector.from_parts([part])
     err, low = [], []
@@ -124,25 +124,50 @@ def test_the_scene_hides_the_cube_from_the_carry_until_the_hand_has_gone(frames)
     assert vis[RISE.stop:].min() > 0.9
 
 
-def test_a_part_put_down_stays_when_the_hand_rises_from_it(frames):
-    with_rule, _ = run(frames, release_on_lift=3)
-    without, _ = run(frames, release_on_lift=0)
+SEEDS = (0, 1, 2)
+"""Tracker seeds of the simulated put-down tests: how far the hidden carry brings the cube, and how far the hand's
+points take it up without the rule, vary with the seed (tuning seeds 0-4: put down 7-28 mm off; taken up 1.2-6.7
+mm), so the tests bound medians over these seeds, and the gain of each rule per seed rather than each arm alone."""
+
+
+def rise_gain(with_rule: np.ndarray, without: np.ndarray) -> float:
+    """How much farther (mm) the cube is taken up while the hand rises without the rule than with it: each arm's
+    error in the last rising frame (without) or its worst rising frame (with) minus its error when put down."""
     put_down = RISE.start - 1  # the last frame the hand holds it on the table
-    assert with_rule[put_down] < 12.0  # carried to the table with the hand
-    assert with_rule[RISE].max() < with_rule[put_down] + 1.0, with_rule[RISE]  # it stays where it was put down
-    assert without[RISE][-1] > without[put_down] + 5.0, without[RISE]  # the hand's points alone take it up
-    assert with_rule[-3:].max() < 3.0 and without[-3:].max() < 3.0  # found again once the hand has gone
+    return float((without[RISE][-1] - without[put_down]) - (with_rule[RISE].max() - with_rule[put_down]))
+
+
+def test_a_part_put_down_stays_when_the_hand_rises_from_it(frames):
+    """carry_release_on_lift: carried to the table with the hand (median error when put down under 2 cm), the cube
+    stays where it was put down while the hand rises (within 1 mm, median); without the rule the hand's points take
+    it up: at least 3 mm more than with it (median over SEEDS; 1.2-7.6 mm on tuning seeds 0-4). Found again once
+    the hand has gone, for every seed."""
+    put_down = RISE.start - 1
+    put, stays, gain = [], [], []
+    for seed in SEEDS:
+        with_rule, _ = run(frames, release_on_lift=3, tracker_seed=seed)
+        without, _ = run(frames, release_on_lift=0, tracker_seed=seed)
+        put.append(with_rule[put_down])
+        stays.append(with_rule[RISE].max() - with_rule[put_down])
+        gain.append(rise_gain(with_rule, without))
+        assert with_rule[-3:].max() < 3.0 and without[-3:].max() < 3.0, seed  # found again once the hand has gone
+    assert np.median(put) < 20.0, put
+    assert np.median(stays) < 1.0, stays
+    assert np.median(gain) > 3.0, gain
 
 
 def test_a_carried_part_is_not_pushed_through_the_table(frames):
     """The hand's registration lags its descent and would take the cube below the table top; with
-    ``carry_above_table`` it stops on it, and is nearer the truth while held there."""
+    ``carry_above_table`` it stops on it (every seed of SEEDS), and is nearer the truth while held there (median)."""
+    gains = []
     held = slice(HIDDEN + N_CARRIED, RISE.start)
-    err_on, low_on = run(frames, release_on_lift=3, above_table=True)
-    err_off, low_off = run(frames, release_on_lift=3, above_table=False)
-    assert low_off[held].min() < -5.0, low_off[held]
-    assert low_on[held].min() > -1.5, low_on[held]
-    assert err_on[held].max() < err_off[held].max() - 3.0, (err_on[held], err_off[held])
+    for seed in SEEDS:
+        err_on, low_on = run(frames, release_on_lift=3, above_table=True, tracker_seed=seed)
+        err_off, low_off = run(frames, release_on_lift=3, above_table=False, tracker_seed=seed)
+        assert low_off[held].min() < -5.0, (seed, low_off[held])
+        assert low_on[held].min() > -1.5, (seed, low_on[held])
+        gains.append(err_off[held].max() - err_on[held].max())
+    assert np.median(gains) > 1.0, gains  # 2.1-5.9 mm on tuning seeds 0-4
 
 
 def test_the_default_preset_lets_go_on_lift_and_keeps_carried_parts_above_the_table():

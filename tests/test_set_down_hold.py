@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_release_on_lift import EDGE, INTR, NORMAL, PLANE, RISE, cube_on_table, run, sequence
+from test_release_on_lift import EDGE, INTR, NORMAL, PLANE, RISE, SEEDS, cube_on_table, rise_gain, run, sequence
 
 from tracker.filter.hidden_parts import held_where_put, lowest_height
 from tracker.filter.particle_filter import MultiObjectTracker
@@ -89,18 +89,22 @@ def test_no_set_down_without_every_condition(case):
 
 def test_in_the_put_down_scene_the_rule_alone_keeps_the_part_where_the_hand_left_it():
     """The scene of test_release_on_lift (a hidden cube carried, held on the table, the hand rising 6 mm per frame):
-    with carry_set_down_m and without carry_release_on_lift the cube stays put when the hand rises."""
+    with carry_set_down_m and without carry_release_on_lift the cube stays put when the hand rises (within 1 mm,
+    every seed of SEEDS), at least 3 mm less far up than without it (median)."""
     frames = sequence()
-    with_rule, _ = run(frames, release_on_lift=0, set_down_m=0.02)
-    without, _ = run(frames, release_on_lift=0)
     put_down = RISE.start - 1
-    assert with_rule[RISE].max() < with_rule[put_down] + 1.0, with_rule[RISE]
-    assert without[RISE][-1] > without[put_down] + 5.0, without[RISE]
+    gain = []
+    for seed in SEEDS:
+        with_rule, _ = run(frames, release_on_lift=0, set_down_m=0.02, tracker_seed=seed)
+        without, _ = run(frames, release_on_lift=0, tracker_seed=seed)
+        assert with_rule[RISE].max() < with_rule[put_down] + 1.0, (seed, with_rule[RISE])
+        gain.append(rise_gain(with_rule, without))
+    assert np.median(gain) > 3.0, gain
 
 
 def test_in_a_simulated_carry_the_cube_put_down_is_held_nearer_the_truth():
     """The simulated carry of test_hand_carry (the default settings, a cube carried about 60 frames hidden and put down
-    beside another): with the rule its worst error in the hand falls from 17.8 to 11.8 mm (the last frames of the
+    beside another): with the rule its worst error in the hand falls from 17.3 to 10.5 mm (the last frames of the
     carry, where the hand opens and rises), and it is found again once the hand has gone, as without."""
     from test_hand_carry import _carry_run
 
@@ -110,7 +114,8 @@ def test_in_a_simulated_carry_the_cube_put_down_is_held_nearer_the_truth():
     default = TrackerConfig.preset("default")
     assert default.carry_set_down_m > 0 and TrackerConfig().carry_set_down_m == 0
     assert default.carry_set_down_on_parts and not TrackerConfig().carry_set_down_on_parts
-    assert on[hidden].max() < off[hidden].max() - 0.004, (on[hidden].max(), off[hidden].max())
+    # 4.6-8.9 mm on tracker seeds 5-7 and with the refinement's early end (session 30): 2 mm keeps a margin
+    assert on[hidden].max() < off[hidden].max() - 0.002, (on[hidden].max(), off[hidden].max())
     assert on[-10:].mean() < 0.002 and off[-10:].mean() < 0.002
 
 
