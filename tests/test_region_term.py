@@ -413,3 +413,34 @@ def test_correspondence_lines_recover_a_turn_in_both_loops():
         assert fast.healthy and slow.healthy
         assert np.allclose(fast.R, slow.R, rtol=0.0, atol=1e-10) and np.allclose(fast.t, slow.t, rtol=0.0, atol=1e-10)
         assert yaw_error(fast.R, truth) < 1.0, (yaw, yaw_error(fast.R, truth))
+
+
+def test_outline_per_threshold_acts_and_keeps_the_pose():
+    """outline_per_threshold: the silhouette term's outline (taken at pixel positions) is re-extracted only at each
+    threshold's first update, so within a threshold the cost is continuous in the pose (on a 7-cube tuning session
+    with bilinear depth reads the median last update fell from 0.034° / 0.011 mm to 0.008° / 0.0015 mm, session 30).
+    Here: the run differs from the default's and ends as near the truth; off (the default) is the default run bit
+    for bit."""
+    rng = np.random.default_rng(3)
+    truth, depth, outline = _face_on_scene(rng)
+    depth = (np.round(depth * 1000.0) / 1000.0).astype(np.float32)
+    start = face_on(9.0)
+    start = Pose.from_rt(start.R, start.t + rng.normal(0.0, 0.002, 3))
+
+    def run(**kw):
+        ref = PartRefiner(INTR, [SHAPE], [np.zeros(3)], [CORNERS], RefineSettings(**kw), stride=2,
+                          region=RegionSettings())
+        region = ref._region([(start.R, start.t)], 0, outline, depth)
+        assert region is not None and region.scene is not None
+        render = render_surfaces(INTR, [SHAPE], [(start.R, start.t)], ref._rect([(start.R, start.t)]), ref.stride)
+        pts, nrm = render.points_of(0, INTR)
+        return refine_pose(depth, INTR, (pts - start.t) @ start.R, nrm @ start.R, start.R, start.t, np.zeros(3),
+                           ref.settings, None, region)
+
+    default, off = run(), run(outline_per_threshold=False, bilinear_m=0.0)
+    assert np.array_equal(default.R, off.R) and np.array_equal(default.t, off.t)
+    once = run(outline_per_threshold=True)
+    assert not (np.array_equal(once.t, default.t) and np.array_equal(once.R, default.R))
+    assert once.healthy and once.n_updates == default.n_updates
+    assert yaw_error(once.R, truth) < yaw_error(default.R, truth) + 0.1
+    assert np.linalg.norm(once.t - truth.t) < np.linalg.norm(default.t - truth.t) + 2e-4

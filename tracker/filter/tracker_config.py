@@ -533,6 +533,17 @@ class TrackerConfig(BaseModel):
     refine_converged_translation: float = Field(
         0.0, ge=0.0, description="See refine_converged_rotation (m).",
     )
+    refine_outline_per_threshold: bool = Field(
+        False, description="The silhouette term's outline (taken at pixel positions) is re-extracted at the first "
+        "update of each correspondence threshold only, not at every update (which makes its cost piecewise constant "
+        "in the pose).",
+    )
+    refine_bilinear_m: float = Field(
+        0.0, ge=0.0, description="> 0: the refinement reads each model point's measured depth bilinearly at its "
+        "sub-pixel projection (its four neighbouring pixels, when all have depth and span less than this, m; else the "
+        "nearest pixel), its measured point on the model point's viewing ray, so that the cost changes continuously "
+        "with the pose instead of in the depth's 1 mm steps (0 = nearest pixel).",
+    )
     refine_occlusion: float = Field(
         0.03, gt=0.0, description="A measurement this far (m) in front of a model point means it is occluded.",
     )

@@ -78,6 +78,17 @@ class RefineSettings:
     nearest-pixel depth reads and the re-extracted outline make the cost piecewise constant) instead of vanishing."""
     converged_translation: float = 0.0
     """See ``converged_rotation`` (m)."""
+    outline_per_threshold: bool = False
+    """With a silhouette term whose outline comes from an outline scene: its outline is re-extracted only at the first
+    update of each correspondence iteration (threshold), not at every update that moved the pose (False, the
+    default): the outline's points are taken at pixel positions, so re-extracting them at every update makes the
+    silhouette cost piecewise constant in the pose."""
+    bilinear_m: float = 0.0
+    """> 0: each model point's measured depth is read bilinearly at its sub-pixel projection (the four neighbouring
+    pixels, when all are valid and span less than this, m) and its measured point lies on the model point's viewing
+    ray, so that the cost changes continuously with the pose; else (or 0, the default) at the nearest pixel, which
+    makes the cost piecewise constant (1 mm depth steps of the simulator and the sensors) and the updates circle
+    instead of vanishing."""
 
 
 @dataclass
@@ -99,6 +110,10 @@ class RefineResult:
     """Model points with a valid measurement on an allowed pixel and nothing in front of them (matched or not)."""
     position_only: bool = False
     """The refinement moved the part's position only (its rotation kept: ``RefineSettings.few_points_position``)."""
+    n_updates: int = 0
+    """Gauss-Newton updates made."""
+    last_update: tuple[float, float] = (float("nan"), float("nan"))
+    """The last update's turn (rad) and move of the centre (m): how far from converged the refinement stopped."""
 
     @property
     def score(self) -> float:
@@ -108,14 +123,14 @@ class RefineResult:
 
 @nb.njit(cache=True)
 def _accumulate(pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, fx, fy, cx, cy, sigma0, sigma_z2,
-                huber_k, behind_margin):
+                huber_k, behind_margin, bilinear_m=0.0):
     """One correspondence pass: the weighted normal equations ``H`` (6×6) and ``g`` (6) of the point-to-plane
     residuals (twist about ``c``), the number of valid pairs, of observable model points, the median |r|, and the
     number of model points whose measurement lies more than ``behind_margin`` behind them (free space)."""
     absr = np.empty(pts.shape[0])
     H, g, n_valid, n_obs, n_behind = _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
                                                       occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k,
-                                                      behind_margin)
+                                                      behind_margin, bilinear_m)
     return H, g, n_valid, n_obs, _median_of(absr, n_valid), n_behind
 
 
@@ -127,10 +142,11 @@ def _median_of(absr, n):
 
 @nb.njit(cache=True)
 def _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr, occlusion, fx, fy, cx, cy, sigma0,
-                     sigma_z2, huber_k, behind_margin):
+                     sigma_z2, huber_k, behind_margin, bilinear_m=0.0):
     """:func:`_accumulate` without the median: the valid pairs' |r| are written to ``absr[:n_valid]`` (the
     Gauss-Newton loops take their median only when they stop early and report it). Returns ``H``, ``g``,
-    ``n_valid``, ``n_obs``, ``n_behind``."""
+    ``n_valid``, ``n_obs``, ``n_behind``. ``bilinear_m`` > 0: :attr:`RefineSettings.bilinear_m`
+    (:func:`_bilinear_depth`)."""
     h, w = depth.shape
     H = np.zeros((6, 6))
     g = np.zeros(6)
@@ -151,6 +167,12 @@ def _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr, 
         d = depth[v, u]
         if not (d > 0.0) or not np.isfinite(d):
             continue
+        qu, qv = float(u), float(v)
+        if bilinear_m > 0.0:
+            pu, pv = fx * x0 / x2 + cx, fy * x1 / x2 + cy
+            db = _bilinear_depth(depth, pu, pv, bilinear_m)
+            if db > 0.0:
+                d, qu, qv = db, pu, pv
         if d > x2 + behind_margin:
             n_behind += 1
         if use_allowed and not allowed[v, u]:
@@ -158,8 +180,8 @@ def _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr, 
         if d < x2 - occlusion:
             continue  # something in front of the model point
         n_obs += 1
-        q0 = (u - cx) / fx * d
-        q1 = (v - cy) / fy * d
+        q0 = (qu - cx) / fx * d
+        q1 = (qv - cy) / fy * d
         e0, e1, e2 = x0 - q0, x1 - q1, x2 - d
         if e0 * e0 + e1 * e1 + e2 * e2 >= thr * thr:
             continue
@@ -175,6 +197,31 @@ def _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr, 
         for b in range(a):
             H[a, b] = H[b, a]
     return H, g, n_valid, n_obs, n_behind
+
+
+@nb.njit(cache=True, inline="always")
+def _bilinear_depth(depth, pu, pv, max_span):
+    """Depth (m) at the sub-pixel position ``(pu, pv)`` (pixel centres at integers), interpolated between its four
+    neighbouring pixels; 0 when one of them is outside the image or has no depth, or when they span ``max_span`` m
+    or more (an edge: the caller keeps the nearest pixel's)."""
+    h, w = depth.shape
+    i0 = int(np.floor(pu))
+    j0 = int(np.floor(pv))
+    if i0 < 0 or j0 < 0 or i0 + 1 >= w or j0 + 1 >= h:
+        return 0.0
+    d00, d01 = depth[j0, i0], depth[j0, i0 + 1]
+    d10, d11 = depth[j0 + 1, i0], depth[j0 + 1, i0 + 1]
+    if not (d00 > 0.0 and d01 > 0.0 and d10 > 0.0 and d11 > 0.0):
+        return 0.0
+    if not (np.isfinite(d00) and np.isfinite(d01) and np.isfinite(d10) and np.isfinite(d11)):
+        return 0.0
+    lo = min(min(d00, d01), min(d10, d11))
+    hi = max(max(d00, d01), max(d10, d11))
+    if hi - lo >= max_span:
+        return 0.0
+    a = pu - i0
+    b = pv - j0
+    return (1.0 - b) * ((1.0 - a) * d00 + a * d01) + b * ((1.0 - a) * d10 + a * d11)
 
 
 @nb.njit(cache=True)
@@ -216,16 +263,26 @@ def _small_update(xi, max_rot, max_trans):
     return rot < max_rot and trans < max_trans
 
 
+@nb.njit(cache=True, inline="always")
+def _note_update(stats, xi):
+    """Count one update in ``stats[0]`` and keep its turn ``‖ω‖`` (rad) and move ``‖v‖`` (m) in ``stats[1:]``."""
+    stats[0] += 1.0
+    stats[1] = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
+    stats[2] = np.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
+
+
 @nb.njit(cache=True)
 def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy, cx, cy,
                   sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step,
-                  converged_step=0.0, converged_rot=0.0, converged_trans=0.0):
+                  converged_step, converged_rot, converged_trans, bilinear_m, stats):
     """The correspondence iterations of :func:`refine_pose` (coarse to fine thresholds, ``updates`` Gauss-Newton
     steps each, the inner loop ends early when the step's norm is below ``stop_step``, all of them when it is below
     ``converged_step`` or, after the first threshold, turns by less than ``converged_rot`` (rad) and moves the centre
-    by less than ``converged_trans`` (m), when that is > 0). Updates ``R``, ``t`` in
-    place; returns (status: 0 done, 1 too few valid pairs, 2 singular system; the last pass's ``H``, ``n_valid``,
-    ``n_obs``, and its median |r| when the status is 1 or 2 — NaN when done: the caller measures the final pose)."""
+    by less than ``converged_trans`` (m), when that is > 0; ``bilinear_m``: :attr:`RefineSettings.bilinear_m`).
+    ``stats`` (3,): the number of updates made is added to ``stats[0]``, the last update's turn (rad) and move (m)
+    written to ``stats[1:]``. Updates ``R``, ``t`` in place; returns (status: 0 done, 1 too few valid pairs, 2
+    singular system; the last pass's ``H``, ``n_valid``, ``n_obs``, and its median |r| when the status is 1 or 2 —
+    NaN when done: the caller measures the final pose)."""
     c = np.empty(3)
     H = np.zeros((6, 6))
     n_valid, n_obs, med = 0, 0, np.nan
@@ -237,7 +294,8 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
             for a in range(3):
                 c[a] = R[a, 0] * center[0] + R[a, 1] * center[1] + R[a, 2] * center[2] + t[a]
             H, g, n_valid, n_obs, _nb = _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
-                                                         occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k, behind)
+                                                         occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k, behind,
+                                                         bilinear_m)
             med = np.nan  # taken below only when the loop stops here (the caller measures the final pose again)
             if n_valid < min_points:
                 return 1, H, n_valid, n_obs, _median_of(absr, n_valid)
@@ -260,6 +318,7 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
             t[:] = c + Rw @ d + xi[3:]
             R[:, :] = Rw @ R
             step = np.sqrt(np.sum(xi * xi))
+            _note_update(stats, xi)
             if step < converged_step:
                 return 0, H, n_valid, n_obs, med
             if converged_rot > 0.0 and ti > 0 and _small_update(xi, converged_rot, converged_trans):
@@ -272,14 +331,16 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
 @nb.njit(cache=True)
 def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, thresholds, updates, occlusion, fx, fy,
                          cx, cy, sigma0, sigma_z2, huber_k, behind, lambda_rot, lambda_trans, min_points, stop_step,
-                         converged_step, converged_rot, converged_trans, rpts, rR, rt, sd, gu, gv, su0, sv0, fdepth,
+                         converged_step, converged_rot, converged_trans, bilinear_m, stats, outline_once, rpts, rR,
+                         rt, sd, gu, gv, su0, sv0, fdepth,
                          inset, r_occ, r_agree, r_max_px, r_sigma, r_huber, r_weight, ogu, ogv, r_min_cos, r_lines,
                          kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, rect, r_max_points):
     """:func:`_gauss_newton_with_region` in numba for a silhouette term whose outline comes from an
     :class:`~tracker.refine.region_term.OutlineScene` (its arrays, then the term's: contour points ``rpts`` extracted
     at ``(rR, rt)``, the blob's signed distance ``sd``, ``gu``, ``gv`` with crop origin ``(su0, sv0)``, the depth
     ``fdepth`` that tells what hides the outline, and the settings). The same steps as the Python loop: the outline
-    is re-extracted whenever the pose differs from the one its points came from (kept when fewer than 8 points; for a
+    is re-extracted whenever the pose differs from the one its points came from (with ``outline_once``, only at a
+    threshold's first update: :attr:`RefineSettings.outline_per_threshold`; kept when fewer than 8 points; for a
     box :func:`~tracker.refine.region_term._scene_outline` ray-casts only near its projected outline, same points),
     the update solves ``(H + H_r + Λ) ξ = −(g + g_r)`` and turns by Rodrigues' formula of
     :func:`~tracker.filter.motion_model.rotvec_to_matrix`; the same early ends (``converged_rot`` / ``converged_trans``
@@ -297,11 +358,12 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
     ti = -1  # index of the correspondence iteration (threshold)
     for thr in thresholds:
         ti += 1
-        for _ in range(updates):
+        for ui in range(updates):
             for a in range(3):
                 c[a] = R[a, 0] * center[0] + R[a, 1] * center[1] + R[a, 2] * center[2] + t[a]
             H, g, n_valid, n_obs, _nb = _accumulate_into(absr, pts, nrm, R, t, c, depth, allowed, use_allowed, thr,
-                                                         occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k, behind)
+                                                         occlusion, fx, fy, cx, cy, sigma0, sigma_z2, huber_k, behind,
+                                                         bilinear_m)
             med = np.nan  # taken below only when the loop stops here (the caller measures the final pose again)
             if n_valid < min_points:
                 return 1, H, n_valid, n_obs, _median_of(absr, n_valid)
@@ -312,7 +374,7 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
                 for b in range(3):
                     if R[a, b] != pose_R[a, b]:
                         same = False
-            if not same:
+            if not same and (ui == 0 or not outline_once):
                 fresh = _scene_outline(kinds, Rs, ts, centers, halves, verts, faces, voff, foff, obj, R, t, rect,
                                        fx, fy, cx, cy, r_max_points)
                 pose_R[:, :] = R
@@ -340,6 +402,7 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
             Rn = Rw @ R
             R[:, :] = Rn
             step = np.sqrt(np.sum(xi * xi))
+            _note_update(stats, xi)
             if step < converged_step:
                 return 0, H, n_valid, n_obs, med
             if converged_rot > 0.0 and ti > 0 and _small_update(xi, converged_rot, converged_trans):
@@ -350,9 +413,10 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
 
 
 def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: RefineSettings, behind: float,
-                              intrinsics: Intrinsics, region: RegionTerm):
+                              intrinsics: Intrinsics, region: RegionTerm, stats: np.ndarray):
     """:func:`_gauss_newton` with the silhouette term's normal equations added to every update (a Python loop: the
-    term re-renders the part's outline at each pose). Updates ``R``, ``t`` in place; same return values."""
+    term re-renders the part's outline at each pose). Updates ``R``, ``t`` and ``stats`` in place; same return
+    values."""
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     prior = np.diag([cfg.lambda_rot] * 3 + [cfg.lambda_trans] * 3)
     info, n_valid, n_obs, med = np.zeros((6, 6)), 0, 0, float("nan")
@@ -361,7 +425,7 @@ def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: 
             c = R @ center + t
             info, g, n_valid, n_obs, med, _ = _accumulate(pts, nrm, R, t, c, dep, mask, use_mask, float(thr),
                                                           cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2,
-                                                          cfg.huber_k, behind)
+                                                          cfg.huber_k, behind, float(cfg.bilinear_m))
             if n_valid < cfg.min_points:
                 return 1, info, n_valid, n_obs, med
             Hr, gr, _ = region.normal_equations(R, t, c, dep, intrinsics)
@@ -370,6 +434,7 @@ def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: 
             t[:] = c + Rw @ (t - c) + xi[3:]
             R[:] = Rw @ R
             step = np.linalg.norm(xi)
+            _note_update(stats, xi)
             if step < cfg.converged_step:
                 return 0, info, n_valid, n_obs, med
             if (cfg.converged_rotation > 0.0 and ti > 0
@@ -416,13 +481,15 @@ def refine_pose(
     dep = np.ascontiguousarray(depth, np.float32)
     center = np.asarray(center, np.float64)
     behind = cfg.thresholds[-1] * 2.0
+    stats = np.zeros(3)
+    stats[1:] = np.nan
 
     if region is None:
         status, info, n_valid, n_observable, med = _gauss_newton(
             pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
             int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k,
             behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step, float(cfg.converged_step),
-            float(cfg.converged_rotation), float(cfg.converged_translation))
+            float(cfg.converged_rotation), float(cfg.converged_translation), float(cfg.bilinear_m), stats)
     elif region.scene is not None:
         sc, f, rs = region.scene, region.sdf, region.settings
         if not (region.pose is not None and region.outline_at is not None):
@@ -431,8 +498,9 @@ def refine_pose(
             pts, nrm, R, t, center, dep, mask, allowed is not None, np.asarray(cfg.thresholds, np.float64),
             int(cfg.updates_per_iteration), cfg.occlusion_m, fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k,
             behind, cfg.lambda_rot, cfg.lambda_trans, int(cfg.min_points), cfg.stop_step, float(cfg.converged_step),
-            float(cfg.converged_rotation), float(cfg.converged_translation),
-            np.ascontiguousarray(region.points, np.float64), np.ascontiguousarray(region.pose[0], np.float64),
+            float(cfg.converged_rotation), float(cfg.converged_translation), float(cfg.bilinear_m), stats,
+            bool(cfg.outline_per_threshold), np.ascontiguousarray(region.points, np.float64),
+            np.ascontiguousarray(region.pose[0], np.float64),
             np.ascontiguousarray(region.pose[1], np.float64), f.d, f.gu, f.gv, float(f.u0), float(f.v0),
             dep if region.frame_depth is None else region.frame_depth, float(region.inset), rs.occlusion_m,
             rs.depth_agree_m, rs.max_px, rs.sigma_px, rs.huber_k, rs.weight, *region.normal_arrays(), sc.kinds,
@@ -440,22 +508,24 @@ def refine_pose(
             sc.halves, sc.verts, sc.faces, sc.voff, sc.foff, sc.obj, sc.rect, sc.max_points)
     else:
         status, info, n_valid, n_observable, med = _gauss_newton_with_region(
-            pts, nrm, R, t, center, dep, mask, allowed is not None, cfg, behind, intrinsics, region)
+            pts, nrm, R, t, center, dep, mask, allowed is not None, cfg, behind, intrinsics, region, stats)
+    n_upd, last = int(stats[0]), (float(stats[1]), float(stats[2]))
     if status == 1:
         return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info,
-                            f"only {n_valid} valid depth pairs")
+                            f"only {n_valid} valid depth pairs", n_updates=n_upd, last_update=last)
     if status == 2:
-        return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info, "singular system")
+        return RefineResult(R, t, False, m_total, n_valid, n_valid / m_total, med, info, "singular system",
+                            n_updates=n_upd, last_update=last)
     info, _, n_valid, n_observable, med, n_behind = _accumulate(  # support of the final pose
         pts, nrm, R, t, R @ center + t, dep, mask, allowed is not None, float(cfg.thresholds[-1]), cfg.occlusion_m,
-        fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k, behind)
+        fx, fy, cx, cy, cfg.sigma0, cfg.sigma_z2, cfg.huber_k, behind, float(cfg.bilinear_m))
     frac = n_valid / m_total
     # supported: enough of the model matched, or (partly hidden by a hand or another part) most of what can be seen
     most_seen = n_valid >= cfg.min_observed_fraction * max(n_observable, 1)
     healthy = frac >= cfg.min_valid_fraction or (n_valid >= 2 * cfg.min_points and most_seen)
     res = RefineResult(R, t, healthy, m_total, n_valid, frac, med, info,
                        "" if healthy else f"only {frac:.0%} of the visible model points matched the depth", n_behind,
-                       n_observable)
+                       n_observable, n_updates=n_upd, last_update=last)
     if not healthy and cfg.few_points_position and most_seen:
         return _position_only(depth, intrinsics, points, normals, R0, t0, center, cfg, allowed, region, res)
     return res

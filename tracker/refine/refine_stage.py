@@ -103,7 +103,8 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
         min_valid_fraction=cfg.refine_min_valid_fraction, max_points=cfg.refine_max_points,
         few_points_position=cfg.refine_few_points_position,
         converged_step=cfg.refine_converged_step, converged_rotation=cfg.refine_converged_rotation,
-        converged_translation=cfg.refine_converged_translation,
+        converged_translation=cfg.refine_converged_translation, bilinear_m=cfg.refine_bilinear_m,
+        outline_per_threshold=cfg.refine_outline_per_threshold,
     )
     region = (RegionSettings(weight=cfg.refine_region_weight, depth_agree_m=cfg.refine_region_depth_agree,
                              normal_cos=cfg.refine_region_normal_cos, lines=cfg.refine_region_lines)
