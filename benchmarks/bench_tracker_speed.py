@@ -29,6 +29,11 @@ Writes benchmarks/results/tracker_speed.json and .md. Usage::
 
     .venv/bin/python benchmarks/bench_tracker_speed.py [--frames 150] [--sessions 1,15] [--no-write]
         [--pair quiet_skip=true] [--odometry off|default|fused]
+    .venv/bin/python benchmarks/bench_tracker_speed.py --dev [--seeds 0,1,2,3,4] --sessions 15 --pair KEY=VALUE
+
+``--dev``: the same sessions on the tuning seeds (session k gets ``seeds[k mod count]``, seeds 0-4 by default), for
+deciding a speed setting by ``--pair``; prints only (never written into benchmarks/results, so never into
+BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -192,8 +197,11 @@ def markdown(res: dict) -> str:
         f"caches and memory bandwidth are shared). Commit {res['commit']}."
         + (f" {res['note']}" if res["note"] else ""),
         "",
-        f"Held-out sessions of `bench_heldout.py`'s design (seeds >= 100, never tuned on), {res['frames']} frames "
-        "each, "
+        (f"Development run (`--dev`, tuning seeds, not for reporting) of `bench_heldout.py`'s design, {res['frames']} "
+         "frames each, " if res.get("dev") else
+         f"Held-out sessions of `bench_heldout.py`'s design (seeds >= 100, never tuned on), {res['frames']} frames "
+         "each, ")
+        +
         "written as a recording (PNG colour, 16-bit PNG depth) and read back as `assembly-agent track` reads it. "
         "Median thread CPU ms per frame (mean in brackets) of: **decode** (reading the colour and depth images), "
         "**perception** (table plane, colour detection and the camera odometry; **odometry** is the odometry's "
@@ -246,6 +254,9 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=150, help="frames per session (default 150)")
     ap.add_argument("--seed-base", type=int, default=100, help="session k gets seed base + k (default 100)")
     ap.add_argument("--note", default="", help="a sentence added to the report")
+    ap.add_argument("--dev", action="store_true", help="development run on the tuning seeds (--seeds; session k gets "
+                    "seeds[k mod count]); prints only, writes nothing")
+    ap.add_argument("--seeds", default="0,1,2,3,4", help="with --dev only: the tuning seeds (default 0,1,2,3,4)")
     ap.add_argument("--pair", default="", help="KEY=VALUE[,KEY=VALUE] TrackerConfig overrides of a second tracker "
                     "run on the same frames in the same process (paired comparison, e.g. quiet_skip=true)")
     ap.add_argument("--odometry", default=None, choices=("off", "default", "fused"),
@@ -257,10 +268,14 @@ def main(argv=None) -> int:
         print(rewrite_markdown("tracker_speed", markdown))
         return 0
     sessions = [int(s) for s in args.sessions.split(",") if s.strip()]
-    seeds = [args.seed_base + k for k in sessions]
-    check_seeds(seeds, dev=False)
+    if args.dev:
+        pool = check_seeds([int(s) for s in args.seeds.split(",") if s.strip()], dev=True)
+        seeds = [pool[k % len(pool)] for k in sessions]
+    else:
+        seeds = [args.seed_base + k for k in sessions]
+        check_seeds(seeds, dev=False)
     res = {"machine": machine_info(), "commit": git_commit(), "frames": args.frames, "note": args.note,
-           "sessions": []}
+           "sessions": [], "dev": bool(args.dev)}
     for k, seed in zip(sessions, seeds, strict=True):
         s = run_session(k, seed, args.frames, parse_overrides(args.pair) if args.pair else None, args.odometry)
         res["sessions"].append(s)
@@ -270,7 +285,7 @@ def main(argv=None) -> int:
     res["load_1min_at_end"] = round(os.getloadavg()[0], 2)
     md = markdown(res)
     print(md)
-    if not args.no_write:
+    if not (args.no_write or args.dev):
         write_results("tracker_speed", res, md)
     return 0
 
