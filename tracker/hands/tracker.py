@@ -171,7 +171,7 @@ import cv2
 import numba as nb
 import numpy as np
 
-from tracker.hands import arm_anchor, depth_order, exclusion, group_box, identity, order_stats, ownership
+from tracker.hands import arm_anchor, depth_order, edge_refine, exclusion, group_box, identity, order_stats, ownership
 from tracker.hands.blob_split import split_shared_components, two_means
 from tracker.hands.box_stats import box_area, box_observation, box_of, dominant_component, mask_count
 from tracker.hands.features import HandFeatures, compute_features
@@ -291,8 +291,9 @@ class HandTrackerConfig:
     ``isolation_margin``: a track's
     appearance is learnt and compared for id swaps only while its box grown by this many box sizes on every side meets
     no other track's box (default identity.MARGIN, the appearance region; 0 gave F̄^b 0.702 against 0.694 on tuning
-    seeds 0–4 of hands-s2, eight filter seeds, and 0.683 as 0.5 on held-out seeds 100, 101); ``seed`` of the filters'
-    random numbers."""
+    seeds 0–4 of hands-s2, eight filter seeds, and 0.683 as 0.5 on held-out seeds 100, 101); ``edge_refine``: each
+    reported box's colour edges placed on the full-resolution colour mask (:mod:`tracker.hands.edge_refine`: the
+    working resolution loses the mixed blocks of a shaded rim); ``seed`` of the filters' random numbers."""
 
     method: str = "pf"
     scale: int = 2
@@ -335,6 +336,7 @@ class HandTrackerConfig:
     arm_every: int = 5
     ac_hat: float = 0.55
     am_hat: float = 0.45
+    edge_refine: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -664,7 +666,31 @@ class HandTracker(TrackIdentity):
         self._prev_grey = grey
         self._prev_excl = self._excl
         self._mask_prev = self._mask_cur
+        if self.config.edge_refine and s > 1 and out:
+            self._refine_edges(out, rgb, exclude)
         return out
+
+    def _refine_edges(self, ests: list[HandEstimate], rgb: np.ndarray, exclude: np.ndarray | None) -> None:
+        """Each estimate's colour edges placed on the full-resolution colour mask (``edge_refine``,
+        :mod:`tracker.hands.edge_refine`); the state's centre and size follow the box. ``exclude`` counts only at full
+        resolution."""
+        H, W = rgb.shape[:2]
+        ex = exclude if exclude is not None and np.shape(exclude) == (H, W) else None
+
+        def mask_of(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+            m = self.skin.mask(rgb[y0:y1, x0:x1])
+            if ex is not None:
+                m[np.asarray(ex[y0:y1, x0:x1], bool)] = 0
+            return m
+
+        for e in ests:
+            box = edge_refine.refine_box(e.box, mask_of, (W, H), self.s * edge_refine.GROW_WORKING)
+            if box != list(e.box):
+                st = np.asarray(e.state, float).copy()
+                st[:4] = [(box[0] + box[2] - 1) / 2.0, (box[1] + box[3] - 1) / 2.0, box[2] - box[0] - 1,
+                          box[3] - box[1] - 1]  # fmt: skip
+                e.state = st
+                e.box = box
 
     def _claim(self, owner: np.ndarray, mask: np.ndarray) -> None:
         """Tracks started since the last claim take every skin pixel (``mask``, the working frame's B^c) of their
