@@ -13,6 +13,10 @@ Each edge of the reported box is moved to the last full-resolution skin pixel wi
 only where the edge is a colour edge: if the skin goes on at ``grow`` px beyond the edge (a wrist cut of a bare
 forearm, the other hand touching this one, or the image border there) the edge is kept, and so it is when no skin
 lies within ``grow`` px of it. With :data:`ALL_ENDS` (on) a box is refined only when all four edges are colour edges.
+Session 30, tuning seeds 0–4, filter seed 0, the same frames for both arms, off → on: ``hands-s1`` ground-truth start
+F̄^b 0.9846 → 0.9971, ē^p 0.855 → 0.245 px, automatic start 0.9825 → 0.9949, 1.063 → 0.453 px; ``hands-s2``
+ground-truth start 0.8925 → 0.8967, 6.56 → 6.38 px, KF 0.8917 → 0.8960; ``hands-s3`` identical (a bare forearm's
+wrist edge is a cut); missed hands and false boxes equal (``benchmarks/history/issue-14-hands.md``).
 
 Boxes are end-exclusive full-resolution pixel boxes [u0, v0, u1, v1].
 """

@@ -292,8 +292,9 @@ class HandTrackerConfig:
     appearance is learnt and compared for id swaps only while its box grown by this many box sizes on every side meets
     no other track's box (default identity.MARGIN, the appearance region; 0 gave F̄^b 0.702 against 0.694 on tuning
     seeds 0–4 of hands-s2, eight filter seeds, and 0.683 as 0.5 on held-out seeds 100, 101); ``edge_refine``: each
-    reported box's colour edges placed on the full-resolution colour mask (:mod:`tracker.hands.edge_refine`: the
-    working resolution loses the mixed blocks of a shaded rim); ``seed`` of the filters' random numbers."""
+    reported box's colour edges placed on the full-resolution colour mask (:mod:`tracker.hands.edge_refine`, on
+    since session 30: the working resolution loses the mixed blocks of a shaded rim); ``seed`` of the filters'
+    random numbers."""
 
     method: str = "pf"
     scale: int = 2
@@ -336,7 +337,7 @@ class HandTrackerConfig:
     arm_every: int = 5
     ac_hat: float = 0.55
     am_hat: float = 0.45
-    edge_refine: bool = False
+    edge_refine: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
