@@ -438,7 +438,7 @@ class HandCarry:
                 rot[i], delta[i] = rot[i] @ back[0], rot[i] @ back[1] + delta[i]
             dist2 = ((pts - new_pos) ** 2).sum(1)
             near = dist2 <= patch_radius**2
-            enough = near.sum() if patch_radius == cfg.carry_radius else (dist2 <= cfg.carry_radius**2).sum()
+            enough = (dist2 <= cfg.carry_radius**2).sum()  # the hand still there: judged within carry_radius
             self.patches[i] = pts[near] if enough >= cfg.carry_min_points else None
             if cfg.carry_keyframe and self.keys[i] is None and self.patches[i] is not None:
                 self.keys[i] = self.patches[i].copy()

@@ -254,21 +254,14 @@ def _solve_spd6(A, b):
     return x, True
 
 
-@nb.njit(cache=True)
-def _small_update(xi, max_rot, max_trans):
-    """Does the twist ``xi`` = (ω, v) turn by less than ``max_rot`` (rad, ``‖ω‖``) and move by less than
-    ``max_trans`` (m, ``‖v‖``)?"""
-    rot = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
-    trans = np.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
-    return rot < max_rot and trans < max_trans
-
-
 @nb.njit(cache=True, inline="always")
-def _note_update(stats, xi):
-    """Count one update in ``stats[0]`` and keep its turn ``‖ω‖`` (rad) and move ``‖v‖`` (m) in ``stats[1:]``."""
+def _note_update(stats, xi, max_rot, max_trans):
+    """Count one update in ``stats[0]`` and keep its turn ``‖ω‖`` (rad) and move ``‖v‖`` (m) in ``stats[1:]``;
+    returns whether it turned by less than ``max_rot`` and moved by less than ``max_trans``."""
     stats[0] += 1.0
     stats[1] = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
     stats[2] = np.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
+    return stats[1] < max_rot and stats[2] < max_trans
 
 
 @nb.njit(cache=True)
@@ -318,10 +311,10 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
             t[:] = c + Rw @ d + xi[3:]
             R[:, :] = Rw @ R
             step = np.sqrt(np.sum(xi * xi))
-            _note_update(stats, xi)
+            small = _note_update(stats, xi, converged_rot, converged_trans)
             if step < converged_step:
                 return 0, H, n_valid, n_obs, med
-            if converged_rot > 0.0 and ti > 0 and _small_update(xi, converged_rot, converged_trans):
+            if converged_rot > 0.0 and ti > 0 and small:
                 return 0, H, n_valid, n_obs, med
             if step < stop_step:
                 break
@@ -402,10 +395,10 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
             Rn = Rw @ R
             R[:, :] = Rn
             step = np.sqrt(np.sum(xi * xi))
-            _note_update(stats, xi)
+            small = _note_update(stats, xi, converged_rot, converged_trans)
             if step < converged_step:
                 return 0, H, n_valid, n_obs, med
-            if converged_rot > 0.0 and ti > 0 and _small_update(xi, converged_rot, converged_trans):
+            if converged_rot > 0.0 and ti > 0 and small:
                 return 0, H, n_valid, n_obs, med
             if step < stop_step:
                 break
@@ -434,11 +427,10 @@ def _gauss_newton_with_region(pts, nrm, R, t, center, dep, mask, use_mask, cfg: 
             t[:] = c + Rw @ (t - c) + xi[3:]
             R[:] = Rw @ R
             step = np.linalg.norm(xi)
-            _note_update(stats, xi)
+            small = _note_update(stats, xi, cfg.converged_rotation, cfg.converged_translation)
             if step < cfg.converged_step:
                 return 0, info, n_valid, n_obs, med
-            if (cfg.converged_rotation > 0.0 and ti > 0
-                    and _small_update(xi, cfg.converged_rotation, cfg.converged_translation)):
+            if cfg.converged_rotation > 0.0 and ti > 0 and small:
                 return 0, info, n_valid, n_obs, med
             if step < cfg.stop_step:
                 break

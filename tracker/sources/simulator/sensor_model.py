@@ -323,7 +323,7 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
     h, w = clean.shape
     nan = np.float32(np.nan)
     hashes = np.empty(w, np.uint64)  # a row's first hashes, in a loop of their own (it vectorises)
-    rare = np.empty(w, np.bool_)  # pixels of the branch-free loop that need the per-pixel path
+    rare = np.ones(w, np.bool_)  # pixels that need the per-pixel path (the border columns always do)
     ulo, uhi = max(0, 1 - su), min(w, w - 1 - su)  # output columns whose source column has both neighbours
     fast = not on_disp and quant == 1
     far = zmax * 2.0
@@ -358,13 +358,8 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
             val = np.float32(zq) if (zq >= zmin) & (zq <= zmax) else nan
             out[v, u] = val if plain else nan
             rare[u] = kept & (not plain)
-        for u in range(ulo, uhi):
+        for u in range(w):
             if rare[u]:
-                out[v, u] = _depth_pixel(clean, cosang, key, coeff, on_disp, quant, qstep, fb, dstep, jump, p_miss,
-                                         p_fly, cos_start, cos_end, p_drop, zmin, zmax, su, sv, shadow, v, u,
-                                         hashes[u])  # fmt: skip
-        for side in range(2):  # the border columns
-            for u in range(0, ulo) if side == 0 else range(uhi, w):
                 out[v, u] = _depth_pixel(clean, cosang, key, coeff, on_disp, quant, qstep, fb, dstep, jump, p_miss,
                                          p_fly, cos_start, cos_end, p_drop, zmin, zmax, su, sv, shadow, v, u,
                                          hashes[u])  # fmt: skip
