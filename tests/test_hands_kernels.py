@@ -400,3 +400,73 @@ def test_order_statistics_equal_numpy_quantile_and_median():
                 thr = order_stats.quantile(x, q)
                 assert thr == float(np.quantile(x, q))
                 np.testing.assert_array_equal(x >= thr, x >= np.quantile(x, q))
+
+
+def _exclusion_per_part(loop, depth, table_plane, poses):
+    """The exclusion mask as :meth:`HandLoop.exclusion` made it before its parts went through one kernel call each
+    (session 31): the strided working depth, the table plane, then per part its window, its rays and the marking."""
+    from tracker.hands.loop import _box_rays, _mark_part_surface, _near_plane
+
+    s = loop.tracker.s
+    H, W = depth.shape
+    z = depth[::s, ::s][: H // s, : W // s]
+    out = np.zeros(z.shape, bool)
+    intr = loop.intrinsics
+    with np.errstate(invalid="ignore"):
+        if table_plane is not None:
+            n, off = table_plane
+            rx = (np.arange(z.shape[1]) * s - intr.cx) / intr.fx
+            ry = (np.arange(z.shape[0]) * s - intr.cy) / intr.fy
+            _near_plane(z, rx, ry, np.asarray(n, np.float64), float(off), loop.config.table_clearance_m, out)
+        for name, part in loop.parts.items():
+            pose = poses.get(name)
+            win = loop._part_window(part, pose, H, W)
+            if win is None:
+                continue
+            u0, v0, u1, v1 = (-(-c // s) for c in win)
+            u1, v1 = min(u1, z.shape[1]), min(v1, z.shape[0])  # (the old form went past a partial last column)
+            if u1 <= u0 or v1 <= v0:
+                continue
+            half, R, o, x, y = _box_rays(part, pose, intr, np.arange(u0, u1) * s, np.arange(v0, v1) * s)
+            _mark_part_surface(R, o, half, x, y, z, u0, v0, np.float32(loop.config.part_clearance_m), out)
+    return out
+
+
+def test_exclusion_equals_the_per_part_form():
+    """:meth:`HandLoop.exclusion` (each part's window, rays and marking in one kernel call, on a contiguous working
+    depth) marks exactly the pixels of the per-part numpy form: parts turned every way, near and far, partly off the
+    image or behind the camera, a missing pose, NaN depth, float32 and float64 depth, working scales 2 and 3 (3 does
+    not divide 640: windows end at the working image's last column)."""
+    from tracker.geometry.camera import Intrinsics
+    from tracker.geometry.parts import PartSpec
+    from tracker.geometry.pose import Pose
+    from tracker.hands.loop import HandLoop, HandLoopConfig, box_part_depth
+    from tracker.hands.tracker import HandTrackerConfig
+
+    intr = Intrinsics(fx=600.0, fy=605.0, cx=319.5, cy=241.0, width=640, height=480)
+    parts = [PartSpec.cube("red", "red"), PartSpec.cube("blue", "blue"), PartSpec.cube("green", "green")]
+    rng = np.random.default_rng(22)
+    us, vs = np.arange(640), np.arange(480)
+    marked = 0
+    for trial in range(24):
+        scale = 2 if trial % 3 else 3
+        loop = HandLoop(parts, intr, HandLoopConfig(tracker=HandTrackerConfig(scale=scale)))
+        poses = {}
+        for p in parts:
+            t = np.array([rng.uniform(-0.35, 0.35), rng.uniform(-0.3, 0.3), rng.uniform(-0.05, 0.9)])
+            poses[p.name] = Pose.from_rotvec(rng.normal(0, 1.5, 3), t)
+        if trial % 4 == 0:
+            poses.pop("blue")
+        depth = np.full((480, 640), 0.8, np.float64 if trial % 5 == 0 else np.float32)
+        for name, pose in poses.items():  # measured depth near each part's surface: some pixels in front, some not
+            zr = box_part_depth(loop.parts[name], pose, intr, us, vs)
+            hit = np.isfinite(zr)
+            depth[hit] = zr[hit] + rng.choice([-0.02, -0.0100001, -0.01, 0.0, 0.01], int(hit.sum()))
+        depth[rng.random(depth.shape) < 0.03] = np.nan
+        n = np.array([0.02, -0.8, -0.6]) / np.linalg.norm([0.02, -0.8, -0.6])
+        plane = None if trial % 6 == 1 else (n, float(rng.uniform(0.4, 0.7)))
+        want = _exclusion_per_part(loop, depth, plane, poses)
+        got = loop.exclusion(depth, plane, poses)
+        np.testing.assert_array_equal(got, want)
+        marked += int(want.sum())
+    assert marked > 1000

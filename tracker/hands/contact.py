@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from tracker.hands import order_stats
+
 R_TOUCH = 3
 A_TOUCH = 20
 DELTA_TOUCH = 0.03
@@ -33,6 +35,9 @@ DELTA_FRONT = 0.09
 N_OFF = 5
 MOVE_HOLD = 0.015
 N_VEL = 3
+
+_TOUCH_KERNEL = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * R_TOUCH + 1, 2 * R_TOUCH + 1))
+"""The disc of radius r_touch the contact test dilates with (made once; read only)."""
 
 
 @dataclass
@@ -48,7 +53,7 @@ class _Pair:
 def contact_test(hand_mask: np.ndarray, silhouette: np.ndarray, depth: np.ndarray | None = None,
                  part_depth: np.ndarray | None = None) -> bool:  # fmt: skip
     """The per-frame contact test of one hand and one part (see the module docstring)."""
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * R_TOUCH + 1, 2 * R_TOUCH + 1))
+    k = _TOUCH_KERNEL
     grown = cv2.dilate(hand_mask.astype(np.uint8), k).astype(bool)
     if np.count_nonzero(grown & silhouette) < A_TOUCH:
         return False
@@ -61,7 +66,7 @@ def contact_test(hand_mask: np.ndarray, silhouette: np.ndarray, depth: np.ndarra
     part_px = part_px[np.isfinite(part_px) & (part_px > 0)]
     if len(hand_px) == 0 or len(part_px) == 0:
         return True  # depth invalid there: test (ii) is skipped
-    gap = float(np.median(part_px)) - float(np.median(hand_px))  # > 0: the hand is in front of the part
+    gap = order_stats.median(part_px) - order_stats.median(hand_px)  # > 0: the hand is in front of the part
     return -DELTA_TOUCH <= gap <= DELTA_FRONT
 
 

@@ -47,6 +47,7 @@ import numpy as np
 from tracker.geometry.camera import Intrinsics
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
+from tracker.hands import order_stats
 from tracker.hands.contact import R_TOUCH, ContactMonitor
 from tracker.hands.process import HandProcess, HandProcessError, hand_masks_from, mask_from, park, take_parked
 from tracker.hands.tracker import HandEstimate, HandTracker, HandTrackerConfig
@@ -183,6 +184,32 @@ def _mark_part_surface(R, o, half, x, y, z, u0, v0, clearance, out):
                 out[v0 + i, u0 + j] = True
 
 
+@nb.njit(cache=True, nogil=True)
+def _mark_part(pts, R, o, half, fx, fy, cx, cy, W, H, s, z, clearance, out):
+    """The part-surface exclusion of one part at the working resolution (every ``s``-th full-resolution pixel), all in
+    one call: its window (:func:`_window` of its camera-frame vertices ``pts``, full-resolution px, then the first
+    working pixel at or after each bound), the rays of the window's working pixels ((u·s − cx) / fx, (v·s − cy) / fy,
+    float64 as :func:`_box_rays` makes them) and :func:`_mark_part_surface` on the working depth ``z``. The same
+    operations as :meth:`HandLoop.exclusion` made them per part in Python (bit-identical marks), except that the window
+    now ends at the working image's last column and row: where the scale does not divide the image size (not the
+    default 2 on 640×480) a window reaching the image's right or bottom edge went one working pixel past them, and the
+    marking wrote into the next row's first pixel."""
+    ok, u0, v0, u1, v1 = _window(pts, fx, fy, cx, cy, W, H)
+    if not ok:
+        return
+    u0, v0 = -(-u0 // s), -(-v0 // s)
+    u1, v1 = min(-(-u1 // s), z.shape[1]), min(-(-v1 // s), z.shape[0])
+    if u1 <= u0 or v1 <= v0:
+        return
+    x = np.empty(u1 - u0)
+    for j in range(u1 - u0):
+        x[j] = (np.float64((u0 + j) * s) - cx) / fx
+    y = np.empty(v1 - v0)
+    for i in range(v1 - v0):
+        y[i] = (np.float64((v0 + i) * s) - cy) / fy
+    _mark_part_surface(R, o, half, x, y, z, u0, v0, clearance, out)
+
+
 class HandLoop:
     """The hand tracker, the exclusion of table and part pixels, the occluder mask and touching / holding (see the
     module docstring). ``parts``: the parts of the scene; ``intrinsics``: of the colour (and registered depth) image."""
@@ -201,6 +228,7 @@ class HandLoop:
         self.positions: dict[int, np.ndarray] = {}  # per hand: camera-frame point of its box centre (m)
         self._rays: tuple[tuple[int, int], np.ndarray, np.ndarray] | None = None
         self._vertices = {n: p.vertices() for n, p in self.parts.items()}
+        self._halves = {n: np.asarray(p.box, np.float64) / 2.0 for n, p in self.parts.items()}  # box half extents
         self.occluder: np.ndarray | None = None  # H_k of the last step (HandLoop.step)
         self.next_occluder: np.ndarray | None = None  # H_k predicted to frame k + 1 ("lagged")
         self.step_seconds = (0.0, 0.0)  # wall, thread CPU of the last step
@@ -333,28 +361,29 @@ class HandLoop:
             return None
         s = self.tracker.s
         H, W = depth.shape
-        z = depth[::s, ::s][: H // s, : W // s]
+        z = np.ascontiguousarray(depth[::s, ::s][: H // s, : W // s])  # the kernels' loops vectorise on a copy
         out = np.zeros(z.shape, bool)
         cfg = self.config
+        intr = self.intrinsics
         with np.errstate(invalid="ignore"):
             if table_plane is not None:
                 n, off = table_plane
                 if self._rays is None or self._rays[0] != z.shape:
-                    self._rays = (z.shape, (np.arange(z.shape[1]) * s - self.intrinsics.cx) / self.intrinsics.fx,
-                                  (np.arange(z.shape[0]) * s - self.intrinsics.cy) / self.intrinsics.fy)  # fmt: skip
+                    self._rays = (z.shape, (np.arange(z.shape[1]) * s - intr.cx) / intr.fx,
+                                  (np.arange(z.shape[0]) * s - intr.cy) / intr.fy)  # fmt: skip
                 _, rx, ry = self._rays
                 _near_plane(z, rx, ry, np.asarray(n, np.float64), float(off), cfg.table_clearance_m, out)
-            for name, part in self.parts.items():
+            clearance = np.float32(cfg.part_clearance_m)
+            for name, half in self._halves.items():
                 pose = poses.get(name)
-                win = self._part_window(part, pose, H, W)
-                if win is None:
+                if pose is None:
                     continue
-                u0, v0, u1, v1 = (-(-c // s) for c in win)  # first working pixel at or after each bound
-                if u1 <= u0 or v1 <= v0:
-                    continue
-                half, R, o, x, y = _box_rays(part, pose, self.intrinsics, np.arange(u0, u1) * s,
-                                             np.arange(v0, v1) * s)  # fmt: skip
-                _mark_part_surface(R, o, half, x, y, z, u0, v0, np.float32(cfg.part_clearance_m), out)
+                # the vertices and the camera centre in the box frame as _part_window and _box_rays compute them
+                R = np.ascontiguousarray(pose.R, np.float64)
+                pts = self._vertices[name] @ np.asarray(pose.R).T + np.asarray(pose.t)
+                o = -R.T @ np.asarray(pose.t, np.float64)
+                _mark_part(pts, R, o, half, float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), W, H, s,
+                           z, clearance, out)  # fmt: skip
         return out
 
     def _part_window(self, part: PartSpec, pose: Pose | None, H: int, W: int) -> tuple[int, int, int, int] | None:
@@ -498,7 +527,8 @@ class HandLoop:
             z = z[np.isfinite(z) & (z > 0)]
             if len(z):
                 uc, vc = (u0 + u1 - 1) / 2.0, (v0 + v1 - 1) / 2.0
-                out[e.id] = self.intrinsics.backproject(np.array([uc]), np.array([vc]), np.array([np.median(z)]))[0]
+                zc = order_stats.median(z)  # = float(np.median(z)) (the float32 value, widened)
+                out[e.id] = self.intrinsics.backproject(np.array([uc]), np.array([vc]), np.array([zc]))[0]
         return out
 
     def _hands_window(self) -> tuple[int, int, int, int] | None:
