@@ -470,3 +470,124 @@ def test_exclusion_equals_the_per_part_form():
         np.testing.assert_array_equal(got, want)
         marked += int(want.sum())
     assert marked > 1000
+
+
+def _tube_cut_reference(xs, ys, e, d, reach, tip, behind):
+    """:func:`tracker.hands.palm_cut.tube_cut` as numpy calls on the pixel lists (before session 31's kernels)."""
+    from tracker.hands import order_stats
+    from tracker.hands.palm_cut import TUBE_MIN_PX
+
+    far = d >= order_stats.quantile(d, 0.9)
+    a = np.array([xs[far].mean() - e[0], ys[far].mean() - e[1]])
+    norm = float(np.hypot(a[0], a[1]))
+    if norm < 1e-9:
+        return None
+    a /= norm
+    p = (xs - e[0]) * a[0] + (ys - e[1]) * a[1]
+    q = (ys - e[1]) * a[0] - (xs - e[0]) * a[1]
+    pmax = float(p.max())
+    start = pmax - reach
+    piece = (p < start) & (p >= start - behind)
+    if np.count_nonzero(piece) < TUBE_MIN_PX:
+        piece = p < start
+        if np.count_nonzero(piece) < TUBE_MIN_PX:
+            return None
+    pb = np.floor(p[piece]).astype(np.int64)
+    lo = int(pb.min())
+    pb -= lo
+    n = int(pb.max()) + 1
+    qp = q[piece]
+    cnt = np.bincount(pb, minlength=n)
+    qmin, qmax = np.full(n, np.inf), np.full(n, -np.inf)
+    np.minimum.at(qmin, pb, qp)
+    np.maximum.at(qmax, pb, qp)
+    ok = cnt >= 2
+    if np.count_nonzero(ok) < 3:
+        return None
+    pc = lo + np.flatnonzero(ok) + 0.5
+    mid = 0.5 * (qmin[ok] + qmax[ok])
+    pm, qm = pc.mean(), mid.mean()
+    var = float(((pc - pm) ** 2).sum())
+    slope = float(((pc - pm) * (mid - qm)).sum()) / var if var > 0 else 0.0
+    icpt = qm - slope * pm
+    r = order_stats.median(0.5 * (qmax[ok] - qmin[ok] + 1.0))
+    dist = np.abs(q - (slope * p + icpt)) / np.sqrt(1.0 + slope * slope)
+    sel = (p >= start) & ((dist > r) | (p >= pmax - tip))
+    return sel if sel.any() else None
+
+
+def _palm_cut_reference(comp, depth, scale, focal, hand_length_m, far_frac=0.25, origin=(0, 0), image_size=None,
+                        tube=None):  # fmt: skip
+    """:func:`tracker.hands.palm_cut.palm_cut` as numpy calls on the pixel lists (before session 31's kernels):
+    (box, extent, l_hand, border, px_per_m)."""
+    from tracker.hands import order_stats
+    from tracker.hands.palm_cut import MIN_ARM_M, TUBE_BEHIND_M
+
+    h, w = comp.shape
+    if image_size is not None:
+        w, h = image_size
+    ys, xs = np.nonzero(comp)
+    if origin != (0, 0):
+        xs, ys = xs + origin[0], ys + origin[1]
+    b = max(1, int(round(2.0 / scale)))
+    edge = (xs < b) | (ys < b) | (xs >= w - b) | (ys >= h - b)
+    border = bool(edge.any())
+    e = np.array([xs[edge].mean(), ys[edge].mean()]) if border else np.array([xs.mean(), ys.mean()])
+    d = np.hypot(xs - e[0], ys - e[1])
+    z = 0.75
+    if depth is not None:
+        far = d >= order_stats.quantile(d, 1.0 - far_frac)
+        dz = depth[np.minimum(ys[far] * scale, depth.shape[0] - 1), np.minimum(xs[far] * scale, depth.shape[1] - 1)]
+        dz = dz[np.isfinite(dz) & (dz > 0)]
+        if len(dz):
+            z = order_stats.median(dz)
+    l_hand = focal / scale * hand_length_m / z
+    dmax = float(d.max())
+    ppm = focal / scale / z
+    sel = None
+    if tube is not None and dmax > MIN_ARM_M * ppm:
+        sel = _tube_cut_reference(xs, ys, e, d, tube[0] * ppm, tube[1] * ppm, TUBE_BEHIND_M * ppm)
+    if sel is None:
+        sel = d >= dmax - l_hand if dmax > l_hand else np.ones(len(d), bool)
+    box = (int(xs[sel].min()), int(ys[sel].min()), int(xs[sel].max()), int(ys[sel].max()))
+    return box, dmax, float(l_hand), border, ppm
+
+
+def test_palm_cut_equals_the_numpy_form():
+    """:func:`palm_cut` (its per-pixel passes compiled) gives the numpy form's box, extent, L_hand, border flag and
+    px/m exactly: arms of random width and direction entering from each image side (tube cut), blobs inside the image
+    (no border), crops with an origin, with and without depth (NaN holes, float32 and float64), scales 2 and 3."""
+    import cv2
+
+    from tracker.hands.palm_cut import palm_cut
+
+    rng = np.random.default_rng(23)
+    tubes = 0
+    for trial in range(160):
+        scale = 2 if trial % 4 else 3
+        h, w = 480 // scale, 640 // scale
+        mask = np.zeros((h, w), np.uint8)
+        side = trial % 5
+        end = (int(rng.integers(w // 4, 3 * w // 4)), int(rng.integers(h // 4, 3 * h // 4)))
+        start = [(0, int(rng.integers(0, h))), (w - 1, int(rng.integers(0, h))), (int(rng.integers(0, w)), 0),
+                 (int(rng.integers(0, w)), h - 1), end][side]  # fmt: skip
+        cv2.line(mask, start, end, 1, int(rng.integers(6, 22)))  # the forearm (none for side 4)
+        cv2.circle(mask, end, int(rng.integers(8, 20)), 1, -1)  # the hand
+        mask[rng.random(mask.shape) < 0.02] = 0  # holes
+        depth = None
+        if trial % 3:
+            depth = rng.uniform(0.35, 0.95, (480, 640)).astype(np.float64 if trial % 7 == 0 else np.float32)
+            depth[rng.random(depth.shape) < 0.1] = np.nan
+            depth[rng.random(depth.shape) < 0.02] = 0.0
+        tube = None if trial % 6 == 5 else (float(rng.uniform(0.05, 0.12)), float(rng.uniform(0.01, 0.04)))
+        x, y, bw, bh = cv2.boundingRect(mask)
+        if trial % 2:  # a crop of the component with its origin, as palm_anchors passes it
+            comp, origin, size = mask[y : y + bh, x : x + bw].astype(bool), (x, y), (w, h)
+        else:
+            comp, origin, size = mask, (0, 0), None
+        focal = float(rng.uniform(450.0, 650.0))
+        got = palm_cut(comp, depth, scale, focal, 0.19, origin=origin, image_size=size, tube=tube)
+        want = _palm_cut_reference(comp, depth, scale, focal, 0.19, origin=origin, image_size=size, tube=tube)
+        assert (got.box, got.extent, got.l_hand, got.border, got.px_per_m) == want, trial
+        tubes += tube is not None and got.has_forearm
+    assert tubes > 40

@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba as nb
 import numpy as np
 
 from tracker.hands import order_stats
@@ -80,20 +81,12 @@ def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: floa
     h, w = comp.shape
     if image_size is not None:
         w, h = image_size
-    ys, xs = np.nonzero(comp)
-    if origin != (0, 0):
-        xs, ys = xs + origin[0], ys + origin[1]
     b = max(1, int(round(2.0 / scale)))
-    edge = (xs < b) | (ys < b) | (xs >= w - b) | (ys >= h - b)
-    border = bool(edge.any())
-    e = np.array([xs[edge].mean(), ys[edge].mean()]) if border else np.array([xs.mean(), ys.mean()])
-    d = np.hypot(xs - e[0], ys - e[1])
+    xs, ys, e, border = _component_pixels(comp, int(origin[0]), int(origin[1]), b, w, h)
+    d = _distances(xs, ys, e[0], e[1])
     z = 0.75
     if depth is not None:
-        far = d >= order_stats.quantile(d, 1.0 - far_frac)
-        dmap = np.asarray(depth)
-        dz = dmap[np.minimum(ys[far] * scale, dmap.shape[0] - 1), np.minimum(xs[far] * scale, dmap.shape[1] - 1)]
-        dz = dz[np.isfinite(dz) & (dz > 0)]
+        dz = _far_depths(xs, ys, d, order_stats.quantile(d, 1.0 - far_frac), scale, np.asarray(depth))
         if len(dz):
             z = order_stats.median(dz)
     l_hand = focal / scale * hand_length_m / z
@@ -104,7 +97,7 @@ def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: floa
         sel = tube_cut(xs, ys, e, d, tube[0] * ppm, tube[1] * ppm, TUBE_BEHIND_M * ppm)
     if sel is None:
         sel = d >= dmax - l_hand if dmax > l_hand else np.ones(len(d), bool)
-    box = (int(xs[sel].min()), int(ys[sel].min()), int(xs[sel].max()), int(ys[sel].max()))
+    box = _selected_box(xs, ys, sel)
     return PalmCut(box, dmax, float(l_hand), border, ppm)
 
 
@@ -121,31 +114,18 @@ def tube_cut(xs: np.ndarray, ys: np.ndarray, e: np.ndarray, d: np.ndarray, reach
     line q = α·p + β through the middles of the slices with two or more pixels, radius r = the median half width.
     The palm is the pixels with p ≥ p_max − reach that lie outside the tube (distance to the line > r) or within
     ``tip`` of the far end (p ≥ p_max − tip)."""
-    far = d >= order_stats.quantile(d, 0.9)
-    a = np.array([xs[far].mean() - e[0], ys[far].mean() - e[1]])
+    ax, ay = _far_mean(xs, ys, d, order_stats.quantile(d, 0.9))
+    a = np.array([ax - e[0], ay - e[1]])
     norm = float(np.hypot(a[0], a[1]))
     if norm < 1e-9:
         return None
     a /= norm
-    p = (xs - e[0]) * a[0] + (ys - e[1]) * a[1]
-    q = (ys - e[1]) * a[0] - (xs - e[0]) * a[1]
+    p, q = _along_across(xs, ys, float(e[0]), float(e[1]), float(a[0]), float(a[1]))
     pmax = float(p.max())
     start = pmax - reach
-    piece = (p < start) & (p >= start - behind)
-    if np.count_nonzero(piece) < TUBE_MIN_PX:
-        piece = p < start
-        if np.count_nonzero(piece) < TUBE_MIN_PX:
-            return None
-    pb = np.floor(p[piece]).astype(np.int64)
-    lo = int(pb.min())
-    pb -= lo
-    n = int(pb.max()) + 1
-    qp = q[piece]
-    cnt = np.bincount(pb, minlength=n)
-    qmin = np.full(n, np.inf)
-    qmax = np.full(n, -np.inf)
-    np.minimum.at(qmin, pb, qp)
-    np.maximum.at(qmax, pb, qp)
+    lo, cnt, qmin, qmax = _slices(p, q, start, start - behind, TUBE_MIN_PX)
+    if len(cnt) == 0:
+        return None
     ok = cnt >= 2
     if np.count_nonzero(ok) < 3:
         return None
@@ -156,8 +136,7 @@ def tube_cut(xs: np.ndarray, ys: np.ndarray, e: np.ndarray, d: np.ndarray, reach
     slope = float(((pc - pm) * (mid - qm)).sum()) / var if var > 0 else 0.0
     icpt = qm - slope * pm
     r = order_stats.median(0.5 * (qmax[ok] - qmin[ok] + 1.0))
-    dist = np.abs(q - (slope * p + icpt)) / np.sqrt(1.0 + slope * slope)
-    sel = (p >= start) & ((dist > r) | (p >= pmax - tip))
+    sel = _outside_tube(p, q, slope, float(icpt), float(np.sqrt(1.0 + slope * slope)), r, start, pmax - tip)
     return sel if sel.any() else None
 
 
@@ -244,3 +223,157 @@ def anchor_state(box: np.ndarray, prev_xy: tuple[float, float]) -> np.ndarray:
     u0, v0, u1, v1 = (float(v) for v in box)
     x, y = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
     return np.array([x, y, u1 - u0, v1 - v0, x - prev_xy[0], y - prev_xy[1]])
+
+
+# ---------------------------------------------------------------- kernels (session 31: the per-pixel passes of
+# palm_cut and tube_cut, which were ~40 numpy calls on a component's pixel lists; the same values bit for bit: integer
+# sums are exact in float64 whatever their order, every other value is the same IEEE operation per pixel, and the
+# sums over a tube's slices stay numpy's)
+
+
+@nb.njit(cache=True, nogil=True)
+def _component_pixels(comp, ox, oy, b, w, h):
+    """``(xs, ys, e, border)`` of a component mask ``comp`` (any nonzero set): its pixels' image coordinates (int64,
+    row-major as ``np.nonzero`` gives them, plus the origin ``(ox, oy)``), the entry point e (float64 [2]: the mean of
+    the pixels within ``b`` px of an edge of the ``w`` × ``h`` image, or of all pixels if none is) and whether some
+    pixel is that close to an edge."""
+    n = 0
+    for y in range(comp.shape[0]):
+        for x in range(comp.shape[1]):
+            if comp[y, x]:
+                n += 1
+    xs = np.empty(n, np.int64)
+    ys = np.empty(n, np.int64)
+    k = 0
+    sx = sy = ex = ey = ne = 0
+    for y in range(comp.shape[0]):
+        for x in range(comp.shape[1]):
+            if comp[y, x]:
+                X, Y = x + ox, y + oy
+                xs[k] = X
+                ys[k] = Y
+                k += 1
+                sx += X
+                sy += Y
+                if X < b or Y < b or X >= w - b or Y >= h - b:
+                    ex += X
+                    ey += Y
+                    ne += 1
+    e = np.empty(2)
+    if ne > 0:
+        e[0] = ex / ne
+        e[1] = ey / ne
+    else:
+        e[0] = sx / n
+        e[1] = sy / n
+    return xs, ys, e, ne > 0
+
+
+@nb.njit(cache=True, nogil=True)
+def _distances(xs, ys, e0, e1):
+    """``np.hypot(xs - e0, ys - e1)`` (float64)."""
+    d = np.empty(xs.shape[0])
+    for i in range(xs.shape[0]):
+        d[i] = np.hypot(xs[i] - e0, ys[i] - e1)
+    return d
+
+
+@nb.njit(cache=True, nogil=True)
+def _far_depths(xs, ys, d, thr, scale, depth):
+    """The valid (finite, > 0) full-resolution depths under the working pixels with ``d >= thr`` (each pixel's
+    (x·s, y·s), clipped to the image), in pixel order."""
+    H, W = depth.shape
+    out = np.empty(xs.shape[0], depth.dtype)
+    k = 0
+    for i in range(xs.shape[0]):
+        if d[i] >= thr:
+            v = depth[min(ys[i] * scale, H - 1), min(xs[i] * scale, W - 1)]
+            if np.isfinite(v) and v > 0:
+                out[k] = v
+                k += 1
+    return out[:k]
+
+
+@nb.njit(cache=True, nogil=True)
+def _far_mean(xs, ys, d, thr):
+    """Mean x and y of the pixels with ``d >= thr`` (exactly numpy's for integer coordinates)."""
+    sx = sy = 0.0
+    n = 0
+    for i in range(xs.shape[0]):
+        if d[i] >= thr:
+            sx += xs[i]
+            sy += ys[i]
+            n += 1
+    return sx / n, sy / n
+
+
+@nb.njit(cache=True, nogil=True)
+def _along_across(xs, ys, e0, e1, a0, a1):
+    """Each pixel's position p along the unit axis (a0, a1) from e and q across it (float64)."""
+    p = np.empty(xs.shape[0])
+    q = np.empty(xs.shape[0])
+    for i in range(xs.shape[0]):
+        dx = xs[i] - e0
+        dy = ys[i] - e1
+        p[i] = dx * a0 + dy * a1
+        q[i] = dy * a0 - dx * a1
+    return p, q
+
+
+@nb.njit(cache=True, nogil=True)
+def _slices(p, q, start, back, min_px):
+    """The forearm piece's 1-px slices of :func:`tube_cut`: the piece is the pixels with ``back <= p < start`` if
+    there are ``min_px`` of them, else those with ``p < start`` (empty arrays if fewer); per slice floor(p) − lo
+    (lo = the lowest floor(p)), its pixel count and its lowest and highest q. Returns (lo, cnt, qmin, qmax)."""
+    n1 = 0
+    n2 = 0
+    for i in range(p.shape[0]):
+        if p[i] < start:
+            n2 += 1
+            if p[i] >= back:
+                n1 += 1
+    wide = n1 < min_px
+    if wide and n2 < min_px:
+        return 0, np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    lo = np.iinfo(np.int64).max
+    hi = np.iinfo(np.int64).min
+    for i in range(p.shape[0]):
+        if p[i] < start and (wide or p[i] >= back):
+            f = np.int64(np.floor(p[i]))
+            lo = min(lo, f)
+            hi = max(hi, f)
+    n = hi - lo + 1
+    cnt = np.zeros(n, np.int64)
+    qmin = np.full(n, np.inf)
+    qmax = np.full(n, -np.inf)
+    for i in range(p.shape[0]):
+        if p[i] < start and (wide or p[i] >= back):
+            j = np.int64(np.floor(p[i])) - lo
+            cnt[j] += 1
+            qmin[j] = min(qmin[j], q[i])
+            qmax[j] = max(qmax[j], q[i])
+    return lo, cnt, qmin, qmax
+
+
+@nb.njit(cache=True, nogil=True)
+def _outside_tube(p, q, slope, icpt, norm, r, start, tip_from):
+    """The palm pixels: ``p >= start`` and (distance |q − (slope·p + icpt)| / norm from the tube's axis > ``r`` or
+    ``p >= tip_from``)."""
+    sel = np.empty(p.shape[0], np.bool_)
+    for i in range(p.shape[0]):
+        sel[i] = p[i] >= start and (np.abs(q[i] - (slope * p[i] + icpt)) / norm > r or p[i] >= tip_from)
+    return sel
+
+
+@nb.njit(cache=True, nogil=True)
+def _selected_box(xs, ys, sel):
+    """(min x, min y, max x, max y) of the selected pixels (at least one)."""
+    x0 = y0 = np.iinfo(np.int64).max
+    x1 = y1 = np.iinfo(np.int64).min
+    for i in range(xs.shape[0]):
+        if sel[i]:
+            x0 = min(x0, xs[i])
+            y0 = min(y0, ys[i])
+            x1 = max(x1, xs[i])
+            y1 = max(y1, ys[i])
+    return int(x0), int(y0), int(x1), int(y1)
