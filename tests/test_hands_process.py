@@ -309,3 +309,80 @@ def test_pipeline_reports_a_dead_hand_process_and_keeps_running():
             assert not pipe.process(src.render(i)).errors
     finally:
         pipe.hands.close()
+
+
+def test_a_staged_frame_is_sent_without_a_copy_and_gives_the_same_hands():
+    """Frames staged ahead of their step (:meth:`HandLoop.stage`, the frame reader's copy into the shared memory) give
+    the hands of the step run in this process; the staged copy is the one sent: the caller's array changed after
+    staging does not reach the child. A staged frame that never comes is dropped, and frames that were not staged are
+    copied as before."""
+    here, there = _loop("thread", "off"), _loop("process", "lagged")
+    try:
+        staged = 0
+        for k in range(16):
+            frame = _entering_palm(k)
+            sent = frame.copy()
+            if there.stage(sent, None):
+                staged += 1
+                sent[:] = 0  # after staging: the child must still see the frame
+            if k == 9:
+                assert there.stage(_entering_palm(3), None)  # a frame that never comes
+            if k == 12:
+                sent = frame.copy()  # another array than the staged one: copied at submit
+            here.start(frame, None, None, {})
+            there.start(sent, None, None, {})
+            there.wait()
+            assert [e.box for e in there.estimates] == [e.box for e in here.estimates]
+            for a, b in zip(there.estimates, here.estimates, strict=True):
+                assert np.array_equal(a.state, b.state) and a.score == b.score
+            for tid, m in here.masks.items():
+                assert np.array_equal(there.masks[tid], m)
+        assert staged == 15  # every frame after the first (no process before it; frame 12's copy is not sent)
+        assert here.estimates
+    finally:
+        there.close()
+
+
+def test_staging_never_writes_the_childs_current_or_previous_frame():
+    """The slot bookkeeping of :class:`HandProcess` (no child needed): whatever the order of stages and sends, a frame
+    is written only into a slot that is neither of the last two sent nor another staged frame's, at most
+    :data:`MAX_STAGED` frames are staged, a send finds its staged slot, and older staged frames are dropped."""
+    from multiprocessing.shared_memory import SharedMemory
+
+    from tracker.hands.process import MAX_STAGED, SLOTS
+    from tracker.sources.frame_slots import frame_bytes, frame_slots
+
+    proc = HandProcess([], Intrinsics(fx=50.0, fy=50.0, cx=7.5, cy=5.5, width=16, height=12), HandLoopConfig())
+    shm = SharedMemory(create=True, size=SLOTS * frame_bytes(12, 16))
+    try:
+        proc._res.shm, proc._slots = shm, frame_slots(shm, SLOTS, 12, 16)
+        rng = np.random.default_rng(24)
+        frames = [(np.full((12, 16, 3), k % 256, np.uint8), np.full((12, 16), k, np.float32)) for k in range(400)]
+        nxt, staged_idx = 0, []
+        for _ in range(600):
+            if rng.random() < 0.5 and nxt < len(frames) - 1:
+                c, d = frames[nxt + len(staged_idx)] if nxt + len(staged_idx) < len(frames) else frames[-1]
+                before = (list(proc._sent), dict(proc._staged))
+                ok = proc.stage(c, d)
+                assert ok == (len(before[1]) < MAX_STAGED)
+                if ok:
+                    slot = next(k for k, v in proc._staged.items() if v[1] is c)
+                    assert slot not in before[0] and slot not in before[1]
+                    assert (proc._slots[slot][0] == c).all() and (proc._slots[slot][1] == d).all()
+                    staged_idx.append(nxt + len(staged_idx))
+            elif nxt < len(frames):
+                c, d = frames[nxt]
+                before = list(proc._sent)
+                was_staged = bool(staged_idx) and staged_idx[0] == nxt
+                slot = proc._take_slot(c, d)
+                assert slot not in before
+                assert (proc._slots[slot][0] == c).all() and (proc._slots[slot][1] == d).all()
+                staged_idx = staged_idx[1:] if was_staged else []
+                assert len(proc._staged) == len(staged_idx)
+                nxt += 1
+        assert nxt > 100
+    finally:
+        proc._res.shm = None
+        proc.close()
+        shm.close()
+        shm.unlink()

@@ -93,3 +93,36 @@ def test_worker_prepares_ahead_with_the_same_results():
         assert all(("detection_ahead" in s.timings) == ahead for s in snaps)
         last[ahead] = snaps[-1]
     _same_snapshots(last[False], last[True])
+
+
+def test_prepare_stages_the_frame_for_the_hand_process(table_frames):
+    """With hands on (the hand step in its process), ``prepare`` also copies the frame into the hand process's shared
+    memory (:meth:`HandLoop.stage`) and the step sends that copy: the snapshots, hands included, are those of a
+    pipeline without ``prepare``, and every frame after the first (the process starts with it) was staged and taken."""
+    from tracker.hands.loop import HandLoopConfig
+
+    parts, intr, poses, frames = table_frames
+    cfg = HandLoopConfig(step_timeout_s=600.0)
+
+    def pipeline() -> AssemblyPipeline:
+        return AssemblyPipeline(parts, intr, mode="guidance", task="guidance-5-cubes", config=CONFIG, seed=2,
+                                initial_poses=poses, hands=True, hand_config=cfg)  # fmt: skip
+
+    here, ahead = pipeline(), pipeline()
+    staged = 0
+    try:
+        for frame in frames:
+            plain = here.process(frame)
+            prepared = ahead.prepare(frame)
+            proc = ahead.hands._process
+            if proc is not None:
+                assert len(proc._staged) == 1
+                staged += 1
+            snap = ahead.process(frame, prepared=prepared)
+            assert proc is None or not proc._staged  # taken by the step
+            _same_snapshots(plain, snap)
+            assert snap.hands == plain.hands
+        assert staged == len(frames) - 1
+    finally:
+        here.close()
+        ahead.close()

@@ -506,8 +506,16 @@ class AssemblyPipeline:
         runs this on the next frame while this pipeline processes the current one, so the detection leaves the
         pipeline's thread): :meth:`process` given the result uses them while the detector and its ranges are still
         those they were made with, and detects again otherwise, so a snapshot is the same either way. None without a
-        detector, or if detecting fails (:meth:`process` then detects and reports the error). Reads only the
-        detector and the frame, so it may run beside :meth:`process` of an earlier frame."""
+        detector, or if detecting fails (:meth:`process` then detects and reports the error). With hands on it also
+        copies the frame into the hand process's shared memory (:meth:`HandLoop.stage`; the step then sends it without
+        copying). Reads only the detector, the hand loop and the frame, so it may run beside :meth:`process` of an
+        earlier frame."""
+        hands = self.hands
+        if hands is not None:  # the frame's copy for the hand process, off the pipeline thread (HandLoop.stage)
+            try:
+                hands.stage(frame.color, frame.depth)
+            except Exception:  # noqa: BLE001 - the step copies the frame itself
+                pass
         detector = self.detector
         if detector is None:
             return None

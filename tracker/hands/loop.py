@@ -279,6 +279,15 @@ class HandLoop:
                                             initializer=name_os_thread)
         self._pending = self._pool.submit(self.step, color, depth, table_plane, dict(poses))
 
+    def stage(self, color: np.ndarray, depth: np.ndarray | None) -> bool:
+        """Hand a frame to the hand process ahead of its :meth:`start` (:meth:`HandProcess.stage`: the copy into the
+        shared memory leaves the caller of :meth:`start`); may be called from another thread. Whether it was staged
+        (only with the process worker once its process runs; the arrays must not change until :meth:`start`)."""
+        proc = self._process
+        if proc is None or self.config.overlap == "off":
+            return False
+        return proc.stage(color, depth)
+
     def wait(self) -> None:
         """Join the step started by :meth:`start` (re-raises its exception); returns at once if none is pending."""
         pending, self._pending = self._pending, None

@@ -7,9 +7,16 @@ interpreter lock, and its wall time was twice its CPU time. A child process has 
 :class:`HandProcess` starts (``spawn``) a child that owns a :class:`~tracker.hands.loop.HandLoop` running in its own
 thread (``overlap`` "off") and runs :meth:`HandLoop.step` on the frames it is sent:
 
-* Frames go through shared memory: two slots of colour (uint8 H×W×3) and depth (float32 H×W, metres), used in turn,
-  so that the frame the child keeps as its previous frame is never overwritten while it is still read. The table
-  plane and the parts' poses go over a pipe (small).
+* Frames go through shared memory: :data:`SLOTS` slots of colour (uint8 H×W×3) and depth (float32 H×W, metres); a
+  frame is written into a slot that is neither the last nor the one before it sent to the child, so that the frame
+  the child keeps as its previous frame is never overwritten while it is still read. The table plane and the parts'
+  poses go over a pipe (small).
+* Staging (session 31): :meth:`HandProcess.stage` copies a frame into a free slot ahead of its turn, from another
+  thread (the server's frame reader, :meth:`tracker.pipeline.AssemblyPipeline.prepare`, while the pipeline thread
+  processes the frame before); :meth:`HandProcess.submit` of the same arrays then sends that slot without copying
+  (about 0.2–0.4 ms of the pipeline thread a frame). The child gets the same pixels either way. At most
+  :data:`MAX_STAGED` frames are staged; a staged frame older than one submitted is dropped (never sent), and a frame
+  that was not staged is copied at submit as before (and drops every staged one).
 * Results come back over the pipe, compact: the estimates, every hand mask M_k and the occluder masks H_k as the
   crop of their bounding rectangle (working resolution for the hand masks, full resolution for H_k), the step's wall
   and thread CPU time. :func:`hand_masks_from` / :func:`mask_from` rebuild the full-resolution bool images, equal
@@ -61,6 +68,11 @@ from tracker.sources.frame_slots import frame_bytes, frame_slots
 
 MAX_RESTARTS = 5
 """Deaths of the child in a row (no completed step between them) after which it is not started again."""
+SLOTS = 5
+"""Frame slots in shared memory: the last two sent (the child's current and previous frame), up to
+:data:`MAX_STAGED` staged ones, and one always free for a frame that was not staged."""
+MAX_STAGED = 2
+"""Frames staged at most (:meth:`HandProcess.stage`)."""
 
 
 class HandProcessError(RuntimeError):
@@ -165,7 +177,7 @@ def _child(conn: Connection, shm_name: str, shape: tuple[int, int], parts: list,
         cv2.setNumThreads(1)  # one core for the hand step; the other is the pipeline's (same results, see tests)
         loop = HandLoop(parts, intrinsics, replace(config, overlap="off", worker="thread"))
         shm = SharedMemory(name=shm_name)
-        slots = frame_slots(shm, 2, *shape)
+        slots = frame_slots(shm, SLOTS, *shape)
         conn.send(("ready",))
         numba_event.register("numba:compile", _CompileReporter(conn))
     except BaseException as exc:  # noqa: BLE001 - opening failed: tell the parent
@@ -259,7 +271,10 @@ class HandProcess:
         self._started_once = False
         self._deaths = 0  # deaths in a row without a completed step
         self._given_up: str | None = None
-        self._slot = 0
+        self._lock = threading.Lock()  # the slots' bookkeeping and stage's copy (another thread) vs close
+        self._sent: list[int] = []  # the slots of the last two frames sent, oldest first
+        self._staged: dict[int, tuple[int, np.ndarray, np.ndarray | None]] = {}  # slot -> (sequence, colour, depth)
+        self._staged_seq = 0
         self._pending = False
         self._refused: BaseException | None = None
         self._closed = False
@@ -277,8 +292,10 @@ class HandProcess:
         ctx = mp.get_context("spawn")
         H, W = self.shape
         if self._res.shm is None:
-            self._res.shm = SharedMemory(create=True, size=2 * frame_bytes(H, W))
-            self._slots = frame_slots(self._res.shm, 2, H, W)
+            self._res.shm = SharedMemory(create=True, size=SLOTS * frame_bytes(H, W))
+            self._slots = frame_slots(self._res.shm, SLOTS, H, W)
+        with self._lock:  # a new child has no previous frame; a staged frame's slot stays valid
+            self._sent.clear()
         conn, child_conn = ctx.Pipe()
         proc = ctx.Process(target=_child, name="hand-step", daemon=True,
                            args=(child_conn, self._res.shm.name, self.shape, self.parts, self.intrinsics, self.config))
@@ -383,16 +400,52 @@ class HandProcess:
                 pass
         self._send(color, depth, table_plane, poses)
 
+    def stage(self, color: np.ndarray, depth: np.ndarray | None) -> bool:
+        """Copy a frame (the arrays :meth:`submit` will be given: RGB uint8 H×W×3, depth H×W or None) into a free slot
+        ahead of its turn; may be called from another thread than :meth:`submit`. Whether it was staged (not when
+        closed, given up, the shapes or type differ, or :data:`MAX_STAGED` frames are staged already)."""
+        H, W = self.shape
+        color = np.asarray(color)
+        if color.shape != (H, W, 3) or color.dtype != np.uint8 or (depth is not None and np.shape(depth) != (H, W)):
+            return False
+        with self._lock:
+            if self._closed or self._given_up is not None or self._res.shm is None or len(self._staged) >= MAX_STAGED:
+                return False
+            free = [k for k in range(SLOTS) if k not in self._sent and k not in self._staged]
+            slot = free[0]
+            slot_color, slot_depth = self._slots[slot]
+            slot_color[...] = color
+            if depth is not None:
+                slot_depth[...] = depth
+            self._staged_seq += 1
+            self._staged[slot] = (self._staged_seq, color, depth)
+        return True
+
+    def _take_slot(self, color: np.ndarray, depth: np.ndarray | None) -> int:
+        """The slot holding this frame: its staged slot (the same arrays; staged frames older than it are dropped, as
+        frames are sent in order), else a free one it is copied into (every staged frame is dropped). Marks the slot as
+        sent."""
+        with self._lock:
+            slot = next((k for k, (_, c, d) in self._staged.items() if c is color and d is depth), None)
+            if slot is not None:
+                seq = self._staged[slot][0]
+                self._staged = {k: v for k, v in self._staged.items() if v[0] > seq}
+            else:  # not staged: staged frames are dropped (they may never come, e.g. after an error)
+                self._staged.clear()
+                slot = next(k for k in range(SLOTS) if k not in self._sent)
+                slot_color, slot_depth = self._slots[slot]
+                slot_color[...] = color
+                if depth is not None:
+                    slot_depth[...] = depth
+            self._sent = [*self._sent[-1:], slot]
+        return slot
+
     def _send(self, color: np.ndarray, depth: np.ndarray | None, table_plane: Any, poses: dict) -> None:
-        """Write the frame into the next slot and ask the child to step it."""
-        self._slot ^= 1
-        slot_color, slot_depth = self._slots[self._slot]
-        slot_color[...] = color
-        if depth is not None:
-            slot_depth[...] = depth
+        """Put the frame into a slot (:meth:`_take_slot`) and ask the child to step it."""
+        slot = self._take_slot(color, depth)
         try:
             assert self._res.conn is not None
-            self._res.conn.send(("step", self._slot, depth is not None, table_plane, dict(poses)))
+            self._res.conn.send(("step", slot, depth is not None, table_plane, dict(poses)))
         except OSError:
             self._died(f"the hand process ended (exit code {self._exitcode()})")
         self._pending = True
@@ -451,14 +504,18 @@ class HandProcess:
         self._ready = False
         self._refused = None
         self._first, self._replay = None, False
-        self._slot = 0
+        with self._lock:
+            self._sent.clear()
+            self._staged.clear()
         self._deaths = 0
         self.restarts = 0
         return True
 
     def close(self) -> None:
         """End the child (politely, then by force) and free the shared memory."""
-        self._closed = True
+        with self._lock:  # waits for a stage() copying into the shared memory
+            self._closed = True
+            self._staged.clear()
         self._pending = False
         self._finalizer()
 
