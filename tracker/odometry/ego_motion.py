@@ -56,7 +56,7 @@ from tracker.geometry.camera import Intrinsics
 from tracker.geometry.parts import PartSpec
 from tracker.geometry.pose import Pose
 from tracker.odometry.exclusion_mask import PART_MARGIN_PX
-from tracker.odometry.foreground import fill_large_blobs, foreground
+from tracker.odometry.foreground import enlarge_twice, fill_large_blobs, foreground
 from tracker.odometry.se3 import invert, motion_size
 
 FOREGROUND_MIN_M = 0.012
@@ -202,8 +202,7 @@ def foreground_above(depth: np.ndarray, intrinsics: Intrinsics, table, static: n
     n = np.asarray(table.normal, np.float32)
     rx = (np.arange(w, dtype=np.float32) - np.float32(intrinsics.cx)) / np.float32(intrinsics.fx)
     ry = (np.arange(h, dtype=np.float32) - np.float32(intrinsics.cy)) / np.float32(intrinsics.fy)
-    dots = (n[0] * rx)[None, :] + (n[1] * ry + n[2])[:, None]
-    return foreground(np.asarray(depth, np.float32), dots, np.float32(table.offset),
+    return foreground(np.asarray(depth, np.float32), rx, ry, n, np.float32(table.offset),
                       np.ascontiguousarray(static, np.uint8), np.float32(FOREGROUND_MIN_M),
                       np.float32(FOREGROUND_MAX_M))
 
@@ -556,13 +555,9 @@ class EgoMotion:
 
 def _full_size(small: np.ndarray, h: int, w: int) -> np.ndarray:
     """A half-resolution bool mask enlarged to ``h``×``w`` (nearest; a last odd row or column stays False)."""
-    half = small.shape
-    big = cv2.resize(small.view(np.uint8), (2 * half[1], 2 * half[0]), interpolation=cv2.INTER_NEAREST)
-    if big.shape == (h, w):
-        return big.view(bool)
-    out = np.zeros((h, w), bool)
-    out[: 2 * half[0], : 2 * half[1]] = big.view(bool)
-    return out
+    if 2 * small.shape[0] > h or 2 * small.shape[1] > w:
+        raise ValueError(f"mask {small.shape} is more than half of {h}x{w}")
+    return enlarge_twice(np.ascontiguousarray(small, bool), h, w)
 
 
 def _median_change(a: np.ndarray, b: np.ndarray, min_samples: int = 200) -> float | None:

@@ -39,6 +39,21 @@ def to_gray(rgb: np.ndarray) -> np.ndarray:
 
 
 @nb.njit(cache=True, nogil=True)
+def _half_gray(gray):
+    """2×2 block means of a uint8 grey image as float32 (a last odd row or column dropped): ``cv2.resize(·,
+    INTER_AREA)`` of the float32 image to half its size gives these values (sums of four integers and their quarter
+    are exact in float32, in any order), without the full-size float32 image."""
+    h, w = gray.shape[0] // 2, gray.shape[1] // 2
+    out = np.empty((h, w), np.float32)
+    for i in range(h):
+        r0, r1 = gray[2 * i], gray[2 * i + 1]
+        for j in range(w):
+            s = np.int32(r0[2 * j]) + np.int32(r0[2 * j + 1]) + np.int32(r1[2 * j]) + np.int32(r1[2 * j + 1])
+            out[i, j] = np.float32(s) * np.float32(0.25)
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
 def _half_depth_mask(depth, mask, max_spread):
     """One pass of :func:`half_depth` and :func:`half_mask` (a depth pixel is invalid when not finite and > 0). The
     tests without short-circuits and rows taken once: a quarter of the time of the same tests chained with ``and`` /
@@ -83,19 +98,23 @@ def build_pyramid(rgb: np.ndarray, depth: np.ndarray, intrinsics: Intrinsics, n_
     ``first_level`` are None (not needed by the caller: level 0 of a VGA frame cost 3 ms of the odometry's 4 with
     its depth cleaned, and only the halved levels are aligned)."""
     h, w = depth.shape
-    gray = to_gray(rgb)
     m = np.zeros((h, w), bool) if mask is None else np.ascontiguousarray(mask, bool)
     d = np.ascontiguousarray(depth, np.float32)
     levels: list[PyramidLevel | None] = []
     if first_level <= 0:
+        gray = to_gray(rgb)
         with np.errstate(invalid="ignore"):
             clean = np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan)).astype(np.float32)
         levels.append(PyramidLevel(gray, clean, m, intrinsics))
-    else:
+    else:  # level 1's grey straight from the 8-bit luminance (the same values as halving its float32 image)
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         levels.append(None)
     for lv in range(1, n_levels):
         ph, pw = d.shape
-        gray = cv2.resize(gray[: ph // 2 * 2, : pw // 2 * 2], (pw // 2, ph // 2), interpolation=cv2.INTER_AREA)
+        if gray.dtype == np.uint8:
+            gray = _half_gray(gray)
+        else:
+            gray = cv2.resize(gray[: ph // 2 * 2, : pw // 2 * 2], (pw // 2, ph // 2), interpolation=cv2.INTER_AREA)
         d, m = _half_depth_mask(d, m, MAX_BLOCK_SPREAD)
         levels.append(PyramidLevel(gray, d, m, intrinsics.scaled(0.5**lv)) if lv >= first_level else None)
     return levels
