@@ -32,6 +32,7 @@ from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
 from tracker.geometry.depth_points import window_points
 from tracker.geometry.point_icp import build_grid, rigid_icp
+from tracker.geometry.projective_icp import refine_projective
 
 
 @dataclass
@@ -422,6 +423,8 @@ class HandCarry:
                 w, t = register_rigid(self.patches[i], pts, cfg.carry_iterations, cfg.carry_max_step,
                                       cfg.carry_max_turn, (self.last_turn[i], self.last_step[i]), axis,
                                       cfg.carry_turn_fallback)
+                if cfg.carry_projective > 0 and axis is None:
+                    w, t = self._projective(self.patches[i], depth, w, t, plane, exclude)
             else:
                 w, t = np.zeros(3), register_translation(self.patches[i], pts, cfg.carry_iterations,
                                                          cfg.carry_max_step, self.last_step[i])
@@ -447,6 +450,19 @@ class HandCarry:
         self._prev_depth = depth  # kept by reference: a source that reuses its buffer gives the same object (unused)
         self._prev_motion = None
         return rot, delta
+
+    def _projective(self, patch: np.ndarray, depth: np.ndarray, w: np.ndarray, t: np.ndarray, plane,
+                    exclude) -> tuple[np.ndarray, np.ndarray]:
+        """``carry_projective``: the frame's hand motion (``w`` rad, ``t`` m about ``patch``'s centroid, from the
+        nearest-neighbour registration) refined by projective point-to-plane pairing against ``depth``
+        (:func:`~tracker.geometry.projective_icp.refine_projective`); kept as it was when the refined motion exceeds
+        ``carry_max_step`` or ``carry_max_turn``."""
+        cfg = self.config
+        w2, t2 = refine_projective(patch, depth, self.intrinsics, w, t, cfg.carry_projective, plane,
+                                   cfg.carry_min_height, exclude)
+        if np.linalg.norm(w2) > cfg.carry_max_turn or np.linalg.norm(t2) > cfg.carry_max_step:
+            return w, t
+        return w2, t2
 
     def _to_keyframe(self, obj: int, R: np.ndarray, d: np.ndarray, pts: np.ndarray,
                      plane) -> tuple[np.ndarray, np.ndarray]:
