@@ -109,6 +109,28 @@ def test_a_shadow_follows_the_hand_over_a_resting_part_but_not_its_reach_down(sh
     assert carry.take_shadow(0) is sh and carry.carried[0] and carry.shadows[0] is None  # carried on from there
 
 
+@pytest.mark.parametrize("restart", [True, False])
+def test_a_shadow_starts_again_when_the_hand_comes_back_over_a_resting_part(restart):
+    """A hand covers a resting part, leaves it and comes back, then moves 5 cm: with ``carry_shadow_restart`` a new
+    shadow follows it (5 cm), without it the shadow ended when the hand left and stays put."""
+    intr = Intrinsics.default(320, 240)
+    carry = HandCarry(1, CFG.with_overrides(carry_shadow=True, carry_shadow_restart=restart), intr,
+                      np.array([0.031]))
+    pos = np.array([[-0.02, 0.0, 0.682]])
+    heights, hidden = np.array([0.0]), np.array([True])
+    table_only = np.full((240, 320), 0.7, np.float32)
+    for depth in [_scene(intr, 0.0, lower=0.012), table_only, _scene(intr, 0.0, lower=0.012)]:
+        carry.update(depth, pos, hidden, ~hidden, heights, PLANE)
+    for k in range(1, 6):
+        rot, d = carry.update(_scene(intr, 0.01 * k, lower=0.012), pos, hidden, ~hidden, heights, PLANE)
+        assert np.allclose(d, 0.0) and not carry.carried[0]  # the resting part itself stays
+    sh = carry.shadows[0]
+    if restart:
+        assert sh.patch is not None and np.allclose(sh.t, [0.05, 0.0, 0.0], atol=0.004), sh.t
+    else:
+        assert sh.patch is None and np.allclose(sh.t, 0.0)
+
+
 def test_the_carry_ends_when_the_hand_leaves():
     intr = Intrinsics.default(320, 240)
     carry = HandCarry(1, CFG, intr, np.array([0.031]))

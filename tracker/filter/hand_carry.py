@@ -494,6 +494,11 @@ class HandCarry:
         cfg = self.config
         sh = self.shadows[obj]
         window = cfg.carry_radius + cfg.carry_max_step  # the same window (and so point density) every frame
+        if (cfg.carry_shadow_restart and sh is not None and sh.patch is None
+                and np.linalg.norm(sh.t) < self.radii[obj]):
+            # carry_shadow_restart: the hand left without the part (a shadow that went less than the part's bounding
+            # radius cannot take it, hidden_parts.take_shadow): a hand back over the place starts a new shadow
+            sh = None
         if sh is None:
             pts = self._points(depth, position, window, plane, exclude)
             pts = pts[((pts - position) ** 2).sum(1) <= cfg.carry_radius**2]

@@ -231,6 +231,12 @@ class TrackerConfig(BaseModel):
         "it is moved by that motion and carried on, instead of being put at the centroid of the hand points near "
         "where it was.",
     )
+    carry_shadow_restart: bool = Field(
+        False, description="With carry_shadow: a hidden resting part whose shadow lost its hand (the hand left) having "
+        "followed it less than the part's bounding radius (too little to take the part) starts a new shadow when hand "
+        "points are back around its place; without it the shadow ends for good and a hand that comes back and lifts "
+        "the part has no motion to carry it from.",
+    )
     carry_shadow_take_m: float = Field(
         0.0, ge=0.0, description="A hidden resting part whose shadow carry (carry_shadow) has followed the hand over "
         "it this far (m) with the hand still in view is taken to be in that hand: moved by the hand's motion and "
