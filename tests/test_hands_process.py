@@ -10,9 +10,10 @@ import time
 import numpy as np
 import pytest
 
+from tracker.compile_reporter import CompileReporter
 from tracker.geometry.camera import Intrinsics
 from tracker.hands.loop import HandLoop, HandLoopConfig
-from tracker.hands.process import HandProcess, HandProcessError, _CompileReporter, close_parked
+from tracker.hands.process import HandProcess, HandProcessError, close_parked
 from tracker.hands.tracker import HandTrackerConfig
 
 
@@ -198,7 +199,7 @@ def test_the_child_reports_a_compile_but_not_a_cached_kernel():
         return x * 3 + 1
 
     pipe = _Pipe([])
-    reporter = _CompileReporter(pipe)
+    reporter = CompileReporter(pipe)
     event.register("numba:compile", reporter)
     try:
         assert _never_compiled_before(2) == 7

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from tracker.compile_reporter import CompileReporter, receive_past_compiles
 from tracker.sources.frame_slots import frame_bytes, frame_slots
 
 
@@ -145,8 +146,10 @@ def _serve(conn, shm_name: str, intrinsics, seed: int, corners: dict[str, np.nda
 
         shm = SharedMemory(name=shm_name)
         os.nice(CHILD_NICENESS)
+        reporter = CompileReporter(conn).register()  # a cold kernel cache compiles here: minutes, not a hang
         _warm_up(intrinsics)
         path = CameraPath(intrinsics, seed, corners)
+        reporter.unregister()
         slots = frame_slots(shm, SLOTS, intrinsics.height, intrinsics.width)
         h, w = intrinsics.height, intrinsics.width
         conn.send(("ready",))
@@ -208,14 +211,15 @@ class CameraPathProcess:
         self._lock = threading.Lock()
         self._reader: threading.Thread | None = None
         try:
-            if not self._conn.poll(start_timeout):
-                raise RuntimeError(f"the camera path process did not start within {start_timeout:.0f} s")
-            try:
-                msg = self._conn.recv()
+            try:  # a child compiling kernels (a cold cache) says so, and each message restarts the wait
+                msg = receive_past_compiles(self._conn, start_timeout)
             except (EOFError, OSError):
                 self._proc.join(timeout=5)
                 raise RuntimeError("the camera path process ended as it started (exit code "
                                    f"{self._proc.exitcode})") from None
+            if msg is None:
+                raise RuntimeError(f"the camera path process did not start within {start_timeout:.0f} s "
+                                   "(nor said it was compiling kernels)")
             if msg[0] != "ready":
                 raise RuntimeError(f"cannot start the camera path process: {msg[1]}")
         except BaseException:

@@ -24,8 +24,8 @@ thread (``overlap`` "off") and runs :meth:`HandLoop.step` on the frames it is se
 * Errors: an exception of the step (a bad frame) comes back and is raised again by :meth:`HandProcess.result` with
   its type (built-in types; others as RuntimeError), and the child keeps running. A child that dies (crash, killed)
   or does not answer within ``step_timeout`` seconds (a new child's first step: ``start_timeout``, as it loads the
-  compiled kernels; so does a step during which the child says it compiles kernels, :class:`_CompileReporter`) is
-  reported by :class:`HandProcessError` from
+  compiled kernels; so does a step during which the child says it compiles kernels,
+  :class:`~tracker.compile_reporter.CompileReporter`) is reported by :class:`HandProcessError` from
   :meth:`HandProcess.result` and a new child is started at once; until it is ready (imports, a few seconds), steps
   are refused with a :class:`HandProcessError` that says so, without waiting. The new child is first given the
   session's first frame again (kept by the parent; the skin model's session background is fitted on it, and it is
@@ -52,7 +52,6 @@ import multiprocessing as mp
 import pickle
 import signal
 import threading
-import time
 import weakref
 from dataclasses import replace
 from multiprocessing.connection import Connection
@@ -60,9 +59,8 @@ from multiprocessing.shared_memory import SharedMemory
 from typing import Any
 
 import numpy as np
-from numba.core import event as numba_event
-from numba.core.event import Listener
 
+from tracker.compile_reporter import CompileReporter, receive_past_compiles
 from tracker.os_names import name_os_thread
 from tracker.sources.frame_slots import frame_bytes, frame_slots
 
@@ -131,38 +129,6 @@ def step_result(loop: Any) -> dict[str, Any]:
     }
 
 
-COMPILE_REPORT_S = 1.0
-"""Seconds between two "compiling" messages of the child (:class:`_CompileReporter`): one per kernel would be hundreds
-after an upgrade; the parent only needs to hear that the child is still compiling."""
-
-
-class _CompileReporter(Listener):
-    """Tells the parent over ``conn`` when numba starts compiling a kernel in the child (``("compiling", name)``, at
-    most one message per :data:`COMPILE_REPORT_S`): a cache miss, i.e. the first call after the kernels' source
-    changed (an upgrade, a new checkout), which can take tens of seconds of CPU, and not only in a child's first step:
-    the kernels of the hand path compile on the first frame with a hand. The parent then gives the step the start's
-    time instead of ending a child that is compiling (before, a child was ended mid-compile at the first hand, the next
-    one compiled again and the stream stalled for 20 s each time). Loading a kernel from numba's cache sends nothing."""
-
-    def __init__(self, conn: Connection) -> None:
-        self.conn = conn
-        self._last = -float("inf")
-
-    def on_start(self, event: Any) -> None:
-        now = time.monotonic()
-        if now - self._last < COMPILE_REPORT_S:
-            return
-        self._last = now
-        try:
-            self.conn.send(("compiling", getattr(getattr(event.data.get("dispatcher"), "py_func", None), "__qualname__",
-                                                 "?")))
-        except (OSError, AttributeError):
-            pass
-
-    def on_end(self, event: Any) -> None:
-        pass
-
-
 def _child(conn: Connection, shm_name: str, shape: tuple[int, int], parts: list, intrinsics: Any,
            config: Any) -> None:  # fmt: skip
     """The child: a HandLoop running its steps in place on the frames in shared memory, until told to stop."""
@@ -179,7 +145,7 @@ def _child(conn: Connection, shm_name: str, shape: tuple[int, int], parts: list,
         shm = SharedMemory(name=shm_name)
         slots = frame_slots(shm, SLOTS, *shape)
         conn.send(("ready",))
-        numba_event.register("numba:compile", _CompileReporter(conn))
+        CompileReporter(conn).register()
     except BaseException as exc:  # noqa: BLE001 - opening failed: tell the parent
         try:
             conn.send(("failed", f"{type(exc).__name__}: {exc}"))
@@ -263,7 +229,7 @@ class HandProcess:
         self.step_timeout = float(step_timeout)
         self.shape = (int(intrinsics.height), int(intrinsics.width))
         self.restarts = 0  # children started after the first one
-        self.compiles = 0  # "compiling" messages of the children during steps (see _CompileReporter)
+        self.compiles = 0  # "compiling" messages of the children during steps (see CompileReporter)
         self._res = _Resources()
         self._finalizer = weakref.finalize(self, _Resources.free, self._res)
         self._ready = False
@@ -315,11 +281,9 @@ class HandProcess:
         conn = self._res.conn
         assert conn is not None
         try:
-            msg = ("compiling",)
-            while msg[0] == "compiling":  # a new session's HandLoop may compile (see _CompileReporter)
-                if not conn.poll(timeout):
-                    return False
-                msg = conn.recv()
+            msg = receive_past_compiles(conn, timeout)  # a new session's HandLoop may compile (CompileReporter)
+            if msg is None:
+                return False
         except (EOFError, OSError):
             msg = ("failed", f"it ended (exit code {self._exitcode()})")
         if msg[0] != "ready":
@@ -462,7 +426,7 @@ class HandProcess:
         assert conn is not None
         # a child's first step loads (after an upgrade: compiles) the hand step's kernels, which can take minutes
         # on a busy machine: it gets the start's time, not a step's, or every new child would be ended mid-compile
-        # and so does a step during which the child compiles kernels (it says so: _CompileReporter), e.g. the first
+        # and so does a step during which the child compiles kernels (it says so: CompileReporter), e.g. the first
         # frame with a hand after an upgrade: each "compiling" message gives the step the start's time from then on
         long = max(self.step_timeout, self.start_timeout)
         timeout = self.step_timeout if self._stepped else long
