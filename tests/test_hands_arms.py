@@ -113,12 +113,32 @@ def test_bucket_queue_geodesic_equals_the_heap_one():
         seeds = np.zeros((h, w), np.int32)
         seeds[rng.integers(0, h, 4), rng.integers(0, w, 4)] = rng.integers(1, 4, 4)
         prev = rng.integers(0, 4, (h, w)).astype(np.int32)
-        for cost, keep in ((20.0, 0.0), (0.0, 0.0), (3.0, 0.0), (20.0, 2.0), (0.0, 5.0)):
-            lab_h, dist_h = _geodesic_heap(mask, z, seeds, 0.012, cost, prev, keep)
-            lab_b, dist_b = _geodesic_buckets(mask, z, seeds, 0.012, cost, prev, keep)
+        grey = rng.choice(np.array([100, 104, 120, 160], np.uint8), (h, w))
+        for cost, keep, thr, slope in ((20.0, 0.0, 0, 0), (0.0, 0.0, 0, 0), (3.0, 0.0, 0, 0), (20.0, 2.0, 0, 0),
+                                       (0.0, 5.0, 0, 0), (20.0, 2.0, 10, 1), (3.0, 0.0, 5, 3)):  # fmt: skip
+            lab_h, dist_h = _geodesic_heap(mask, z, seeds, 0.012, cost, prev, keep, grey, thr, slope)
+            lab_b, dist_b = _geodesic_buckets(mask, z, seeds, 0.012, cost, prev, keep, grey, thr, slope)
             assert np.array_equal(lab_h, lab_b) and np.array_equal(dist_h, dist_b)
             reached += int(np.count_nonzero(lab_b))
     assert reached > 10000
+
+
+def test_geodesic_labels_pay_for_crossing_a_grey_level_edge():
+    """A column whose grey level differs from its neighbours by 30, open at the bottom row: with edge_slope 2 above
+    edge_thr 10 each crossing costs 1 + 2 · 20, so the way round is shorter; without ``grey`` (or slope 0) straight
+    across. The cost counts on both sides of the column (into it and out of it)."""
+    mask = np.ones((5, 9), np.uint8)
+    z = np.full((5, 9), 0.7)
+    grey = np.full((5, 9), 120, np.uint8)
+    grey[:4, 4] = 150
+    seeds = np.zeros((5, 9), np.int32)
+    seeds[0, 0] = 1
+    _, dist = geodesic_labels(mask, z, seeds, 0.012, 20.0, grey=grey, edge_thr=10, edge_slope=2)
+    assert dist[0, 8] == 16.0  # round through the bottom row
+    assert dist[0, 4] == 3.0 + 41.0  # 3 flat steps, then into the column: 1 + 2 · (30 − 10)
+    for kw in ({}, {"grey": grey, "edge_thr": 10, "edge_slope": 0}):
+        _, plain = geodesic_labels(mask, z, seeds, 0.012, 20.0, **kw)
+        assert plain[0, 8] == 8.0 and plain[0, 4] == 4.0
 
 
 def _touching_split():
@@ -448,3 +468,48 @@ def test_the_tracker_gives_the_arm_detector_its_frame_flow(monkeypatch):
     ft = tr.last_features
     assert ft is not None and f is ft.fb[0] and (x0, y0) == (ft.roi[0], ft.roi[1])
     assert f.shape[:2] == (ft.roi[3] - ft.roi[1], ft.roi[2] - ft.roi[0]) and f.shape[2] == 2
+
+
+def test_a_shading_edge_between_two_touching_hands_splits_them_there(monkeypatch):
+    """Two hands side by side at one depth, hand A reaching 12 columns past the point where the two wrists are equally
+    far (x ≈ 100) and hand B in shade (20 grey levels darker): with EDGE_SPLIT the split follows the shading edge at
+    x = 112, without it (off, explicitly, or no grey image passed) it falls where the wrists are equally far."""
+    import cv2
+
+    from tracker.hands import arm_anchor
+
+    rgb, depth = _scene([([60, 110, 112, 150], [64, 150, 86, 240], 0.72), ([112, 110, 140, 150], [114, 150, 136, 240],
+                                                                          0.72)])  # fmt: skip
+    rgb[110:150, 112:140] = (190, 141, 115)  # B in shade
+    skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
+    assert skin[110:150, 60:140].all()  # both tones are skin
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    z = working_depth(depth, 1, (H, W))
+    bg = working_depth(np.full((H, W), 0.8), 1, (H, W))
+
+    def boxes(on: bool, g) -> list[tuple[int, int, int, int]]:
+        monkeypatch.setattr(arm_anchor, "EDGE_SPLIT", on)
+        hands = sorted(arm_split(skin, z, bg, grey=g)[0], key=lambda hd: hd.entry[0])
+        assert len(hands) == 2
+        return [hd.box for hd in hands]
+
+    on = boxes(True, grey)
+    assert on[0][2] == 111 and on[1][0] == 112
+    off = boxes(False, grey)
+    assert abs(off[0][2] - 99) <= 2 and abs(off[1][0] - 100) <= 2
+    assert boxes(True, None) == off
+
+
+def test_the_tracker_gives_the_arm_detector_its_grey_frame(monkeypatch):
+    """The tracker passes the arm detector the working frame's grey levels (what EDGE_SPLIT reads)."""
+    import cv2
+
+    from tracker.hands import arm_anchor
+
+    seen = []
+    real = arm_anchor.arm_split
+    monkeypatch.setattr(arm_anchor, "arm_split", lambda *a, **k: seen.append(a[5]) or real(*a, **k))
+    rgb, depth = _scene(TOUCHING)
+    _two_touching_tracks((rgb, depth))
+    assert seen and seen[-1] is not None
+    assert np.array_equal(seen[-1], cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))

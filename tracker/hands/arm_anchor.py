@@ -21,11 +21,12 @@ frame and without tracking, each arm and the skin pixels at its end:
    the upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's
    blind band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split
    gave another arm, when the tracker ran this detector on the previous frame too); each skin pixel belongs to the
-   arm whose wrist reaches it first. With the frame's optical flow (:data:`MOTION_SPLIT`, on) two arms' split is run
-   again with the two hands' motions as a prior: a skin pixel whose flow clearly follows one hand's motion costs
-   the other arm's label :data:`MOTION_COST` per pixel (:func:`motion_prior`). A hand's box is the tight box of its
-   pixels (at least :data:`MIN_HAND_PX`) and of the unopened mask's skin within :data:`RIM_PX` of them
-   (:data:`BOX_RIM`).
+   arm whose wrist reaches it first. Crossing a grey-level edge costs extra too (:data:`EDGE_SPLIT`: two hands of one
+   tone still differ in shading where they meet). With the frame's optical flow (:data:`MOTION_SPLIT`, on) two arms'
+   split is run again with the two hands' motions as a prior: a skin pixel whose flow clearly follows one hand's
+   motion costs the other arm's label :data:`MOTION_COST` per pixel (:func:`motion_prior`). A hand's box is the
+   tight box of its pixels (at least :data:`MIN_HAND_PX`) and of the unopened mask's skin within :data:`RIM_PX` of
+   them (:data:`BOX_RIM`).
 
 Without depth nothing is found. Dev measurement (``hands-s2`` tuning seeds 0–4, this detector alone, no tracking,
 the left entry taken as one hand): per hand-frame F̄^b 0.76 / 0.85 / 0.66 / 0.83 / 0.55; used where it finds the
@@ -166,6 +167,30 @@ MOTION_COST = 3.0
 other arm's hand (:data:`MOTION_SPLIT`); in that second pass the previous split's labels count where the flow does
 not decide, at this cost too. 8 with the previous split left out of the second pass (session 29, ``hands-s2`` tuning
 seeds 0–4, ground-truth start, filter seed 0): F̄^b 0.8923 against 0.8925 at 3."""
+EDGE_SPLIT = True
+"""Whether the geodesic split also pays for crossing a grey-level edge (``grey`` of :func:`arm_split`):
+:data:`EDGE_SLOPE` working px per grey level by which two 4-neighbours differ by more than :data:`EDGE_THR` (new in
+session 31, on). Two hands of one person have one skin tone, but where one lies on or beside the other their shading
+changes across the boundary (another surface orientation, a shadow): on the detector's two-arm calls in ``hands-s2``
+tuning seeds 0–4 (ground-truth start, filter seed 0) the 4-neighbour skin pairs across the two hands' boundary differ
+by a median 40 grey levels of the working image against 6 within a hand (79 % of them above the within-hand 90th
+percentile, 20); the depth step of :data:`DEPTH_STEP` separates fewer (54 % of those pairs have no depth on a side, of
+the rest about half lie above the within-hand 90th percentile). The detector alone on those calls, lost F^b of its
+arm boxes 286.0 → 228.2 (every seed better). In the tracker, ``hands-s2`` tuning seeds 0–4, the same frames for both
+arms, off → on, filter seeds 0 / 1 / 2 / 3 / 4: ground-truth start F̄^b 0.8967 / 0.8943 / 0.8976 / 0.8973 / 0.8964
+→ 0.9159 / 0.9150 / 0.9119 / 0.9143 / 0.9137, ē^p 6.38 / 6.48 / 6.27 / 6.30 / 6.36 → 5.08 / 5.14 / 5.45 / 5.16 / 5.22
+px; automatic start 0.9009 / 0.9003 / 0.9020 / 0.8998 / 0.9014 → 0.9185 / 0.9176 / 0.9201 / 0.9174 / 0.9188, ē^p
+5.97 / 6.00 / 5.87 / 6.04 / 5.90 → 4.79 / 4.87 / 4.70 / 4.90 / 4.78 px, missed hand-frames 11 → 9 of 15 855, false
+boxes 30 → 43 of 8955 frames (0.0034 → 0.0048 per frame); 49 of 50 runs better (ground-truth start filter seed 2,
+seed 2 −0.002); KF (ground-truth start) 0.8960 → 0.9148, ē^p 6.40 → 5.17 px; ``hands-s1`` and ``hands-s3``
+identical (the detector runs only with two tracks). ``benchmarks/history/issue-14-hands.md``."""
+EDGE_THR = 10
+"""Grey levels (0–255, the working image) by which two 4-neighbours may differ before :data:`EDGE_SPLIT` charges."""
+EDGE_SLOPE = 4
+"""Extra geodesic cost (working px) per grey level above :data:`EDGE_THR` (:data:`EDGE_SPLIT`). 8 (paired as for
+:data:`EDGE_SPLIT`, filter seeds 0–4): F̄^b about as 4 (ground-truth start 0.9151 / 0.9163 / 0.9149 / 0.9139 / 0.9132,
+automatic start 0.9181 / 0.9176 / 0.9202 / 0.9193 / 0.9200), but missed hand-frames 11 → 13 and false boxes 30 → 47;
+the detector alone (lost F^b of its arm boxes, thr 10): slope 2 234.4, 4 228.2, 8 225.5, 16 224.3."""
 MOTION_ITERS = 5
 """Lloyd iterations of the two-means clustering of the labelled skin pixels' flow (started from each arm's median)."""
 MOTION_MEDIAN_GATE = True
@@ -193,8 +218,18 @@ def _depth_step(z, y, x, yy, xx, step):
     return za > 0 and zb > 0 and abs(za - zb) > step
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _edge_cost(grey, y, x, yy, xx, thr, slope):
+    """Extra cost (whole working px) of the move from pixel ``(y, x)`` to its neighbour ``(yy, xx)`` across a grey-level
+    edge: ``slope`` per grey level by which their difference exceeds ``thr`` (0 with ``slope`` 0)."""
+    if slope <= 0:
+        return 0
+    dg = abs(np.int64(grey[y, x]) - np.int64(grey[yy, xx]))
+    return slope * (dg - thr) if dg > thr else 0
+
+
 @nb.njit(cache=True, nogil=True)
-def _geodesic_heap(mask, z, seeds, step, step_cost, prev, prev_cost):
+def _geodesic_heap(mask, z, seeds, step, step_cost, prev, prev_cost, grey, edge_thr, edge_slope):
     """:func:`geodesic_labels` with a binary heap (any ``step_cost``, ``prev_cost``)."""
     h, w = mask.shape
     dist = np.full((h, w), 1e18)
@@ -220,6 +255,7 @@ def _geodesic_heap(mask, z, seeds, step, step_cost, prev, prev_cost):
             if yy < 0 or xx < 0 or yy >= h or xx >= w or not mask[yy, xx]:
                 continue
             c = 1.0 + step_cost if _depth_step(z, y, x, yy, xx, step) else 1.0
+            c += _edge_cost(grey, y, x, yy, xx, edge_thr, edge_slope)
             if prev[yy, xx] > 0 and prev[yy, xx] != lab[y, x]:
                 c += prev_cost
             nd = d + c
@@ -231,14 +267,14 @@ def _geodesic_heap(mask, z, seeds, step, step_cost, prev, prev_cost):
 
 
 @nb.njit(cache=True, nogil=True)
-def _geodesic_buckets(mask, z, seeds, step, step_cost, prev, prev_cost):
+def _geodesic_buckets(mask, z, seeds, step, step_cost, prev, prev_cost, grey, edge_thr, edge_slope):
     """:func:`geodesic_labels` for a whole-number ``step_cost`` with a bucket queue (Dial's algorithm): every distance
     is a whole number, each bucket is complete when its turn comes (steps cost at least 1), and its pixels are taken
     in raster order, the heap's order on equal distances — the same labels and distances, without the heap."""
     h, w = mask.shape
     big = int(step_cost) + 1
     other = int(prev_cost)
-    k_ring = big + other + 1
+    k_ring = big + other + 1 + (edge_slope * max(255 - edge_thr, 0) if edge_slope > 0 else 0)
     dist = np.full((h, w), 1e18)
     lab = np.zeros((h, w), np.int32)
     ring = [np.empty(64, np.int64) for _ in range(k_ring)]
@@ -261,6 +297,9 @@ def _geodesic_buckets(mask, z, seeds, step, step_cost, prev, prev_cost):
     d = 0
     while pending > 0:
         b = d % k_ring
+        if count[b] == 0:  # an empty bucket (many, with edge costs): nothing to sort
+            d += 1
+            continue
         todo = np.sort(ring[b][: count[b]])
         pending -= count[b]
         count[b] = 0
@@ -275,6 +314,7 @@ def _geodesic_buckets(mask, z, seeds, step, step_cost, prev, prev_cost):
                 if yy < 0 or xx < 0 or yy >= h or xx >= w or not mask[yy, xx]:
                     continue
                 c = big if _depth_step(z, y, x, yy, xx, step) else 1
+                c += _edge_cost(grey, y, x, yy, xx, edge_thr, edge_slope)
                 if prev[yy, xx] > 0 and prev[yy, xx] != lab[y, x]:
                     c += other
                 nd = d + c
@@ -294,20 +334,25 @@ def _geodesic_buckets(mask, z, seeds, step, step_cost, prev, prev_cost):
 
 
 def geodesic_labels(mask: np.ndarray, z: np.ndarray, seeds: np.ndarray, step: float, step_cost: float,
-                    prev: np.ndarray | None = None,
-                    prev_cost: float = 0.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                    prev: np.ndarray | None = None, prev_cost: float = 0.0, grey: np.ndarray | None = None,
+                    edge_thr: int = 0, edge_slope: int = 0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Multi-source geodesic labelling over ``mask`` (uint8 H×W) from ``seeds`` (int32 H×W, 0 = none, k > 0 the
     label; only seeds on the mask count): Dijkstra with 4-neighbour steps of cost 1 plus ``step_cost`` where both
-    depths ``z`` (float64 H×W, ≤ 0 unknown) are known and differ by more than ``step``, plus ``prev_cost`` into a
-    pixel that ``prev`` (int32 H×W, 0 = none; e.g. the last frame's labels) gives another label than the one
-    spreading; on equal distances the pixel first in raster order spreads its label first. Returns (labels int32,
-    distances float64; 1e18 where not reached)."""
+    depths ``z`` (float64 H×W, ≤ 0 unknown) are known and differ by more than ``step``, plus ``edge_slope`` per grey
+    level by which the two pixels of ``grey`` (uint8 H×W; None: no edge cost) differ by more than ``edge_thr``
+    (whole numbers), plus ``prev_cost`` into a pixel that ``prev`` (int32 H×W, 0 = none; e.g. the last frame's
+    labels) gives another label than the one spreading; on equal distances the pixel first in raster order spreads
+    its label first. Returns (labels int32, distances float64; 1e18 where not reached)."""
     if prev is None:
         prev = np.zeros(mask.shape, np.int32)
     prev = np.ascontiguousarray(prev, np.int32)
+    if grey is None or edge_slope <= 0:
+        grey, edge_slope = np.zeros((1, 1), np.uint8), 0
+    grey = np.ascontiguousarray(grey, np.uint8)
+    thr, slope = int(edge_thr), int(edge_slope)
     if step_cost >= 0 and float(step_cost).is_integer() and prev_cost >= 0 and float(prev_cost).is_integer():
-        return _geodesic_buckets(mask, z, seeds, step, step_cost, prev, prev_cost)
-    return _geodesic_heap(mask, z, seeds, step, step_cost, prev, float(prev_cost))
+        return _geodesic_buckets(mask, z, seeds, step, step_cost, prev, prev_cost, grey, thr, slope)
+    return _geodesic_heap(mask, z, seeds, step, step_cost, prev, float(prev_cost), grey, thr, slope)
 
 
 def working_depth(depth: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarray:
@@ -655,12 +700,15 @@ def motion_prior(labels: np.ndarray, flow: tuple[np.ndarray, int, int]) -> np.nd
 
 
 def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray, prev: ArmSplit | None = None,
-              flow: tuple[np.ndarray, int, int] | None = None) -> tuple[list[ArmHand], ArmSplit | None]:  # fmt: skip
+              flow: tuple[np.ndarray, int, int] | None = None,
+              grey: np.ndarray | None = None) -> tuple[list[ArmHand], ArmSplit | None]:  # fmt: skip
     """:func:`arm_hands` and the split behind it (None when no arm is found). With ``prev`` (the previous frame's
     split) and KEEP_COST > 0, a label spreading into a skin pixel the previous split gave another arm pays KEEP_COST
     (the arms are matched by their entry points, :func:`carried_labels`). With ``flow`` (f [h, w, 2] working px per
     frame, x0, y0: the working px of its top-left pixel; the backward flow of this frame is fine, only differences
-    count) and :data:`MOTION_SPLIT`, two arms' split is redone with :func:`motion_prior`."""
+    count) and :data:`MOTION_SPLIT`, two arms' split is redone with :func:`motion_prior`. With ``grey`` (uint8, the
+    working frame's grey levels) and :data:`EDGE_SPLIT`, crossing a grey-level edge costs :data:`EDGE_SLOPE` per level
+    above :data:`EDGE_THR`."""
     h, w = skin.shape
     sk = cv2.morphologyEx(np.ascontiguousarray(skin, np.uint8), cv2.MORPH_OPEN,
                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3)))  # fmt: skip
@@ -687,13 +735,14 @@ def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray, prev: Arm
             hole = cv2.dilate(hole, np.ones((2 * HOLE_GROW + 1, 2 * HOLE_GROW + 1), np.uint8))
         zg = np.where((hole > 0) & (sk > 0), HOLE_DEPTH, z)
     carried = carried_labels(prev, entries) if prev is not None and KEEP_COST > 0 else None
-    labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, carried, KEEP_COST)
+    edges = {"grey": grey, "edge_thr": EDGE_THR, "edge_slope": EDGE_SLOPE} if EDGE_SPLIT and grey is not None else {}
+    labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, carried, KEEP_COST, **edges)
     if MOTION_SPLIT and flow is not None and len(entries) == 2:
         moved = motion_prior(labels, flow)
         if moved is not None:
             if carried is not None:  # where the flow does not decide, the previous split's labels still count
                 moved = np.where(moved > 0, moved, carried).astype(np.int32)
-            labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, moved, MOTION_COST)
+            labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, moved, MOTION_COST, **edges)
     boxes, counts = _label_boxes(labels, len(entries))
     if BOX_RIM:
         _rim_boxes(labels, np.ascontiguousarray(skin, np.uint8), boxes, RIM_PX)

@@ -800,7 +800,7 @@ class HandTracker(TrackIdentity):
         if cfg.group_box:
             self._report_group(ests, feats, size)
         if cfg.arm_anchor and self._arm_bg is not None and self._depth is not None and self._arms_due():
-            self._report_arms(ests, rgb)
+            self._report_arms(ests, rgb, grey)
         if cfg.adapt:
             self._collect_adapt_pixels(rgb, mcur, roi)
             if self.frame_index % cfg.adapt_every == 0 and self._adapt_pixels:
@@ -841,12 +841,13 @@ class HandTracker(TrackIdentity):
         gap = max(a[0] - b[2], b[0] - a[2], a[1] - b[3], b[1] - a[3])
         return gap <= cfg.arm_near_px
 
-    def _report_arms(self, ests: list[HandEstimate], rgb: np.ndarray) -> None:
+    def _report_arms(self, ests: list[HandEstimate], rgb: np.ndarray, grey: np.ndarray | None = None) -> None:
         """Each hand at the far end of its own arm (``arm_anchor``, :mod:`tracker.hands.arm_anchor`). Every track id
         remembers where its arm enters the image: first the entry of the arm whose hand box matches the track's box
         (F-score ≥ ARM_MATCH_F), then the nearest entry within ARM_ENTRY_NEAR working px of the remembered one (the
         entry follows the arm); only while two tracks are live. Each reports its arm's hand box; with ``arm_reset`` a
-        filter whose box scores below ARM_RESET_F against it restarts there (velocity 0)."""
+        filter whose box scores below ARM_RESET_F against it restarts there (velocity 0). ``grey``: the working
+        frame's grey levels (for ``arm_anchor.EDGE_SPLIT``)."""
         if len(self.tracks) != 2:
             return
         assert self._depth is not None and self._arm_bg is not None and self.full_size is not None
@@ -858,7 +859,7 @@ class HandTracker(TrackIdentity):
         prev = last[1] if last is not None and last[0] == self.frame_index - 1 else None
         ft = self.last_features  # this frame's: its ROI's backward flow for arm_anchor.MOTION_SPLIT
         flow = (ft.fb[0], ft.roi[0], ft.roi[1]) if ft is not None else None
-        hands, split = arm_anchor.arm_split(self._frame_mask(rgb), z, self._arm_bg, prev, flow)
+        hands, split = arm_anchor.arm_split(self._frame_mask(rgb), z, self._arm_bg, prev, flow, grey)
         self._arm_split = (self.frame_index, split) if split is not None else None
         if not hands:
             return
