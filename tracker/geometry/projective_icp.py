@@ -24,6 +24,7 @@ import numpy as np
 
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
+from tracker.geometry.point_icp import matrix_rotvec
 
 STENCIL = 2
 """Pixels from the paired pixel to the neighbours whose points give its normal (cross product of the horizontal and
@@ -102,15 +103,9 @@ def refine_projective(src: np.ndarray, depth: np.ndarray, intrinsics: Intrinsics
         a[3:, 3:] += np.eye(3) * (1e-3 * tr)
         x = np.linalg.solve(a, b)
         R_new = rotvec_to_matrix(x[:3])[0] @ R
-        w = _matrix_rotvec(R_new)
+        w = matrix_rotvec(np.ascontiguousarray(R_new))
         t = t + x[3:]
         if np.linalg.norm(x[3:]) < 2e-5 and np.linalg.norm(x[:3]) < 5e-5:
             break
     return w, t
 
-
-def _matrix_rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (rad) of rotation matrix ``R`` (3, 3)."""
-    from tracker.geometry.point_icp import matrix_rotvec
-
-    return matrix_rotvec(np.ascontiguousarray(R, np.float64))

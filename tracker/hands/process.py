@@ -377,13 +377,17 @@ class HandProcess:
                 return False
             free = [k for k in range(SLOTS) if k not in self._sent and k not in self._staged]
             slot = free[0]
-            slot_color, slot_depth = self._slots[slot]
-            slot_color[...] = color
-            if depth is not None:
-                slot_depth[...] = depth
+            self._write(slot, color, depth)
             self._staged_seq += 1
             self._staged[slot] = (self._staged_seq, color, depth)
         return True
+
+    def _write(self, slot: int, color: np.ndarray, depth: np.ndarray | None) -> None:
+        """Copy a frame into shared-memory slot ``slot`` (the depth only when given)."""
+        slot_color, slot_depth = self._slots[slot]
+        slot_color[...] = color
+        if depth is not None:
+            slot_depth[...] = depth
 
     def _take_slot(self, color: np.ndarray, depth: np.ndarray | None) -> int:
         """The slot holding this frame: its staged slot (the same arrays; staged frames older than it are dropped, as
@@ -397,10 +401,7 @@ class HandProcess:
             else:  # not staged: staged frames are dropped (they may never come, e.g. after an error)
                 self._staged.clear()
                 slot = next(k for k in range(SLOTS) if k not in self._sent)
-                slot_color, slot_depth = self._slots[slot]
-                slot_color[...] = color
-                if depth is not None:
-                    slot_depth[...] = depth
+                self._write(slot, color, depth)
             self._sent = [*self._sent[-1:], slot]
         return slot
 
