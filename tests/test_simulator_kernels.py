@@ -190,3 +190,24 @@ def test_projector_shadow_of_some_rows_computes_those_restores_the_marked_and_ke
     assert np.array_equal(out[300:400], base[300:400])
     assert out[:100].all() and out[400:].all()
     assert full[100:300].any() and not full[100:300].all()  # the computed rows have shadow and lit pixels
+
+
+@pytest.mark.parametrize("shift_u, shift_v", [(1, 0), (-1, 1), (0, -1)])
+def test_depth_kernel_on_tiny_images_equals_the_one_loop_reference(shift_u, shift_v):
+    """Images 1–5 pixels wide and high: the branch-free loop's row slices (empty or one pixel long) stay inside the
+    image and every pixel gets the reference's value."""
+    model = sm.DepthSensorModel(shift_u=shift_u, shift_v=shift_v, dropout=0.05)
+    rng = np.random.default_rng(11)
+    for h in range(1, 6):
+        for w in range(1, 6):
+            clean = rng.uniform(0.5, 1.5, (h, w)).astype(np.float32)
+            clean[rng.random(clean.shape) < 0.1] = np.inf
+            cosang = rng.uniform(0, 1, clean.shape).astype(np.float32)
+            shadow = rng.random(clean.shape) < 0.1
+            args = (np.uint64(1000 * h + w), model.noise_coeff, False, 1, model.quant_step, model.focal_baseline,
+                    model.disparity_step, model.edge_jump, model.edge_missing, model.edge_flying, 0.26, 0.05,
+                    model.dropout, model.min_range, model.max_range, shift_u, shift_v, shadow)  # fmt: skip
+            a, b = np.full(clean.shape, 7.0, np.float32), np.full(clean.shape, 7.0, np.float32)
+            sm._depth_kernel(clean, cosang, a, *args)
+            _depth_reference(clean, cosang, b, *args)
+            assert np.array_equal(a, b, equal_nan=True) and not (a == 7.0).any()
