@@ -205,8 +205,6 @@ def color_masks(trk, detections, gi, gj) -> tuple[np.ndarray, np.ndarray]:
     cfg = trk.config
     if not (cfg.color_mask_likelihood and detections):
         return cmask, cvalid
-    import cv2
-
     f = cfg.downsample
     grid = (trk._vs.size, trk._us.size)
     for i, name in enumerate(trk.names):
@@ -227,12 +225,48 @@ def color_masks(trk, detections, gi, gj) -> tuple[np.ndarray, np.ndarray]:
         pts = (np.asarray(contour, np.float64).reshape(-1, 2) - trk._off) / f
         if pts.shape[0] < 3:
             continue
-        m = np.zeros(grid, np.uint8)
-        cv2.fillPoly(m, [np.round(pts).astype(np.int32)], 1)
-        m = cv2.dilate(m, np.ones((3, 3), np.uint8))
-        cmask[i] = m[gj, gi]
+        grid_blob_pixels(np.round(pts).astype(np.int32), grid, gi, gj, cmask[i])
         cvalid[i] = 1
     return cmask, cvalid
+
+
+def grid_blob_pixels(poly: np.ndarray, grid: tuple[int, int], gi: np.ndarray, gj: np.ndarray, out: np.ndarray) -> None:
+    """Into ``out`` (P,) uint8: 1 where the grid pixel ``(gi, gj)`` (column, row) lies in the polygon ``poly`` ((V, 2)
+    int32 grid coordinates) filled by ``cv2.fillPoly`` on a ``grid = (rows, cols)`` image and dilated by a 3 × 3
+    square, else 0 — the values of ``cv2.dilate(fillPoly(zeros(grid)), ones((3, 3)))[gj, gi]``. Only the polygon's
+    bounding box (plus a pixel, clipped to the grid) is filled: every filled pixel lies in it and the grid's clipping
+    is kept where the box reaches the grid's edge; the 3 × 3 maximum is taken at the listed pixels only
+    (:func:`_dilated_at`)."""
+    import cv2
+
+    rows, cols = grid
+    x0 = max(int(poly[:, 0].min()) - 1, 0)
+    x1 = min(int(poly[:, 0].max()) + 2, cols)
+    y0 = max(int(poly[:, 1].min()) - 1, 0)
+    y1 = min(int(poly[:, 1].max()) + 2, rows)
+    if x0 >= x1 or y0 >= y1:  # off the grid: nothing filled
+        out[:] = 0
+        return
+    win = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillPoly(win, [poly - np.array([x0, y0], np.int32)], 1)
+    _dilated_at(win, y0, x0, gi, gj, out)
+
+
+@nb.njit(cache=True)
+def _dilated_at(win, y0, x0, gi, gj, out):
+    """``out[p]`` = the maximum of the window ``win`` (uint8, top-left grid pixel ``(x0, y0)``; zero beyond it) over
+    the 3 × 3 square centred on grid pixel ``(gi[p], gj[p])``: a 3 × 3 dilation (``cv2.dilate``'s values, whose border
+    never adds a pixel) read at those pixels."""
+    h, w = win.shape
+    for p in range(gi.shape[0]):
+        y = gj[p] - y0
+        x = gi[p] - x0
+        v = 0
+        for yy in range(max(y - 1, 0), min(y + 2, h)):
+            for xx in range(max(x - 1, 0), min(x + 2, w)):
+                if win[yy, xx] > v:
+                    v = win[yy, xx]
+        out[p] = v
 
 
 def area_ratio(trk, obj: int, area) -> float:

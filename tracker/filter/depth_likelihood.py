@@ -170,7 +170,7 @@ def _pixel_terms(d, z, s, e, o_hat, beta, lam, tail, use_occ):
 
 @nb.njit(cache=True)
 def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
-                          dirty, alpha, cmask, cvalid, occ_cap=0.0):
+                          dirty, alpha, cmask, cvalid, occ_cap=0.0, fresh=False):
     """Recompute the contributions of the dirty ``subset`` pixels for every particle and update ``ell`` in place.
 
     * ``D`` (N, M) rendered depth columns, ``loc`` (K, P) column of part k at pixel i or −1 (part k cannot cover
@@ -189,6 +189,9 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
       remains). All-zero ``cvalid`` = depth only (the spec).
     * ``occ_cap`` > 0: likewise cap at 0 the contribution of every pixel where the rendered part lies more than
       ``occ_cap`` σ behind the observed depth (occlusion is then no evidence for a pose; 0 = the spec).
+    * ``fresh``: ``C``, ``Q``, ``F`` hold nothing yet (a frame's first call, over all its pixels): every ``subset``
+      pixel is written, a clean one as uncovered (``C`` 0, ``Q`` −1, ``F`` −1), a dirty one as if its cached
+      contribution were 0 — the values of a call on arrays filled with those first, without the fills.
 
     A pixel's contribution and posterior depend only on its z-buffer depth, front part and ô: when these equal the
     ones last computed at the pixel in this call (a particle that is a copy of the one before, as a resampling
@@ -221,6 +224,10 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
         for ii in range(m):
             i = subset[ii]
             if dirty[j, i] == 0:
+                if fresh:
+                    C[j, i] = 0.0
+                    Q[j, i] = -1.0
+                    F[j, i] = -1
                 continue
             dirty[j, i] = 0
             d = np.inf
@@ -257,7 +264,7 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
                     memo_oh[ii] = oh_in
                     memo_c[ii] = c
                     memo_q[ii] = Q[j, i]
-            acc += c - C[j, i]
+            acc += c - (0.0 if fresh else C[j, i])
             C[j, i] = c
         ell[j] += acc
 

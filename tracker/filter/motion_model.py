@@ -76,6 +76,24 @@ def rodrigues_terms(w0: float, w1: float, w2: float, K: np.ndarray) -> tuple[flo
     return fa, fb
 
 
+@nb.njit(cache=True, inline="always")
+def _propagate_one(p_ref, R_ref, v_prev, noise, u, k_v, b, p, R, v, K, KK, E):
+    """One particle of :func:`_propagate_kernel`: ``p_ref`` (3,), ``R_ref`` (3, 3), ``v_prev`` (6,), ``noise`` (6,)
+    into ``p`` (3,), ``R`` (3, 3), ``v`` (6,); ``K``, ``KK``, ``E`` (3, 3) scratch."""
+    for a in range(6):
+        v[a] = k_v * v_prev[a] + noise[a]
+    for a in range(3):
+        v[a] += b * u[a]
+        p[a] = p_ref[a] + v[a]
+    fa, fb = rodrigues_terms(v[3], v[4], v[5], K)
+    matmul33(K, K, KK)
+    for a in range(3):
+        for c in range(3):
+            eye = 1.0 if a == c else 0.0
+            E[a, c] = (eye + fa * K[a, c]) + fb * KK[a, c]
+    matmul33(E, R_ref, R)
+
+
 @nb.njit(cache=True)
 def _propagate_kernel(p_ref, R_ref, v_prev, noise, u, k_v, b, p, R, v):
     """:func:`propagate` into ``p``, ``R``, ``v``. Per particle: ``v = k_v v_prev + noise`` (+ ``b u`` on the linear
@@ -88,18 +106,23 @@ def _propagate_kernel(p_ref, R_ref, v_prev, noise, u, k_v, b, p, R, v):
     KK = np.empty((3, 3))
     E = np.empty((3, 3))
     for j in range(m):
-        for a in range(6):
-            v[j, a] = k_v * v_prev[j, a] + noise[j, a]
-        for a in range(3):
-            v[j, a] += b * u[a]
-            p[j, a] = p_ref[j, a] + v[j, a]
-        fa, fb = rodrigues_terms(v[j, 3], v[j, 4], v[j, 5], K)
-        matmul33(K, K, KK)
-        for a in range(3):
-            for c in range(3):
-                eye = 1.0 if a == c else 0.0
-                E[a, c] = (eye + fa * K[a, c]) + fb * KK[a, c]
-        matmul33(E, R_ref[j], R[j])
+        _propagate_one(p_ref[j], R_ref[j], v_prev[j], noise[j], u, k_v, b, p[j], R[j], v[j], K, KK, E)
+
+
+@nb.njit(cache=True)
+def propagate_part_into(p_all, R_all, v_all, rows, obj, noise, u, k_v, b, p_out, R_out, v_out):
+    """:func:`propagate` of part ``obj`` for the particles ``rows`` (N,) of ``p_all`` (M, K, 3), ``R_all``
+    (M, K, 3, 3), ``v_all`` (M, K, 6) (e.g. last frame's particles in the current order: rows = the resamplings
+    composed), written straight into column ``obj`` of ``p_out`` (N, K, 3), ``R_out``, ``v_out``: the values of
+    ``p_out[:, obj], R_out[:, obj], v_out[:, obj] = propagate(p_all[rows, obj], R_all[rows, obj], v_all[rows, obj],
+    u, noise, k_v, b)`` without the gathered and returned arrays."""
+    K = np.empty((3, 3))
+    KK = np.empty((3, 3))
+    E = np.empty((3, 3))
+    for j in range(rows.shape[0]):
+        r = rows[j]
+        _propagate_one(p_all[r, obj], R_all[r, obj], v_all[r, obj], noise[j], u, k_v, b, p_out[j, obj],
+                       R_out[j, obj], v_out[j, obj], K, KK, E)
 
 
 def propagate_numpy(

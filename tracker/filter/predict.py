@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tracker.filter.motion_model import propagate, sample_noise
+from tracker.filter.motion_model import propagate, propagate_part_into, sample_noise
 
 if TYPE_CHECKING:
     from tracker.filter.particle_filter import MultiObjectTracker
@@ -54,6 +54,20 @@ def noisy(trk: MultiObjectTracker, p_prev: np.ndarray, R_prev: np.ndarray, v_pre
     noise = sample_noise(trk.rng, p_prev.shape[0], cfg.sigma_v * scale, cfg.sigma_w * scale, cfg.wide_noise_fraction,
                          cfg.wide_noise_scale)
     return propagate(p_prev, R_prev, v_prev, u, noise, velocity_gain(cfg), cfg.b)
+
+
+def noisy_into(trk: MultiObjectTracker, rows: np.ndarray, obj: int, u: np.ndarray, scale: float, p_out: np.ndarray,
+               R_out: np.ndarray, v_out: np.ndarray) -> None:
+    """:func:`noisy` of part ``obj`` from last frame's particles ``rows`` (N,) (``trk.p``, ``trk.R``, ``trk.v``; e.g.
+    the frame's resamplings composed), written into column ``obj`` of ``p_out`` (N, K, 3), ``R_out`` (N, K, 3, 3),
+    ``v_out`` (N, K, 6): the same noise draws and values as ``p_out[:, obj], R_out[:, obj], v_out[:, obj] =
+    noisy(trk, trk.p[rows, obj], trk.R[rows, obj], trk.v[rows, obj], u, scale)`` in one kernel call
+    (:func:`~tracker.filter.motion_model.propagate_part_into`)."""
+    cfg = trk.config
+    noise = sample_noise(trk.rng, rows.shape[0], cfg.sigma_v * scale, cfg.sigma_w * scale, cfg.wide_noise_fraction,
+                         cfg.wide_noise_scale)
+    propagate_part_into(trk.p, trk.R, trk.v, rows, int(obj), noise, np.asarray(u, np.float64).reshape(3),
+                        float(velocity_gain(cfg)), float(cfg.b), p_out, R_out, v_out)
 
 
 def adaptive_noise(trk: MultiObjectTracker) -> np.ndarray:

@@ -89,9 +89,11 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
             render.render(trk, i, p_cur, R_cur, all_particles, rays, pu, pv, gi, gj, np.flatnonzero(regions[i]), D,
                           loc, dirty)
     t2 = time.perf_counter()
-    C = trk._buffer("C0", (n, npix), np.float32, 0.0)
-    Q = trk._buffer("Q0", (n, npix), np.float32, -1.0)  # consistent with D = inf: nothing covered yet
-    F = trk._buffer("F0", (n, npix), np.int8, -1)
+    # C, Q, F are written over all pixels by the first likelihood call below (``fresh``: uncovered where no part was
+    # drawn, consistent with D = inf), not filled first
+    C = trk._buffer("C0", (n, npix), np.float32)
+    Q = trk._buffer("Q0", (n, npix), np.float32)
+    F = trk._buffer("F0", (n, npix), np.int8)
     ell = np.zeros(n)
     anc = np.arange(n)
     prm = trk.likelihood
@@ -101,7 +103,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     cmask, cvalid = color_masks(trk, detections, gi, gj)
     occ_cap = float(cfg.occluded_evidence_cap)
     update_log_likelihood(D, loc, all_pix, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
-                          dirty, alpha, cmask, cvalid, occ_cap)
+                          dirty, alpha, cmask, cvalid, occ_cap, True)
     t_render = t2 - t1
     t_lik = time.perf_counter() - t2
     t_res = 0.0
@@ -135,7 +137,8 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
             ta = tb
         else:
             ta, tb, tc, changed_objs = _pass_render_likelihood(
-                trk, i, _previous(trk, perm, i), p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu, pv, gi, gj,
+                trk, i, all_particles if perm is None else perm, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays,
+                pu, pv, gi, gj,
                 D, loc, dirty, all_particles, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
                 alpha, cmask, cvalid, occ_cap)
         rest, support = priors.total(p_cur, R_cur, None if first else changed_objs)
@@ -148,7 +151,7 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
         if kl > cfg.kl_max:
             idx = systematic_resample(w, trk.rng)
             perm = idx if perm is None else perm[idx]
-            p_cur, R_cur, v_cur = p_cur[idx], R_cur[idx], v_cur[idx]
+            p_cur, R_cur, v_cur = _take(p_cur, idx), _take(R_cur, idx), _take(v_cur, idx)
             # dirty flags are all clear; ô is reached through anc
             if i != last_pass:
                 take_rows_inplace(D, idx)
@@ -176,6 +179,15 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
     return PassResult(p_cur, R_cur, v_cur, log_w, ell_prev, pix, Q, F, o_hat, anc, n_resampled)
 
 
+def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``a[idx]`` (rows), in place when ``a`` is C-contiguous (the passes' particle arrays are the frame's own: made by
+    the prediction, not shared): :func:`~tracker.filter.resampling.take_rows_inplace` on its rows."""
+    if a.flags.c_contiguous and a.shape[0] == idx.shape[0]:
+        take_rows_inplace(a.reshape(a.shape[0], -1), idx)
+        return a
+    return a[idx]
+
+
 def _previous(trk: MultiObjectTracker, perm: np.ndarray | None, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Part ``i``'s columns of last frame's particles (``trk.p``, ``trk.R``, ``trk.v``) in the current particle order:
     rows ``perm`` (the resamplings of this frame's passes composed; None: none yet)."""
@@ -184,17 +196,17 @@ def _previous(trk: MultiObjectTracker, perm: np.ndarray | None, i: int) -> tuple
     return trk.p[perm, i], trk.R[perm, i], trk.v[perm, i]
 
 
-def _pass_render_likelihood(trk, i, prev, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu,
+def _pass_render_likelihood(trk, i, rows, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu,
                             pv, gi, gj, D, loc, dirty, all_particles, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell,
                             beta, lam, tail, use_occ, alpha, cmask, cvalid, occ_cap):
-    """Part ``i``'s pass up to its likelihood: noisy propagation, connection particles, re-render of what changed and
-    the likelihood update on those pixels (arrays updated in place). Returns the pass's clock readings before the
-    render, before and after the likelihood, and the set of parts it moved."""
+    """Part ``i``'s pass up to its likelihood: noisy propagation from last frame's particles ``rows`` (the current
+    order: the frame's resamplings composed), connection particles, re-render of what changed and the likelihood
+    update on those pixels (arrays updated in place). Returns the pass's clock readings before the render, before
+    and after the likelihood, and the set of parts it moved."""
     cfg = trk.config
     k = len(trk.parts)
     rect = render.bbox(trk, i, p_cur[:, i], R_cur[:, i])  # where the part was drawn before this pass
-    p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, *prev, u[i],
-                                                          noise_scale[i])
+    predict.noisy_into(trk, rows, i, u[i], noise_scale[i], p_cur, R_cur, v_cur)
     changed_objs = {i}
     forced = None
     if trk._hints and cfg.use_connection_particles:

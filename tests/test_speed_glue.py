@@ -1,0 +1,152 @@
+"""The coordinate passes' glue moved into kernels (session 32) gives the forms it replaced bit for bit (random, seeded
+input): the propagation straight into a part's column, the likelihood's first call without the buffer fills, the
+blob masks of the likelihood from a window of the grid."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from tracker.filter.motion_model import propagate, propagate_part_into, rotvec_to_matrix
+
+
+def test_propagation_into_a_part_column_equals_gather_propagate_and_assign():
+    """:func:`propagate_part_into` from last frame's rows ``perm`` writes exactly what gathering those rows,
+    :func:`propagate` and assigning the part's column gave, and leaves the other columns alone."""
+    rng = np.random.default_rng(5)
+    n, k, obj = 60, 4, 2
+    p_all = rng.normal(0.0, 0.3, (n, k, 3))
+    R_all = np.stack([rotvec_to_matrix(rng.normal(0.0, 1.0, (n, 3))) for _ in range(k)], axis=1)
+    v_all = rng.normal(0.0, 0.01, (n, k, 6))
+    u = np.array([0.004, -0.002, 0.001])
+    for perm in (np.arange(n), np.sort(rng.integers(0, n, n)), rng.permutation(n)):
+        noise = rng.normal(0.0, 0.02, (n, 6))
+        noise[:3, 3:] = 0.0  # no turn
+        noise[3:6, 3:] = 1e-11  # below the series threshold
+        p_out, R_out, v_out = (rng.normal(size=a.shape) for a in (p_all, R_all, v_all))
+        want = [a.copy() for a in (p_out, R_out, v_out)]
+        want[0][:, obj], want[1][:, obj], want[2][:, obj] = propagate(p_all[perm, obj], R_all[perm, obj],
+                                                                      v_all[perm, obj], u, noise, 0.7, 0.4)
+        propagate_part_into(p_all, R_all, v_all, perm.astype(np.int64), obj, noise, u, 0.7, 0.4, p_out, R_out, v_out)
+        for got, ref in zip((p_out, R_out, v_out), want, strict=True):
+            assert np.array_equal(got, ref)
+
+
+def test_noisy_into_draws_and_moves_as_noisy():
+    """:func:`tracker.filter.predict.noisy_into` takes the same noise draws as :func:`~tracker.filter.predict.noisy`
+    (same generator state after) and gives its particles."""
+    from types import SimpleNamespace
+
+    from tracker.filter import predict
+    from tracker.filter.tracker_config import TrackerConfig
+
+    cfg = TrackerConfig.preset("default")
+    rng = np.random.default_rng(2)
+    n, k = 50, 3
+    trk = SimpleNamespace(config=cfg, p=rng.normal(0.0, 0.3, (n, k, 3)),
+                          R=np.stack([rotvec_to_matrix(rng.normal(0.0, 1.0, (n, 3))) for _ in range(k)], axis=1),
+                          v=rng.normal(0.0, 0.01, (n, k, 6)), rng=np.random.default_rng(9))
+    rows = np.sort(rng.integers(0, n, n)).astype(np.int64)
+    u = np.array([0.01, 0.0, -0.003])
+    want = predict.noisy(trk, trk.p[rows, 1], trk.R[rows, 1], trk.v[rows, 1], u, 1.7)
+    after_want = trk.rng.random()
+    trk.rng = np.random.default_rng(9)
+    p_out, R_out, v_out = np.zeros((n, k, 3)), np.zeros((n, k, 3, 3)), np.zeros((n, k, 6))
+    predict.noisy_into(trk, rows, 1, u, 1.7, p_out, R_out, v_out)
+    assert trk.rng.random() == after_want
+    for got, ref in zip((p_out[:, 1], R_out[:, 1], v_out[:, 1]), want, strict=True):
+        assert np.array_equal(got, ref)
+    assert not p_out[:, 0].any() and not p_out[:, 2].any()
+
+
+def _likelihood_case(rng, n=40, k=3, p=70):
+    """Inputs of :func:`update_log_likelihood` for a frame's first call: depth columns of k parts over p pixels (some
+    uncovered: inf), dirty where a part was drawn, as the first render leaves them."""
+    from tracker.filter.depth_likelihood import LikelihoodParams, pixel_constants
+
+    prm = LikelihoodParams()
+    loc = np.full((k, p), -1, np.int64)
+    regions = rng.random((k, p)) < 0.6
+    loc[regions] = np.arange(int(regions.sum()))
+    m = int(regions.sum())
+    z = rng.uniform(0.5, 1.2, p)
+    D = np.where(rng.random((n, m)) < 0.5, z[np.nonzero(regions)[1]] + rng.normal(0.0, 0.01, (n, m)),
+                 np.inf).astype(np.float32)
+    D[1] = D[0]  # a copied particle: the memo takes the one before
+    dirty = np.zeros((n, p), np.uint8)
+    for o in range(k):
+        cols = loc[o][regions[o]]
+        dirty[:, np.flatnonzero(regions[o])] |= (D[:, cols] != np.inf).astype(np.uint8)
+    s, e, lp = pixel_constants(z, prm)
+    o_hat = rng.uniform(0.0, 0.6, (n, p)).astype(np.float32)
+    cmask = (rng.random((k, p)) < 0.8).astype(np.uint8)
+    cvalid = np.array([1, 0, 1][:k], np.uint8)
+    return (D, loc, np.arange(p, dtype=np.int64), z, s, e, lp, o_hat, np.arange(n)), (
+        prm.tail_weight, prm.occluder_rate, prm.tail_weight / prm.max_depth, True), dirty, cmask, cvalid
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fresh_likelihood_call_equals_the_call_on_filled_buffers(seed):
+    """``fresh=True`` on buffers holding garbage gives the contributions, posteriors, front parts, log-likelihoods
+    and cleared dirty flags of the call on buffers filled with 0 / −1 / −1 first (the fills it replaces)."""
+    from tracker.filter.depth_likelihood import update_log_likelihood
+
+    rng = np.random.default_rng(seed)
+    head, consts, dirty, cmask, cvalid = _likelihood_case(rng)
+    n, p = dirty.shape
+    outs = []
+    for fresh in (False, True):
+        if fresh:
+            C = rng.normal(size=(n, p)).astype(np.float32)
+            Q = rng.normal(size=(n, p)).astype(np.float32)
+            F = rng.integers(-5, 5, (n, p)).astype(np.int8)
+        else:
+            C, Q, F = np.zeros((n, p), np.float32), np.full((n, p), -1.0, np.float32), np.full((n, p), -1, np.int8)
+        ell = np.zeros(n)
+        dd = dirty.copy()
+        update_log_likelihood(*head, C, Q, F, ell, *consts, dd, 1.0, cmask, cvalid, 2.0, fresh)
+        outs.append((C, Q, F, ell, dd))
+    assert (outs[0][3] != 0).any()  # something was covered
+    for a, b in zip(*outs, strict=True):
+        assert np.array_equal(a, b)
+
+
+def _blob_pixels_reference(poly, grid, gi, gj):
+    """The form :func:`tracker.filter.colour_input.grid_blob_pixels` replaced: the whole grid filled and dilated."""
+    m = np.zeros(grid, np.uint8)
+    cv2.fillPoly(m, [poly], 1)
+    m = cv2.dilate(m, np.ones((3, 3), np.uint8))
+    return m[gj, gi]
+
+
+def test_windowed_blob_pixels_equal_the_whole_grid_fill_and_dilation():
+    """Polygons inside, across every edge of and wholly outside the grid, convex and not, large and of a pixel:
+    the windowed fill and the 3 × 3 maximum at the listed pixels give the whole grid's values at every pixel."""
+    from tracker.filter.colour_input import grid_blob_pixels
+
+    rng = np.random.default_rng(11)
+    grid = (60, 80)
+    gj, gi = (a.ravel().astype(np.int64) for a in np.meshgrid(np.arange(grid[0]), np.arange(grid[1]), indexing="ij"))
+    sel = rng.permutation(gi.size)[:1500]  # a subset of pixels in any order, as the evaluated pixels come
+    polys = [np.array([[10, 10], [30, 12], [25, 40]]), np.array([[0, 0], [0, 0], [0, 0]]),
+             np.array([[79, 59], [79, 59], [78, 59]]), np.array([[-20, -5], [15, 3], [2, 30]]),
+             np.array([[70, 50], [120, 55], [90, 90]]), np.array([[-30, -30], [-10, -20], [-15, -5]]),
+             np.array([[100, 10], [130, 12], [110, 40]]), np.array([[-10, 30], [95, 28], [40, 70]])]
+    for _ in range(300):  # random polygons, many not convex, some far beyond the grid
+        c = rng.uniform(-30, 110, 2)
+        nv = int(rng.integers(3, 12))
+        ang = np.sort(rng.uniform(0, 2 * np.pi, nv))
+        r = rng.uniform(0.5, 40.0) * rng.uniform(0.3, 1.0, nv)
+        polys.append(np.stack([c[0] + r * np.cos(ang), c[1] + r * np.sin(ang)], axis=1))
+        polys.append(rng.uniform(-20, 100, (nv, 2)))  # self-intersecting
+    n_hit = 0
+    for poly in polys:
+        poly = np.round(poly).astype(np.int32)
+        for g_i, g_j in ((gi, gj), (gi[sel], gj[sel])):
+            out = np.full(g_i.size, 7, np.uint8)
+            grid_blob_pixels(poly, grid, g_i, g_j, out)
+            want = _blob_pixels_reference(poly, grid, g_i, g_j)
+            assert np.array_equal(out, want), poly
+            n_hit += int(want.any())
+    assert n_hit > 200  # most polygons reach the grid
