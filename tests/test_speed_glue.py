@@ -150,3 +150,40 @@ def test_windowed_blob_pixels_equal_the_whole_grid_fill_and_dilation():
             assert np.array_equal(out, want), poly
             n_hit += int(want.any())
     assert n_hit > 200  # most polygons reach the grid
+
+
+def test_systematic_resampling_kernel_matches_numpy():
+    """The kernel's indices equal the numpy form's (cumulative sums, searchsorted) for the same draw, on weights
+    normalised or not, with zeros, one dominant particle, ties and every size up to past numpy's pairwise block; the
+    generator advances alike; weights summing to zero or not finite are refused."""
+    from tracker.filter.resampling import systematic_resample, systematic_resample_numpy
+
+    rng = np.random.default_rng(4)
+    n_cases = 0
+    for n in (1, 2, 3, 7, 8, 9, 127, 128, 129, 225, 1000):
+        for kind in range(6):
+            w = rng.random(n)
+            if kind == 1:
+                w /= w.sum()
+            elif kind == 2:
+                w[rng.random(n) < 0.7] = 0.0
+                w[0] = max(w[0], 1e-3)
+            elif kind == 3:
+                w = np.full(n, 1e-300)
+                w[n // 2] = 1.0
+            elif kind == 4:
+                w = np.full(n, 0.1)  # ties everywhere: running sums just above and below the keys
+            elif kind == 5:
+                w = np.exp(rng.normal(0.0, 30.0, n))  # as the weights come: exp of log-likelihoods, wide range
+            seed = int(rng.integers(1 << 30))
+            r1, r2 = np.random.default_rng(seed), np.random.default_rng(seed)
+            got = systematic_resample(w, r1)
+            want = systematic_resample_numpy(w, r2)
+            assert got.dtype == want.dtype == np.int64
+            assert np.array_equal(got, want), (n, kind)
+            assert r1.random() == r2.random()
+            n_cases += 1
+    assert n_cases == 66
+    for bad in (np.zeros(5), np.array([1.0, np.nan]), np.array([np.inf, 1.0]), np.zeros(0)):
+        with pytest.raises(ValueError):
+            systematic_resample(bad, np.random.default_rng(0))

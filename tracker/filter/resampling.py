@@ -135,8 +135,20 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nda
     """Indices (N,) of systematic (low-variance) resampling.
 
     C_j = Σ_{n≤j} w_n, u_1 ~ U(0, 1/N), u_i = u_1 + (i−1)/N, a(i) = smallest j with C_j ≥ u_i. The caller copies
-    everything attached to particle a(i) into slot i and resets all weights to 1/N.
+    everything attached to particle a(i) into slot i and resets all weights to 1/N. One kernel
+    (:func:`_systematic_indices`) forms :func:`systematic_resample_numpy`'s values (its draw taken first).
     """
+    w = np.ascontiguousarray(weights, np.float64).reshape(-1)
+    if w.size == 0:
+        raise ValueError("no particles to resample")
+    idx, ok = _systematic_indices(w, rng.random())
+    if not ok:
+        raise ValueError("weights must be finite and sum to a positive value")
+    return idx
+
+
+def systematic_resample_numpy(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """:func:`systematic_resample` in numpy (the reference its kernel is tested against)."""
     w = np.asarray(weights, np.float64)
     n = w.size
     if n == 0:
@@ -148,6 +160,32 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nda
     c[-1] = 1.0
     u = (rng.random() + np.arange(n)) / n
     return np.searchsorted(c, u, side="left").astype(np.int64)
+
+
+@nb.njit(cache=True)
+def _systematic_indices(w: np.ndarray, u0: float) -> tuple[np.ndarray, bool]:
+    """The indices of :func:`systematic_resample_numpy` for the draw ``u0``, and False (no indices) when the weights
+    do not sum to a finite positive value: the total as numpy's ``sum`` forms it (:func:`pairwise_sum`), the running
+    sums of ``w / total`` in order (``np.cumsum``), the last set to 1, and for each ``u_i = (u0 + i) / n`` the first
+    running sum ``>= u_i`` (``np.searchsorted`` ``left``; the keys rise, so one forward sweep finds them all)."""
+    n = w.shape[0]
+    total = pairwise_sum(w, 0, n)
+    if not (np.isfinite(total) and total > 0.0):
+        return np.empty(0, np.int64), False
+    c = np.empty(n)
+    acc = 0.0
+    for j in range(n):
+        acc += w[j] / total
+        c[j] = acc
+    c[n - 1] = 1.0
+    idx = np.empty(n, np.int64)
+    j = 0
+    for i in range(n):
+        u = (u0 + float(i)) / n
+        while j < n and c[j] < u:
+            j += 1
+        idx[i] = j
+    return idx, True
 
 
 @nb.njit(cache=True)
