@@ -314,26 +314,29 @@ class PenaltyTerms:
         self.all_moved = np.ones(k, np.bool_)
         self.normal = np.zeros(3) if plane is None else np.asarray(plane[0], np.float64).reshape(3)
         self.offset = 0.0 if plane is None else float(plane[1])
+        # the kernel's scalar settings, converted once a frame (not at each of the frame's passes)
+        intr = trk.intrinsics
+        self.scalars = (intr.fx, intr.fy, intr.cx, intr.cy, float(cfg.color_likelihood_px) ** 2,
+                        float(cfg.color_term_dead_zone))
+        self.pair_scalars = (float(cfg.contact_tolerance), float(np.log(cfg.lambda_i)) if self.use_pairs else 0.0)
+        self.table_scalars = (float(cfg.lambda_h), float(cfg.table_tolerance))
 
     def total(self, p: np.ndarray, R: np.ndarray, changed: set[int] | None = None) -> np.ndarray:
         """The penalties (N,) at positions ``p`` (N, K, 3), rotations ``R`` (N, K, 3, 3), where only the parts in
         ``changed`` moved since the last call (``None``: all, e.g. the first call of the frame)."""
-        trk, cfg = self.trk, self.trk.config
+        trk = self.trk
         n, k = p.shape[0], p.shape[1]
         if changed is None:
             moved = self.all_moved  # read only by the kernel
         else:
             moved = np.zeros(k, np.bool_)
             moved[list(changed)] = True
-        intr = trk.intrinsics
         out = np.empty(n)
         _penalty_pass(np.ascontiguousarray(p, np.float64), np.ascontiguousarray(R, np.float64), moved,
                       changed is None, self.t_obj, self.t_uv, self.t_w, self.colour, self.t_done, trk.center,
-                      self.half_min, intr.fx, intr.fy, intr.cx, intr.cy, float(cfg.color_likelihood_px) ** 2,
-                      float(cfg.color_term_dead_zone), self.use_pairs, trk.half, trk.pairs,
-                      float(cfg.contact_tolerance), float(np.log(cfg.lambda_i)) if self.use_pairs else 0.0,
+                      self.half_min, *self.scalars, self.use_pairs, trk.half, trk.pairs, *self.pair_scalars,
                       self.pair_flags, self.use_table, self.hull_all, self.hull_off, self.normal, self.offset,
-                      float(cfg.lambda_h), float(cfg.table_tolerance), self.heights, out)
+                      *self.table_scalars, self.heights, out)
         return out
 
     def take(self, idx: np.ndarray) -> None:
