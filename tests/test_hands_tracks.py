@@ -509,3 +509,35 @@ def test_each_tracker_computes_its_flows_with_its_own_instances():
     assert all(v is not hand_flow._dis(k) for k, v in a.items())  # not the thread's shared instance either
     trackers[0].process(frames[2])
     assert next(iter(trackers[0]._flows.values())) is first
+
+
+def _leaving(t: int) -> tuple[np.ndarray, int]:
+    """RGB frame t and the top row of a hand that leaves through the bottom border at 8 px per frame: a 30 × 40 px
+    skin square (rows y0 … y0 + 39) on a green sleeve below it; the hand is wholly out from t = 12 on."""
+    img = np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE)
+    y0 = 150 + 8 * t
+    img[min(y0 + 40, 240) :, 144:166] = (20, 120, 40)
+    img[min(y0, 240) : min(y0 + 40, 240), 140:170] = SKIN
+    return img, y0
+
+
+@pytest.mark.parametrize("on", [True, False])
+def test_a_track_ends_when_its_hand_has_left_the_image(on, monkeypatch):
+    from tracker.hands import tracker as hand_tracker
+
+    monkeypatch.setattr(hand_tracker, "EXIT_END", on)
+    tr = HandTracker(HandTrackerConfig(auto_init=False, scale=1, seed=0))
+    tr.process(np.zeros((240, 320, 3), np.uint8) + np.uint8(TABLE))
+    tr.process(_leaving(0)[0])
+    tid = tr.start_track([140, 150, 170, 190])
+    seen = {}
+    for t in range(1, 16):
+        img, y0 = _leaving(t)
+        seen[t] = {e.id: e.box for e in tr.process(img)}
+    assert all(tid in seen[t] for t in range(1, 12))  # on the border with skin in its box: the track stays
+    assert seen[11][tid][3] == 240 and seen[11][tid][1] >= 220  # on the bottom border, on the last rows of skin
+    if on:  # the first frame without the hand: it ends (a lost track, re-acquirable with its id)
+        assert tid not in seen[12] and all(not seen[t] for t in range(12, 16))
+        assert [lo.id for lo in tr.lost] == [tid]
+    else:  # without EXIT_END it stays on the border with no skin in its box
+        assert tid in seen[12] and seen[12][tid][3] == 240

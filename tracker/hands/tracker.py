@@ -23,7 +23,10 @@ initialisation of new tracks:
 * Termination: < 50 % of the estimate's box inside the image; a_{c,1} of the estimate < 0.2 for 10 consecutive
   frames; two tracks with box F-score ≥ 0.8 for 10 consecutive frames (product change: the one whose appearance
   fits the shared box worse ends, the younger on a tie); product addition: the box smaller than A_min for 10
-  consecutive frames (a lost track otherwise shrinks onto a speck of skin colour).
+  consecutive frames (a lost track otherwise shrinks onto a speck of skin colour); product addition
+  (:data:`EXIT_END`, session 32): a box that reaches the image border (within b) with no colour pixel in it ends at
+  once — its hand has left the image (before, such a track stayed on the border as a thin box, scored a false box,
+  until the other rules ended it 4–9 frames later).
 * Two hands on top of each other (product addition): if both tracks of such a duplicate had each spent
   ESTABLISHED frames apart (box F-score < APART_F with every other track), they are two hands that overlap, not two
   tracks on one hand: both stay, "merged", for up to MERGED_KEEP frames, their appearance models frozen; if a skin
@@ -255,6 +258,9 @@ rest while the two tracks are apart)."""
 CLAIM_CERTAIN = 0.5
 """Share of its particles in the section-6 mode from which a track claims the unowned skin pixels of its box in the
 owner map (:mod:`tracker.hands.ownership`)."""
+EXIT_END = True
+"""A track whose box reaches the image border (within the candidates' border band b) and holds no colour pixel of the
+frame ends at once (_terminate): its hand has left the image (product addition, session 32)."""
 
 
 @dataclass(frozen=True)
@@ -1278,6 +1284,8 @@ class HandTracker(TrackIdentity):
             tr.tiny = tr.tiny + 1 if full < cfg.min_area_frac * size[0] * size[1] else 0
             if tr.low >= cfg.n_lost or tr.tiny >= cfg.n_lost:
                 keep[i] = False
+            if EXIT_END and keep[i] and self._left_image(b, size):
+                keep[i] = False
         fs = np.zeros((len(boxes), len(boxes)))
         for i in range(len(boxes)):
             for j in range(i + 1, len(boxes)):
@@ -1305,6 +1313,17 @@ class HandTracker(TrackIdentity):
             if tr.merged:
                 tr.since_merge = 0
         return keep
+
+    def _left_image(self, b: tuple[int, int, int, int], size: tuple[int, int]) -> bool:
+        """Whether a track's inclusive working box ``b`` reaches the image border (within b = 2 full px, as for a
+        candidate) and holds no pixel of this frame's colour mask (``EXIT_END``): its hand has left the image."""
+        w, h = size
+        bp = max(1, int(round(2.0 / self.s)))
+        if not (b[0] < bp or b[1] < bp or b[2] > w - 1 - bp or b[3] > h - 1 - bp):
+            return False
+        assert self._cur_rgb is not None
+        n, _ = mask_count(b[0], b[1], b[2], b[3], self._frame_mask(self._cur_rgb))
+        return n == 0
 
     # ------------------------------------------------------------------ automatic initialisation
     def _auto_init(self, rgb: np.ndarray, depth: np.ndarray | None, reacquire: bool = False,
