@@ -513,3 +513,44 @@ def test_the_tracker_gives_the_arm_detector_its_grey_frame(monkeypatch):
     _two_touching_tracks((rgb, depth))
     assert seen and seen[-1] is not None
     assert np.array_equal(seen[-1], cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
+
+
+def test_seeds_the_previous_split_gave_another_arm_are_vetoed(monkeypatch):
+    """Arm B's sleeve also runs under the right part of hand A (rows 150–155, x 92–135), so B's wrist seeds include A's
+    bottom row there and B takes A's right columns; with SEED_VETO and the previous frame's split (A up to x 99) those
+    seeds go and A keeps its columns. Off, or without a previous split, the veto changes nothing."""
+    from tracker.hands import arm_anchor
+
+    rgb, depth = _scene(TOUCHING)
+    rgb[150:156, 92:136] = SLEEVES[1]
+    depth[150:156, 92:136] = 0.72
+    skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
+    z = working_depth(depth, 1, (H, W))
+    bg = working_depth(np.full((H, W), 0.8), 1, (H, W))
+    fresh, split = arm_split(skin, z, bg)
+    assert split is not None and len(fresh) == 2
+    a = int(np.argmin(split.entries[:, 0]))
+    assert fresh[1 - a].box[0] <= 92  # afresh B reaches into A's columns from the seeds under A
+    labels = np.where(skin > 0, np.where(np.arange(W)[None, :] < 100, a + 1, 2 - a), 0).astype(np.int32)
+    prev = ArmSplit(labels, split.entries.copy())
+    monkeypatch.setattr(arm_anchor, "SEED_VETO", False)
+    kept = arm_split(skin, z, bg, prev)[0]
+    assert kept[1 - a].box[0] <= 92  # the previous split's KEEP_COST alone does not stop a seed (it costs nothing)
+    monkeypatch.setattr(arm_anchor, "SEED_VETO", True)
+    vetoed = arm_split(skin, z, bg, prev)[0]
+    assert vetoed[1 - a].box[0] >= 96 and vetoed[a].box[2] >= 96
+    assert [h.box for h in arm_split(skin, z, bg)[0]] == [h.box for h in fresh]  # no previous split: no veto
+
+
+def test_an_arm_whose_seeds_would_all_be_vetoed_keeps_them():
+    from tracker.hands.arm_anchor import vetoed_seeds
+
+    seeds = np.zeros((4, 6), np.int32)
+    seeds[0, :3] = 1
+    seeds[3, :] = 2
+    carried = np.zeros((4, 6), np.int32)
+    carried[0, :3] = 2  # all of arm 1's seeds lay in arm 2's region last frame: kept
+    carried[3, :2] = 1  # two of arm 2's six seeds lay in arm 1's region: dropped
+    out = vetoed_seeds(seeds, carried, 2)
+    assert np.array_equal(out[0], seeds[0]) and out[3].tolist() == [0, 0, 2, 2, 2, 2]
+    assert seeds[3, 0] == 2  # the input is not changed

@@ -20,7 +20,8 @@ frame and without tracking, each arm and the skin pixels at its end:
    steps of cost 1, plus :data:`DEPTH_STEP_COST` across a depth step larger than :data:`DEPTH_STEP` m: the edge of
    the upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's
    blind band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split
-   gave another arm, when the tracker ran this detector on the previous frame too); each skin pixel belongs to the
+   gave another arm, when the tracker ran this detector on the previous frame too, whose wrist seeds in such pixels
+   are dropped, :data:`SEED_VETO`); each skin pixel belongs to the
    arm whose wrist reaches it first. Crossing a grey-level edge costs extra too (:data:`EDGE_SPLIT`: two hands of one
    tone still differ in shading where they meet). With the frame's optical flow (:data:`MOTION_SPLIT`, on) two arms'
    split is run again with the two hands' motions as a prior: a skin pixel whose flow clearly follows one hand's
@@ -191,6 +192,20 @@ EDGE_SLOPE = 4
 :data:`EDGE_SPLIT`, filter seeds 0–4): F̄^b about as 4 (ground-truth start 0.9151 / 0.9163 / 0.9149 / 0.9139 / 0.9132,
 automatic start 0.9181 / 0.9176 / 0.9202 / 0.9193 / 0.9200), but missed hand-frames 11 → 13 and false boxes 30 → 47;
 the detector alone (lost F^b of its arm boxes, thr 10): slope 2 234.4, 4 228.2, 8 225.5, 16 224.3."""
+SEED_VETO = True
+"""Whether an arm's wrist seeds that the previous split (``prev`` of :func:`arm_split`) gave another arm are dropped
+before the geodesic split (an arm keeps all its seeds if none would be left): a sleeve running along the other hand's
+edge seeds that hand, and a seed costs nothing, so :data:`KEEP_COST` never acts against it (new in session 32, on).
+``hands-s2`` tuning seeds 0–4, the same frames for both arms, off → on, filter seeds 0 / 1 / 2 / 3 / 4: ground-truth
+start F̄^b 0.9159 / 0.9150 / 0.9119 / 0.9143 / 0.9137 → 0.9161 / 0.9144 / 0.9149 / 0.9159 / 0.9151, ē^p 5.08 / 5.14 /
+5.45 / 5.16 / 5.22 → 5.06 / 5.20 / 5.19 / 5.04 / 5.13 px (mean 0.9142 → 0.9153, 5.21 → 5.12 px; 18 of 25 runs
+better, 7 worse); automatic start 0.9185 / 0.9176 / 0.9201 / 0.9174 / 0.9188 → 0.9193 / 0.9182 / 0.9212 / 0.9183 /
+0.9203, ē^p 4.79 / 4.87 / 4.70 / 4.90 / 4.78 → 4.75 / 4.81 / 4.60 / 4.79 / 4.65 px (mean 0.9185 → 0.9195, 4.81 → 4.72
+px; 20 of 25 runs better), missed hand-frames 9 / 9 of 15 855, false boxes 10 → 9 of 8955 frames; ``hands-s1`` and
+``hands-s3`` identical (filter seed 0, both starts). The detector alone on its calls of ground-truth-start runs
+(filter seed 0, the previous split as the tracker had it), lost F^b of its arm boxes 225.9 → 224.6: it acts mostly
+through the chained splits. Cost: 2.91–3.02 → 3.07–3.18 ms thread CPU a detector call (seed 2's calls, three
+alternated passes, load 9). ``benchmarks/history/issue-14-hands.md``."""
 MOTION_ITERS = 5
 """Lloyd iterations of the two-means clustering of the labelled skin pixels' flow (started from each arm's median)."""
 MOTION_MEDIAN_GATE = True
@@ -599,6 +614,39 @@ def arm_hands(skin: np.ndarray, z: np.ndarray, background: np.ndarray) -> list[A
     return arm_split(skin, z, background)[0]
 
 
+def vetoed_seeds(seeds: np.ndarray, carried: np.ndarray, n_arms: int) -> np.ndarray:
+    """``seeds`` (int32 H×W, arm k's wrist seeds = k) without the pixels that ``carried`` (the previous split's labels
+    renumbered to these arms, :func:`carried_labels`) gave another arm; an arm none of whose seeds would be left keeps
+    them all (:data:`SEED_VETO`). A new array; ``seeds`` is not changed."""
+    return _vetoed_seeds(np.ascontiguousarray(seeds, np.int32), np.ascontiguousarray(carried, np.int32), n_arms)
+
+
+@nb.njit(cache=True, nogil=True)
+def _vetoed_seeds(seeds, carried, n_arms):
+    """:func:`vetoed_seeds`' work in two passes over the image (per arm: its seeds and those in another arm's pixels;
+    then the copy without the latter where some seeds are left)."""
+    h, w = seeds.shape
+    mine = np.zeros(n_arms + 1, np.int64)
+    drop = np.zeros(n_arms + 1, np.int64)
+    for y in range(h):
+        for x in range(w):
+            s = seeds[y, x]
+            if 0 < s <= n_arms:
+                mine[s] += 1
+                c = carried[y, x]
+                if c > 0 and c != s:
+                    drop[s] += 1
+    out = seeds.copy()
+    for y in range(h):
+        for x in range(w):
+            s = seeds[y, x]
+            if 0 < s <= n_arms and 0 < drop[s] < mine[s]:
+                c = carried[y, x]
+                if c > 0 and c != s:
+                    out[y, x] = 0
+    return out
+
+
 def carried_labels(prev: ArmSplit, entries: np.ndarray) -> np.ndarray:
     """``prev``'s labels renumbered to this frame's arms (``entries`` [n, 2], working px): each previous arm takes the
     label of the arm whose entry lies nearest its own within KEEP_ENTRY_NEAR (nearest pairs first, one to one); a
@@ -735,6 +783,8 @@ def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray, prev: Arm
             hole = cv2.dilate(hole, np.ones((2 * HOLE_GROW + 1, 2 * HOLE_GROW + 1), np.uint8))
         zg = np.where((hole > 0) & (sk > 0), HOLE_DEPTH, z)
     carried = carried_labels(prev, entries) if prev is not None and KEEP_COST > 0 else None
+    if SEED_VETO and prev is not None:
+        seeds = vetoed_seeds(seeds, carried if carried is not None else carried_labels(prev, entries), len(entries))
     edges = {"grey": grey, "edge_thr": EDGE_THR, "edge_slope": EDGE_SLOPE} if EDGE_SPLIT and grey is not None else {}
     labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, carried, KEEP_COST, **edges)
     if MOTION_SPLIT and flow is not None and len(entries) == 2:
