@@ -6,7 +6,7 @@ import numpy as np
 
 from tracker.filter.hand_carry import _rot, above_table_points, register_rigid
 from tracker.geometry.camera import Intrinsics
-from tracker.geometry.projective_icp import refine_projective
+from tracker.geometry.projective_icp import refine_projective, refine_projective_numpy
 
 INTR = Intrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 
@@ -65,3 +65,26 @@ def test_projective_refinement_keeps_the_motion_without_enough_pairs():
     w, t = np.array([0.01, 0.0, 0.0]), np.array([0.0, 0.002, 0.0])
     w2, t2 = refine_projective(src, np.full((480, 640), np.nan, np.float32), INTR, w, t, 10)
     assert np.array_equal(w2, w) and np.array_equal(t2, t)
+
+
+def test_the_compiled_refinement_is_the_numpy_form_to_rounding():
+    """The compiled rounds (:func:`refine_projective`) against :func:`refine_projective_numpy` on the noisy fingers
+    moved and turned, with a table plane that cuts the lowest finger off and an exclusion sphere over another: the
+    same motion to rounding (1e-9 m, 1e-9 rad) over 12 steps, and the refinement moved it (it acted)."""
+    rng = np.random.default_rng(3)
+    part = np.array([0.0, 0.0, 0.47])
+    src = _thinned(_fingers(np.zeros(3)), part, 0.08)
+    plane = (np.array([0.0, 1.0, 0.0]), 0.025)  # height y + 0.025: the finger at y = -0.03 lies "below the table"
+    exclude = [(np.array([0.0, 0.01, 0.45]), 0.012)]  # over the middle of the finger at y = 0.01
+    moved = np.zeros(2, int)
+    for k in range(1, 13):
+        step = np.array([0.0004 * k, 0.0007 * k, -0.0003 * k])
+        after = _fingers(step)
+        after = after + rng.normal(0.0, 0.0005, after.shape).astype(np.float32)
+        w, t = register_rigid(src, _thinned(after, part + step, 0.13), 8, 0.05, 0.2)
+        for j, args in enumerate(((), (plane, 0.0, exclude))):
+            a = refine_projective(src, after, INTR, w, t, 10, *args)
+            b = refine_projective_numpy(src, after, INTR, w, t, 10, *args)
+            assert np.allclose(a[0], b[0], rtol=0, atol=1e-9) and np.allclose(a[1], b[1], rtol=0, atol=1e-9), (a, b)
+            moved[j] += np.linalg.norm(a[1] - t) > 1e-5
+    assert moved.tolist() == [12, 12], moved

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tracker.filter.motion_model import rotvec_to_matrix
+from tracker.geometry import projective_icp
 from tracker.geometry.camera import Intrinsics
 from tracker.geometry.depth_points import window_points
 from tracker.geometry.point_icp import build_grid, rigid_icp
@@ -712,8 +713,8 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
 
 def warm_up() -> None:
     """Load (or compile) the numba kernels of the hand-patch points and registrations (:func:`above_table_points`,
-    :func:`register_rigid`) on tiny inputs of the types the carry passes them, so that a session's first carry does
-    not pay for it."""
+    :func:`register_rigid`, ``carry_projective``'s :func:`refine_projective`) on tiny inputs of the types the carry
+    passes them, so that a session's first carry does not pay for it."""
     depth = np.full((8, 8), 0.5, np.float32)
     intr = Intrinsics(8, 8, 10.0, 10.0, 4.0, 4.0)
     above_table_points(depth, intr, np.array([0.0, 0.0, 0.5]), 0.1, (np.array([0.0, 0.0, -1.0]), 0.6), 0.0, 1,
@@ -721,6 +722,7 @@ def warm_up() -> None:
     g = np.linspace(-0.02, 0.02, 3)
     pts = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) + np.array([0.0, 0.0, 0.5])
     register_rigid(pts, pts + 0.001, 2, 0.01, 0.1)
+    projective_icp.warm_up()
 
 
 def _rot(w: np.ndarray) -> np.ndarray:
