@@ -722,3 +722,49 @@ def test_a_part_carried_hidden_in_the_air_keeps_upright():
     assert carried_on.sum() > 30 and carried_off.sum() > 30
     assert on[carried_on].max() < 6.0, on[carried_on].max()
     assert off[carried_off].max() > 7.0, off[carried_off].max()
+
+
+def _fast_start_run(placed_step: bool | None, across: bool = True) -> np.ndarray:
+    """Distance (mm) of a part from the truth over five frames: four noise-free fingers over a table (the fingers of
+    ``tests/test_projective_icp.py``) move 2.2 cm a frame across themselves (``across``) or 1.5 cm along; the part
+    under them is seen and placed by the refinement in frames 0-1, re-seeded on its blob every frame (its remembered
+    positions forgotten, as the colour stage does), hidden from frame 2: the carry starts by registering frame 1's
+    hand points to frame 2's."""
+    from tests.test_projective_icp import INTR, _fingers
+
+    plane = (np.array([0.0, 0.0, -1.0]), 0.55)  # a table 0.55 m away, under the fingers at 0.45 m
+    cfg = CFG if placed_step is None else CFG.with_overrides(carry_start_placed_step=placed_step)
+    carry = HandCarry(1, cfg, INTR, np.array([0.02]))
+    heights = np.array([0.05])
+    pos, errs = np.array([[0.0, 0.0, 0.47]]), []
+    for k in range(5):
+        shift = np.array([0.0, 0.022 * k, 0.0]) if across else np.array([0.015 * k, 0.0, 0.0])
+        truth = np.array([[0.0, 0.0, 0.47]]) + shift
+        depth = _fingers(shift)
+        depth = np.where(np.isfinite(depth), depth, np.float32(0.55))
+        hidden = np.array([k >= 2])
+        if k < 2:
+            pos = truth.copy()  # seen: placed where it is
+        rot, d = carry.update(depth, pos, hidden, ~hidden, heights, plane)
+        pos = np.einsum("kij,kj->ki", rot, pos) + d
+        if k < 2:
+            carry.note_placed(np.array([True]), np.eye(3)[None], pos)
+        carry.record(0.1 * k, pos)
+        carry.forget(0)
+        errs.append(1e3 * float(np.linalg.norm(pos - truth)))
+    assert carry.carried.tolist() == [True]
+    return np.array(errs)
+
+
+def test_a_fast_carry_starts_from_the_placed_step_when_re_seeds_wiped_the_remembered_one():
+    """carry_start_placed_step: the hand steps beyond the registration's 2 cm pairing bound at the carry's start and
+    the part's remembered step is gone (re-seeded): from no motion the first registration snaps to the neighbouring
+    finger (15.6 mm off; 5.3 mm along), from the step between the two placements it follows the hand (1.5 mm; 0.2
+    mm), and keeps it over the next frames (the next registration starts from this one's step). Off is the
+    default."""
+    off, on = _fast_start_run(False), _fast_start_run(True)
+    assert off[2] > 10.0 and off[4] > 10.0, off
+    assert on[2] < 3.0 and on[4] < 5.0, on
+    along_off, along_on = _fast_start_run(False, across=False), _fast_start_run(True, across=False)
+    assert along_off[2] > 3.0 and along_on[2] < 1.5, (along_off, along_on)
+    assert np.array_equal(_fast_start_run(None), off)

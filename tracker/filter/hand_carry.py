@@ -127,6 +127,11 @@ class HandCarry:
         self.placed_R = np.repeat(np.eye(3)[None], n_parts, axis=0)
         self.placed_t = np.zeros((n_parts, 3))
         self.placed_age = np.full(n_parts, -1, np.int64)
+        # carry_start_placed_step: the step between the last two placements (current camera frame, m), and whether
+        # they were in consecutive frames
+        self.placed_step = np.zeros((n_parts, 3))
+        self.placed_step_ok = np.zeros(n_parts, bool)
+        self._start_guess: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # this frame's extra first registrations
         self.backtracked = np.zeros(n_parts, bool)  # this frame's carry starts from a backtracked pose
 
     @property
@@ -186,12 +191,17 @@ class HandCarry:
             item[1] = T if item[1] is None else T @ item[1]
         self.placed_R = np.einsum("ij,kjl->kil", Rd, self.placed_R)
         self.placed_t = self.placed_t @ Rd.T + td
+        self.placed_step = self.placed_step @ Rd.T
 
     def note_placed(self, placed: np.ndarray, rotations: np.ndarray, positions: np.ndarray) -> None:
         """End of a frame (``carry_backtrack``): the parts ``placed`` (K,) bool by the dense-depth refinement this
         frame, at their final poses (``rotations`` (K, 3, 3) body → camera, ``positions`` (K, 3) m, camera frame),
         are remembered as placed now; the others' placements age by one frame."""
         placed = np.asarray(placed, bool)
+        # placed now: the step from its last placement when that was in the previous frame (carry_start_placed_step)
+        self.placed_step_ok = np.where(placed, self.placed_age == 0, self.placed_step_ok)
+        fresh = placed & (self.placed_age == 0)
+        self.placed_step[fresh] = np.asarray(positions, np.float64)[fresh] - self.placed_t[fresh]
         self.placed_age = np.where(self.placed_age >= 0, self.placed_age + 1, -1)
         self.placed_age[placed] = 0
         self.placed_R[placed] = np.asarray(rotations, np.float64)[placed]
@@ -241,6 +251,9 @@ class HandCarry:
         R, t = np.eye(3), np.zeros(3)
         p = (self.placed_t[obj] if start is None else np.asarray(start, np.float64)).copy()
         w, step = np.zeros(3), np.zeros(3)
+        extra = None  # carry_start_placed_step: the first registration also starts from the placed step
+        if cfg.carry_start_placed_step and start is None and self.placed_step_ok[obj]:
+            extra = (np.zeros(3), self.placed_step[obj].copy())
         for (d0, M0), (d1, M1) in zip(frames[:-1], frames[1:], strict=True):
             src = self._points_of(d0, M0, p, cfg.carry_radius, plane, exclude)
             dst = self._points_of(d1, M1, p + step, cfg.carry_radius + cfg.carry_max_step, plane, exclude)
@@ -248,7 +261,8 @@ class HandCarry:
                 return None
             if cfg.carry_rotation:
                 w, step = register_rigid(src, dst, cfg.carry_iterations, cfg.carry_max_step, cfg.carry_max_turn,
-                                         (w, step), axis, cfg.carry_turn_fallback)
+                                         (w, step), axis, cfg.carry_turn_fallback, extra)
+                extra = None
             else:
                 w, step = np.zeros(3), register_translation(src, dst, cfg.carry_iterations, cfg.carry_max_step, step)
             c = src.mean(axis=0)
@@ -346,6 +360,7 @@ class HandCarry:
         carried = self.carried
         positions = np.array(positions, np.float64)  # a backtracked start moves its part's entry (carry_backtrack)
         self.backtracked = np.zeros(k, bool)
+        self._start_guess = {}
         for i in range(k):
             back = None  # carry_backtrack: (R, t) from the estimate to the backtracked pose in the previous frame
             if released[i] or not hidden[i]:
@@ -398,6 +413,9 @@ class HandCarry:
                     self.last_step[i] = self.last_step_of(i)
                     if back is not None:
                         self.last_turn[i], self.last_step[i] = w0, t0
+                    elif cfg.carry_start_placed_step and self.placed_step_ok[i] and self.placed_age[i] == 0:
+                        # placed in the two previous frames: its step between them, a start the re-seeds left alone
+                        self._start_guess[i] = (np.zeros(3), self.placed_step[i].copy())
                 else:
                     pts = self._points(depth, positions[i], cfg.carry_radius, plane, exclude)
                     if pts.shape[0] >= cfg.carry_min_points:
@@ -423,7 +441,7 @@ class HandCarry:
                 axis = plane[0] if (plane is not None and cfg.carry_rotation_axis == "table") else None
                 w, t = register_rigid(self.patches[i], pts, cfg.carry_iterations, cfg.carry_max_step,
                                       cfg.carry_max_turn, (self.last_turn[i], self.last_step[i]), axis,
-                                      cfg.carry_turn_fallback)
+                                      cfg.carry_turn_fallback, self._start_guess.get(i))
                 if cfg.carry_projective > 0 and axis is None:
                     w, t = self._projective(self.patches[i], depth, w, t, plane, exclude)
             else:
@@ -663,7 +681,8 @@ def register_shift(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
 
 def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: float, max_turn: float,
                    guess: tuple[np.ndarray, np.ndarray] | None = None,
-                   axis: np.ndarray | None = None, turn_fallback: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                   axis: np.ndarray | None = None, turn_fallback: bool = False,
+                   extra: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Rigid motion that brings point set ``src`` (M, 3) onto ``dst`` (P, 3): rotation vector ``w`` (rad) about
     ``src``'s centroid c and translation ``t`` (m), i.e. x' = R(w) (x − c) + c + t. Point-to-plane ICP (normals of
     ``dst``) over nearest-neighbour pairs closer than 2 cm, ``iterations`` Gauss-Newton rounds, started from no
@@ -673,7 +692,8 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
     so that rotations the surface does not constrain (a cylinder-like forearm about its axis) stay near zero, and
     capped at ``max_turn`` rad (with ``turn_fallback`` a larger turn is taken as a failed registration and the
     translation-only registration is returned instead); |t| <= ``max_step``. With ``axis`` (unit, camera frame;
-    e.g. the table normal) the rotation is about that axis only."""
+    e.g. the table normal) the rotation is about that axis only. ``extra`` (w, t): a third start
+    (``carry_start_placed_step``); when it wins, the translation-only fallback starts from its translation too."""
     zero = (np.zeros(3), np.zeros(3))
     if src.shape[0] < 6 or dst.shape[0] < 6:
         return zero
@@ -692,19 +712,22 @@ def register_rigid(src: np.ndarray, dst: np.ndarray, iterations: int, max_step: 
     starts = [zero]
     if guess is not None and (np.any(guess[0]) or np.any(guess[1])):
         starts.append((np.asarray(guess[0], np.float64), np.asarray(guess[1], np.float64)))
-    best, best_cost = zero, np.inf
-    for w, t in starts:
+    if extra is not None:
+        starts.append((np.asarray(extra[0], np.float64), np.asarray(extra[1], np.float64)))
+    best, best_cost, won = zero, np.inf, 0
+    for s, (w, t) in enumerate(starts):
         w, t, cost = rigid_icp(rel, c, dst, normals, *grid, cell, PAIR_BOUND, np.array(w, np.float64).reshape(3),
                                np.array(t, np.float64).reshape(3), int(iterations), radius2, ax, use_axis)
         if cost < best_cost:
-            best, best_cost = (w, t), cost
+            best, best_cost, won = (w, t), cost, s
     w, t = best
     th, norm = float(np.linalg.norm(w)), float(np.linalg.norm(t))
     if th > max_turn:
         if turn_fallback:
             # a turn beyond what a hand does in one frame is the registration failing (pairs mismatched by a fast
             # move, the rotation absorbing the rest): the translation alone is taken
-            return np.zeros(3), register_translation(src, dst, iterations, max_step, guess[1] if guess else None)
+            t0 = extra[1] if (extra is not None and won == len(starts) - 1) else (guess[1] if guess else None)
+            return np.zeros(3), register_translation(src, dst, iterations, max_step, t0)
         w = w * (max_turn / th)
     if norm > max_step:
         t = t * (max_step / norm)

@@ -211,6 +211,17 @@ class TrackerConfig(BaseModel):
         "image registered to the next as carry_backtrack does; without it the part stays behind until its blob shows "
         "(a cube lifted 6 cm toward the camera in 4 frames stayed 95 mm behind for 13 frames on a tuning trace).",
     )
+    carry_start_placed_step: bool = Field(
+        False, description="With carry_start_register and carry_backtrack: a carry's first registration (the previous "
+        "frame's hand points to this frame's) also starts from the part's last step as the dense-depth refinement "
+        "placed it (its placed positions in the two previous frames), beside no motion and its estimate's remembered "
+        "step; the start leaving the smaller residual wins. So does a backtracked start's first registration (from "
+        "the frame of its last placement), from the step between that placement and the one in the frame before. A "
+        "part slid or lifted 2-3 cm a frame while seen is re-seeded on its blob every frame, and each re-seed wipes "
+        "its remembered positions (the jump is no motion for the motion test), so the registration started from no "
+        "motion only and, with the hand's step beyond the 2 cm pairing bound, slid 2-3 cm toward the camera (two "
+        "tuning traces, tracker seed 1: 11-31 mm; the carry then kept that offset to its end, 30-40 mm at p95).",
+    )
     carry_turn_fallback: bool = Field(
         False, description="A hand-patch registration that turns more than carry_max_turn in one frame has failed "
         "(a fast move mismatched its point pairs): the carried part follows the translation-only registration, "
