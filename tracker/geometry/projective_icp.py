@@ -31,6 +31,7 @@ import numpy as np
 from tracker.filter.motion_model import rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
 from tracker.geometry.point_icp import matrix_rotvec, rotvec_matrix
+from tracker.geometry.spd_solve import solve_spd6
 
 STENCIL = 2
 """Pixels from the paired pixel to the neighbours whose points give its normal (cross product of the horizontal and
@@ -141,36 +142,6 @@ def _pixel_point(depth, u, v, fx, fy, cx, cy):
     """Camera-frame point (x, y, z) of pixel (``u``, ``v``) of ``depth`` (z NaN where none)."""
     z = np.float64(depth[v, u])
     return (u - cx) / fx * z, (v - cy) / fy * z, z
-
-
-@nb.njit(cache=True, inline="always")
-def _solve_spd6(A, b):
-    """Solution x (6,) of A x = b for a symmetric positive definite A (6, 6) by Cholesky factorisation (A = L Lᵀ) and
-    two triangular solves: the damped normal equations of a round, without a LAPACK call's copies and checks."""
-    L = np.zeros((6, 6))
-    for j in range(6):
-        s = A[j, j]
-        for q in range(j):
-            s -= L[j, q] * L[j, q]
-        L[j, j] = np.sqrt(s)
-        for i in range(j + 1, 6):
-            s = A[i, j]
-            for q in range(j):
-                s -= L[i, q] * L[j, q]
-            L[i, j] = s / L[j, j]
-    y = np.empty(6)
-    for i in range(6):
-        s = b[i]
-        for q in range(i):
-            s -= L[i, q] * y[q]
-        y[i] = s / L[i, i]
-    x = np.empty(6)
-    for i in range(5, -1, -1):
-        s = y[i]
-        for q in range(i + 1, 6):
-            s -= L[q, i] * x[q]
-        x[i] = s / L[i, i]
-    return x
 
 
 @nb.njit(cache=True)
@@ -286,7 +257,9 @@ def _projective_kernel(src, depth, fx, fy, cx, cy, w0, t0, rounds, normal, offse
             A[a, a] += 1e-2 * tr / 3.0 * radius2
         for a in range(3, 6):
             A[a, a] += 1e-3 * tr
-        x = _solve_spd6(A, b)
+        x, ok = solve_spd6(A, b)
+        if not ok:
+            break
         w = matrix_rotvec(rotvec_matrix(x[:3]) @ R)
         for a in range(3):
             t[a] += x[3 + a]

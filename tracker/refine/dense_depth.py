@@ -26,6 +26,7 @@ import numpy as np
 
 from tracker.filter.motion_model import rodrigues_terms, rotvec_to_matrix
 from tracker.geometry.camera import Intrinsics
+from tracker.geometry.spd_solve import solve_spd6
 from tracker.refine.normal_equations import add_huber, twist_row
 from tracker.refine.region_term import RegionTerm, _scene_outline
 from tracker.refine.region_term import _accumulate as _region_accumulate
@@ -224,36 +225,6 @@ def _bilinear_depth(depth, pu, pv, max_span):
     return (1.0 - b) * ((1.0 - a) * d00 + a * d01) + b * ((1.0 - a) * d10 + a * d11)
 
 
-@nb.njit(cache=True)
-def _solve_spd6(A, b):
-    """x with ``A x = b`` for a symmetric positive definite 6×6 ``A`` (Cholesky); ``ok`` False when A is not."""
-    L = np.zeros((6, 6))
-    x = np.zeros(6)
-    for i in range(6):
-        for j in range(i + 1):
-            acc = A[i, j]
-            for m in range(j):
-                acc -= L[i, m] * L[j, m]
-            if i == j:
-                if not acc > 0.0:
-                    return x, False
-                L[i, i] = np.sqrt(acc)
-            else:
-                L[i, j] = acc / L[j, j]
-    y = np.zeros(6)
-    for i in range(6):
-        acc = b[i]
-        for m in range(i):
-            acc -= L[i, m] * y[m]
-        y[i] = acc / L[i, i]
-    for i in range(5, -1, -1):
-        acc = y[i]
-        for m in range(i + 1, 6):
-            acc -= L[m, i] * x[m]
-        x[i] = acc / L[i, i]
-    return x, True
-
-
 @nb.njit(cache=True, inline="always")
 def _note_update(stats, xi, max_rot, max_trans):
     """Count one update in ``stats[0]`` and keep its turn ``‖ω‖`` (rad) and move ``‖v‖`` (m) in ``stats[1:]``;
@@ -296,7 +267,7 @@ def _gauss_newton(pts, nrm, R, t, center, depth, allowed, use_allowed, threshold
             for a in range(3):
                 A[a, a] += lambda_rot
                 A[a + 3, a + 3] += lambda_trans
-            xi, ok = _solve_spd6(A, -g)
+            xi, ok = solve_spd6(A, -g)
             if not ok:
                 return 2, H, n_valid, n_obs, _median_of(absr, n_valid)
             # rotation about the part's centre c by exp(ω) (Rodrigues), then the translation v
@@ -381,7 +352,7 @@ def _gauss_newton_region(pts, nrm, R, t, center, depth, allowed, use_allowed, th
             for a in range(3):
                 A[a, a] += lambda_rot
                 A[a + 3, a + 3] += lambda_trans
-            xi, ok = _solve_spd6(A, -(g + gr))
+            xi, ok = solve_spd6(A, -(g + gr))
             if not ok:
                 return 2, H, n_valid, n_obs, _median_of(absr, n_valid)
             fa, fb = rodrigues_terms(xi[0], xi[1], xi[2], K)
