@@ -173,8 +173,8 @@ def coordinate_passes(trk: MultiObjectTracker, ctx: FrameContext, u: np.ndarray,
         # the skipped parts' particles get this frame's motion noise after the weighing (their likelihood was taken at
         # the prediction), so that their cloud keeps its spread for when they move again
         for i in np.flatnonzero(skip):
-            p_cur[:, i], R_cur[:, i], v_cur[:, i] = predict.noisy(trk, *_previous(trk, perm, i), u[i],
-                                                                  noise_scale[i])
+            predict.noisy_into(trk, all_particles if perm is None else perm, i, u[i], noise_scale[i], p_cur, R_cur,
+                               v_cur)
     ctx.timings.update(render=t_render * 1e3, likelihood=t_lik * 1e3, penalties=t_pen * 1e3, resample=t_res * 1e3)
     return PassResult(p_cur, R_cur, v_cur, log_w, ell_prev, pix, Q, F, o_hat, anc, n_resampled)
 
@@ -186,14 +186,6 @@ def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
         take_rows_inplace(a.reshape(a.shape[0], -1), idx)
         return a
     return a[idx]
-
-
-def _previous(trk: MultiObjectTracker, perm: np.ndarray | None, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Part ``i``'s columns of last frame's particles (``trk.p``, ``trk.R``, ``trk.v``) in the current particle order:
-    rows ``perm`` (the resamplings of this frame's passes composed; None: none yet)."""
-    if perm is None:
-        return trk.p[:, i], trk.R[:, i], trk.v[:, i]
-    return trk.p[perm, i], trk.R[perm, i], trk.v[perm, i]
 
 
 def _pass_render_likelihood(trk, i, rows, p_cur, R_cur, v_cur, u, noise_scale, forceable, rays, pu,
