@@ -151,6 +151,41 @@ def test_colour_kernel_equals_the_one_loop_reference(noise_sigma, vignetting):
     assert clipped > 100  # the clipping was reached
 
 
+def test_colour_kernel_on_tiny_images_and_rounding_boundaries_equals_the_one_loop_reference():
+    """Images 1–5 pixels wide and high (the flat row slices), colours on multiples of 1/8 (values at the rounding
+    and clipping boundaries) and random gains: every value is the reference's."""
+    rng = np.random.default_rng(12)
+    for h in range(1, 6):
+        for w in range(1, 6):
+            color = (np.round(rng.uniform(-40, 300, (h, w, 3)) * 8) / 8).astype(np.float32)
+            args = (np.uint64(100 * h + w), rng.uniform(0.9, 1.1), rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1),
+                    0.15, 2.5)  # fmt: skip
+            a, b = np.full(color.shape, 7, np.uint8), np.full(color.shape, 7, np.uint8)
+            sm._color_kernel(color, a, *args)
+            _color_reference(color, b, *args)
+            assert np.array_equal(a, b)
+    color = (np.round(rng.uniform(-40, 300, (96, 128, 3)) * 8) / 8).astype(np.float32)
+    for key in range(6):
+        args = (np.uint64(key), rng.uniform(0.9, 1.1), rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), 0.15, 2.5)
+        a, b = np.empty(color.shape, np.uint8), np.empty(color.shape, np.uint8)
+        sm._color_kernel(color, a, *args)
+        _color_reference(color, b, *args)
+        assert np.array_equal(a, b)
+
+
+def test_colour_model_writes_into_an_output_of_any_strides():
+    """``ColorSensorModel.apply`` into a non-contiguous ``out`` (the kernel takes C-contiguous buffers) gives the
+    values of a fresh output, written into that array."""
+    rng = np.random.default_rng(13)
+    model = sm.ColorSensorModel()
+    color = (rng.random((30, 40, 3)) * 255).astype(np.float32)
+    fresh = model.apply(color, 5, 0.2, 0.3)
+    big = np.zeros((30, 80, 3), np.uint8)
+    out = big[:, ::2]
+    assert model.apply(color, 5, 0.2, 0.3, out=out) is out
+    assert np.array_equal(out, fresh) and not big[:, 1::2].any()
+
+
 @pytest.mark.parametrize("model", [
     sm.DepthSensorModel(),
     sm.DepthSensorModel(noise_on="disparity", quantization="disparity"),

@@ -196,16 +196,21 @@ class ColorSensorModel:
     def apply(self, color: np.ndarray, key: int, t: float, phase: float, out: np.ndarray | None = None,
               scratch: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
         """uint8 RGB from the float (0..255) rendered colour, with lighting variation and noise; ``out``: a uint8
-        array of ``color``'s shape to write into (returned), else a new one; ``scratch``: a float32 array of
-        ``color``'s shape (not ``color`` itself) the blurred colour is written into, else a new one (a frame's
-        fresh 3.7 MB costs ~0.4 ms of page faults)."""
+        array of ``color``'s shape to write into (returned; any strides), else a new one; ``scratch``: a float32
+        array of ``color``'s shape (not ``color`` itself) the blurred colour is written into, else a new one (a
+        frame's fresh 3.7 MB costs ~0.4 ms of page faults)."""
         g, ru, rv = self.lighting(t, phase)
         if self.blur_sigma > 0:
             # OpenCV writes into ``scratch`` when it fits and returns a new array otherwise (or without one)
             color = cv2.GaussianBlur(color, (3, 3), float(self.blur_sigma), dst=scratch)
         if out is None:
             out = np.empty(color.shape, np.uint8)
-        _color_kernel(color, out, np.uint64(key), g, ru, rv, float(self.vignetting), float(self.noise_sigma))
+        # the kernel reads and writes C-contiguous buffers (the renderer's and the frame slots are)
+        target = out if out.flags.c_contiguous else np.empty(color.shape, np.uint8)
+        _color_kernel(np.ascontiguousarray(color), target, np.uint64(key), g, ru, rv, float(self.vignetting),
+                      float(self.noise_sigma))  # fmt: skip
+        if target is not out:
+            out[...] = target
         return out
 
 
@@ -431,8 +436,12 @@ def _projector_shadow_rows(clean, fxb, right, shadow, compute, restore, base):
 @nb.njit(cache=True, fastmath=_FM)
 def _color_kernel(color, out, key, gain, ramp_u, ramp_v, vignetting, sigma):
     # A row's hashes first, then its pixels, clipped without branches: both loops vectorise (the same values as one
-    # loop with if/elif clipping, about 2.5× faster)
+    # loop with if/elif clipping, about 2.5× faster). The pixel loop reads and writes the row as flat slices indexed
+    # from 0 (``3·u + c``): the channel stride is then a constant 3 and LLVM vectorises the interleaved channels
+    # (with the 3-D arrays' run-time shape it stayed scalar: 1.9 → 0.9 ms a 640×480 frame, the same values)
     h, w, _ = color.shape
+    flat_in = color.reshape(-1)
+    flat_out = out.reshape(-1)
     scale = sigma / 104.51314746403095  # std of (b1 + b2 - 255) for two uniform bytes
     hashes = np.empty(w, np.uint64)
     dus = np.empty(w)
@@ -444,6 +453,8 @@ def _color_kernel(color, out, key, gain, ramp_u, ramp_v, vignetting, sigma):
         row = v * w
         for u in range(w):
             hashes[u] = _hash(key, row + u, 2)
+        row_in = flat_in[3 * row : 3 * (row + w)]
+        row_out = flat_out[3 * row : 3 * (row + w)]
         for u in range(w):
             du = dus[u]
             g = (gv + ramp_u * du) * (1.0 - vignetting * 2.0 * (du * du + dv * dv))
@@ -451,5 +462,5 @@ def _color_kernel(color, out, key, gain, ramp_u, ramp_v, vignetting, sigma):
             for c in range(3):
                 b1 = np.float64((hh >> np.uint64(16 * c)) & _MASK8)
                 b2 = np.float64((hh >> np.uint64(16 * c + 8)) & _MASK8)
-                val = color[v, u, c] * g + (b1 + b2 - 255.0) * scale + 0.5
-                out[v, u, c] = np.uint8(min(max(val, 0.0), 255.0))
+                val = row_in[3 * u + c] * g + (b1 + b2 - 255.0) * scale + 0.5
+                row_out[3 * u + c] = np.uint8(min(max(val, 0.0), 255.0))
