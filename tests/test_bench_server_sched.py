@@ -16,6 +16,8 @@ from bench_server import (  # noqa: E402
     cpu_seconds,
     cpu_split,
     frame_steps,
+    machine_split,
+    machine_ticks,
     replaced_children,
     sched_by_thread,
     sched_split,
@@ -94,3 +96,22 @@ def test_cached_kernels_counts_numba_cache_files(tmp_path):
     (sub / "mod.kernel-12.py311.1.nbc").write_bytes(b"")
     (sub / "notes.txt").write_text("x")
     assert cached_kernels(tmp_path) == 2
+
+
+def test_machine_ticks_and_split(tmp_path):
+    """The machine's busy, idle and stolen ticks from a /proc/stat ``cpu`` line, and their split over a run: busy
+    time beyond the server's own CPU is other jobs', steal the host's (in % of one core)."""
+    stat = tmp_path / "stat"
+    stat.write_text("cpu  100 5 20 400 10 1 2 30 0 0\ncpu0 50 2 10 200 5 0 1 15 0 0\n")
+    before = machine_ticks(stat)
+    assert before == {"busy": 128, "idle": 410, "steal": 30}
+    tick = os.sysconf("SC_CLK_TCK")
+    after = {"busy": 128 + 3 * tick, "idle": 410, "steal": 30 + tick // 2}  # 3 s busy, 0.5 s stolen in 2 s
+    got = machine_split(before, after, server_cpu_s=2.0, wall_s=2.0)
+    assert got == {"busy": 150.0, "other_jobs": 50.0, "steal": 25.0}
+    assert machine_split(before, None, 2.0, 2.0) is None
+    (tmp_path / "bad").write_text("intr 1 2 3\n")
+    assert machine_ticks(tmp_path / "bad") is None and machine_ticks(tmp_path / "missing") is None
+    if Path("/proc/stat").exists():
+        now = machine_ticks()
+        assert now is not None and now["busy"] > 0
