@@ -14,6 +14,9 @@
   the mode); ``mode``/``task``: the assembly mode at start and its task (preset id or ``teacher:<id>``).
 * ``realtime``: pace recordings and the simulator at their frame rate, always processing the newest due
   frame (stale frames are skipped, so latency does not pile up); ``loop``: restart a finished source.
+  ``realtime_ahead`` (off): produce each paced frame ahead of its due time (the frame due when its production
+  ends) and hand it over when due, as a camera delivers its frames, instead of starting the simulator's render
+  (or a recording's read) only once the frame is due (the pipeline then waits the render's time for every frame).
 * ``source_process``: render the simulated table in a child process (parallel to the tracker; the
   simulator and the tracker both hold Python's interpreter lock while they compute).
 * ``auto_place``: find parts that have no pose (a live camera, a recording without poses in objects.json)
@@ -77,6 +80,7 @@ class Settings(BaseSettings):
     task: str | None = None
     seed: int = 0
     realtime: bool = True
+    realtime_ahead: bool = Field(False, description="paced sources: frames produced ahead, handed over when due")
     loop: bool = True
     source_process: bool = Field(True, description="render the simulator in a child process (parallel to tracking)")
     auto_place: bool = Field(True, description="place parts without a pose automatically when found on the table")

@@ -105,6 +105,7 @@ class AppState:
             max_fps=settings.max_fps,
             loop=settings.loop,
             realtime=settings.realtime,
+            realtime_ahead=settings.realtime_ahead,
         )
         self.scene = None
         self.scene_updater = None

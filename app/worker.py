@@ -107,7 +107,10 @@ class _FramePrefetcher:
       ``read(i)``): frames are due at their own times after the first one; each time the worker needs a
       frame the reader produces the newest frame whose time has come, skipping the stale ones (counted in
       :attr:`dropped`), so latency cannot pile up when the pipeline is slower than the source. Capture
-      time = the frame's due time.
+      time = the frame's due time. With ``ahead`` the reader produces the frame that will be due when its
+      production ends (the typical production time ahead of now) and hands it over at its due time, not before:
+      a camera's frame is there at its due time, while without ``ahead`` a simulated frame is produced only
+      once due, so the pipeline waits the render's time for it (``starved``) and the frame is that much older.
     * otherwise on demand: the next frame of the iterator (no frame is lost); capture time = when its
       production started.
 
@@ -117,8 +120,9 @@ class _FramePrefetcher:
     """
 
     def __init__(self, source: FrameSource, maxsize: int = 1, drop_stale: bool = False, realtime: bool = False,
-                 prepare: Callable[[Frame], Any] | None = None) -> None:  # fmt: skip
+                 prepare: Callable[[Frame], Any] | None = None, ahead: bool = False) -> None:  # fmt: skip
         self.source = source
+        self.ahead = bool(ahead)
         self.prepare = None if drop_stale else prepare
         self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
         self.drop_stale = drop_stale
@@ -188,12 +192,14 @@ class _FramePrefetcher:
             self._wait_until(self._want_at)
             if clock0 is None:
                 clock0, wall0 = time.perf_counter(), time.time()
-            index = max(last + 1, access.due(time.perf_counter() - clock0))
+            lead = self._production_estimate() if self.ahead else 0.0
+            index = max(last + 1, access.due(time.perf_counter() + lead - clock0))
             if index >= access.count:
                 now = time.time()
                 self._put(("end", None, 0.0, now, now, None))
                 return
-            self._wait_until(clock0 + access.offset(index))  # not due yet: the pipeline is faster than the source
+            if not self.ahead:
+                self._wait_until(clock0 + access.offset(index))  # not due yet: the pipeline is faster than the source
             if self._stop.is_set():
                 return
             self.dropped += index - last - 1
@@ -208,6 +214,10 @@ class _FramePrefetcher:
             took = time.perf_counter() - t0
             prepared = self._prepare(frame)
             self._produced.append(time.perf_counter() - t0)
+            if self.ahead:
+                self._wait_until(clock0 + access.offset(index))  # made before its due time: handed over when due
+                if self._stop.is_set():
+                    return
             self._put(("frame", frame, took, wall0 + access.offset(index), time.time(), prepared))
 
     def _prepare(self, frame: Any) -> Any:
@@ -289,6 +299,8 @@ class PipelineWorker:
     * ``prepare_ahead``: the frame reader runs the pipeline's :meth:`~AssemblyPipeline.prepare` (the colour
       detection) on each frame it produces, so that work overlaps the previous frame's processing instead of
       lengthening the pipeline thread's cycle (the snapshots are the same; not with ``drop_stale``).
+    * ``realtime_ahead`` (with ``realtime``): produce each paced frame ahead of its due time and hand it over when
+      due (:class:`_FramePrefetcher` ``ahead``), as a camera delivers it, instead of starting its production then.
 
     Frames are read on a second thread (:class:`_FramePrefetcher`), so the source's work overlaps the
     pipeline's; ``Snapshot.wall_time`` is the frame's capture time (see there), so ``time.time() -
@@ -306,6 +318,7 @@ class PipelineWorker:
         drop_stale: bool = False,
         realtime: bool = False,
         prepare_ahead: bool = True,
+        realtime_ahead: bool = False,
     ) -> None:
         self._open_source = open_source
         self._make_pipeline = make_pipeline
@@ -316,6 +329,7 @@ class PipelineWorker:
         self.drop_stale = bool(drop_stale)
         self.realtime = bool(realtime)
         self.prepare_ahead = bool(prepare_ahead)
+        self.realtime_ahead = bool(realtime_ahead)
 
         self.source: FrameSource | None = None
         self.pipeline: AssemblyPipeline | None = None
@@ -537,7 +551,8 @@ class PipelineWorker:
             return False
         self.source, self.pipeline = src, pipeline
         self._reader = _FramePrefetcher(src, drop_stale=self.drop_stale, realtime=self.realtime,
-                                        prepare=getattr(pipeline, "prepare", None) if self.prepare_ahead else None)
+                                        prepare=getattr(pipeline, "prepare", None) if self.prepare_ahead else None,
+                                        ahead=self.realtime_ahead)  # fmt: skip
         self.source_opens += 1
         self.state = "running"
         return True

@@ -47,6 +47,8 @@ sys.path.insert(0, str(ROOT))
 from app.settings import SERVER_PARTICLES  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
+REALTIME_AHEAD = False
+"""``--realtime-ahead``: the server's paced frames produced ahead of their due time (``realtime_ahead``)."""
 
 
 def free_port() -> int:
@@ -362,6 +364,8 @@ def _run_case(name: str, realtime: bool, seconds: float, particles: int | None, 
     if odometry:
         cmd += ["--odometry", odometry]
     env = dict(os.environ, ASSEMBLY_AGENT_MAX_FPS="1000")
+    if REALTIME_AHEAD:
+        env["ASSEMBLY_AGENT_REALTIME_AHEAD"] = "true"
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     base = f"http://127.0.0.1:{port}"
     try:
@@ -602,11 +606,15 @@ def main() -> int:
     ap.add_argument("--odometry", choices=("off", "default", "fastslam", "fused"), default=None,
                     help="also the two websocket runs with this camera odometry (serve --odometry MODE) beside the "
                     "runs with the server's default")
+    ap.add_argument("--realtime-ahead", action="store_true",
+                    help="serve with realtime_ahead (paced frames produced ahead, handed over when due)")
     ap.add_argument("--no-browser", action="store_true",
                     help="only the websocket runs (the browser runs' figures are kept from server.json)")
     ap.add_argument("--browser-only", action="store_true",
                     help="only the server + headless browser runs (the other runs' figures are kept from server.json)")
     args = ap.parse_args()
+    global REALTIME_AHEAD
+    REALTIME_AHEAD = args.realtime_ahead
     if args.hands_only:
         args.hands = args.no_browser = True
     RESULTS.mkdir(parents=True, exist_ok=True)
@@ -648,6 +656,7 @@ def main() -> int:
         "scenario": "sim:guidance-demo, 5 cubes, 640x480",
         "particles": args.particles or f"{SERVER_PARTICLES} (server default)",
         "client": "websocket with each frame's JPEG (/ws?image=1)" if args.jpeg else "websocket, snapshots only",
+        "realtime_ahead": REALTIME_AHEAD,
         "cases": cases,
         "cases_machine": kept.get("cases_machine", kept.get("machine")) if args.browser_only else None,
         "browser_cases": browser_cases,
@@ -661,7 +670,9 @@ def main() -> int:
         f"Simulated table (guidance-demo, 5 cubes, 640×480), guidance mode, tracker preset `default` with"
         f" N = {result['particles']} particles; `assembly-agent serve` as a subprocess (simulator rendered in its"
         f" child process), one client: {result['client']}; viser scene off. Latency is measured from the frame's"
-        " capture time (a paced frame's due time) to the receipt of its websocket message.",
+        " capture time (a paced frame's due time) to the receipt of its websocket message."
+        + (" Served with `realtime_ahead` (paced frames produced ahead of their due time, handed over when due)."
+           if REALTIME_AHEAD else ""),
         f"Machine: {m['nproc']} cores, {m['cpu']}, Python {m['python']}; 1-minute load average"
         f" {m['load_avg_1min']:.1f} at the start (above 1, other jobs shared the cores and the figures are"
         " pessimistic).",

@@ -7,11 +7,12 @@ must be skipped whatever the machine's load; time bounds are generous.
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 from test_worker import TABLE_NORMAL, SyntheticTable, make_pipeline, wait_for
 
-from app.worker import PipelineWorker, _RandomAccess
+from app.worker import PipelineWorker, _FramePrefetcher, _RandomAccess
 from tracker.frame import Frame
 from tracker.pipeline import AssemblyPipeline
 
@@ -126,3 +127,64 @@ def test_table_is_rechecked_cheaply_and_redetected_when_it_moves(monkeypatch):
     assert len(calls) == 2
     assert abs(snap.table["offset"] - first.table["offset"]) > 0.03
     assert np.allclose(np.abs(snap.table["normal"]), np.abs(TABLE_NORMAL), atol=0.05)
+
+
+class SlowRenderTable(RenderedTable):
+    """A paced source whose frames take ``render_s`` seconds to produce; records when each production started."""
+
+    def __init__(self, render_s: float, **kw):
+        super().__init__(**kw)
+        self.render_s = render_s
+        self.started: dict[int, float] = {}
+
+    def render(self, index: int) -> Frame:
+        self.started[index] = time.time()
+        threading.Event().wait(self.render_s)
+        return super().render(index)
+
+
+def _paced_items(ahead: bool, n: int = 8) -> tuple[SlowRenderTable, list[tuple]]:
+    """``n`` frames of a 100 fps source taking 50 ms a frame, read by a paced prefetcher as the worker does."""
+    src = SlowRenderTable(0.05, fps=100.0, n_frames=100_000)
+    reader = _FramePrefetcher(src, realtime=True, ahead=ahead)
+    items = []
+    try:
+        while len(items) < n:
+            item = reader.get(timeout=5.0)
+            assert item is not None and item[0] == "frame"
+            items.append(item)
+    finally:
+        reader.close()
+    return src, items
+
+
+def test_realtime_ahead_produces_frames_before_they_are_due_and_hands_them_over_when_due():
+    """With ``ahead`` the reader takes the frame due when its production ends (production ≥ 50 ms here, so every
+    frame after the first is due at least 40 ms after its production started) and hands it over no earlier than its
+    due time; without it every frame's production starts once the frame is due. Capture time = due time in both."""
+    src, items = _paced_items(ahead=True)
+    for _, frame, took, captured, ready, _ in items[1:]:
+        assert captured - src.started[frame.index] >= 0.02  # produced ahead of its due time (≥ 40 ms less slack)
+        assert ready >= captured - 1e-3 and took >= 0.05  # handed over when due, not before
+    src, items = _paced_items(ahead=False)
+    for _, frame, _, captured, ready, _ in items:
+        assert src.started[frame.index] >= captured - 1e-3  # produced once due
+        assert ready >= captured + 0.05 - 1e-3
+    indices = [it[1].index for it in items]
+    assert indices == sorted(set(indices))
+
+
+def test_worker_passes_realtime_ahead_to_its_reader():
+    src = RenderedTable(fps=100.0, n_frames=100_000)
+    snaps = []
+    worker = PipelineWorker(lambda: src, lambda s: SlowPipeline(s, 0.01), max_fps=None, realtime=True,
+                            realtime_ahead=True)  # fmt: skip
+    worker.add_listener(snaps.append)
+    worker.start()
+    try:
+        assert wait_for(lambda: len(snaps) >= 3)
+        assert worker._reader is not None and worker._reader.ahead
+    finally:
+        worker.stop()
+    idx = [s.frame_index for s in snaps]
+    assert idx == sorted(set(idx))
