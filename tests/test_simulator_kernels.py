@@ -209,6 +209,62 @@ def test_depth_kernel_equals_the_one_loop_reference(model):
         assert np.isnan(a).any() and np.isfinite(a).any()
 
 
+@nb.njit(cache=True, fastmath=_FM)
+def _projector_shadow_reference(clean, fxb, right, shadow):
+    """The projector shadow as compiled before numpy's error model (each division checked its divisor: scalar)."""
+    h, w = clean.shape
+    c = np.empty(w)
+    for v in range(h):
+        if right:
+            for u in range(w):
+                c[u] = u - fxb / clean[v, u]
+            m = 1e30
+            for u in range(w - 1, -1, -1):
+                shadow[v, u] = m < c[u] - 0.5
+                m = min(m, c[u])
+        else:
+            for u in range(w):
+                c[u] = u + fxb / clean[v, u]
+            m = -1e30
+            for u in range(w):
+                shadow[v, u] = m > c[u] + 0.5
+                m = max(m, c[u])
+
+
+@pytest.mark.parametrize("right", [True, False])
+def test_projector_shadow_equals_the_checked_division_reference_and_its_definition(right):
+    """The vectorised rows (numpy's error model) give the masks of the former scalar kernel on rendered frames and on
+    random depths with gaps (inf); on small random rows every pixel is shadowed exactly when a pixel on the projector's
+    side has a projector column more than half a pixel nearer (the definition, in numpy)."""
+    rng = np.random.default_rng(14)
+    depths = [clean for clean, _, _, _ in INPUTS]
+    for _ in range(3):
+        z = rng.uniform(0.3, 4.0, (60, 97)).astype(np.float32)
+        z[rng.random(z.shape) < 0.1] = np.inf
+        depths.append(z)
+    fxb = 525.0 * 0.075
+    for clean in depths:
+        a, b = np.zeros(clean.shape, np.bool_), np.ones(clean.shape, np.bool_)
+        sm._projector_shadow(clean, fxb, right, a)
+        _projector_shadow_reference(clean, fxb, right, b)
+        assert np.array_equal(a, b) and a.any() and not a.all()
+        rows = np.ones(clean.shape[0], np.bool_)
+        c = np.zeros(clean.shape, np.bool_)
+        sm._projector_shadow_rows(clean, fxb, right, c, rows, ~rows, c)
+        assert np.array_equal(a, c)
+    z = depths[-1][:5]
+    shadow = np.zeros(z.shape, np.bool_)
+    sm._projector_shadow(z, fxb, right, shadow)
+    cols = np.arange(z.shape[1]) + (-1.0 if right else 1.0) * fxb / z.astype(np.float64)
+    for v in range(z.shape[0]):
+        for u in range(z.shape[1]):
+            if right:
+                expect = u + 1 < z.shape[1] and cols[v, u + 1 :].min() < cols[v, u] - 0.5
+            else:
+                expect = u > 0 and cols[v, :u].max() > cols[v, u] + 0.5
+            assert shadow[v, u] == expect
+
+
 def test_projector_shadow_of_some_rows_computes_those_restores_the_marked_and_keeps_the_rest():
     model = sm.DepthSensorModel()
     clean, _, _, _ = INPUTS[1]  # a frame with the hand

@@ -384,11 +384,14 @@ def _depth_kernel(clean, cosang, out, key, coeff, on_disp, quant, qstep, fb, dst
                                          hashes[u])  # fmt: skip
 
 
-@nb.njit(cache=True, inline="always", fastmath=_FM)
+@nb.njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
 def _shadow_row(clean, v, fxb, right, shadow, c):
     """Row ``v`` of :func:`_projector_shadow` (``c``: scratch of the row's length)."""
     w = clean.shape[1]
-    # projector column of every pixel (inf depth → disparity 0); branch-free so that it vectorises
+    # projector column of every pixel (inf depth → disparity 0); branch-free so that it vectorises. The kernels that
+    # inline this row take numpy's error model: with Python's, every division checked its divisor for zero (a branch
+    # per pixel) and the loop stayed scalar (0.59 → 0.44 ms for two thirds of a 640×480 frame's rows, the same
+    # values; a zero depth would now give an infinite column instead of raising)
     if right:
         for u in range(w):
             c[u] = u - fxb / clean[v, u]
@@ -405,7 +408,7 @@ def _shadow_row(clean, v, fxb, right, shadow, c):
             m = max(m, c[u])
 
 
-@nb.njit(cache=True, fastmath=_FM)
+@nb.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _projector_shadow(clean, fxb, right, shadow):
     """Mark pixels hidden from a projector ``fxb / fx`` metres to the right (``right``) or left of the camera.
 
@@ -419,7 +422,7 @@ def _projector_shadow(clean, fxb, right, shadow):
         _shadow_row(clean, v, fxb, right, shadow, c)
 
 
-@nb.njit(cache=True, fastmath=_FM)
+@nb.njit(cache=True, fastmath=_FM, error_model="numpy")
 def _projector_shadow_rows(clean, fxb, right, shadow, compute, restore, base):
     """:func:`_projector_shadow` of the rows ``compute`` marks (bool per row); the rows ``restore`` marks (and not
     ``compute``) are copied from ``base``; the others are left as they are."""
