@@ -238,21 +238,29 @@ def test_projector_shadow_equals_the_checked_division_reference_and_its_definiti
     side has a projector column more than half a pixel nearer (the definition, in numpy)."""
     rng = np.random.default_rng(14)
     depths = [clean for clean, _, _, _ in INPUTS]
-    for _ in range(3):
-        z = rng.uniform(0.3, 4.0, (60, 97)).astype(np.float32)
+    for shape in ((61, 97), (62, 40), (3, 5), (1, 1), (7, 2)):  # row counts not multiples of four (the rows' groups)
+        z = rng.uniform(0.3, 4.0, shape).astype(np.float32)
         z[rng.random(z.shape) < 0.1] = np.inf
         depths.append(z)
     fxb = 525.0 * 0.075
+    mixed = 0
     for clean in depths:
         a, b = np.zeros(clean.shape, np.bool_), np.ones(clean.shape, np.bool_)
         sm._projector_shadow(clean, fxb, right, a)
         _projector_shadow_reference(clean, fxb, right, b)
-        assert np.array_equal(a, b) and a.any() and not a.all()
+        assert np.array_equal(a, b)
         rows = np.ones(clean.shape[0], np.bool_)
         c = np.zeros(clean.shape, np.bool_)
         sm._projector_shadow_rows(clean, fxb, right, c, rows, ~rows, c)
         assert np.array_equal(a, c)
-    z = depths[-1][:5]
+        some = rng.random(clean.shape[0]) < 0.6  # any rows, in groups of four and a rest
+        base = rng.random(clean.shape) < 0.5
+        d = np.full(clean.shape, True)
+        sm._projector_shadow_rows(clean, fxb, right, d, some, ~some, base)
+        assert np.array_equal(d[some], a[some]) and np.array_equal(d[~some], base[~some])
+        mixed += int(a.any() and not a.all())
+    assert mixed >= 3  # shadowed and lit pixels in the rendered frames and the larger random depths
+    z = depths[len(INPUTS)][:5]
     shadow = np.zeros(z.shape, np.bool_)
     sm._projector_shadow(z, fxb, right, shadow)
     cols = np.arange(z.shape[1]) + (-1.0 if right else 1.0) * fxb / z.astype(np.float64)
