@@ -4,10 +4,14 @@ blob masks of the likelihood from a window of the grid."""
 
 from __future__ import annotations
 
+import math
+
 import cv2
+import numba as nb
 import numpy as np
 import pytest
 
+from tracker.filter.depth_likelihood import _pixel_terms as pixel_terms
 from tracker.filter.motion_model import propagate, propagate_part_into, rotvec_to_matrix
 
 
@@ -187,3 +191,124 @@ def test_systematic_resampling_kernel_matches_numpy():
     for bad in (np.zeros(5), np.array([1.0, np.nan]), np.array([np.inf, 1.0]), np.zeros(0)):
         with pytest.raises(ValueError):
             systematic_resample(bad, np.random.default_rng(0))
+
+
+# main 692b04e's update_log_likelihood, which scanned every (particle, subset pixel) flag: the reference of the form
+# that compacts each particle's dirty positions first (the same pixels in the same order)
+@nb.njit(cache=True)
+def _flag_scan_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q, F, ell, beta, lam, tail, use_occ,
+                          dirty, alpha, cmask, cvalid, occ_cap=0.0, fresh=False):
+    n = D.shape[0]
+    k = loc.shape[0]
+    m = subset.shape[0]
+    # per subset pixel, the parts that can cover it and their depth columns (in part order)
+    n_cover = np.zeros(m, np.int64)
+    cover_part = np.empty((m, k), np.int64)
+    cover_col = np.empty((m, k), np.int64)
+    for ii in range(m):
+        i = subset[ii]
+        for o in range(k):
+            col = loc[o, i]
+            if col >= 0:
+                cover_part[ii, n_cover[ii]] = o
+                cover_col[ii, n_cover[ii]] = col
+                n_cover[ii] += 1
+    # per subset pixel, the inputs and results of its last evaluation in this call
+    memo_ok = np.zeros(m, np.bool_)
+    memo_d = np.empty(m)
+    memo_front = np.empty(m, np.int64)
+    memo_oh = np.empty(m, o_hat.dtype)
+    memo_c = np.empty(m)
+    memo_q = np.empty(m, Q.dtype)
+    for j in range(n):
+        acc = 0.0
+        for ii in range(m):
+            i = subset[ii]
+            if dirty[j, i] == 0:
+                if fresh:
+                    C[j, i] = 0.0
+                    Q[j, i] = -1.0
+                    F[j, i] = -1
+                continue
+            dirty[j, i] = 0
+            d = np.inf
+            front = -1
+            for q in range(n_cover[ii]):
+                dq = D[j, cover_col[ii, q]]
+                if dq < d:
+                    d = dq
+                    front = cover_part[ii, q]
+            F[j, i] = front
+            if d == np.inf:
+                c = 0.0
+                Q[j, i] = -1.0
+            else:
+                oh_in = o_hat[anc[j], i]
+                if memo_ok[ii] and memo_d[ii] == d and memo_front[ii] == front and memo_oh[ii] == oh_in:
+                    c = memo_c[ii]
+                    Q[j, i] = memo_q[ii]
+                else:
+                    oh = oh_in
+                    forced = cvalid[front] and not cmask[front, i]
+                    if forced:
+                        oh = 1.0
+                    lik, num = pixel_terms(d, z[i], s[i], e[i], oh, beta, lam, tail, True if oh == 1.0 else use_occ)
+                    c = alpha * (math.log(lik) - log_po_inf[i])
+                    if c > 0.0 and (forced or (occ_cap > 0.0 and d - z[i] > occ_cap * s[i])):
+                        # a pixel that cannot show the part carries no evidence for it; without this cap the
+                        # truncated occluder density 1/(1 − e^(−λd)) rewards parts for hiding just behind a hand
+                        c = 0.0
+                    Q[j, i] = num / lik if use_occ else oh_in
+                    memo_ok[ii] = True
+                    memo_d[ii] = d
+                    memo_front[ii] = front
+                    memo_oh[ii] = oh_in
+                    memo_c[ii] = c
+                    memo_q[ii] = Q[j, i]
+            acc += c - (0.0 if fresh else C[j, i])
+            C[j, i] = c
+        ell[j] += acc
+
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_compacted_likelihood_equals_the_flag_scan(seed):
+    """A pass's call (not ``fresh``) on a subset, after some particles' depths changed (dirty flags at 0-60 % of the
+    pixels, copies of the particle before, a permuted ancestry), gives the contributions, posteriors, front parts,
+    log-likelihoods and cleared flags of the flag-scanning form, over three passes in a row; the first call too."""
+    from tracker.filter.depth_likelihood import update_log_likelihood
+
+    rng = np.random.default_rng(seed)
+    head, consts, dirty, cmask, cvalid = _likelihood_case(rng, n=50, k=3, p=90)
+    D, loc, all_pix, z, s, e, lp, o_hat, anc = head
+    n, p = dirty.shape
+    arms = []
+    for fn in (_flag_scan_likelihood, update_log_likelihood):
+        arms.append([D.copy(), np.zeros((n, p), np.float32), np.full((n, p), -1.0, np.float32),
+                     np.full((n, p), -1, np.int8), np.zeros(n), dirty.copy(), fn])
+    for a in arms:
+        Da, C, Q, F, ell, dd, fn = a
+        fn(Da, loc, all_pix, z, s, e, lp, o_hat, anc, C, Q, F, ell, *consts, dd, 1.0, cmask, cvalid, 2.0, True)
+    anc2 = rng.permutation(n)
+    for _ in range(3):
+        subset = np.flatnonzero(rng.random(p) < 0.7).astype(np.int64)
+        frac = rng.uniform(0.0, 0.6)
+        change = rng.random(D.shape) < frac
+        new = np.where(rng.random(D.shape) < 0.7, D + rng.normal(0.0, 0.005, D.shape).astype(np.float32),
+                       np.inf).astype(np.float32)
+        new[3] = new[2]  # a copy: the memo's case
+        flags = np.zeros((n, p), np.uint8)
+        for o in range(loc.shape[0]):
+            for i in subset:
+                col = loc[o, i]
+                if col >= 0:
+                    flags[:, i] |= change[:, col].astype(np.uint8)
+        for a in arms:
+            Da, C, Q, F, ell, dd, fn = a
+            Da[change] = new[change]
+            dd |= flags
+            fn(Da, loc, subset, z, s, e, lp, o_hat, anc2, C, Q, F, ell, *consts, dd, 1.0, cmask, cvalid, 2.0, False)
+    assert np.abs(arms[0][4]).max() > 0
+    for x, y in zip(arms[0][:6], arms[1][:6], strict=True):
+        assert np.array_equal(x, y)
+

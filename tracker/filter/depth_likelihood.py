@@ -219,16 +219,28 @@ def update_log_likelihood(D, loc, subset, z, s, e, log_po_inf, o_hat, anc, C, Q,
     memo_oh = np.empty(m, o_hat.dtype)
     memo_c = np.empty(m)
     memo_q = np.empty(m, Q.dtype)
+    todo = np.empty(m, np.int64)  # the particle's dirty subset positions, in subset order
     for j in range(n):
-        acc = 0.0
-        for ii in range(m):
-            i = subset[ii]
-            if dirty[j, i] == 0:
-                if fresh:
+        cnt = 0
+        if fresh:
+            for ii in range(m):
+                i = subset[ii]
+                if dirty[j, i] == 0:
                     C[j, i] = 0.0
                     Q[j, i] = -1.0
                     F[j, i] = -1
-                continue
+                else:
+                    todo[cnt] = ii
+                    cnt += 1
+        else:
+            # branch-free compaction of the dirty positions (15-35 % of a pass's subset, in no predictable pattern)
+            for ii in range(m):
+                todo[cnt] = ii
+                cnt += dirty[j, subset[ii]] != 0
+        acc = 0.0
+        for tt in range(cnt):
+            ii = todo[tt]
+            i = subset[ii]
             dirty[j, i] = 0
             d = np.inf
             front = -1
