@@ -312,3 +312,30 @@ def test_compacted_likelihood_equals_the_flag_scan(seed):
     for x, y in zip(arms[0][:6], arms[1][:6], strict=True):
         assert np.array_equal(x, y)
 
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_body_points_equal_the_numpy_transform_of_the_camera_points(seed):
+    """``SurfaceRender.body_points_of`` gives ``(pts − t) @ R`` and ``nrm @ R`` of ``points_of`` bit for bit (numpy's
+    BLAS rounding of these shapes) for parts of 0 to some thousand points, rotations and arbitrary matrices."""
+    from tracker.filter.motion_model import rotvec_to_matrix as rv
+    from tracker.geometry.camera import Intrinsics
+    from tracker.refine.surface_render import render_surfaces
+
+    rng = np.random.default_rng(seed)
+    intr = Intrinsics(640, 480, 600.0, 600.0, 320.0, 240.0)
+    shapes = [("box", np.zeros(3), np.array([0.02, 0.025, 0.03])), ("box", np.zeros(3), np.array([0.05, 0.01, 0.02])),
+              ("box", np.zeros(3), np.array([0.003, 0.003, 0.003]))]
+    n_seen = 0
+    for _ in range(20):
+        poses = [(rv(rng.normal(0.0, 1.0, (1, 3)))[0], np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1),
+                                                                  rng.uniform(0.2, 0.9)])) for _ in shapes]
+        render = render_surfaces(intr, shapes, poses, (0, 0, 640, 480), int(rng.integers(1, 4)))
+        for obj in range(-1, len(shapes) + 1):
+            R = poses[obj][0] if 0 <= obj < len(shapes) and rng.random() < 0.7 else rng.normal(0.0, 1.0, (3, 3))
+            t = rng.normal(0.0, 0.5, 3)
+            pts, nrm = render.points_of(obj, intr)
+            body, nbody = render.body_points_of(obj, intr, R, t)
+            assert body.shape == pts.shape and nbody.shape == nrm.shape
+            assert np.array_equal(body, (pts - t) @ R) and np.array_equal(nbody, nrm @ R)
+            n_seen += pts.shape[0]
+    assert n_seen > 1000

@@ -116,11 +116,11 @@ class PartRefiner:
         if rect is None:
             return RefineResult(poses[obj][0], poses[obj][1], False, 0, 0, 0.0, float("nan"), reason="off the image")
         render = render_surfaces(self.intrinsics, self.shapes, poses, rect, self.stride)
-        pts, nrm = render.points_of(obj, self.intrinsics)
         R0, t0 = poses[obj]
+        body, nbody = render.body_points_of(obj, self.intrinsics, R0, t0)
         region = self._region(poses, obj, outline, depth if frame_depth is None else frame_depth)
-        return refine_pose(depth, self.intrinsics, (pts - t0) @ R0, nrm @ R0, R0, t0, self.centers[obj],
-                           self.settings, allowed, region)
+        return refine_pose(depth, self.intrinsics, body, nbody, R0, t0, self.centers[obj], self.settings, allowed,
+                           region)
 
     def _region(self, poses: list, obj: int, outline: np.ndarray | None, frame_depth: np.ndarray,
                 bounds: list | None = None, render: SurfaceRender | None = None):
@@ -190,9 +190,7 @@ class PartRefiner:
         order = sorted((i for i in range(k) if active[i] and poses[i] is not None), key=lambda i: poses[i][1][2])
         for i in order:
             R0, t0 = (np.asarray(a, np.float64) for a in poses[i])
-            pts, nrm = render.points_of(i, self.intrinsics)
-            body = (pts - t0) @ R0
-            nbody = nrm @ R0
+            body, nbody = render.body_points_of(i, self.intrinsics, R0, t0)  # (pts − t0) @ R0, nrm @ R0
             mask = None if allowed is None else allowed[i]
             settings = self.settings
             if short is not None and short[i] and self.short_settings is not None:

@@ -23,6 +23,7 @@ import numba as nb
 import numpy as np
 
 from tracker.geometry.camera import Intrinsics
+from tracker.geometry.fma import fma
 
 
 @nb.njit(cache=True, inline="always")
@@ -241,6 +242,23 @@ class SurfaceRender:
                           j0, j1, i0, i1)
 
 
+    def body_points_of(self, obj: int, intrinsics: Intrinsics, R: np.ndarray,
+                       t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`points_of` in the body frame of the pose ``(R, t)`` (body → camera): ``(pts − t) @ R`` and
+        ``nrm @ R``, each entry rounded as numpy's BLAS product of these shapes rounds it here
+        (``fma(d2, r2, fma(d1, r1, d0·r0))``, :mod:`tracker.geometry.fma`), in one pass without the camera-frame
+        arrays."""
+        if self.boxes is None:
+            self.boxes = _label_boxes(self.label)
+        if obj < 0 or obj >= self.boxes.shape[0]:
+            return np.empty((0, 3)), np.empty((0, 3))
+        j0, j1, i0, i1 = (int(x) for x in self.boxes[obj])
+        return _body_points_of(self.label, np.asarray(self.depth, np.float64), np.asarray(self.normal, np.float64),
+                               obj, self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                               intrinsics.cy, j0, j1, i0, i1, np.ascontiguousarray(R, np.float64),
+                               np.ascontiguousarray(t, np.float64))
+
+
 @nb.njit(cache=True)
 def _label_boxes(label):
     """Per label 0 … max(label) the rows and columns ``(j0, j1, i0, i1)`` its cells span (j0 > j1 for a label with no
@@ -290,6 +308,36 @@ def _points_of(label, depth, normal, obj, u0, v0, stride, fx, fy, cx, cy, j0, j1
             pts[m, 2] = z
             for r in range(3):
                 nrm[m, r] = normal[j, i, r]
+            m += 1
+    return pts, nrm
+
+
+@nb.njit(cache=True)
+def _body_points_of(label, depth, normal, obj, u0, v0, stride, fx, fy, cx, cy, j0, j1, i0, i1, R, t):
+    """:meth:`SurfaceRender.body_points_of`: :func:`_points_of`'s points and normals taken into the body frame of
+    ``(R, t)`` as they are formed."""
+    n = 0
+    for j in range(j0, j1 + 1):
+        for i in range(i0, i1 + 1):
+            if label[j, i] == obj:
+                n += 1
+    pts = np.empty((n, 3))
+    nrm = np.empty((n, 3))
+    m = 0
+    for j in range(j0, j1 + 1):
+        v = v0 + j * stride
+        for i in range(i0, i1 + 1):
+            if label[j, i] != obj:
+                continue
+            u = u0 + i * stride
+            z = depth[j, i]
+            d0 = (u - cx) / fx * z - t[0]
+            d1 = (v - cy) / fy * z - t[1]
+            d2 = z - t[2]
+            n0, n1, n2 = normal[j, i, 0], normal[j, i, 1], normal[j, i, 2]
+            for c in range(3):
+                pts[m, c] = fma(d2, R[2, c], fma(d1, R[1, c], d0 * R[0, c]))
+                nrm[m, c] = fma(n2, R[2, c], fma(n1, R[1, c], n0 * R[0, c]))
             m += 1
     return pts, nrm
 
