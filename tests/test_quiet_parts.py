@@ -330,3 +330,51 @@ def test_quiet_skip_held_skips_the_pass_of_a_held_part_next_frame_too():
         assert run.max() <= 3
     assert t_on[5:].max() < 0.004
     assert np.median(t_on[5:]) <= np.median(t_off[5:]) + 0.0005
+
+
+def _converged_run(rot: float, trans: float, frames: int = 14):
+    """The ``static`` scene tracked with ``quiet_converged_rotation`` / ``_translation`` = ``rot`` / ``trans``
+    (nothing else quiet on): per frame the quiet parts (``_settled``), each part's Gauss-Newton updates and poses."""
+    from app.commands.track import TrackSession
+    from tracker.sources.simulator import SimulatedTable
+
+    src = SimulatedTable("static", seed=3, realtime=False, n_frames=frames)
+    cfg = TrackerConfig.preset("default").with_overrides(quiet_converged_rotation=rot,
+                                                         quiet_converged_translation=trans)
+    ts = TrackSession(src.parts, src.intrinsics, src.initial_poses, cfg, seed=0)
+    settled, updates, poses, t_err = [], [], [], []
+    for i in range(frames):
+        frame = src.render(i)
+        state, _ = ts.step(frame)
+        trk = ts.tracker
+        settled.append(trk._settled.copy())
+        updates.append([-1 if r is None else r.n_updates for r in trk._refiner.last])
+        poses.append({n: (p.R.copy(), p.t.copy()) for n, p in state.poses.items()})
+        truth = frame.meta["groundtruth"]["poses"]
+        t_err.append(max(float(np.linalg.norm(state.poses[n].t - truth[n].t)) for n in state.poses))
+    return np.array(settled), np.array(updates), poses, np.array(t_err)
+
+
+def test_quiet_converged_ends_a_quiet_parts_updates_early():
+    """quiet_converged_rotation / _translation: the quiet parts of a resting scene stop their Gauss-Newton updates
+    once converged (fewer than the 4 thresholds x 2 updates), the parts that are not quiet run them all, and the poses
+    stay as precise; a bound no update meets leaves every pose as the setting off does (the quiet tests alone do
+    not change a pose)."""
+    settled, updates, _, t_err = _converged_run(0.001745, 5e-5)
+    assert settled.sum() >= 10
+    full = 8  # refine_thresholds x refine_updates of the default preset
+    quiet_updates = updates[settled]
+    assert quiet_updates.min() >= 1
+    assert np.mean(quiet_updates) < full - 1.5  # most quiet refinements end early
+    others = updates[~settled & (updates >= 0)]
+    assert others.size and np.all(others <= full)
+    assert t_err[5:].max() < 0.004
+    # off, and on with a bound no update can meet: the same poses on every frame
+    _, _, poses_off, _ = _converged_run(0.0, 0.0, frames=8)
+    settled_tiny, _, poses_tiny, _ = _converged_run(1e-300, 1e-300, frames=8)
+    assert settled_tiny.any()
+    for a, b in zip(poses_off, poses_tiny, strict=True):
+        for n in a:
+            assert np.array_equal(a[n][0], b[n][0]) and np.array_equal(a[n][1], b[n][1])
+    cfg = TrackerConfig.preset("default")
+    assert cfg.quiet_converged_rotation == 0.0 and cfg.quiet_converged_translation == 0.0

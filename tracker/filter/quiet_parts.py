@@ -28,9 +28,10 @@ cloud keeps its spread for when a hand takes it) and only make it cheaper: ``qui
 on the smaller pixel budget ``quiet_pixels_per_part`` (the refinement restores the precision), and
 ``quiet_refine_last`` > 0 refines it with only the last (finest) correspondence thresholds of the dense refinement
 (last frame's correction was small and the depth shows it at its prediction: the coarse thresholds only re-find
-where it already is). ``quiet_refine_skip`` does not refine it this frame (it keeps the filter's estimate, or with
-``quiet_refine_hold`` its noise-free prediction's mean pose, ``trk._held_poses``); having no correction to
-remember, it is not quiet the next frame and is refined then.
+where it already is); ``quiet_converged_rotation`` / ``_translation`` end its Gauss-Newton updates once one
+turns and moves it by less than these (after the coarsest threshold). ``quiet_refine_skip`` does not refine it
+this frame (it keeps the filter's estimate, or with ``quiet_refine_hold`` its noise-free prediction's mean pose,
+``trk._held_poses``); having no correction to remember, it is not quiet the next frame and is refined then.
 Pixels: full-resolution image coordinates; positions camera frame, metres.
 """
 
@@ -143,7 +144,7 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
     """(K,) bool: the parts whose coordinate pass is skipped this frame (module docstring), also kept as
     ``trk._quiet_now``; the quiet parts themselves (whether or not their pass is skipped) as ``trk._settled``.
     ``pred``: the noise-free prediction (p (N, K, 3), R (N, K, 3, 3), v) of this frame. None is quiet unless
-    ``quiet_skip``, ``quiet_thin`` or ``quiet_refine_last`` is on."""
+    a setting of :func:`detection_on` is on."""
     cfg = trk.config
     k = len(trk.parts)
     quiet = np.zeros(k, bool)
@@ -212,8 +213,9 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
 
 def detection_on(cfg) -> bool:
     """Is any setting on that acts on quiet parts (``quiet_skip``, ``quiet_thin``, ``quiet_refine_last``,
-    ``quiet_refine_skip``)?"""
-    return bool(cfg.quiet_skip or cfg.quiet_thin or cfg.quiet_refine_last > 0 or cfg.quiet_refine_skip)
+    ``quiet_converged_rotation``, ``quiet_refine_skip``)?"""
+    return bool(cfg.quiet_skip or cfg.quiet_thin or cfg.quiet_refine_last > 0 or cfg.quiet_converged_rotation > 0
+                or cfg.quiet_refine_skip)
 
 
 def remember(trk: MultiObjectTracker, detections, poses: dict, corrections: list) -> None:

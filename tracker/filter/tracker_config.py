@@ -630,6 +630,18 @@ class TrackerConfig(BaseModel):
         "of refine_thresholds (0 = all): its last correction was small and the depth shows it at its prediction. "
         "Speed setting, off (2: about 0.2 ms less per quiet part; lost a part on tuning set 1, session 19).",
     )
+    quiet_converged_rotation: float = Field(
+        0.0, ge=0.0, description="With quiet_converged_translation: a quiet part (the tests of quiet_skip) ends its "
+        "Gauss-Newton iterations, the finer thresholds' too, at the first update after the coarsest threshold that "
+        "turns it by less than this (rad) and moves its centre by less than quiet_converged_translation (m): "
+        "refine_converged_rotation for quiet parts only (its last correction was small and it is well seen, not "
+        "carried or touched; carries keep every update). Speed setting, off (0 = every threshold runs): 0.001745 rad / "
+        "5e-5 m saved 0.74 ms a 7-cube frame but was worse on tuning sets 1 and 2 (400 -> 416, 499 -> 622 bad "
+        "part-frames, session 33).",
+    )
+    quiet_converged_translation: float = Field(
+        0.0, ge=0.0, description="See quiet_converged_rotation (m).",
+    )
     quiet_refine_skip: bool = Field(
         False, description="A quiet part is not refined this frame: it keeps the filter's estimate (no loss count, no "
         "re-acquisition, no table fit). Having no correction to remember, it is not quiet the next frame, so it is "

@@ -112,6 +112,10 @@ def make_refiner(trk: MultiObjectTracker) -> PartRefiner:
     short = None
     if cfg.quiet_refine_last > 0:
         short = dataclasses.replace(settings, thresholds=tuple(cfg.refine_thresholds)[-int(cfg.quiet_refine_last):])
+    if cfg.quiet_converged_rotation > 0:  # quiet parts end their updates once converged
+        short = dataclasses.replace(settings if short is None else short,
+                                    converged_rotation=cfg.quiet_converged_rotation,
+                                    converged_translation=cfg.quiet_converged_translation)
     return PartRefiner(trk.intrinsics, shapes, list(trk.center), trk.corners, settings, cfg.refine_stride,
                        cfg.refine_max_translation, cfg.refine_max_rotation, region, short)
 
@@ -144,7 +148,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         visible.append(seen)
         outlines.append(None if mask is None else getattr(detections.get(name), "contour", None))
     short = None
-    if trk.config.quiet_refine_last > 0:  # quiet parts: the finest thresholds only (filter/quiet_parts.py)
+    if trk.config.quiet_refine_last > 0 or trk.config.quiet_converged_rotation > 0:
+        # quiet parts: the finest thresholds only, or an early end once converged (filter/quiet_parts.py)
         short = [bool(x) for x in trk._settled]
     # quiet_refine_skip: a quiet part keeps the filter's estimate this frame (no correction to remember: it is not
     # quiet next frame, so it is refined at least every other frame); no loss count, no re-acquisition, no table fit
