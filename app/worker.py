@@ -91,6 +91,11 @@ class _RandomAccess:
         return None
 
 
+AHEAD_MAX_S = 0.1
+"""``realtime_ahead``: how far ahead of now (s) a paced frame is chosen at most (its production estimate, capped: a
+first frame that compiled kernels for seconds must not make the reader skip and hold seconds of frames)."""
+
+
 class _FramePrefetcher:
     """Reads a source on its own thread so producing the next frame overlaps with processing this one.
 
@@ -192,7 +197,7 @@ class _FramePrefetcher:
             self._wait_until(self._want_at)
             if clock0 is None:
                 clock0, wall0 = time.perf_counter(), time.time()
-            lead = self._production_estimate() if self.ahead else 0.0
+            lead = min(self._production_estimate(), AHEAD_MAX_S) if self.ahead else 0.0
             index = max(last + 1, access.due(time.perf_counter() + lead - clock0))
             if index >= access.count:
                 now = time.time()

@@ -12,7 +12,7 @@ import time
 import numpy as np
 from test_worker import TABLE_NORMAL, SyntheticTable, make_pipeline, wait_for
 
-from app.worker import PipelineWorker, _FramePrefetcher, _RandomAccess
+from app.worker import AHEAD_MAX_S, PipelineWorker, _FramePrefetcher, _RandomAccess
 from tracker.frame import Frame
 from tracker.pipeline import AssemblyPipeline
 
@@ -172,6 +172,29 @@ def test_realtime_ahead_produces_frames_before_they_are_due_and_hands_them_over_
         assert ready >= captured + 0.05 - 1e-3
     indices = [it[1].index for it in items]
     assert indices == sorted(set(indices))
+
+
+def test_realtime_ahead_chooses_frames_at_most_a_capped_time_ahead():
+    """A first production of 0.4 s (kernels compiling) does not make the reader choose, and hold, a frame due 0.4 s
+    later: every frame is due at most ``AHEAD_MAX_S`` after its production started."""
+    src = SlowRenderTable(0.005, fps=100.0, n_frames=100_000)
+    slow = {"left": 2}
+    render = src.render
+
+    def first_slow(index):
+        if slow["left"]:
+            slow["left"] -= 1
+            threading.Event().wait(0.4)
+        return render(index)
+
+    src.render = first_slow
+    reader = _FramePrefetcher(src, realtime=True, ahead=True)
+    try:
+        items = [reader.get(timeout=5.0) for _ in range(6)]
+    finally:
+        reader.close()
+    for _, frame, _, captured, _, _ in items:
+        assert captured - src.started[frame.index] <= AHEAD_MAX_S + 1e-3
 
 
 def test_worker_passes_realtime_ahead_to_its_reader():
