@@ -554,3 +554,51 @@ def test_an_arm_whose_seeds_would_all_be_vetoed_keeps_them():
     out = vetoed_seeds(seeds, carried, 2)
     assert np.array_equal(out[0], seeds[0]) and out[3].tolist() == [0, 0, 2, 2, 2, 2]
     assert seeds[3, 0] == 2  # the input is not changed
+
+
+FOLDED = [([64, 150, 86, 240], SLEEVES[0], 0.70), ([60, 110, 100, 150], SKIN, 0.72),
+          ([112, 162, 134, 240], SLEEVES[1], 0.66), ([84, 100, 140, 162], SKIN, 0.66)]  # fmt: skip
+"""Arm A's sleeve (2 cm in front of its hand: the cuff covers the wrist) and hand, then arm B's sleeve and hand B lying
+over A's hand's right part and the top right corner of A's sleeve, 4 cm in front of it (box, colour, depth m)."""
+
+
+def test_wrist_seeds_on_a_hand_lying_over_the_sleeve_end_are_dropped(monkeypatch):
+    """Hand B lies over the end of arm A's sleeve, so A's wrist also seeds B's left edge: without SEED_BEHIND A's label
+    takes the lower left part of B; with it the seeds whose skin is not behind A's sleeve go, and A keeps its own
+    visible hand (the columns left of B) while B gets all of its own."""
+    from tracker.hands import arm_anchor
+
+    rgb = np.zeros((H, W, 3), np.uint8) + np.uint8(TABLE)
+    depth = np.full((H, W), 0.8, np.float32)
+    for box, colour, z in FOLDED:
+        rgb[box[1] : box[3], box[0] : box[2]] = colour
+        depth[box[1] : box[3], box[0] : box[2]] = z
+    boxes = {}
+    for on in (False, True):
+        monkeypatch.setattr(arm_anchor, "SEED_BEHIND", on)
+        hands = _hands((rgb, depth))
+        assert len(hands) == 2
+        boxes[on] = [h.box for h in hands]
+    assert boxes[False][0][2] >= 100 and boxes[False][1][0] >= 95  # A's label reaches into B
+    assert boxes[True] == [(60, 110, 83, 149), (84, 100, 139, 161)]
+
+
+def test_behind_seeds_keep_seeds_behind_the_sleeve_or_without_depth_and_an_arm_keeps_its_last():
+    """Per seed the skin and sleeve depth medians within BEHIND_R px: a seed whose skin lies 2 cm behind the sleeve
+    stays, one at the sleeve's depth goes, one without sleeve depth around it stays; an arm all of whose seeds would
+    go keeps them."""
+    from tracker.hands.arm_anchor import behind_seeds
+
+    sk = np.zeros((12, 30), np.uint8)
+    sleeve = np.zeros((12, 30), np.uint8)
+    sk[:6] = 1
+    sleeve[6:] = 1
+    z = np.full((12, 30), 0.70)
+    z[:6, :10] = 0.72  # behind the sleeve
+    z[6:, 20:] = 0.0  # no sleeve depth
+    seeds = np.zeros((12, 30), np.int32)
+    seeds[5, 5] = seeds[5, 15] = seeds[5, 25] = 1
+    seeds[5, 14] = 2  # arm 2's only seed, at the sleeve's depth
+    out = behind_seeds(seeds, sk, sleeve, z, 2)
+    assert out[5, 5] == 1 and out[5, 15] == 0 and out[5, 25] == 1 and out[5, 14] == 2
+    assert seeds[5, 15] == 1  # the input is not changed

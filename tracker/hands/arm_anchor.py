@@ -21,7 +21,8 @@ frame and without tracking, each arm and the skin pixels at its end:
    the upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's
    blind band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split
    gave another arm, when the tracker ran this detector on the previous frame too, whose wrist seeds in such pixels
-   are dropped, :data:`SEED_VETO`); each skin pixel belongs to the
+   are dropped, :data:`SEED_VETO`; wrist seeds whose skin does not lie behind the sleeve beside them, another hand
+   lying over the sleeve's end, are dropped too, :data:`SEED_BEHIND`); each skin pixel belongs to the
    arm whose wrist reaches it first. Crossing a grey-level edge costs extra too (:data:`EDGE_SPLIT`: two hands of one
    tone still differ in shading where they meet). With the frame's optical flow (:data:`MOTION_SPLIT`, on) two arms'
    split is run again with the two hands' motions as a prior: a skin pixel whose flow clearly follows one hand's
@@ -206,6 +207,29 @@ px; 20 of 25 runs better), missed hand-frames 9 / 9 of 15 855, false boxes 10 �
 (filter seed 0, the previous split as the tracker had it), lost F^b of its arm boxes 225.9 → 224.6: it acts mostly
 through the chained splits. Cost: 2.91–3.02 → 3.07–3.18 ms thread CPU a detector call (seed 2's calls, three
 alternated passes, load 9). ``benchmarks/history/issue-14-hands.md``."""
+SEED_BEHIND = True
+"""Whether an arm's wrist seeds whose skin does not lie behind its sleeve are dropped before the geodesic split (an arm
+keeps all its seeds if none would be left; new in session 33, on): at a cuff the sleeve covers the wrist, so the
+own hand's skin next to the sleeve's end lies behind the sleeve, while another hand lying over the sleeve's end (a
+hand folded under the other, only a finger of it showing past the upper hand) lies at the sleeve's depth or in front,
+and its edge would seed this arm. Per seed pixel, the median of the known depths of the skin pixels and of the sleeve
+pixels within :data:`BEHIND_R` working px (a square); a seed whose skin median is less than :data:`BEHIND_GAP` behind
+the sleeve median goes (one side without depth: it stays). ``hands-s2`` tuning seeds 0–4, the same frames for both
+arms, off → on, filter seeds 0 / 1 / 2 / 3 / 4: ground-truth start F̄^b 0.9161 / 0.9144 / 0.9149 / 0.9159 / 0.9151 →
+0.9181 / 0.9176 / 0.9164 / 0.9200 / 0.9186, ē^p 5.06 / 5.20 / 5.19 / 5.04 / 5.13 → 4.95 / 4.97 / 5.07 / 4.76 / 4.89 px
+(mean 0.9153 → 0.9181, 5.12 → 4.93 px); automatic start 0.9193 / 0.9182 / 0.9212 / 0.9183 / 0.9203 → 0.9227 / 0.9207
+/ 0.9229 / 0.9218 / 0.9219 (mean 0.9195 → 0.9220, ē^p 4.72 → 4.54 px), missed hand-frames 9 / 9 of 15 855, false
+boxes 9 → 10 of 8955 frames; per sequence (mean of filter seeds) ground-truth start 0.9517 → 0.9512, 0.9179 → 0.9266,
+0.9007 → 0.9032, 0.9483 → 0.9502, 0.8580 → 0.8593 (seed 1 frames 280–298, a hand folded under the other: lost F^b 8.7
+→ 4.4 units); ``hands-s1``, ``hands-s3`` identical (filter seed 0, both starts). Cost 0.22 ms thread CPU a detector
+call (load 17). ``benchmarks/history/issue-14-hands.md``."""
+BEHIND_GAP = 0.005
+"""Metres the skin next to a wrist seed must lie behind the sleeve beside it (:data:`SEED_BEHIND`). The detector alone
+on its calls of ground-truth-start runs of ``hands-s2`` tuning seeds 0–4 (lost F^b of its arm boxes, 224.6 without;
+:data:`BEHIND_R` 3): 2 mm (seeds 1, 4) 122.7 against 124.2, 4 mm 216.2, 5 mm 215.1, 6 mm 214.9, 8 mm 222.9, 12 mm
+254.9; R 2 at 5 mm 214.3 (every seed better), R 5 at 8 mm (seeds 1, 4) 123.1."""
+BEHIND_R = 2
+"""Half side (working px) of the square around a wrist seed in which :data:`SEED_BEHIND` compares depths."""
 MOTION_ITERS = 5
 """Lloyd iterations of the two-means clustering of the labelled skin pixels' flow (started from each arm's median)."""
 MOTION_MEDIAN_GATE = True
@@ -614,6 +638,58 @@ def arm_hands(skin: np.ndarray, z: np.ndarray, background: np.ndarray) -> list[A
     return arm_split(skin, z, background)[0]
 
 
+def behind_seeds(seeds: np.ndarray, sk: np.ndarray, sleeve: np.ndarray, z: np.ndarray, n_arms: int) -> np.ndarray:
+    """``seeds`` (int32 H×W, arm k's wrist seeds = k) without the seeds whose skin does not lie :data:`BEHIND_GAP`
+    behind the sleeve beside them (:data:`SEED_BEHIND`): per seed, the medians of the known depths (``z``, m, ≤ 0
+    unknown) of the skin (``sk``) and of the sleeve (``sleeve``) pixels within :data:`BEHIND_R` px; an arm none of whose
+    seeds would be left keeps them all. A new array; ``seeds`` is not changed."""
+    return _behind_seeds(np.ascontiguousarray(seeds, np.int32), np.ascontiguousarray(sk, np.uint8),
+                         np.ascontiguousarray(sleeve, np.uint8), np.ascontiguousarray(z, np.float64), n_arms,
+                         float(BEHIND_GAP), int(BEHIND_R))  # fmt: skip
+
+
+@nb.njit(cache=True, nogil=True)
+def _behind_seeds(seeds, sk, sleeve, z, n_arms, gap, r):
+    """:func:`behind_seeds`' work: a pass over the seeds marking those to drop, then the copy without them where an
+    arm keeps some."""
+    h, w = seeds.shape
+    mine = np.zeros(n_arms + 1, np.int64)
+    drop = np.zeros(n_arms + 1, np.int64)
+    gone = np.zeros((h, w), np.uint8)
+    side = 2 * r + 1
+    a = np.empty(side * side)
+    b = np.empty(side * side)
+    for y in range(h):
+        for x in range(w):
+            s = seeds[y, x]
+            if s <= 0 or s > n_arms:
+                continue
+            mine[s] += 1
+            na = 0
+            nb_ = 0
+            for yy in range(max(y - r, 0), min(y + r + 1, h)):
+                for xx in range(max(x - r, 0), min(x + r + 1, w)):
+                    d = z[yy, xx]
+                    if d <= 0:
+                        continue
+                    if sk[yy, xx] != 0:
+                        a[na] = d
+                        na += 1
+                    elif sleeve[yy, xx] != 0:
+                        b[nb_] = d
+                        nb_ += 1
+            if na > 0 and nb_ > 0 and np.median(a[:na]) - np.median(b[:nb_]) < gap:
+                gone[y, x] = 1
+                drop[s] += 1
+    out = seeds.copy()
+    for y in range(h):
+        for x in range(w):
+            s = seeds[y, x]
+            if gone[y, x] and 0 < drop[s] < mine[s]:
+                out[y, x] = 0
+    return out
+
+
 def vetoed_seeds(seeds: np.ndarray, carried: np.ndarray, n_arms: int) -> np.ndarray:
     """``seeds`` (int32 H×W, arm k's wrist seeds = k) without the pixels that ``carried`` (the previous split's labels
     renumbered to these arms, :func:`carried_labels`) gave another arm; an arm none of whose seeds would be left keeps
@@ -772,6 +848,8 @@ def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray, prev: Arm
     near = cv2.dilate(sk, np.ones((5, 5), np.uint8))
     seeds, entries, ox, oy, spans = _arm_seeds(sk, near, sleeve, BORDER_PX, MIN_ARM_FRAC * h * w, RUN_GAP, MIN_RUN,
                                                WRIST_FAR)  # fmt: skip
+    if SEED_BEHIND and len(entries):
+        seeds = behind_seeds(seeds, sk, sleeve, z, len(entries))
     if CROSS_SPLIT and len(entries) < 2 and len(spans):
         seeds, entries = _crossed_seeds(sk, near, [(ox[a:b], oy[a:b]) for a, b in spans], seeds, entries)
     if not len(entries):
