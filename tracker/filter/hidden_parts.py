@@ -165,6 +165,11 @@ def follow_hands(trk, depth, detected: np.ndarray, plane, detections, touched: f
     trk._last_centers = centers
     for i in np.nonzero(trk._carry.backtracked & trk._carry.carried & trk._carry_moved)[0]:
         collapse(trk, i)
+    # the parts whose carry started this frame and that the hand moved (carry_start_collapse, carry_start_skip)
+    trk._carry_started = trk._carry.carried & ~was_carried & trk._carry_moved
+    if cfg.carry_start_collapse:
+        for i in np.nonzero(trk._carry_started & ~trk._carry.backtracked)[0]:
+            collapse(trk, i)
     trk._carry.note_heights(heights, cfg.carry_min_height)
     update_support(trk, hidden & ~trk._carry.carried, pos, heights, plane)
 

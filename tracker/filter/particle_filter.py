@@ -222,6 +222,7 @@ class MultiObjectTracker:
         self._follow_blobs = None  # last frame's confident blobs (centroid, area[, outline]) per part, for blob follow
         self._blob_moved = np.zeros(k, bool)
         self._carry_moved = np.zeros(k, bool)  # parts the hand carry moved this frame (hidden_parts.follow_hands)
+        self._carry_started = np.zeros(k, bool)  # of those, the parts whose carry started this frame
         self._pre_reseed: dict = {}  # part index -> estimate before this frame's re-seed at its blob (colour_input)
         self._pre_reseed_p: dict = {}  # part index -> its particles' positions (N, 3) before that re-seed
         self._blob_reappeared = np.zeros(k, bool)  # confident blob this frame but not in the last

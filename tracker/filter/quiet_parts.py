@@ -156,6 +156,9 @@ def quiet_parts(trk: MultiObjectTracker, ctx: FrameContext, detections, detected
         # hidden in the hand that has just moved it: the depth shows the hand, not the part, and the pass would only
         # spread it over the hand's surface; the hand's registration is its motion
         quiet |= trk._carry_moved & ~detected & (trk.visibility < cfg.carry_hidden_skip)
+    if cfg.carry_start_skip:
+        # a carry's first frame: the hand's registration places it, not the likelihood on its few visible pixels
+        quiet |= trk._carry_started
     if not detection_on(cfg) or memory is None or not detections:
         trk._quiet_skips[:] = 0
         trk._quiet_now = quiet

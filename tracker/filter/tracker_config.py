@@ -222,6 +222,21 @@ class TrackerConfig(BaseModel):
         "motion only and, with the hand's step beyond the 2 cm pairing bound, slid 2-3 cm toward the camera (two "
         "tuning traces, tracker seed 1: 11-31 mm; the carry then kept that offset to its end, 30-40 mm at p95).",
     )
+    carry_start_collapse: bool = Field(
+        False, description="A part whose carry starts this frame from its estimate (not backtracked; a backtracked "
+        "start collapses already) has every particle put at the pose the hand's motion gave it, velocities zero, "
+        "before its coordinate pass: the cloud a fast part still partly seen was spread over (re-seeds on its blob, "
+        "wide noise; 25 mm on a tuning trace) is not left around a right carry start for the likelihood on its few "
+        "visible pixels to pick from (the pass pulled a start 1 mm right 23 mm off, and the refinement failed there).",
+    )
+    carry_start_skip: bool = Field(
+        False, description="A part whose carry starts this frame and that the hand's motion moved skips its "
+        "coordinate pass this frame (as carry_hidden_skip skips a hidden carried part's): its first carried pose is "
+        "the hand's registration's, not a pick among its particles by the likelihood on the few pixels of it the hand "
+        "leaves visible. Alone it hardly acts (22.6 against 23.5 mm on the tuning trace): the frame's first "
+        "likelihood, at the prediction of all parts, weighs the joint particles by its pixels as well. Meant with "
+        "carry_start_collapse.",
+    )
     carry_turn_fallback: bool = Field(
         False, description="A hand-patch registration that turns more than carry_max_turn in one frame has failed "
         "(a fast move mismatched its point pairs): the carried part follows the translation-only registration, "
