@@ -237,9 +237,9 @@ class SurfaceRender:
         if obj < 0 or obj >= self.boxes.shape[0]:
             return np.empty((0, 3)), np.empty((0, 3))
         j0, j1, i0, i1 = (int(x) for x in self.boxes[obj])
-        return _points_of(self.label, np.asarray(self.depth, np.float64), np.asarray(self.normal, np.float64), obj,
-                          self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy,
-                          j0, j1, i0, i1)
+        return _cell_points(self.label, np.asarray(self.depth, np.float64), np.asarray(self.normal, np.float64), obj,
+                            self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy,
+                            j0, j1, i0, i1, *_NO_POSE, False)
 
 
     def body_points_of(self, obj: int, intrinsics: Intrinsics, R: np.ndarray,
@@ -253,10 +253,10 @@ class SurfaceRender:
         if obj < 0 or obj >= self.boxes.shape[0]:
             return np.empty((0, 3)), np.empty((0, 3))
         j0, j1, i0, i1 = (int(x) for x in self.boxes[obj])
-        return _body_points_of(self.label, np.asarray(self.depth, np.float64), np.asarray(self.normal, np.float64),
-                               obj, self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx,
-                               intrinsics.cy, j0, j1, i0, i1, np.ascontiguousarray(R, np.float64),
-                               np.ascontiguousarray(t, np.float64))
+        return _cell_points(self.label, np.asarray(self.depth, np.float64), np.asarray(self.normal, np.float64), obj,
+                            self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy,
+                            j0, j1, i0, i1, np.ascontiguousarray(R, np.float64), np.ascontiguousarray(t, np.float64),
+                            True)
 
 
 @nb.njit(cache=True)
@@ -284,10 +284,12 @@ def _label_boxes(label):
 
 
 @nb.njit(cache=True)
-def _points_of(label, depth, normal, obj, u0, v0, stride, fx, fy, cx, cy, j0, j1, i0, i1):
-    """:meth:`SurfaceRender.points_of` in one pass: the cells labelled ``obj``, back-projected
-    (``x = (u − cx)/fx · z``, ``y = (v − cy)/fy · z``), and their normals; only the rows ``j0 … j1`` and columns
-    ``i0 … i1`` (inclusive) are visited, which hold all of them."""
+def _cell_points(label, depth, normal, obj, u0, v0, stride, fx, fy, cx, cy, j0, j1, i0, i1, R, t, to_body):
+    """:meth:`SurfaceRender.points_of` (``to_body`` False; ``R``, ``t`` unused) and
+    :meth:`~SurfaceRender.body_points_of` (True) in one pass: the cells labelled ``obj``, back-projected
+    (``x = (u − cx)/fx · z``, ``y = (v − cy)/fy · z``), and their normals, camera frame, or taken into the body frame
+    of ``(R, t)`` as they are formed (``(p − t) @ R``, ``n @ R``, each entry ``fma(d2, r2, fma(d1, r1, d0·r0))``);
+    only the rows ``j0 … j1`` and columns ``i0 … i1`` (inclusive) are visited, which hold all of them."""
     n = 0
     for j in range(j0, j1 + 1):
         for i in range(i0, i1 + 1):
@@ -303,43 +305,23 @@ def _points_of(label, depth, normal, obj, u0, v0, stride, fx, fy, cx, cy, j0, j1
                 continue
             u = u0 + i * stride
             z = depth[j, i]
-            pts[m, 0] = (u - cx) / fx * z
-            pts[m, 1] = (v - cy) / fy * z
-            pts[m, 2] = z
-            for r in range(3):
-                nrm[m, r] = normal[j, i, r]
-            m += 1
-    return pts, nrm
-
-
-@nb.njit(cache=True)
-def _body_points_of(label, depth, normal, obj, u0, v0, stride, fx, fy, cx, cy, j0, j1, i0, i1, R, t):
-    """:meth:`SurfaceRender.body_points_of`: :func:`_points_of`'s points and normals taken into the body frame of
-    ``(R, t)`` as they are formed."""
-    n = 0
-    for j in range(j0, j1 + 1):
-        for i in range(i0, i1 + 1):
-            if label[j, i] == obj:
-                n += 1
-    pts = np.empty((n, 3))
-    nrm = np.empty((n, 3))
-    m = 0
-    for j in range(j0, j1 + 1):
-        v = v0 + j * stride
-        for i in range(i0, i1 + 1):
-            if label[j, i] != obj:
-                continue
-            u = u0 + i * stride
-            z = depth[j, i]
-            d0 = (u - cx) / fx * z - t[0]
-            d1 = (v - cy) / fy * z - t[1]
-            d2 = z - t[2]
+            x = (u - cx) / fx * z
+            y = (v - cy) / fy * z
             n0, n1, n2 = normal[j, i, 0], normal[j, i, 1], normal[j, i, 2]
-            for c in range(3):
-                pts[m, c] = fma(d2, R[2, c], fma(d1, R[1, c], d0 * R[0, c]))
-                nrm[m, c] = fma(n2, R[2, c], fma(n1, R[1, c], n0 * R[0, c]))
+            if to_body:
+                d0, d1, d2 = x - t[0], y - t[1], z - t[2]
+                for c in range(3):
+                    pts[m, c] = fma(d2, R[2, c], fma(d1, R[1, c], d0 * R[0, c]))
+                    nrm[m, c] = fma(n2, R[2, c], fma(n1, R[1, c], n0 * R[0, c]))
+            else:
+                pts[m, 0], pts[m, 1], pts[m, 2] = x, y, z
+                nrm[m, 0], nrm[m, 1], nrm[m, 2] = n0, n1, n2
             m += 1
     return pts, nrm
+
+
+_NO_POSE = (np.eye(3), np.zeros(3))
+"""The ``R``, ``t`` :func:`_cell_points` ignores for camera-frame points."""
 
 
 def render_surfaces(
