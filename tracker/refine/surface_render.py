@@ -232,15 +232,7 @@ class SurfaceRender:
     def points_of(self, obj: int, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
         """Visible surface points (camera frame, (M, 3)) of part ``obj`` and their normals (M, 3), in row-major
         order of their pixels."""
-        if self.boxes is None:
-            self.boxes = _label_boxes(self.label)
-        if obj < 0 or obj >= self.boxes.shape[0]:
-            return np.empty((0, 3)), np.empty((0, 3))
-        j0, j1, i0, i1 = (int(x) for x in self.boxes[obj])
-        return _cell_points(self.label, np.asarray(self.depth, np.float64), np.asarray(self.normal, np.float64), obj,
-                            self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy,
-                            j0, j1, i0, i1, *_NO_POSE, False)
-
+        return self._points_in(obj, intrinsics, None)
 
     def body_points_of(self, obj: int, intrinsics: Intrinsics, R: np.ndarray,
                        t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -248,15 +240,19 @@ class SurfaceRender:
         ``nrm @ R``, each entry rounded as numpy's BLAS product of these shapes rounds it here
         (``fma(d2, r2, fma(d1, r1, d0·r0))``, :mod:`tracker.geometry.fma`), in one pass without the camera-frame
         arrays."""
+        return self._points_in(obj, intrinsics, (R, t))
+
+    def _points_in(self, obj: int, intrinsics: Intrinsics, pose: tuple | None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`points_of` (``pose`` None) or :meth:`body_points_of` (``pose`` = ``(R, t)``)."""
         if self.boxes is None:
             self.boxes = _label_boxes(self.label)
         if obj < 0 or obj >= self.boxes.shape[0]:
             return np.empty((0, 3)), np.empty((0, 3))
         j0, j1, i0, i1 = (int(x) for x in self.boxes[obj])
+        R, t = _NO_POSE if pose is None else (np.ascontiguousarray(x, np.float64) for x in pose)
         return _cell_points(self.label, np.asarray(self.depth, np.float64), np.asarray(self.normal, np.float64), obj,
                             self.u0, self.v0, self.stride, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy,
-                            j0, j1, i0, i1, np.ascontiguousarray(R, np.float64), np.ascontiguousarray(t, np.float64),
-                            True)
+                            j0, j1, i0, i1, R, t, pose is not None)
 
 
 @nb.njit(cache=True)
