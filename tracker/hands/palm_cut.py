@@ -28,6 +28,7 @@ import numba as nb
 import numpy as np
 
 from tracker.hands import order_stats
+from tracker.hands.track_boxes import border_band, touches_border
 
 MIN_ARM_M = 0.15
 """A border component counts as hand + forearm when its extent from the entry point exceeds this length (m) at the
@@ -81,7 +82,7 @@ def palm_cut(comp: np.ndarray, depth: np.ndarray | None, scale: int, focal: floa
     h, w = comp.shape
     if image_size is not None:
         w, h = image_size
-    b = max(1, int(round(2.0 / scale)))
+    b = border_band(scale)
     xs, ys, e, border = _component_pixels(comp, int(origin[0]), int(origin[1]), b, w, h)
     d = _distances(xs, ys, e[0], e[1])
     z = 0.75
@@ -152,11 +153,11 @@ def palm_anchors(mask: np.ndarray, depth: np.ndarray | None, scale: int, focal: 
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)))
     n, lab, stats, (ox, oy) = cropped_components(mask)
     h, w = mask.shape
-    b = max(1, int(round(2.0 / scale)))
+    b = border_band(scale)
     out = []
     for i in range(1, n):
         x, y, bw, bh, area = (int(v) for v in stats[i])
-        if area < min_area or not (x < b or y < b or x + bw > w - b or y + bh > h - b):
+        if area < min_area or not touches_border((x, y, x + bw - 1, y + bh - 1), (w, h), b):
             continue
         sub = lab[y - oy : y - oy + bh, x - ox : x - ox + bw] == i
         cut = palm_cut(sub, depth, scale, focal, hand_length_m, origin=(x, y), image_size=(w, h), tube=tube)

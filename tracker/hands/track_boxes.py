@@ -45,3 +45,15 @@ def inside_fraction(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) 
 def boxes_overlap(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
     """Do two inclusive boxes share at least one pixel (or, for real-valued boxes, a point)?"""
     return min(a[2], b[2]) >= max(a[0], b[0]) and min(a[3], b[3]) >= max(a[1], b[1])
+
+
+def border_band(scale: int) -> int:
+    """The image-border band b of the track rules (working px): 2 full-resolution px at working scale ``scale``
+    (full px per working px), at least 1."""
+    return max(1, int(round(2.0 / scale)))
+
+
+def touches_border(box: tuple[int, int, int, int], size: tuple[int, int], band: int) -> bool:
+    """Does inclusive box ``box`` come within ``band`` px of the border of an image of ``size`` (w, h)?"""
+    w, h = size
+    return box[0] < band or box[1] < band or box[2] > w - 1 - band or box[3] > h - 1 - band

@@ -184,11 +184,13 @@ from tracker.hands.palm_cut import cropped_components, match_anchor, palm_anchor
 from tracker.hands.particle_filter import HandParticleFilter, PFParams
 from tracker.hands.skin_model import SkinModel
 from tracker.hands.track_boxes import (
+    border_band,
     box_f_score,
     boxes_overlap,
     clipped_box,
     inside_fraction,
     state_box,
+    touches_border,
 )
 from tracker.hands.track_identity import (
     APART_F,
@@ -1317,9 +1319,7 @@ class HandTracker(TrackIdentity):
     def _left_image(self, b: tuple[int, int, int, int], size: tuple[int, int]) -> bool:
         """Whether a track's inclusive working box ``b`` reaches the image border (within b = 2 full px, as for a
         candidate) and holds no pixel of this frame's colour mask (``EXIT_END``): its hand has left the image."""
-        w, h = size
-        bp = max(1, int(round(2.0 / self.s)))
-        if not (b[0] < bp or b[1] < bp or b[2] > w - 1 - bp or b[3] > h - 1 - bp):
+        if not touches_border(b, size, border_band(self.s)):
             return False
         assert self._cur_rgb is not None
         n, _ = mask_count(b[0], b[1], b[2], b[3], self._frame_mask(self._cur_rgb))
@@ -1340,7 +1340,7 @@ class HandTracker(TrackIdentity):
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disk)
         n, lab, stats, (ox, oy) = cropped_components(mask)
         min_area = cfg.min_area_frac * w * h
-        b = max(1, int(round(2.0 / self.s)))
+        b = border_band(self.s)
         track_boxes = [state_box(tr.filt.estimate) for tr in self.tracks if not any(tr is t for t in ignore)]
         found: list[tuple[int, tuple[int, int, int, int], int, bool]] = []
         for i in range(1, n):
@@ -1359,7 +1359,7 @@ class HandTracker(TrackIdentity):
                         covered[b0:b1, a0:a1] = True
                 if np.count_nonzero(comp & covered) > 0:
                     continue
-            border = bx < b or by < b or bx + bw > w - b or by + bh > h - b
+            border = touches_border(box, (w, h), b)
             found.append((area, box, i, border))
         cands: list[_Candidate] = []
         best: tuple[int, int, _Candidate] | None = None
