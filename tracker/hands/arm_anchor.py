@@ -650,11 +650,8 @@ def behind_seeds(seeds: np.ndarray, sk: np.ndarray, sleeve: np.ndarray, z: np.nd
 
 @nb.njit(cache=True, nogil=True)
 def _behind_seeds(seeds, sk, sleeve, z, n_arms, gap, r):
-    """:func:`behind_seeds`' work: a pass over the seeds marking those to drop, then the copy without them where an
-    arm keeps some."""
+    """:func:`behind_seeds`' work: the seeds not behind their sleeve marked, then dropped (:func:`_drop_marked`)."""
     h, w = seeds.shape
-    mine = np.zeros(n_arms + 1, np.int64)
-    drop = np.zeros(n_arms + 1, np.int64)
     gone = np.zeros((h, w), np.uint8)
     side = 2 * r + 1
     a = np.empty(side * side)
@@ -664,7 +661,6 @@ def _behind_seeds(seeds, sk, sleeve, z, n_arms, gap, r):
             s = seeds[y, x]
             if s <= 0 or s > n_arms:
                 continue
-            mine[s] += 1
             na = 0
             nb_ = 0
             for yy in range(max(y - r, 0), min(y + r + 1, h)):
@@ -680,14 +676,7 @@ def _behind_seeds(seeds, sk, sleeve, z, n_arms, gap, r):
                         nb_ += 1
             if na > 0 and nb_ > 0 and np.median(a[:na]) - np.median(b[:nb_]) < gap:
                 gone[y, x] = 1
-                drop[s] += 1
-    out = seeds.copy()
-    for y in range(h):
-        for x in range(w):
-            s = seeds[y, x]
-            if gone[y, x] and 0 < drop[s] < mine[s]:
-                out[y, x] = 0
-    return out
+    return _drop_marked(seeds, gone, n_arms)
 
 
 def vetoed_seeds(seeds: np.ndarray, carried: np.ndarray, n_arms: int) -> np.ndarray:
@@ -699,8 +688,23 @@ def vetoed_seeds(seeds: np.ndarray, carried: np.ndarray, n_arms: int) -> np.ndar
 
 @nb.njit(cache=True, nogil=True)
 def _vetoed_seeds(seeds, carried, n_arms):
-    """:func:`vetoed_seeds`' work in two passes over the image (per arm: its seeds and those in another arm's pixels;
-    then the copy without the latter where some seeds are left)."""
+    """:func:`vetoed_seeds`' work: the seeds in another arm's previous pixels marked, then dropped
+    (:func:`_drop_marked`)."""
+    h, w = seeds.shape
+    gone = np.zeros((h, w), np.uint8)
+    for y in range(h):
+        for x in range(w):
+            s = seeds[y, x]
+            c = carried[y, x]
+            if 0 < s <= n_arms and c > 0 and c != s:
+                gone[y, x] = 1
+    return _drop_marked(seeds, gone, n_arms)
+
+
+@nb.njit(cache=True, nogil=True)
+def _drop_marked(seeds, gone, n_arms):
+    """A copy of ``seeds`` (arm k's wrist seeds = k, 1 ≤ k ≤ ``n_arms``) without the seeds ``gone`` marks, except for
+    an arm all of whose seeds are marked: it keeps them all."""
     h, w = seeds.shape
     mine = np.zeros(n_arms + 1, np.int64)
     drop = np.zeros(n_arms + 1, np.int64)
@@ -709,17 +713,13 @@ def _vetoed_seeds(seeds, carried, n_arms):
             s = seeds[y, x]
             if 0 < s <= n_arms:
                 mine[s] += 1
-                c = carried[y, x]
-                if c > 0 and c != s:
-                    drop[s] += 1
+                drop[s] += gone[y, x] != 0
     out = seeds.copy()
     for y in range(h):
         for x in range(w):
             s = seeds[y, x]
-            if 0 < s <= n_arms and 0 < drop[s] < mine[s]:
-                c = carried[y, x]
-                if c > 0 and c != s:
-                    out[y, x] = 0
+            if 0 < s <= n_arms and gone[y, x] and 0 < drop[s] < mine[s]:
+                out[y, x] = 0
     return out
 
 
