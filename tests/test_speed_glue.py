@@ -339,3 +339,84 @@ def test_body_points_equal_the_numpy_transform_of_the_camera_points(seed):
             assert np.array_equal(body, (pts - t) @ R) and np.array_equal(nbody, nrm @ R)
             n_seen += pts.shape[0]
     assert n_seen > 1000
+
+
+@nb.njit(cache=True)
+def _nearest_grid_order(pts, lo, dims, start, order, cell, bound2, q0, q1, q2):
+    """The hand registration's nearest-point search as it was before session 34: the 27 cells around the query in
+    grid order, the first strictly nearer point kept (the reference of :func:`point_icp._nearest`)."""
+    fx = np.floor((q0 - lo[0]) / cell)
+    fy = np.floor((q1 - lo[1]) / cell)
+    fz = np.floor((q2 - lo[2]) / cell)
+    best, best_d2 = -1, bound2
+    if fx < -1.0 or fy < -1.0 or fz < -1.0 or fx > dims[0] or fy > dims[1] or fz > dims[2]:
+        return best, best_d2
+    ix, iy, iz = int(fx), int(fy), int(fz)
+    for ax in range(max(ix - 1, 0), min(ix + 2, dims[0])):
+        for ay in range(max(iy - 1, 0), min(iy + 2, dims[1])):
+            base = (ax * dims[1] + ay) * dims[2]
+            for az in range(max(iz - 1, 0), min(iz + 2, dims[2])):
+                k = base + az
+                for s in range(start[k], start[k + 1]):
+                    j = order[s]
+                    dx = q0 - pts[j, 0]
+                    dy = q1 - pts[j, 1]
+                    dz = q2 - pts[j, 2]
+                    d2 = dx * dx + dy * dy + dz * dz
+                    if d2 < best_d2:
+                        best, best_d2 = j, d2
+    return best, best_d2
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_pruned_nearest_search_equals_the_grid_order_scan(seed):
+    """:func:`point_icp._nearest` (own cell first, neighbour cells skipped beyond the best, a seed tried first)
+    finds exactly the point and squared distance of the 27-cell scan in grid order, ties included: clouds, noisy
+    surfaces and lattices (many equal distances, points on cell walls), duplicated points, queries inside, on the
+    lattice and just outside the grid, seeds none, the true answer, near and anywhere."""
+    from tracker.geometry.point_icp import _nearest, build_grid
+
+    rng = np.random.default_rng(40 + seed)
+    n_seeded = n_ties = 0
+    for case in range(12):
+        kind = case % 3
+        cell = 0.02
+        if kind == 0:  # a cloud
+            pts = rng.uniform(-0.08, 0.08, (int(rng.integers(20, 700)), 3))
+        elif kind == 1:  # a noisy curved surface, as a hand's points
+            uv = rng.uniform(-0.1, 0.1, (int(rng.integers(50, 900)), 2))
+            pts = np.column_stack([uv, 0.3 * (uv**2).sum(1) + rng.normal(0.0, 5e-4, uv.shape[0])])
+        else:  # a lattice of a quarter cell: walls and equal distances
+            pts = rng.integers(-12, 12, (int(rng.integers(20, 600)), 3)) * (cell / 4.0)
+        pts = pts + rng.uniform(-1.0, 1.0, 3)
+        pts = np.vstack([pts, pts[rng.integers(0, pts.shape[0], pts.shape[0] // 10)]])  # duplicates
+        pts = np.ascontiguousarray(pts[rng.permutation(pts.shape[0])])
+        lo, dims, start, order = build_grid(pts, cell)
+        spts = np.ascontiguousarray(pts[order])
+        inv = np.empty_like(order)
+        inv[order] = np.arange(order.size)
+        bound2 = (cell * (1.0 if case % 2 else 0.7)) ** 2
+        span = pts.max(0) - pts.min(0)
+        for _ in range(400):
+            r = rng.random()
+            if r < 0.4:  # near a point
+                q = pts[rng.integers(0, pts.shape[0])] + rng.normal(0.0, 0.004, 3)
+            elif r < 0.6:  # on the lattice of the points' walls
+                q = lo + rng.integers(-1, 12, 3) * (cell / 4.0)
+            elif r < 0.8:  # a point itself
+                q = pts[rng.integers(0, pts.shape[0])].copy()
+            else:  # anywhere around the grid, inside or up to two cells out
+                q = lo + rng.uniform(-2.0 * cell, 1.0, 3) * np.maximum(span, 1e-6) + rng.uniform(-0.03, 0.03, 3)
+            want, want_d2 = _nearest_grid_order(pts, lo, dims, start, order, cell, bound2, q[0], q[1], q[2])
+            seeds = [-1, int(rng.integers(0, pts.shape[0]))]
+            if want >= 0:
+                seeds.append(int(inv[want]))
+                d = ((pts - q) ** 2).sum(1)
+                n_ties += int((d == want_d2).sum() > 1)
+            for s0 in seeds:
+                got, got_d2, got_s = _nearest(spts, lo, dims, start, order, cell, bound2, q[0], q[1], q[2], s0)
+                assert (got, got_d2) == (want, want_d2), (case, q, s0)
+                assert got_s == (inv[got] if got >= 0 else -1)
+                n_seeded += s0 >= 0
+    assert n_seeded > 5000
+    assert n_ties > 20  # equal distances did occur (the lattices, the duplicates)

@@ -8,7 +8,10 @@ Nearest neighbours come from a uniform grid (:func:`build_grid`) whose cells are
 (2 cm): every point closer than the bound to a query lies in the query's cell or one of its 26 neighbours, so the
 search is exact within the bound, which is all the registration asks (pairs farther than the bound are dropped and
 the residual cost clips distances at the bound). The sums run in another order than numpy's and an equidistant
-neighbour may be chosen differently, so results agree with the numpy form to rounding, not to the bit.
+neighbour may be chosen differently, so results agree with the numpy form to rounding, not to the bit. The search
+(:func:`_nearest`) tries the point's last nearest neighbour first, then the own cell, and scans a neighbour cell only
+when its wall is nearer than the best so far (about 2x fewer distances); ties go to the earliest point in grid
+order, so it returns exactly what the full scan of the 27 cells in grid order returned.
 
 Units: metres, radians; points and rotation vectors in the camera frame.
 """
@@ -59,31 +62,99 @@ def build_grid(pts: np.ndarray, cell: float):
     return lo, dims, start, order
 
 
+CELL_SLACK = 1e-9
+"""Slack (m) of the cell walls in :func:`_nearest`'s test of which neighbour cells can hold a point nearer than the
+best so far: a point's cell comes from rounded divisions, so it may lie a rounding error (~1e-16 m here) outside its
+cell's nominal box; the test treats every wall as this much nearer (a cell is skipped only when even then nothing in
+it can beat the best)."""
+
+
 @nb.njit(cache=True, inline="always")
-def _nearest(pts, lo, dims, start, order, cell, bound2, q0, q1, q2):
-    """Index of the point of ``pts`` nearest to (q0, q1, q2) among those closer than sqrt(bound2) (−1: none) and
-    its squared distance. ``bound2`` must not exceed ``cell``²."""
+def _cell_gap(q, lo, cell, i, side, n):
+    """Distance (m) along one axis from coordinate ``q`` (in cell ``i`` of ``n``; −1 or ``n`` for a query just
+    outside the grid) to the nearest wall of the neighbour cell on ``side`` (−1, 0, +1; 0 = its own cell: 0), less
+    :data:`CELL_SLACK`, never below 0; a wall at the grid's outer edge counts as 0 (no cell lies beyond it)."""
+    if side == 0:
+        return 0.0
+    if side < 0:
+        g = q - (lo + i * cell) if i > 0 else 0.0
+    else:
+        g = (lo + (i + 1) * cell) - q if i + 1 < n else 0.0
+    g -= CELL_SLACK
+    return g if g > 0.0 else 0.0
+
+
+@nb.njit(cache=True, inline="always")
+def _scan_cell(spts, start, order, k, q0, q1, q2, best, best_d2, best_s):
+    """:func:`_nearest`'s scan of grid cell ``k``: the best (index, squared distance, grid position) after it; a
+    point replaces the best when strictly nearer, or as near and earlier in grid order."""
+    for s in range(start[k], start[k + 1]):
+        dx = q0 - spts[s, 0]
+        dy = q1 - spts[s, 1]
+        dz = q2 - spts[s, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 < best_d2 or (d2 == best_d2 and best >= 0 and s < best_s):
+            best, best_d2, best_s = order[s], d2, s
+    return best, best_d2, best_s
+
+
+@nb.njit(cache=True, inline="always")
+def _nearest(spts, lo, dims, start, order, cell, bound2, q0, q1, q2, seed=-1):
+    """Index of the point of ``pts`` nearest to (q0, q1, q2) among those closer than sqrt(bound2) (−1: none), its
+    squared distance and its grid position (−1: none). ``spts`` are the points in grid order (``pts[order]``);
+    ``seed``: a grid position to try first (e.g. the query's last nearest point; −1: none). ``bound2`` must not
+    exceed ``cell``².
+
+    The result is that of scanning the 27 cells around the query in grid order and keeping the first strictly
+    nearer point (ties: the point earliest in grid order). Here the seed is taken first, then the query's own cell,
+    then a neighbour cell only when its nearest wall (:func:`_cell_gap`) is nearer than the best so far; ties are
+    resolved by grid position explicitly, so neither the seed nor the order changes the result."""
     fx = np.floor((q0 - lo[0]) / cell)
     fy = np.floor((q1 - lo[1]) / cell)
     fz = np.floor((q2 - lo[2]) / cell)
-    best, best_d2 = -1, bound2
+    best, best_d2, best_s = -1, bound2, -1
     if fx < -1.0 or fy < -1.0 or fz < -1.0 or fx > dims[0] or fy > dims[1] or fz > dims[2]:
-        return best, best_d2
+        return best, best_d2, best_s
+    if seed >= 0:
+        # a seed farther than the bound is not a candidate (nor could the scan find it: it would lie beyond it)
+        dx = q0 - spts[seed, 0]
+        dy = q1 - spts[seed, 1]
+        dz = q2 - spts[seed, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 < best_d2:
+            best, best_d2, best_s = order[seed], d2, seed
     ix, iy, iz = int(fx), int(fy), int(fz)
-    for ax in range(max(ix - 1, 0), min(ix + 2, dims[0])):
-        for ay in range(max(iy - 1, 0), min(iy + 2, dims[1])):
-            base = (ax * dims[1] + ay) * dims[2]
-            for az in range(max(iz - 1, 0), min(iz + 2, dims[2])):
-                k = base + az
-                for s in range(start[k], start[k + 1]):
-                    j = order[s]
-                    dx = q0 - pts[j, 0]
-                    dy = q1 - pts[j, 1]
-                    dz = q2 - pts[j, 2]
-                    d2 = dx * dx + dy * dy + dz * dz
-                    if d2 < best_d2:
-                        best, best_d2 = j, d2
-    return best, best_d2
+    # the own cell first
+    if 0 <= ix < dims[0] and 0 <= iy < dims[1] and 0 <= iz < dims[2]:
+        best, best_d2, best_s = _scan_cell(spts, start, order, (ix * dims[1] + iy) * dims[2] + iz, q0, q1, q2, best,
+                                           best_d2, best_s)
+    # then the neighbours in grid order, an axis's slab of cells skipped as soon as its wall is beyond the best
+    for sx in range(-1, 2):
+        ax = ix + sx
+        if ax < 0 or ax >= dims[0]:
+            continue
+        gx = _cell_gap(q0, lo[0], cell, ix, sx, dims[0])
+        gx2 = gx * gx
+        if gx2 > best_d2:
+            continue
+        for sy in range(-1, 2):
+            ay = iy + sy
+            if ay < 0 or ay >= dims[1]:
+                continue
+            gy = _cell_gap(q1, lo[1], cell, iy, sy, dims[1])
+            gxy2 = gx2 + gy * gy
+            if gxy2 > best_d2:
+                continue
+            for sz in range(-1, 2):
+                az = iz + sz
+                if az < 0 or az >= dims[2] or (sx == 0 and sy == 0 and sz == 0):
+                    continue
+                gz = _cell_gap(q2, lo[2], cell, iz, sz, dims[2])
+                if gxy2 + gz * gz > best_d2:
+                    continue
+                best, best_d2, best_s = _scan_cell(spts, start, order, (ax * dims[1] + ay) * dims[2] + az, q0, q1,
+                                                   q2, best, best_d2, best_s)
+    return best, best_d2, best_s
 
 
 @nb.njit(cache=True)
@@ -165,6 +236,11 @@ def rigid_icp(rel: np.ndarray, c: np.ndarray, dst: np.ndarray, normals: np.ndarr
     w = w0.copy()
     t = t0.copy()
     row = np.empty(6)
+    spts = np.empty((order.shape[0], 3))  # the points in grid order: a cell's points side by side
+    for s in range(order.shape[0]):
+        for a in range(3):
+            spts[s, a] = dst[order[s], a]
+    last = np.full(m, -1, np.int64)  # per moved point, the grid position of its nearest point in the last round
     for _ in range(max(iterations, 1)):
         R = rotvec_matrix(w)
         A = np.zeros((nv, nv))
@@ -176,7 +252,7 @@ def rigid_icp(rel: np.ndarray, c: np.ndarray, dst: np.ndarray, normals: np.ndarr
             q1 = R[1, 0] * r0 + R[1, 1] * r1 + R[1, 2] * r2
             q2 = R[2, 0] * r0 + R[2, 1] * r1 + R[2, 2] * r2
             m0, m1, m2 = q0 + c[0] + t[0], q1 + c[1] + t[1], q2 + c[2] + t[2]
-            j, _d2 = _nearest(dst, lo, dims, start, order, cell, bound2, m0, m1, m2)
+            j, _d2, last[i] = _nearest(spts, lo, dims, start, order, cell, bound2, m0, m1, m2, last[i])
             if j < 0:
                 continue
             pairs += 1
@@ -226,6 +302,6 @@ def rigid_icp(rel: np.ndarray, c: np.ndarray, dst: np.ndarray, normals: np.ndarr
         m0 = R[0, 0] * r0 + R[0, 1] * r1 + R[0, 2] * r2 + c[0] + t[0]
         m1 = R[1, 0] * r0 + R[1, 1] * r1 + R[1, 2] * r2 + c[1] + t[1]
         m2 = R[2, 0] * r0 + R[2, 1] * r1 + R[2, 2] * r2 + c[2] + t[2]
-        j, d2 = _nearest(dst, lo, dims, start, order, cell, bound2, m0, m1, m2)
+        j, d2, _s = _nearest(spts, lo, dims, start, order, cell, bound2, m0, m1, m2, last[i])
         total += np.sqrt(d2) if j >= 0 else bound
     return w, t, total / max(m, 1)
