@@ -13,6 +13,7 @@ import pytest
 
 from tracker.filter.depth_likelihood import _pixel_terms as pixel_terms
 from tracker.filter.motion_model import propagate, propagate_part_into, rotvec_to_matrix
+from tracker.filter.penalties import bounding_radii, obb_overlap, world_centres
 
 
 def test_propagation_into_a_part_column_equals_gather_propagate_and_assign():
@@ -420,3 +421,52 @@ def test_pruned_nearest_search_equals_the_grid_order_scan(seed):
                 n_seeded += s0 >= 0
     assert n_seeded > 5000
     assert n_ties > 20  # equal distances did occur (the lattices, the duplicates)
+
+
+@nb.njit(cache=True)
+def _pair_flags_reference(R, t, center, half, pairs, cols, tol, flags):
+    """The pair test as one function before session 34 (bounding spheres, then the boxes' separating axes) for the
+    pairs ``pairs[cols]`` of every particle (the reference of the penalties' pair kernels)."""
+    rad = bounding_radii(half)
+    cw = np.empty((R.shape[1], 3))
+    for j in range(R.shape[0]):
+        world_centres(R, t, j, center, cw)
+        for mm in range(cols.shape[0]):
+            m = cols[mm]
+            a, b = pairs[m, 0], pairs[m, 1]
+            d2 = (cw[a, 0] - cw[b, 0]) ** 2 + (cw[a, 1] - cw[b, 1]) ** 2 + (cw[a, 2] - cw[b, 2]) ** 2
+            if d2 > (rad[a] + rad[b]) ** 2:
+                flags[j, m] = False
+            else:
+                flags[j, m] = obb_overlap(R[j, a], cw[a], half[a], R[j, b], cw[b], half[b], tol)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_pair_kernels_equal_the_sphere_then_boxes_test(seed):
+    """The coordinate passes' pair flags (:func:`weigh.pair_intersections`) and the refinement's per-particle test
+    (:func:`penalties.intersection_flags`), with the sphere test and the box test written apart, give the flags of
+    the one-function form on boxes apart, touching, crossing and nested (every kind occurs)."""
+    from tracker.filter.penalties import intersection_flags
+    from tracker.filter.weigh import pair_intersections
+
+    rng = np.random.default_rng(70 + seed)
+    n, k = 300, 5
+    half = rng.uniform(0.01, 0.04, (k, 3))
+    center = rng.normal(0.0, 0.005, (k, 3))
+    pairs = np.array([(a, b) for a in range(k) for b in range(a + 1, k)], np.int64)
+    spread = np.array([0.01, 0.03, 0.08, 0.3])[rng.integers(0, 4, n)]  # nested to far apart
+    t = rng.normal(0.0, 1.0, (n, k, 3)) * spread[:, None, None] + np.array([0.0, 0.0, 0.6])
+    R = np.stack([rotvec_to_matrix(rng.normal(0.0, 1.0, (n, 3))) for _ in range(k)], axis=1)
+    R[: n // 4] = np.eye(3)  # aligned boxes: the cross-product axes degenerate
+    for tol in (0.0, 0.002):
+        for cols in (np.arange(len(pairs), dtype=np.int64), np.array([1, 4, 7], np.int64)):
+            want = np.zeros((n, len(pairs)), np.bool_)
+            got = np.ones((n, len(pairs)), np.bool_)
+            _pair_flags_reference(R, t, center, half, pairs, cols, tol, want)
+            got[:, np.setdiff1d(np.arange(len(pairs)), cols)] = False
+            pair_intersections(R, t, center, half, pairs, cols, tol, got)
+            assert np.array_equal(got, want)
+        every = np.zeros((n, len(pairs)), np.bool_)
+        _pair_flags_reference(R, t, center, half, pairs, np.arange(len(pairs), dtype=np.int64), tol, every)
+        assert np.array_equal(intersection_flags(R, t, center, half, pairs, tol), every.any(axis=1))
+        assert 0.1 < every.any(axis=1).mean() < 0.9  # some particles with a crossing pair, some without

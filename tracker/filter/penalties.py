@@ -16,7 +16,7 @@ import numpy as np
 
 
 @nb.njit(cache=True)
-def _obb_overlap(Ra, ca, ha, Rb, cb, hb, tol):
+def obb_overlap(Ra, ca, ha, Rb, cb, hb, tol):
     """True when two oriented boxes overlap by more than ``tol`` along every separating axis candidate.
 
     ``Ra``/``Rb`` body→camera rotations (columns = box axes), ``ca``/``cb`` centres, ``ha``/``hb`` half extents.
@@ -74,13 +74,15 @@ def world_centres(R, t, j, center, cw):
 
 
 @nb.njit(cache=True, inline="always")
-def pair_overlaps(R, j, cw, rad, half, a, b, tol):
-    """Do parts ``a`` and ``b`` of particle ``j`` interpenetrate by more than ``tol`` metres? The bounding spheres
-    first (centres ``cw``, radii ``rad``), then the separating-axis test of the boxes."""
+def spheres_apart(cw, rad, a, b):
+    """Are the bounding spheres of parts ``a`` and ``b`` apart (centres ``cw`` (K, 3), radii ``rad`` (K,))? Then the
+    pair cannot interpenetrate; else the separating-axis test of the boxes (:func:`obb_overlap`) decides.
+
+    (The two tests are written one after the other in the callers' loops, the box test called only for the pairs
+    this one lets through: as one inlined function that returned early or called the box test, the pair test cost
+    about 50 ns a pair, 5x the sphere test itself, on pairs whose spheres nearly always lie apart.)"""
     d2 = (cw[a, 0] - cw[b, 0]) ** 2 + (cw[a, 1] - cw[b, 1]) ** 2 + (cw[a, 2] - cw[b, 2]) ** 2
-    if d2 > (rad[a] + rad[b]) ** 2:  # bounding spheres apart
-        return False
-    return _obb_overlap(R[j, a], cw[a], half[a], R[j, b], cw[b], half[b], tol)
+    return d2 > (rad[a] + rad[b]) ** 2
 
 
 @nb.njit(cache=True)
@@ -97,7 +99,9 @@ def intersection_flags(R, t, center, half, pairs, tol):
     for j in range(n):
         world_centres(R, t, j, center, cw)
         for m in range(pairs.shape[0]):
-            if pair_overlaps(R, j, cw, rad, half, pairs[m, 0], pairs[m, 1], tol):
+            a, b = pairs[m, 0], pairs[m, 1]
+            if not spheres_apart(cw, rad, a, b) and obb_overlap(R[j, a], cw[a], half[a], R[j, b], cw[b], half[b],
+                                                                 tol):
                 out[j] = True
                 break
     return out

@@ -30,7 +30,8 @@ from tracker.filter.penalties import (
     bounding_radii,
     intersection_log_penalty,
     lowest_heights,
-    pair_overlaps,
+    obb_overlap,
+    spheres_apart,
     table_log_penalty,
     world_centres,
 )
@@ -421,4 +422,7 @@ def pair_intersections(R, t, center, half, pairs, cols, tol, flags):
         world_centres(R, t, j, center, cw)
         for mm in range(cols.shape[0]):
             m = cols[mm]
-            flags[j, m] = pair_overlaps(R, j, cw, rad, half, pairs[m, 0], pairs[m, 1], tol)
+            a, b = pairs[m, 0], pairs[m, 1]
+            # (the box test only for the pairs the spheres let through: see spheres_apart)
+            flags[j, m] = not spheres_apart(cw, rad, a, b) and obb_overlap(R[j, a], cw[a], half[a], R[j, b], cw[b],
+                                                                            half[b], tol)
