@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from tracker.filter.depth_likelihood import _pixel_terms as pixel_terms
-from tracker.filter.motion_model import propagate, propagate_part_into, rotvec_to_matrix
+from tracker.filter.motion_model import propagate, propagate_part_into, rodrigues_terms, rotvec_to_matrix
 from tracker.filter.penalties import bounding_radii, obb_overlap, world_centres
+from tracker.geometry.fma import matmul33
 
 
 def test_propagation_into_a_part_column_equals_gather_propagate_and_assign():
@@ -470,3 +471,54 @@ def test_pair_kernels_equal_the_sphere_then_boxes_test(seed):
         _pair_flags_reference(R, t, center, half, pairs, np.arange(len(pairs), dtype=np.int64), tol, every)
         assert np.array_equal(intersection_flags(R, t, center, half, pairs, tol), every.any(axis=1))
         assert 0.1 < every.any(axis=1).mean() < 0.9  # some particles with a crossing pair, some without
+
+
+@nb.njit(cache=True)
+def _propagate_by_views(p_all, R_all, v_all, rows, obj, noise, u, k_v, b, p_out, R_out, v_out):
+    """The propagation kernel as it was before session 34 (one inlined step per particle on views of its rows; the
+    reference of :func:`propagate_part_into`)."""
+    K = np.empty((3, 3))
+    KK = np.empty((3, 3))
+    E = np.empty((3, 3))
+    for j in range(rows.shape[0]):
+        r = rows[j]
+        v_prev, p_ref, R_ref = v_all[r, obj], p_all[r, obj], R_all[r, obj]
+        v, p, R = v_out[j, obj], p_out[j, obj], R_out[j, obj]
+        for a in range(6):
+            v[a] = k_v * v_prev[a] + noise[j, a]
+        for a in range(3):
+            v[a] += b * u[a]
+            p[a] = p_ref[a] + v[a]
+        fa, fb = rodrigues_terms(v[3], v[4], v[5], K)
+        matmul33(K, K, KK)
+        for a in range(3):
+            for c in range(3):
+                eye = 1.0 if a == c else 0.0
+                E[a, c] = (eye + fa * K[a, c]) + fb * KK[a, c]
+        matmul33(E, R_ref, R)
+
+
+def test_propagation_by_index_equals_the_kernel_on_views():
+    """:func:`propagate_part_into` (entries read and written by index) and :func:`propagate` (the same kernel on a
+    part's column) give the view-based kernel's particles bit for bit: ordered, repeated and permuted rows, turns
+    below the series threshold, small and large."""
+    rng = np.random.default_rng(11)
+    n, k, obj = 90, 4, 1
+    p_all = rng.normal(0.0, 0.3, (n, k, 3))
+    R_all = np.stack([rotvec_to_matrix(rng.normal(0.0, 1.0, (n, 3))) for _ in range(k)], axis=1)
+    u = np.array([0.004, -0.002, 0.001])
+    for scale in (1e-10, 1e-3, 0.05, 1.5):
+        v_all = rng.normal(0.0, scale, (n, k, 6))
+        for perm in (np.arange(n), np.sort(rng.integers(0, n, n)), rng.permutation(n)):
+            noise = rng.normal(0.0, scale, (n, 6))
+            noise[:4, 3:] = -v_all[perm[:4], obj, 3:] * 0.7  # no turn at all
+            outs = [tuple(rng.normal(size=a.shape) for a in (p_all, R_all, v_all)) for _ in range(2)]
+            outs[1] = tuple(a.copy() for a in outs[0])
+            propagate_part_into(p_all, R_all, v_all, perm.astype(np.int64), obj, noise, u, 0.7, 0.4, *outs[0])
+            _propagate_by_views(p_all, R_all, v_all, perm.astype(np.int64), obj, noise, u, 0.7, 0.4, *outs[1])
+            for got, want in zip(*outs, strict=True):
+                assert np.array_equal(got, want)
+            p, R, v = propagate(p_all[perm, obj], R_all[perm, obj], v_all[perm, obj], u, noise, 0.7, 0.4)
+            assert np.array_equal(p, outs[1][0][:, obj])
+            assert np.array_equal(R, outs[1][1][:, obj])
+            assert np.array_equal(v, outs[1][2][:, obj])

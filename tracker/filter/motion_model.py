@@ -18,7 +18,7 @@ import numba as nb
 import numpy as np
 
 from tracker.geometry.camera import Intrinsics
-from tracker.geometry.fma import matmul33
+from tracker.geometry.fma import fma, matmul33
 from tracker.geometry.pose import Pose, matrix_to_quat, quat_to_matrix
 
 
@@ -45,18 +45,20 @@ def propagate(
     ``p_ref`` (M, 3), ``R_ref`` (M, 3, 3): reference (previous) poses; ``v_prev`` (M, 6) = (v, ω);
     ``u`` (3,) control input (metres); ``noise`` (M, 6) samples of w. Returns (p, R, v), new arrays.
 
-    One numba pass (:func:`_propagate_kernel`) forms the operations of :func:`propagate_numpy` in its order, the two
-    3×3 products as numpy's matmul rounds them (:func:`tracker.geometry.fma.matmul33`), so that the result is
-    :func:`propagate_numpy`'s bit for bit without numpy's per-matrix product calls.
+    One numba pass (:func:`propagate_part_into` on the arrays seen as one part's column) forms the operations of
+    :func:`propagate_numpy` in its order, the two 3×3 products as numpy's matmul rounds them
+    (:func:`tracker.geometry.fma.matmul33`), so that the result is :func:`propagate_numpy`'s bit for bit without
+    numpy's per-matrix product calls.
     """
     m = p_ref.shape[0]
-    p = np.empty((m, 3))
-    R = np.empty((m, 3, 3))
-    v = np.empty((m, 6))
-    _propagate_kernel(np.asarray(p_ref, np.float64), np.asarray(R_ref, np.float64), np.asarray(v_prev, np.float64),
-                      np.asarray(noise, np.float64), np.asarray(u, np.float64).reshape(3), float(k_v), float(b), p, R,
-                      v)
-    return p, R, v
+    p = np.empty((m, 1, 3))
+    R = np.empty((m, 1, 3, 3))
+    v = np.empty((m, 1, 6))
+    propagate_part_into(np.asarray(p_ref, np.float64)[:, None], np.asarray(R_ref, np.float64)[:, None],
+                        np.asarray(v_prev, np.float64)[:, None], np.arange(m, dtype=np.int64), 0,
+                        np.asarray(noise, np.float64), np.asarray(u, np.float64).reshape(3), float(k_v), float(b), p,
+                        R, v)
+    return p[:, 0], R[:, 0], v[:, 0]
 
 
 @nb.njit(cache=True)
@@ -76,53 +78,40 @@ def rodrigues_terms(w0: float, w1: float, w2: float, K: np.ndarray) -> tuple[flo
     return fa, fb
 
 
-@nb.njit(cache=True, inline="always")
-def _propagate_one(p_ref, R_ref, v_prev, noise, u, k_v, b, p, R, v, K, KK, E):
-    """One particle of :func:`_propagate_kernel`: ``p_ref`` (3,), ``R_ref`` (3, 3), ``v_prev`` (6,), ``noise`` (6,)
-    into ``p`` (3,), ``R`` (3, 3), ``v`` (6,); ``K``, ``KK``, ``E`` (3, 3) scratch."""
-    for a in range(6):
-        v[a] = k_v * v_prev[a] + noise[a]
-    for a in range(3):
-        v[a] += b * u[a]
-        p[a] = p_ref[a] + v[a]
-    fa, fb = rodrigues_terms(v[3], v[4], v[5], K)
-    matmul33(K, K, KK)
-    for a in range(3):
-        for c in range(3):
-            eye = 1.0 if a == c else 0.0
-            E[a, c] = (eye + fa * K[a, c]) + fb * KK[a, c]
-    matmul33(E, R_ref, R)
-
-
-@nb.njit(cache=True)
-def _propagate_kernel(p_ref, R_ref, v_prev, noise, u, k_v, b, p, R, v):
-    """:func:`propagate` into ``p``, ``R``, ``v``. Per particle: ``v = k_v v_prev + noise`` (+ ``b u`` on the linear
-    part), ``p = p_ref + v[:3]``, the skew matrix ``K`` of ω = ``v[3:]`` and Rodrigues' coefficients ``fa`` = sin θ /
-    θ, ``fb`` = (1 − cos θ) / θ² (series below 1e-9 rad), ``E = (I + fa K) + fb (K K)`` and ``R = E R_ref``, with the
-    operations of :func:`propagate_numpy` and :func:`rotvec_to_matrix` (same values; the products rounded as numpy's
-    matmul). Works on strided inputs (one part's slice of the (N, K, ...) arrays)."""
-    m = p_ref.shape[0]
-    K = np.empty((3, 3))
-    KK = np.empty((3, 3))
-    E = np.empty((3, 3))
-    for j in range(m):
-        _propagate_one(p_ref[j], R_ref[j], v_prev[j], noise[j], u, k_v, b, p[j], R[j], v[j], K, KK, E)
-
-
 @nb.njit(cache=True)
 def propagate_part_into(p_all, R_all, v_all, rows, obj, noise, u, k_v, b, p_out, R_out, v_out):
     """:func:`propagate` of part ``obj`` for the particles ``rows`` (N,) of ``p_all`` (M, K, 3), ``R_all``
     (M, K, 3, 3), ``v_all`` (M, K, 6) (e.g. last frame's particles in the current order: rows = the resamplings
     composed), written straight into column ``obj`` of ``p_out`` (N, K, 3), ``R_out``, ``v_out``: the values of
     ``p_out[:, obj], R_out[:, obj], v_out[:, obj] = propagate(p_all[rows, obj], R_all[rows, obj], v_all[rows, obj],
-    u, noise, k_v, b)`` without the gathered and returned arrays."""
+    u, noise, k_v, b)`` without the gathered and returned arrays.
+
+    Per particle: ``v = k_v v_prev + noise`` (+ ``b u`` on the linear part), ``p = p_ref + v[:3]``, the skew matrix
+    ``K`` of ω = ``v[3:]`` and Rodrigues' coefficients ``fa`` = sin θ / θ, ``fb`` = (1 − cos θ) / θ² (series below
+    1e-9 rad), ``E = (I + fa K) + fb (K K)`` and ``R = E R_ref``, with the operations of :func:`propagate_numpy` and
+    :func:`rotvec_to_matrix` (same values; the products rounded as numpy's matmul,
+    :func:`tracker.geometry.fma.matmul33`). The particles' entries are read and written by index (no per-particle
+    array views: a view per argument and particle cost about as much as the arithmetic)."""
     K = np.empty((3, 3))
     KK = np.empty((3, 3))
     E = np.empty((3, 3))
     for j in range(rows.shape[0]):
         r = rows[j]
-        _propagate_one(p_all[r, obj], R_all[r, obj], v_all[r, obj], noise[j], u, k_v, b, p_out[j, obj],
-                       R_out[j, obj], v_out[j, obj], K, KK, E)
+        for a in range(6):
+            v_out[j, obj, a] = k_v * v_all[r, obj, a] + noise[j, a]
+        for a in range(3):
+            v_out[j, obj, a] += b * u[a]
+            p_out[j, obj, a] = p_all[r, obj, a] + v_out[j, obj, a]
+        fa, fb = rodrigues_terms(v_out[j, obj, 3], v_out[j, obj, 4], v_out[j, obj, 5], K)
+        matmul33(K, K, KK)
+        for a in range(3):
+            for c in range(3):
+                eye = 1.0 if a == c else 0.0
+                E[a, c] = (eye + fa * K[a, c]) + fb * KK[a, c]
+        for a in range(3):  # R = E @ R_ref as matmul33 forms it
+            for c in range(3):
+                R_out[j, obj, a, c] = fma(E[a, 2], R_all[r, obj, 2, c],
+                                          fma(E[a, 1], R_all[r, obj, 1, c], E[a, 0] * R_all[r, obj, 0, c]))
 
 
 def propagate_numpy(
