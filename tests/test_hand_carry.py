@@ -812,3 +812,90 @@ def test_a_carry_started_on_a_partly_seen_part_is_not_pulled_off_by_its_spread_p
     assert not off_skipped.any() and both_skipped[start] and not both_skipped[start + 1 :].any(), both_skipped
     default, _, _ = _partly_seen_start_run(carry_start_collapse=False, carry_start_skip=False)
     assert np.array_equal(default, off)
+
+
+def test_shifted_starts_find_a_hand_step_beyond_the_pairing_bound():
+    """carry_shift_starts: noise-free fingers (``tests/test_projective_icp.py``) moved 3.2 cm across themselves and
+    toward or away from the camera, registered from no motion (a carry's step with no guess): the pairs within the
+    2 cm bound lead the ICP into a wrong minimum (18.8-19.0 mm off, turned 0.13-0.14 rad); a start shifted 2 cm along
+    y lies within the bound of the true step and its residual wins (0.3 mm). Off (0) is the call without it, bit for
+    bit."""
+    from tests.test_projective_icp import _fingers, _thinned
+
+    part = np.array([0.0, 0.0, 0.47])
+    src = _thinned(_fingers(np.zeros(3)), part, 0.08)
+    for true in (np.array([0.0, 0.03, 0.01]), np.array([0.0, 0.025, -0.02])):
+        dst = _thinned(_fingers(true), part, 0.13)
+        w_off, t_off = register_rigid(src, dst, 8, 0.05, 0.2, None, None, True)
+        w_on, t_on = register_rigid(src, dst, 8, 0.05, 0.2, None, None, True, None, 0.02)
+        assert np.linalg.norm(t_off - true) > 0.015, t_off
+        assert np.linalg.norm(t_on - true) < 0.001 and np.linalg.norm(w_on) < 0.01, (t_on, w_on)
+        w0, t0 = register_rigid(src, dst, 8, 0.05, 0.2, None, None, True, None, 0.0)
+        assert np.array_equal(w0, w_off) and np.array_equal(t0, t_off)
+
+
+@cache
+def _fast_hand_run(shift: float) -> tuple[np.ndarray, np.ndarray]:
+    """Simulated guess-3, hand-held camera, occlusion 1.5, speed 2 (tuning seed 2), frames 60-79, tracked as ``track``
+    does from the truth at frame 60 (tracker seed 1, default preset, ``carry_shift_starts`` = ``shift``): the hand
+    slides the red cube 3-4 cm a frame and takes it at frame 70. Returns red's translation error (mm) and whether it
+    is carried, per frame."""
+    from tracker.sources.simulator import SimOptions, SimulatedTable
+
+    src = SimulatedTable("guess-3", seed=2, realtime=False, n_frames=80,
+                         options=SimOptions(speed=2.0, occlusion=1.5, camera_motion="handheld"))
+    cfg = TrackerConfig.preset("default").with_overrides(carry_shift_starts=shift)
+    errs, carried = [], []
+    for _, state, truth in _session_window(src, cfg, range(60, 80), seed=1):
+        errs.append(1e3 * state.poses["red"].translation_error(truth["red"]))
+        carried.append("red" in state.carried)
+    return np.array(errs), np.array(carried)
+
+
+def test_a_carry_whose_hand_steps_beyond_the_pairing_bound_follows_it_from_shifted_starts():
+    """carry_shift_starts: the carry's first registration (frame 69's hand points to frame 70's) starts from no motion
+    and from red's remembered step (wiped by the re-seeds on its blob), the hand's 3.7 cm step lies beyond the 2 cm
+    pairing bound, the ICP settles 2-3 cm off and the carry keeps that (32-35 mm to frame 79). With starts shifted
+    2 cm along each axis one lands within the bound and its residual wins: 4-6 mm. The frames before the carry are the
+    same (the setting acts only in a registration); off is the default."""
+    off, off_carried = _fast_hand_run(0.0)
+    on, on_carried = _fast_hand_run(0.02)
+    start = 70 - 60
+    assert off_carried[start:].all() and on_carried[start:].all() and not off_carried[:start].any()
+    assert np.array_equal(off[:start], on[:start])
+    assert off[start:].mean() > 25.0, off
+    assert on[start:].max() < 8.0, on
+    assert TrackerConfig.preset("default").carry_shift_starts == 0.0  # off is the default
+
+
+def test_the_keep_moving_test_moves_a_re_seeded_part_from_its_pose_before_the_re_seed():
+    """carry_keep_moving_pre_reseed: simulated guess-3, hand-held camera, occlusion 1.5, speed 2 (tuning seed 2),
+    frame 70: the hand carries the red cube 3.7 cm a frame, ~25 % of it seen, and the colour stage has re-seeded it on
+    its blob (20 mm off the truth, as on the tuning trace of tracker seed 1 with carry_start_placed_step). The
+    keep-moving test (its visible fraction would end the carry) moved the re-seeded estimate by the hand's step (53 mm
+    off; the depth shows 3 % of it there, 5 % where it was): dropped. From its pose before the re-seed, where the
+    hand's registration started, the step takes it to the truth (10 % shown): kept in the hand. Off is the
+    default."""
+    from app.commands.track import TrackSession
+    from tracker.filter.hidden_parts import moved_with_hand
+    from tracker.geometry.pose import Pose
+    from tracker.sources.simulator import SimOptions, SimulatedTable
+
+    src = SimulatedTable("guess-3", seed=2, realtime=False, n_frames=71,
+                         options=SimOptions(speed=2.0, occlusion=1.5, camera_motion="handheld"))
+    g69, g70 = src.render(69).meta["groundtruth"], src.render(70).meta["groundtruth"]
+    depth = src.render(70).depth
+    M = np.linalg.inv(g70["camera_pose"].as_matrix()) @ g69["camera_pose"].as_matrix()
+    before = Pose.from_matrix(M @ g69["poses"]["red"].as_matrix())  # last frame's pose, in this frame's camera
+    Q = g70["poses"]["red"].as_matrix() @ np.linalg.inv(before.as_matrix())  # the hand's true motion this frame
+    reseeded = Pose.from_rt(before.R, before.t + np.array([-0.049, -0.002, 0.020]))
+    kept = {}
+    for on in (False, True):
+        cfg = TrackerConfig.preset("default").with_overrides(carry_keep_moving_pre_reseed=on)
+        trk = TrackSession(src.parts, src.intrinsics, g70["poses"], cfg, seed=0).tracker
+        red = trk.names.index("red")
+        trk.estimates["red"] = reseeded
+        trk._pre_reseed = {red: before}
+        kept[on] = moved_with_hand(trk, red, depth, Q[:3, :3], Q[:3, 3])
+    assert kept == {False: False, True: True}, kept
+    assert not TrackerConfig.preset("default").carry_keep_moving_pre_reseed

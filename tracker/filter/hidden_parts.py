@@ -190,13 +190,26 @@ def moved_with_hand(trk, obj: int, depth: np.ndarray, R: np.ndarray, t: np.ndarr
     the hand when this frame's hand motion (x ↦ ``R`` x + ``t``, camera frame, m) moves its centre by at least
     ``carry_keep_moving`` m and this frame's depth shows it better where that motion takes it than where it was
     (:func:`seen_where_it_was` at both poses): a cube 35 % seen in a hand moving it 1 cm a frame is still in the hand;
-    a cube the hand has let go stays where the depth shows it."""
-    est = trk.estimates[trk.names[obj]]
+    a cube the hand has let go stays where the depth shows it. With ``carry_keep_moving_pre_reseed`` a part re-seeded
+    on its blob this frame is moved from its pose before the re-seed (:func:`moved_from`)."""
+    est = moved_from(trk, obj)
     moved = Pose.from_rt(R @ est.R, R @ est.t + t)
     c = est.R @ trk.center[obj] + est.t
     if np.linalg.norm(R @ c + t - c) < trk.config.carry_keep_moving:
         return False
     return seen_where_it_was(trk, obj, depth, pose=moved) > seen_where_it_was(trk, obj, depth)
+
+
+def moved_from(trk, obj: int) -> Pose:
+    """The pose (camera frame) that this frame's hand motion moves carried part ``obj`` from in the
+    ``carry_keep_moving`` test: its estimate, or, with ``carry_keep_moving_pre_reseed`` and ``carry_over_sliver``, for a
+    part the colour stage has just re-seeded on its blob, its estimate before that re-seed: the hand's registration
+    started there (:func:`follow_hands` registers around it) and ``carry_over_sliver`` moves the part from there, while
+    the re-seeded estimate already holds part of the frame's motion (along its blob), which the hand's step would add
+    a second time."""
+    cfg = trk.config
+    pre = trk._pre_reseed.get(obj) if (cfg.carry_keep_moving_pre_reseed and cfg.carry_over_sliver) else None
+    return trk.estimates[trk.names[obj]] if pre is None else pre
 
 
 def blob_centre(det) -> np.ndarray | None:

@@ -302,6 +302,22 @@ class TrackerConfig(BaseModel):
         "was (a cube 35 % seen in a hand moving it 1 cm a frame was dropped for one frame by its visible fraction "
         "crossing rest_prior_max_visibility, re-checked on its sliver 21 degrees off and carried on so).",
     )
+    carry_keep_moving_pre_reseed: bool = Field(
+        False, description="With carry_keep_moving and carry_over_sliver: a part the colour stage has re-seeded on its "
+        "blob this frame is tested from the pose it had before that re-seed (the pose the hand's registration moved "
+        "and carry_over_sliver moves), not from the re-seeded estimate: the hand's step added to the re-seed, which "
+        "has already moved it along its blob, counted the frame's motion twice (a cube carried 37 mm a frame, 30 % "
+        "seen, was tested 55 mm off and dropped for a frame, 20 mm off, on a tuning trace; from its last pose the "
+        "hand's step puts it 2.3 mm from the truth).",
+    )
+    carry_shift_starts: float = Field(
+        0.0, ge=0.0, description="Metres (0 = off): the hand-patch registration of a carry (every frame, and a "
+        "backtracked start's) also starts from its first guess shifted by this much along each camera axis (six more "
+        "starts of the compiled ICP); one of them is taken only when its mean residual (clipped at the 2 cm pairing "
+        "bound) is lower than the usual starts' best by more than 1 mm: a hand moving 3-4 cm a frame, beyond the "
+        "pairing bound, from a wrong first guess settles in a wrong minimum (6.9-8.4 mm residual on a tuning trace, "
+        "20-27 mm off) that a start within 2 cm of the true step leaves (2.3 mm).",
+    )
     carry_blob_depth: bool = Field(
         False, description="A carried part whose reliable blob lies off its silhouette (the colour stage re-seeds it "
         "on the blob's ray, at its old depth when the blob has no depth) is turned by the hand's motion and put on "
