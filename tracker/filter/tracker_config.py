@@ -237,6 +237,15 @@ class TrackerConfig(BaseModel):
         "likelihood, at the prediction of all parts, weighs the joint particles by its pixels as well. Meant with "
         "carry_start_collapse.",
     )
+    refined_collapse_m: float = Field(
+        0.0, ge=0.0, description="Metres (0 = off): a part that this frame's dense-depth refinement placed (a healthy, "
+        "accepted correction; not a held one) while its particles are spread wider than this (the norm of their "
+        "weighted per-axis standard deviations) has every particle put at the refined pose, velocities zero: a cloud "
+        "that a re-seed on the blob of a partly seen part (at a release, or by the colour stage) left spread over "
+        "2-3 cm is not left around a pose the depth confirmed for the next frame's likelihood on its few visible "
+        "pixels to pick from (a tuning trace: a release re-placed 6.8 mm off, the next pass pulled it 27.8 mm off "
+        "toward the particles still at the carried pose, and the refinement failed there).",
+    )
     carry_turn_fallback: bool = Field(
         False, description="A hand-patch registration that turns more than carry_max_turn in one frame has failed "
         "(a fast move mismatched its point pairs): the carried part follows the translation-only registration, "

@@ -220,6 +220,8 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
         if not held[i] and intersects_others(trk, i, ref, state.poses, stack):
             continue
         trk.p[:, i], trk.R[:, i] = corr.apply_to(trk.p[:, i], trk.R[:, i])
+        if not held[i] and trk.config.refined_collapse_m > 0 and spread(trk, i) > trk.config.refined_collapse_m:
+            trk.p[:, i], trk.R[:, i], trk.v[:, i] = ref.t, ref.R, 0.0  # refined_collapse_m: kept where the depth put it
         state.poses[name] = ref
         if stack is not None:
             stack[0][0, i], stack[1][0, i] = ref.R, ref.t
@@ -231,6 +233,16 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
             trk._rest_R[i] = corr.R.copy()
     # a held part's correction is not the depth's: it is not remembered (so the part is refined next frame)
     quiet_parts.remember(trk, detections, state.poses, [None if h else c for h, c in zip(held, applied, strict=True)])
+
+
+def spread(trk: MultiObjectTracker, obj: int) -> float:
+    """Spread (m) of part ``obj``'s particle positions: the norm of their per-axis standard deviations under the
+    particle weights (camera frame)."""
+    w = np.exp(trk.log_w - np.max(trk.log_w))
+    w /= w.sum()
+    p = trk.p[:, obj]
+    mean = w @ p
+    return float(np.sqrt(w @ ((p - mean) ** 2).sum(1)))
 
 
 def reuse_icp(trk: MultiObjectTracker, obj: int, est: Pose, det) -> Pose | None:
