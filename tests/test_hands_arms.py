@@ -602,3 +602,65 @@ def test_behind_seeds_keep_seeds_behind_the_sleeve_or_without_depth_and_an_arm_k
     out = behind_seeds(seeds, sk, sleeve, z, 2)
     assert out[5, 5] == 1 and out[5, 15] == 0 and out[5, 25] == 1 and out[5, 14] == 2
     assert seeds[5, 15] == 1  # the input is not changed
+
+
+def test_an_arm_whose_hand_the_other_arm_took_is_reseeded_from_the_previous_split(monkeypatch):
+    """Arm A's sleeve ends 8 px below its hand and touches only a small skin blob there (a finger of the other hand
+    peeking past it; 3 px of table between it and hand A), while hand A touches hand B: afresh A's wrist seeds only
+    the blob and B's label takes both hands. With STOLEN_RESEED and the previous frame's split (A held its hand) A's
+    previous pixels seed it again and A gets its hand back; off, or without a previous split, nothing changes."""
+    from tracker.hands import arm_anchor
+
+    rgb = np.zeros((H, W, 3), np.uint8) + np.uint8(TABLE)
+    depth = np.full((H, W), 0.8, np.float32)
+    for box, colour, z in (([64, 158, 86, 240], SLEEVES[0], 0.72), ([60, 110, 100, 150], SKIN, 0.72),
+                           ([100, 110, 140, 150], SKIN, 0.72), ([114, 150, 136, 240], SLEEVES[1], 0.72),
+                           ([68, 153, 82, 158], SKIN, 0.72)):  # fmt: skip
+        rgb[box[1] : box[3], box[0] : box[2]] = colour
+        depth[box[1] : box[3], box[0] : box[2]] = z
+    skin = SkinModel.load().with_threshold(-2.0).mask(rgb)
+    z = working_depth(depth, 1, (H, W))
+    bg = working_depth(np.full((H, W), 0.8), 1, (H, W))
+    fresh, split = arm_split(skin, z, bg)
+    assert split is not None and len(split.entries) == 2
+    a = int(np.argmin(split.entries[:, 0]))
+    by_entry = {int(h.entry[0] >= 100): h.box for h in fresh}
+    assert by_entry[0][1] >= 148 and by_entry[1][0] <= 62  # afresh A keeps only the blob, B takes both hands
+    labels = np.where(skin > 0, np.where(np.arange(W)[None, :] < 100, a + 1, 2 - a), 0).astype(np.int32)
+    prev = ArmSplit(labels, split.entries.copy())
+    boxes = {}
+    for on in (False, True):
+        monkeypatch.setattr(arm_anchor, "STOLEN_RESEED", on)
+        boxes[on] = {int(h.entry[0] >= 100): h.box for h in arm_split(skin, z, bg, prev)[0]}
+    assert boxes[False] == by_entry  # off: the previous split's KEEP_COST alone does not give A its hand back
+    assert boxes[True][0][:2] == (60, 110) and boxes[True][0][2] >= 97 and boxes[True][1][0] >= 99
+    assert {int(h.entry[0] >= 100): h.box for h in arm_split(skin, z, bg)[0]} == by_entry  # no previous split
+
+
+def test_stolen_seeds_reseed_only_an_arm_whose_previous_pixels_the_other_arm_took():
+    """Arm 2's label took all of arm 1's previous pixels while arm 1's wrist seeds a separate blob: arm 1 gets the
+    eroded core of its previous pixels as seeds. Not when arm 1 kept a third of them, when nothing changed, or when its
+    wrist seeds lie in the region of its previous pixels (the new split may be putting a wrong previous one right)."""
+    from tracker.hands.arm_anchor import stolen_seeds
+
+    sk = np.zeros((20, 40), np.uint8)
+    sk[2:18, 2:38] = 1
+    sk[19, 8:13] = 1  # a separate blob at arm 1's wrist
+    carried = np.zeros((20, 40), np.int32)
+    carried[2:18, 2:20] = 1
+    carried[2:18, 20:38] = 2
+    seeds = np.zeros((20, 40), np.int32)
+    seeds[17, 30] = 2
+    seeds[19, 10] = 1
+    labels = np.where(sk > 0, 2, 0).astype(np.int32)  # arm 2 took all of arm 1's previous pixels
+    labels[19] = np.where(sk[19] > 0, 1, 0)
+    out = stolen_seeds(labels, carried, sk, seeds)
+    assert out is not None and out[10, 10] == 1 and out[2, 2] == 0 and out[10, 30] == 0  # eroded core of arm 1's
+    assert out[19, 10] == 1 and out[17, 30] == 2 and seeds[10, 10] == 0  # the wrist seeds kept, the input unchanged
+    inside = seeds.copy()
+    inside[19, 10] = 0
+    inside[17, 10] = 1  # arm 1's wrist seeds the region of its previous pixels
+    assert stolen_seeds(labels, carried, sk, inside) is None
+    labels[2:18, 2:8] = 1  # arm 1 kept a third of its pixels: not taken
+    assert stolen_seeds(labels, carried, sk, seeds) is None
+    assert stolen_seeds(np.where(sk > 0, carried, 0).astype(np.int32), carried, sk, seeds) is None  # as before

@@ -17,18 +17,18 @@ frame and without tracking, each arm and the skin pixels at its end:
 3. Wrist: the sleeve pixels whose straight-line distance from the arm's entry point is at least :data:`WRIST_FAR`
    of the farthest and that lie next to skin; the skin pixels next to them seed the hand.
 4. Hands: one multi-source geodesic distance over the skin mask from all arms' seeds at once (Dijkstra, 4-neighbour
-   steps of cost 1, plus :data:`DEPTH_STEP_COST` across a depth step larger than :data:`DEPTH_STEP` m: the edge of
-   the upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's
-   blind band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split
-   gave another arm, when the tracker ran this detector on the previous frame too, whose wrist seeds in such pixels
-   are dropped, :data:`SEED_VETO`; wrist seeds whose skin does not lie behind the sleeve beside them, another hand
-   lying over the sleeve's end, are dropped too, :data:`SEED_BEHIND`); each skin pixel belongs to the
-   arm whose wrist reaches it first. Crossing a grey-level edge costs extra too (:data:`EDGE_SPLIT`: two hands of one
-   tone still differ in shading where they meet). With the frame's optical flow (:data:`MOTION_SPLIT`, on) two arms'
-   split is run again with the two hands' motions as a prior: a skin pixel whose flow clearly follows one hand's
-   motion costs the other arm's label :data:`MOTION_COST` per pixel (:func:`motion_prior`). A hand's box is the
-   tight box of its pixels (at least :data:`MIN_HAND_PX`) and of the unopened mask's skin within :data:`RIM_PX` of
-   them (:data:`BOX_RIM`).
+   steps of cost 1, plus :data:`DEPTH_STEP_COST` across a depth step larger than :data:`DEPTH_STEP` m: the edge of the
+   upper hand over the lower one; also into or out of a skin pixel without depth, :data:`HOLE_STEP`, the sensor's blind
+   band along that edge; and :data:`KEEP_COST` per pixel into a skin pixel that the previous frame's split gave another
+   arm, when the tracker ran this detector on the previous frame too, whose wrist seeds in such pixels are dropped,
+   :data:`SEED_VETO`; wrist seeds whose skin does not lie behind the sleeve beside them, another hand lying over the
+   sleeve's end, are dropped too, :data:`SEED_BEHIND`; an arm whose hand the other arm's label took since the previous
+   frame can get its previous pixels as seeds, :data:`STOLEN_RESEED`, off); each skin pixel belongs to the arm whose
+   wrist reaches it first. Crossing a grey-level edge costs extra too (:data:`EDGE_SPLIT`: two hands of one tone still
+   differ in shading where they meet). With the frame's optical flow (:data:`MOTION_SPLIT`, on) two arms' split is run
+   again with the two hands' motions as a prior: a skin pixel whose flow clearly follows one hand's motion costs the
+   other arm's label :data:`MOTION_COST` per pixel (:func:`motion_prior`). A hand's box is the tight box of its pixels
+   (at least :data:`MIN_HAND_PX`) and of the unopened mask's skin within :data:`RIM_PX` of them (:data:`BOX_RIM`).
 
 Without depth nothing is found. Dev measurement (``hands-s2`` tuning seeds 0–4, this detector alone, no tracking,
 the left entry taken as one hand): per hand-frame F̄^b 0.76 / 0.85 / 0.66 / 0.83 / 0.55; used where it finds the
@@ -230,6 +230,27 @@ on its calls of ground-truth-start runs of ``hands-s2`` tuning seeds 0–4 (lost
 254.9; R 2 at 5 mm 214.3 (every seed better), R 5 at 8 mm (seeds 1, 4) 123.1."""
 BEHIND_R = 2
 """Half side (working px) of the square around a wrist seed in which :data:`SEED_BEHIND` compares depths."""
+STOLEN_RESEED = False
+"""Whether an arm whose hand the other arm's label took from one frame to the next gets its previous pixels as seeds
+and the split is redone (:func:`stolen_seeds`; two arms and the previous frame's split only). Where two forearms
+cross, one arm's sleeve end can lie over the other hand, whose skin then parts the sleeve from its own hand: that
+arm's wrist seeds none of its hand, and since a seed costs nothing the other arm's label takes the whole hand however
+much :data:`KEEP_COST` charges (``hands-s2`` seed 2 frames 43–55). New in session 34, off: ``hands-s2``
+tuning seeds 0–4, the same frames for both arms, filter seeds 0–4, off → on: it acts on seed 2 only (frames 43–44
+mended in every run), ground-truth start F̄^b 0.9181 → 0.9183, ē^p 4.927 → 4.916 px, automatic start 0.9220 → 0.9214,
+ē^p 4.541 → 4.610 px (seed 2 0.9139 → 0.9108, the filters' chance after the mended frames), missed hands 9 / 9.
+Without the wrist-region condition of :func:`stolen_seeds` it also swapped seed 4's hands back where the new split put a
+swapped previous one right (seed 4 worse in all 10 runs). ``benchmarks/history/issue-14-hands.md``."""
+STOLEN_OWN = 0.2
+"""Share of an arm's previous pixels below which its label in this split counts as having left them
+(:data:`STOLEN_RESEED`)."""
+STOLEN_OTHER = 0.6
+"""Share of an arm's previous pixels above which the other arm's label counts as having taken them
+(:data:`STOLEN_RESEED`)."""
+STOLEN_MIN_PX = 50
+"""Fewest previous pixels (working px, skin in this frame) of an arm for :data:`STOLEN_RESEED` to act."""
+STOLEN_ERODE = 2
+"""Working px by which an arm's previous pixels are eroded (a square) before they seed it (:data:`STOLEN_RESEED`)."""
 MOTION_ITERS = 5
 """Lloyd iterations of the two-means clustering of the labelled skin pixels' flow (started from each arm's median)."""
 MOTION_MEDIAN_GATE = True
@@ -679,6 +700,38 @@ def _behind_seeds(seeds, sk, sleeve, z, n_arms, gap, r):
     return _drop_marked(seeds, gone, n_arms)
 
 
+def stolen_seeds(labels: np.ndarray, carried: np.ndarray, sk: np.ndarray, seeds: np.ndarray) -> np.ndarray | None:
+    """Two arms' wrist seeds (``seeds``, int32 H×W, 1 and 2) plus, for an arm whose hand the other arm's label took
+    (:data:`STOLEN_RESEED`), its previous pixels as seeds; None when neither arm's was taken. An arm's hand counts as
+    taken when of its previous pixels (``carried``, the previous split renumbered to these arms, that are skin in the
+    opened mask ``sk``; at least :data:`STOLEN_MIN_PX`) less than :data:`STOLEN_OWN` got its label in this split
+    (``labels``) and more than :data:`STOLEN_OTHER` the other arm's; its seeds are then those pixels eroded by
+    :data:`STOLEN_ERODE` px (a square; the hand moves a few px a frame) where no wrist seeds lie. Not when its wrist
+    seeds lie in 8-connected skin regions of ``sk`` that hold :data:`STOLEN_OWN` of those pixels or more: its wrist
+    then reaches its previous hand's region, and the new split may be putting a wrong previous one right."""
+    out = None
+    comps = None
+    for k in (1, 2):
+        mine = (carried == k) & (sk > 0)
+        n = int(np.count_nonzero(mine))
+        if n < STOLEN_MIN_PX:
+            continue
+        kept = int(np.count_nonzero(mine & (labels == k)))
+        taken = int(np.count_nonzero(mine & (labels == 3 - k)))
+        if kept >= STOLEN_OWN * n or taken <= STOLEN_OTHER * n:
+            continue
+        if comps is None:
+            comps = cv2.connectedComponents(np.ascontiguousarray(sk, np.uint8), connectivity=8)[1]
+        if np.count_nonzero(mine & np.isin(comps, comps[seeds == k])) >= STOLEN_OWN * n:
+            continue  # its wrist reaches the skin region of its previous hand: a correction of the split, not a loss
+        side = 2 * STOLEN_ERODE + 1
+        core = (cv2.erode(mine.astype(np.uint8), np.ones((side, side), np.uint8)) > 0) & (seeds == 0)
+        if core.any():
+            out = seeds.copy() if out is None else out
+            out[core] = k
+    return out
+
+
 def vetoed_seeds(seeds: np.ndarray, carried: np.ndarray, n_arms: int) -> np.ndarray:
     """``seeds`` (int32 H×W, arm k's wrist seeds = k) without the pixels that ``carried`` (the previous split's labels
     renumbered to these arms, :func:`carried_labels`) gave another arm; an arm none of whose seeds would be left keeps
@@ -864,13 +917,22 @@ def arm_split(skin: np.ndarray, z: np.ndarray, background: np.ndarray, prev: Arm
     if SEED_VETO and prev is not None:
         seeds = vetoed_seeds(seeds, carried if carried is not None else carried_labels(prev, entries), len(entries))
     edges = {"grey": grey, "edge_thr": EDGE_THR, "edge_slope": EDGE_SLOPE} if EDGE_SPLIT and grey is not None else {}
-    labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, carried, KEEP_COST, **edges)
-    if MOTION_SPLIT and flow is not None and len(entries) == 2:
-        moved = motion_prior(labels, flow)
-        if moved is not None:
-            if carried is not None:  # where the flow does not decide, the previous split's labels still count
-                moved = np.where(moved > 0, moved, carried).astype(np.int32)
-            labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, moved, MOTION_COST, **edges)
+
+    def split_labels(seeds: np.ndarray) -> np.ndarray:
+        labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, carried, KEEP_COST, **edges)
+        if MOTION_SPLIT and flow is not None and len(entries) == 2:
+            moved = motion_prior(labels, flow)
+            if moved is not None:
+                if carried is not None:  # where the flow does not decide, the previous split's labels still count
+                    moved = np.where(moved > 0, moved, carried).astype(np.int32)
+                labels, _ = geodesic_labels(sk, zg, seeds, DEPTH_STEP, DEPTH_STEP_COST, moved, MOTION_COST, **edges)
+        return labels
+
+    labels = split_labels(seeds)
+    if STOLEN_RESEED and carried is not None and len(entries) == 2:
+        reseeded = stolen_seeds(labels, carried, sk, seeds)
+        if reseeded is not None:
+            labels = split_labels(reseeded)
     boxes, counts = _label_boxes(labels, len(entries))
     if BOX_RIM:
         _rim_boxes(labels, np.ascontiguousarray(skin, np.uint8), boxes, RIM_PX)
