@@ -18,6 +18,7 @@ from tracker.filter import quiet_parts
 from tracker.filter.colour_input import blob_area, blob_mask, blob_target
 from tracker.filter.frame_context import table_normal_offset
 from tracker.filter.penalties import intersection_flags
+from tracker.filter.resampling import normalize_log_weights
 from tracker.geometry.pose import Pose
 from tracker.refine import table_silhouette
 from tracker.refine.dense_depth import RefineResult, RefineSettings
@@ -238,8 +239,7 @@ def dense_refine(trk: MultiObjectTracker, state: TrackerState, depth: np.ndarray
 def spread(trk: MultiObjectTracker, obj: int) -> float:
     """Spread (m) of part ``obj``'s particle positions: the norm of their per-axis standard deviations under the
     particle weights (camera frame)."""
-    w = np.exp(trk.log_w - np.max(trk.log_w))
-    w /= w.sum()
+    w = normalize_log_weights(trk.log_w)
     p = trk.p[:, obj]
     mean = w @ p
     return float(np.sqrt(w @ ((p - mean) ** 2).sum(1)))
